@@ -1,0 +1,212 @@
+"""Immutable, typed behaviour-tree nodes: what the parser returns and every other stage consumes.
+
+Equality is structural: source positions and comments never take part, so a tree equals its own
+reformatted, re-parsed self. Argument and duration values compare by type as well as value
+(``1``, ``1.0`` and ``true`` are three different literals with three different canonical forms).
+Trees are immutable so that a running agent can hand one to another thread, and a merge can
+share every untouched subtree with the tree it came from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal, TypeAlias
+
+Value: TypeAlias = bool | int | float | str
+"""A literal argument value."""
+Args: TypeAlias = tuple[tuple[str, Value], ...]
+"""Keyword arguments of a condition or action, in source order."""
+Pos: TypeAlias = tuple[int, int]
+"""(line, column), both 1-based."""
+
+
+@dataclass(frozen=True, slots=True)
+class Comments:
+    """Comments attached to a node, so that ``fmt`` keeps them where they were written.
+
+    ``leading``: full-line comments above the node. ``trailing``: a comment at the end of the
+    node's first line. For containers, ``end`` holds full-line comments just before the closing
+    ``<e>`` and ``end_trailing`` a comment after it. Texts exclude the ``#``.
+    """
+
+    leading: tuple[str, ...] = ()
+    trailing: str | None = None
+    end: tuple[str, ...] = ()
+    end_trailing: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Node:
+    """Base of every node: a source position and comments, neither of which affects equality."""
+
+    pos: Pos | None = field(default=None, compare=False, kw_only=True, repr=False)
+    comments: Comments | None = field(default=None, compare=False, kw_only=True, repr=False)
+
+    @property
+    def line(self) -> int:
+        return self.pos[0] if self.pos else 0
+
+    @property
+    def column(self) -> int:
+        return self.pos[1] if self.pos else 0
+
+
+@dataclass(frozen=True, slots=True)
+class Container(Node):
+    """A node with children, closed by ``<e>`` in stringBT."""
+
+    children: tuple[Node, ...]
+
+    is_decorator: ClassVar[bool] = False
+
+    @property
+    def child(self) -> Node:
+        """The only child of a decorator (validated trees have exactly one)."""
+        return self.children[0]
+
+
+@dataclass(frozen=True, slots=True)
+class Sequence(Container):
+    """Ticks children left to right while they succeed. Reactive unless ``memory``."""
+
+    memory: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Selector(Container):
+    """Ticks children left to right until one does not fail. Reactive unless ``memory``."""
+
+    memory: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Parallel(Container):
+    """Ticks every child each tick; succeeds once ``threshold`` children succeed (all if None)."""
+
+    threshold: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Inverter(Container):
+    """Swaps SUCCESS and FAILURE of its child; RUNNING passes through."""
+
+    is_decorator: ClassVar[bool] = True
+
+
+@dataclass(frozen=True, slots=True)
+class WaitTimer(Container):
+    """TT1, the paper's wait (pulse) timer: RUNNING for ``ticks`` ticks, then the child."""
+
+    ticks: int = 0
+    is_decorator: ClassVar[bool] = True
+
+
+@dataclass(frozen=True, slots=True)
+class RunTimer(Container):
+    """TT2, the paper's run timer: the child's status for ``ticks`` ticks, then FAILURE."""
+
+    ticks: int = 0
+    is_decorator: ClassVar[bool] = True
+
+
+@dataclass(frozen=True, slots=True)
+class Placeholder(Container):
+    """A named knowledge segment (``common``, ``prior``, ``new``...) where learned subtrees are
+    merged. Behaves as a reactive selector over its children; empty, it fails."""
+
+    name: str = ""
+
+
+def _value_key(value: object) -> tuple[str, str]:
+    # repr distinguishes 1 / 1.0 / True and -0.0 / 0.0, which == does not.
+    return (type(value).__name__, repr(value))
+
+
+def _args_key(args: Args) -> tuple[tuple[str, tuple[str, str]], ...]:
+    return tuple((k, _value_key(v)) for k, v in args)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Condition(Node):
+    """A named check on the blackboard: SUCCESS when true (false if ``negated``), else FAILURE."""
+
+    name: str
+    negated: bool = False
+    args: Args = ()
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not Condition:
+            return NotImplemented
+        return (
+            self.name == other.name
+            and self.negated == other.negated
+            and (self.args is other.args or _args_key(self.args) == _args_key(other.args))
+        )
+
+    def __hash__(self) -> int:
+        return hash((Condition, self.name, self.negated, _args_key(self.args)))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Action(Node):
+    """A named behaviour: returns SUCCESS, FAILURE or RUNNING, and is halted when preempted."""
+
+    name: str
+    args: Args = ()
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not Action:
+            return NotImplemented
+        return self.name == other.name and (
+            self.args is other.args or _args_key(self.args) == _args_key(other.args)
+        )
+
+    def __hash__(self) -> int:
+        return hash((Action, self.name, _args_key(self.args)))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Wait(Node):
+    """RUNNING until ``duration`` has passed, then SUCCESS. ``<w>`` counts ticks, ``<wt>`` seconds."""
+
+    duration: int | float
+    unit: Literal["ticks", "seconds"] = "ticks"
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not Wait:
+            return NotImplemented
+        return self.unit == other.unit and _value_key(self.duration) == _value_key(other.duration)
+
+    def __hash__(self) -> int:
+        return hash((Wait, self.unit, _value_key(self.duration)))
+
+
+Leaf: TypeAlias = Condition | Action | Wait
+
+
+@dataclass(frozen=True, slots=True)
+class Tree:
+    """A parsed document: the root node and the comments written after it."""
+
+    root: Node
+    footer: tuple[str, ...] = field(default=(), compare=False, repr=False)
+
+    def walk(self) -> Iterator[tuple[Node, int]]:
+        """Every node with its depth (root = 1), in document order; iterative, so any depth."""
+        return walk(self.root)
+
+
+def walk(root: Node) -> Iterator[tuple[Node, int]]:
+    """Pre-order traversal with depths, without recursion."""
+    stack: list[tuple[Node, int]] = [(root, 1)]
+    pop, push = stack.pop, stack.extend
+    while stack:
+        node, depth = pop()
+        yield node, depth
+        if isinstance(node, Container) and node.children:
+            push([(c, depth + 1) for c in reversed(node.children)])
+
+
+def as_node(tree: Tree | Node) -> Node:
+    return tree.root if isinstance(tree, Tree) else tree

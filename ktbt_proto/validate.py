@@ -1,0 +1,227 @@
+"""Rules a parsed tree must follow before it is formatted for the wire, compiled or merged.
+
+The parser accepts any number of children anywhere so that one pass over the text can report a
+clear, positioned problem for each rule here instead of a generic syntax error. With a registry,
+validation is also what a robot uses to refuse knowledge it cannot execute.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from .errors import ErrorCode, LimitError, StringBTError, ValidationError
+from .limits import DEFAULT_LIMITS, Limits
+from .syntax import NAME_RE
+from .tree import (
+    Action,
+    Args,
+    Condition,
+    Container,
+    Node,
+    Parallel,
+    Placeholder,
+    RunTimer,
+    Tree,
+    Wait,
+    WaitTimer,
+    as_node,
+    walk,
+)
+
+_RESERVED = frozenset(("true", "false"))
+
+
+class SupportsNames(Protocol):
+    """What validation needs to know of a registry: which names it can execute."""
+
+    def has_condition(self, name: str) -> bool: ...
+
+    def has_action(self, name: str) -> bool: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Vocabulary:
+    """The condition and action names a robot knows, without their implementations.
+
+    Loaded from a TOML file (``conditions = [...]``, ``actions = [...]``) by ``ktbt check
+    --registry``; a runtime registry answers the same two questions.
+    """
+
+    conditions: frozenset[str]
+    actions: frozenset[str]
+
+    def has_condition(self, name: str) -> bool:
+        return name in self.conditions
+
+    def has_action(self, name: str) -> bool:
+        return name in self.actions
+
+    @classmethod
+    def of(cls, conditions: Iterable[str] = (), actions: Iterable[str] = ()) -> Vocabulary:
+        return cls(frozenset(conditions), frozenset(actions))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Vocabulary:
+        """Read a TOML vocabulary file; raises ``ValueError`` with a one-line reason."""
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise ValueError(f"cannot read registry {path}: {exc}") from None
+        lists: dict[str, list[str]] = {}
+        for key in ("conditions", "actions"):
+            value = data.get(key, [])
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"registry {path}: '{key}' must be a list of names")
+            lists[key] = value
+        unknown = set(data) - {"conditions", "actions"}
+        if unknown:
+            raise ValueError(f"registry {path}: unknown keys {sorted(unknown)}")
+        return cls.of(lists["conditions"], lists["actions"])
+
+
+def _problem(code: ErrorCode, message: str, node: Node) -> ValidationError:
+    line, column = node.pos if node.pos else (0, 0)
+    return ValidationError(code, message, line, column)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _name_ok(name: object, limits: Limits) -> bool:
+    return (
+        isinstance(name, str)
+        and len(name) <= limits.max_literal
+        and NAME_RE.fullmatch(name) is not None
+        and name not in _RESERVED
+    )
+
+
+def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]) -> None:
+    seen: set[str] = set()
+    for key, value in args:
+        if not _name_ok(key, limits):
+            out.append(_problem(ErrorCode.INVALID_NAME, f"invalid argument name {key!r}", node))
+        elif key in seen:
+            out.append(_problem(ErrorCode.DUPLICATE_ARGUMENT, f"argument {key!r} given twice",
+                                node))
+        seen.add(key)
+        bad = None
+        if isinstance(value, float) and not math.isfinite(value):
+            bad = f"argument {key!r} is {value}; numbers must be finite"
+        elif isinstance(value, str):
+            try:
+                value.encode("utf-8")
+            except UnicodeEncodeError:
+                bad = f"argument {key!r} holds a lone surrogate, which UTF-8 cannot carry"
+        elif not isinstance(value, bool | int | float):
+            bad = f"argument {key!r} is a {type(value).__name__}; use a number, string or bool"
+        if bad:
+            out.append(_problem(ErrorCode.INVALID_VALUE, bad, node))
+
+
+def check(
+    tree: Tree | Node,
+    registry: SupportsNames | None = None,
+    *,
+    limits: Limits = DEFAULT_LIMITS,
+) -> list[StringBTError]:
+    """Every problem in the tree, in document order (empty when the tree is valid).
+
+    A limit problem ends the walk at once: past it, the tree is not worth reading.
+    """
+    problems: list[StringBTError] = []
+    add = problems.append
+    placeholders: set[str] = set()
+    count = 0
+    for node, depth in walk(as_node(tree)):
+        count += 1
+        if depth > limits.max_depth or count > limits.max_nodes:
+            line, column = node.pos if node.pos else (0, 0)
+            if depth > limits.max_depth:
+                add(LimitError(ErrorCode.TOO_DEEP,
+                               f"node nested deeper than the depth limit of {limits.max_depth}",
+                               line, column))
+            else:
+                add(LimitError(ErrorCode.TOO_MANY_NODES, f"more than {limits.max_nodes} nodes",
+                               line, column))
+            break
+        if isinstance(node, Container):
+            n = len(node.children)
+            tag = type(node).__name__
+            if node.is_decorator and n != 1:
+                add(_problem(ErrorCode.DECORATOR_ARITY,
+                             f"{tag} must have exactly one child, it has {n}", node))
+            elif not node.is_decorator and n == 0 and not isinstance(node, Placeholder):
+                add(_problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} must have at least one child",
+                             node))
+            if isinstance(node, WaitTimer | RunTimer) and not (
+                _is_int(node.ticks) and node.ticks >= 0
+            ):
+                add(_problem(ErrorCode.INVALID_DURATION,
+                             f"{tag} ticks must be a non-negative integer, not {node.ticks!r}",
+                             node))
+            elif isinstance(node, Parallel) and node.threshold is not None and not (
+                _is_int(node.threshold) and 1 <= node.threshold <= max(n, 1)
+            ):
+                add(_problem(ErrorCode.INVALID_THRESHOLD,
+                             f"parallel threshold {node.threshold!r} is not in 1..{max(n, 1)}",
+                             node))
+            elif isinstance(node, Placeholder):
+                if not _name_ok(node.name, limits):
+                    add(_problem(ErrorCode.INVALID_NAME,
+                                 f"invalid placeholder name {node.name!r}", node))
+                elif node.name in placeholders:
+                    add(_problem(ErrorCode.DUPLICATE_PLACEHOLDER,
+                                 f"placeholder {node.name!r} appears twice", node))
+                placeholders.add(node.name)
+        elif isinstance(node, Condition | Action):
+            kind = "condition" if isinstance(node, Condition) else "action"
+            if not _name_ok(node.name, limits):
+                add(_problem(ErrorCode.INVALID_NAME, f"invalid {kind} name {node.name!r}", node))
+            elif registry is not None:
+                if isinstance(node, Condition) and not registry.has_condition(node.name):
+                    add(_problem(ErrorCode.UNKNOWN_CONDITION,
+                                 f"unknown condition {node.name!r}", node))
+                elif isinstance(node, Action) and not registry.has_action(node.name):
+                    add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {node.name!r}",
+                                 node))
+            _check_args(node.args, node, limits, problems)
+        elif isinstance(node, Wait):
+            d = node.duration
+            if node.unit == "ticks":
+                ok = _is_int(d) and d >= 0
+                want = "a non-negative integer number of ticks"
+            else:
+                ok = isinstance(d, int | float) and not isinstance(d, bool) and (
+                    math.isfinite(d) and d >= 0
+                )
+                want = "a non-negative, finite number of seconds"
+            if not ok or node.unit not in ("ticks", "seconds"):
+                add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {d!r}", node))
+        else:
+            add(_problem(ErrorCode.INVALID_VALUE, f"not a stringBT node: {node!r}", node))
+            break
+    return problems
+
+
+def validate(
+    tree: Tree | Node,
+    registry: SupportsNames | None = None,
+    *,
+    limits: Limits = DEFAULT_LIMITS,
+) -> None:
+    """Raise the first problem :func:`check` finds (a ``ValidationError`` carrying all of them
+    in ``problems``, or a ``LimitError``); return ``None`` for a valid tree."""
+    problems = check(tree, registry, limits=limits)
+    if not problems:
+        return
+    first = problems[0]
+    if isinstance(first, ValidationError):
+        first.problems = tuple(problems)
+    raise first

@@ -7,10 +7,10 @@ points), not bytes, so an editor can jump to them.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 
-class ErrorCode(str, Enum):
+class ErrorCode(StrEnum):
     """Stable error codes. The value is the code; ``summary`` is the spec's one-line meaning."""
 
     summary: str
@@ -79,8 +79,18 @@ class StringBTError(Exception):
 
     def __reduce__(self) -> tuple[object, ...]:
         # Keep errors picklable (they cross process boundaries in experiments and peers).
-        return (_rebuild, (type(self), self.code, self.message, self.line, self.column,
-                           self.expected, self.excerpt))
+        return (
+            _rebuild,
+            (
+                type(self),
+                self.code,
+                self.message,
+                self.line,
+                self.column,
+                self.expected,
+                self.excerpt,
+            ),
+        )
 
 
 def _rebuild(

@@ -89,7 +89,7 @@ def opening_tag(node: Container) -> str:
     raise TypeError(f"not a stringBT node: {node!r}")
 
 
-def format(tree: Tree | Node, style: Style = "pretty") -> str:  # noqa: A001 - public name
+def format(tree: Tree | Node, style: Style = "pretty") -> str:
     """Format a tree. ``compact``: one line, no trailing newline (the wire form);
     ``pretty``: one node per line, comments kept, ending with a newline (the file form)."""
     if style == "compact":
@@ -140,7 +140,9 @@ def _pretty(tree: Tree | Node) -> str:
             trailing = notes.trailing if notes is not None else None
             end_trailing = notes.end_trailing if notes is not None else None
             if not item.children and (notes is None or not notes.end):
-                extra = "".join("  " + _comment(c) for c in (trailing, end_trailing) if c is not None)
+                extra = "".join(
+                    "  " + _comment(c) for c in (trailing, end_trailing) if c is not None
+                )
                 add(head + "<e>" + extra)
                 continue
             if trailing is not None:

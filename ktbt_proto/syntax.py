@@ -1,24 +1,26 @@
-"""Reading stringBT: the fast parser, and the reference parser built from the normative grammar.
+"""Reading stringBT: a fast parser, and the reference parser built from the normative grammar.
 
-Both parsers work in the same four stages, so they report the same first error for any input:
+``parse_reference`` drives lark's LALR parser over ``grammar/stringbt.lark``, the definition of
+the language, in four stages that fix which error is reported first:
 
 1. size: the input is no larger than ``Limits.max_size``;
 2. lexing: the whole input is split into tokens (the first bad character is reported);
 3. limits: depth, node count and literal length are checked on the token stream, so a
    100,000-deep input is refused in linear time before any tree is built;
-4. syntax: tokens are parsed into a tree (the first token that cannot continue is reported).
+4. syntax: tokens are parsed (the first token that cannot continue a valid text is reported).
 
-``parse`` (the fast path) is a hand-written, non-recursive parser over one compiled regular
-expression; ``parse_reference`` drives lark's LALR parser over ``grammar/stringbt.lark``, the
-definition of the language. The tests hold the two to the same trees and the same errors on
-every conformance vector and on property-generated input.
+``parse`` reads valid text in a single pass over one compiled regular expression, with an
+explicit stack (no recursion), building nodes as it goes and keeping comments. The moment
+anything is off (a bad character, a limit, a token out of place) it stops and hands the text to
+the reference parser, which reports the error: so both parsers raise identical errors by
+construction, and the tests hold them to identical trees on every conformance vector and on
+property-generated input.
 """
 
 from __future__ import annotations
 
 import json
 import re
-from collections.abc import Callable
 from dataclasses import replace
 from functools import cache
 from pathlib import Path
@@ -46,46 +48,42 @@ from .tree import (
 
 NAME_PATTERN = r"[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*"
 NAME_RE = re.compile(NAME_PATTERN)
+_NOT_BOOL = r"(?!(?:true|false)(?![A-Za-z0-9_.]))"
+_NAME = _NOT_BOOL + NAME_PATTERN
 _NUMBER = r"-?[0-9]+(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?"
 _STRING = r'"(?:[^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"'
+_VALUE = rf"(?:{_NUMBER}|{_STRING}|(?:true|false)(?![A-Za-z0-9_.]))"
+# Whitespace and comments, allowed between any two tokens. Possessive, so that no input can make
+# the matcher backtrack over how to split a run of blanks or of '#' characters.
+_W = r"(?:[ \t\r\n]++|#[^\n]*+)*+"
 _BADTAG_RE = re.compile(r"<[A-Za-z0-9_]*>")
-_NOT_BOOL = r"(?!(?:true|false)(?![A-Za-z0-9_.]))"
+
+# The main alternation. `<c>(!X)` and `<a>(X)` (no arguments, no spaces: the canonical form of
+# most leaves) are single tokens; any other leaf or argument list is read by a tail pattern.
+_TOKEN_RE = re.compile(
+    rf"(?P<ws>[ \t\r\n]+)"
+    rf"|(?P<cleaf><c>\((?P<neg>!?)(?P<cname>{_NAME})\))"
+    rf"|(?P<aleaf><a>\((?P<aname>{_NAME})\))"
+    r"|(?P<tag><(?:Root|sq|msq|sl|msl|pl|neg|tt1|tt2|k|c|a|w|wt|e)>)"
+    r"|(?P<comment>#[^\n]*)"
+)
+_ARGS = rf"(?P<args>(?:{_W},{_W}{_NAME}{_W}={_W}{_VALUE})*){_W}\)"
+_TAILS = {
+    "<c>": re.compile(
+        rf"{_W}\({_W}(?P<neg>!)?{_W}(?P<name>{_NAME}){_ARGS}|{_W}(?P<neg2>!)?{_W}(?P<name2>{_NAME})"
+    ),
+    "<a>": re.compile(rf"{_W}\({_W}(?P<name>{_NAME}){_ARGS}|{_W}(?P<name2>{_NAME})"),
+    "<w>": re.compile(rf"{_W}\({_W}(?P<num>{_NUMBER}){_W}\)|{_W}(?P<num2>{_NUMBER})"),
+    "<pl>": re.compile(rf"{_W}\({_W}(?P<num>{_NUMBER}){_W}\)"),
+    "<k>": re.compile(rf"{_W}\({_W}(?P<name>{_NAME}){_W}\)"),
+}
+_TAILS["<wt>"] = _TAILS["<w>"]
+_TAILS["<tt1>"] = _TAILS["<tt2>"] = _TAILS["<pl>"]
+_ARG_RE = re.compile(rf"{_W},{_W}(?P<key>{_NAME}){_W}={_W}(?P<value>{_VALUE})")
+_COMMENT_OR_STRING = re.compile(rf"{_STRING}|#(?P<c>[^\n]*)")
 
 OPEN_TAGS = frozenset(("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>", "<tt1>", "<tt2>", "<k>"))
 LEAF_TAGS = frozenset(("<c>", "<a>", "<w>", "<wt>"))
-
-# One alternation; the two fused alternatives read the commonest leaves, `<c>(!X)` and `<a>(X)`
-# without arguments or spaces, as single tokens (they are what the canonical form is made of).
-_TOKEN_RE = re.compile(
-    rf"(?P<ws>[ \t\r\n]+)"
-    rf"|(?P<cleaf><c>\((?P<neg>!?){_NOT_BOOL}(?P<cname>{NAME_PATTERN})\))"
-    rf"|(?P<aleaf><a>\({_NOT_BOOL}(?P<aname>{NAME_PATTERN})\))"
-    r"|(?P<tag><(?:Root|sq|msq|sl|msl|pl|neg|tt1|tt2|k|c|a|w|wt|e)>)"
-    r"|(?P<comment>#[^\n]*)"
-    r"|(?P<bool>(?:true|false)(?![A-Za-z0-9_.]))"
-    rf"|(?P<name>{NAME_PATTERN})"
-    rf"|(?P<number>{_NUMBER})"
-    rf"|(?P<string>{_STRING})"
-    r"|(?P<punct>[(),=!])"
-    r"|(?P<badtag><[A-Za-z0-9_]*>)"
-)
-
-# A token: (kind, value, line, column). Kinds are the group names above, with comments split
-# into "lcomment" (alone on their line) and "tcomment" (after something on the same line).
-Token = tuple[str, Any, int, int]
-
-
-def _describe(tok: Token | None) -> str:
-    if tok is None:
-        return "end of input"
-    kind, value = tok[0], tok[1]
-    if kind == "cleaf":
-        return "<c>"
-    if kind == "aleaf":
-        return "<a>"
-    if kind in ("tag", "punct"):
-        return f"'{value}'"
-    return f"{kind} {value!r}" if kind != "string" else "a string"
 
 
 def _position_of_end(text: str) -> tuple[int, int]:
@@ -119,93 +117,6 @@ def _decode(data: str | bytes, limits: Limits) -> str:
         ) from None
 
 
-def _lex(text: str, limits: Limits) -> list[Token]:
-    """Stages 2 and 3: the token list, or the first lexical error, else the first limit error."""
-    tokens: list[Token] = []
-    append = tokens.append
-    match = _TOKEN_RE.scanner(text).match
-    line, line_start, last_line = 1, 0, 0
-    depth = nodes = 0
-    max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
-    limit_error: StringBTError | None = None
-    end = len(text)
-    pos = 0
-    while pos < end:
-        m = match()
-        if m is None:
-            col = pos - line_start + 1
-            bad = _BADTAG_RE.match(text, pos)
-            if bad:
-                raise ParseError(
-                    ErrorCode.UNKNOWN_TAG,
-                    f"unknown tag {bad.group()}",
-                    line,
-                    col,
-                    source=text,
-                )
-            raise ParseError(
-                ErrorCode.UNEXPECTED_CHARACTER,
-                f"unexpected character {text[pos]!r}",
-                line,
-                col,
-                source=text,
-            )
-        kind = m.lastgroup
-        pos = m.end()
-        if kind == "ws":
-            value = m.group()
-            newlines = value.count("\n")
-            if newlines:
-                line += newlines
-                line_start = m.start() + value.rfind("\n") + 1
-            continue
-        col = m.start() - line_start + 1
-        if kind == "tag":
-            value = m.group()
-            if value in OPEN_TAGS or value in LEAF_TAGS:
-                nodes += 1
-                if limit_error is None and (depth >= max_depth or nodes > max_nodes):
-                    limit_error = _limit_error(depth, nodes, limits, line, col)
-                if value in OPEN_TAGS:
-                    depth += 1
-            elif value == "<e>" and depth:
-                depth -= 1
-            append((kind, value, line, col))
-        elif kind == "cleaf" or kind == "aleaf":
-            nodes += 1
-            if limit_error is None and (depth >= max_depth or nodes > max_nodes):
-                limit_error = _limit_error(depth, nodes, limits, line, col)
-            if kind == "cleaf":
-                name = m.group("cname")
-                append((kind, (bool(m.group("neg")), name), line, col))
-            else:
-                name = m.group("aname")
-                append((kind, name, line, col))
-            if len(name) > max_lit and limit_error is None:
-                start = m.start("cname" if kind == "cleaf" else "aname")
-                limit_error = _literal_error(name, limits, line, start - line_start + 1)
-        elif kind == "comment":
-            text_ = m.group()[1:].rstrip()
-            append(("tcomment" if last_line == line else "lcomment", text_, line, col))
-            continue
-        else:
-            value = m.group()
-            if kind == "badtag":
-                raise ParseError(
-                    ErrorCode.UNKNOWN_TAG, f"unknown tag {value}", line, col, source=text
-                )
-            if len(value) > max_lit and limit_error is None and kind != "punct":
-                limit_error = _literal_error(value, limits, line, col)
-            append((kind, value, line, col))
-        last_line = line
-    if limit_error is not None:
-        limit_error.excerpt = StringBTError(
-            limit_error.code, "", limit_error.line, limit_error.column, source=text
-        ).excerpt
-        raise limit_error
-    return tokens
-
-
 def _limit_error(depth: int, nodes: int, limits: Limits, line: int, col: int) -> LimitError:
     if depth >= limits.max_depth:
         return LimitError(
@@ -214,9 +125,7 @@ def _limit_error(depth: int, nodes: int, limits: Limits, line: int, col: int) ->
             line,
             col,
         )
-    return LimitError(
-        ErrorCode.TOO_MANY_NODES, f"more than {limits.max_nodes} nodes", line, col
-    )
+    return LimitError(ErrorCode.TOO_MANY_NODES, f"more than {limits.max_nodes} nodes", line, col)
 
 
 def _literal_error(value: str, limits: Limits, line: int, col: int) -> LimitError:
@@ -234,283 +143,236 @@ def _number(text: str) -> int | float:
     return int(text)
 
 
-def _value(tok: Token) -> Value:
-    kind, text = tok[0], tok[1]
-    if kind == "number":
-        return _number(text)
-    if kind == "string":
+def _value(text: str) -> Value:
+    first = text[0]
+    if first == '"':
         value: str = json.loads(text)
         return value
-    return text == "true"
-
-
-_CONTAINER_BUILDERS: dict[str, Callable[[tuple[Node, ...], Any, Any], Container]] = {
-    "<sq>": lambda ch, arg, kw: Sequence(ch, **kw),
-    "<msq>": lambda ch, arg, kw: Sequence(ch, memory=True, **kw),
-    "<sl>": lambda ch, arg, kw: Selector(ch, **kw),
-    "<msl>": lambda ch, arg, kw: Selector(ch, memory=True, **kw),
-    "<pl>": lambda ch, arg, kw: Parallel(ch, threshold=arg, **kw),
-    "<neg>": lambda ch, arg, kw: Inverter(ch, **kw),
-    "<tt1>": lambda ch, arg, kw: WaitTimer(ch, ticks=arg, **kw),
-    "<tt2>": lambda ch, arg, kw: RunTimer(ch, ticks=arg, **kw),
-    "<k>": lambda ch, arg, kw: Placeholder(ch, name=arg, **kw),
-}
-
-
-class _Frame:
-    """An open container while its children are being read."""
-
-    __slots__ = ("arg", "children", "comments", "pos", "tag", "trailing")
-
-    def __init__(self, tag: str, pos: tuple[int, int], arg: Any, comments: tuple[str, ...]):
-        self.tag = tag
-        self.pos = pos
-        self.arg = arg
-        self.children: list[Node] = []
-        self.comments = comments
-        self.trailing: str | None = None
+    if first == "t" or first == "f":
+        return text == "true"
+    return _number(text)
 
 
 def parse(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
-    """Parse stringBT text (str, or UTF-8 bytes) into a :class:`Tree`.
+    """Parse stringBT text (str, or UTF-8 bytes) into a :class:`Tree`, comments kept.
 
     Raises a :class:`ParseError` or :class:`LimitError` (both :class:`StringBTError`) for any
     input that is not stringBT; never another exception, whatever the input. The tree is not
     validated: call :func:`ktbt_proto.validate` for arity, names and registry checks.
     """
     text = _decode(data, limits)
-    try:
-        return _Parser(text, _lex(text, limits)).run()
-    except StringBTError as err:
-        if not err.excerpt:
-            err.excerpt = StringBTError(err.code, "", err.line, err.column, source=text).excerpt
-        raise
+    tree = _parse_fast(text, limits)
+    if tree is None:
+        # Not valid (or not within limits): the reference parser says exactly why.
+        tree = _parse_reference(text, limits)
+    return tree
 
 
-class _Parser:
-    """Stage 4 of the fast path: tokens to tree, with an explicit stack (no recursion)."""
+_new = object.__new__
+_KINDS: dict[str, tuple[type[Container], dict[str, Any]]] = {
+    "<sq>": (Sequence, {}),
+    "<msq>": (Sequence, {"memory": True}),
+    "<sl>": (Selector, {}),
+    "<msl>": (Selector, {"memory": True}),
+    "<pl>": (Parallel, {}),
+    "<neg>": (Inverter, {}),
+    "<tt1>": (WaitTimer, {}),
+    "<tt2>": (RunTimer, {}),
+    "<k>": (Placeholder, {}),
+}
+_ARG_FIELD = {"<pl>": "threshold", "<tt1>": "ticks", "<tt2>": "ticks", "<k>": "name"}
 
-    __slots__ = ("i", "mid_comments", "text", "tokens")
 
-    def __init__(self, text: str, tokens: list[Token]) -> None:
-        self.text = text
-        self.tokens = tokens
-        self.i = 0
-        self.mid_comments: list[str] = []
+def _tail_comments(span: str) -> list[str]:
+    """Comments written inside a node's parentheses (rare): they move to the next node."""
+    return [
+        m.group("c").rstrip() for m in _COMMENT_OR_STRING.finditer(span) if m.group("c") is not None
+    ]
 
-    def _error(self, tok: Token | None, expected: str, code: ErrorCode | None = None) -> ParseError:
-        if tok is None:
-            line, col = _position_of_end(self.text)
-        else:
-            line, col = tok[2], tok[3]
-        return ParseError(
-            code or ErrorCode.UNEXPECTED_TOKEN,
-            f"unexpected {_describe(tok)}, expected {expected}",
-            line,
-            col,
-            expected=(expected,),
-        )
 
-    def _next(self) -> Token | None:
-        """The next token inside a node's parentheses; comments there move to the next node."""
-        tokens, i = self.tokens, self.i
-        while i < len(tokens):
-            tok = tokens[i]
-            i += 1
-            if tok[0] == "lcomment" or tok[0] == "tcomment":
-                self.mid_comments.append(tok[1])
-                continue
-            self.i = i
-            return tok
-        self.i = i
-        return None
-
-    def _expect(self, kinds: tuple[str, ...], expected: str) -> Token:
-        tok = self._next()
-        if tok is None or tok[0] not in kinds:
-            raise self._error(tok, expected)
-        return tok
-
-    def _expect_punct(self, char: str) -> Token:
-        tok = self._next()
-        if tok is None or tok[1] != char or tok[0] != "punct":
-            raise self._error(tok, f"'{char}'")
-        return tok
-
-    def _args(self) -> tuple[tuple[tuple[str, Value], ...], Token | None]:
-        """`(, name = value)*` then `)`: the arguments of a leaf, after its name."""
-        args: list[tuple[str, Value]] = []
-        tok = self._next()
-        while tok is not None and tok[0] == "punct" and tok[1] == ",":
-            key = self._expect(("name",), "an argument name")
-            self._expect_punct("=")
-            value = self._expect(("number", "string", "bool"), "a number, string, true or false")
-            args.append((key[1], _value(value)))
-            tok = self._next()
-        if tok is None or tok[0] != "punct" or tok[1] != ")":
-            raise self._error(tok, "',' or ')'")
-        return tuple(args), tok
-
-    def _leaf(self, tag: str, pos: tuple[int, int]) -> Node:
-        tok = self._next()
-        if tag == "<w>" or tag == "<wt>":
-            unit = "ticks" if tag == "<w>" else "seconds"
-            if tok is not None and tok[0] == "number":
-                return Wait(_number(tok[1]), unit, pos=pos)
-            if tok is None or tok[1] != "(" or tok[0] != "punct":
-                raise self._error(tok, "'(' or a number")
-            number = self._expect(("number",), "a number")
-            self._expect_punct(")")
-            return Wait(_number(number[1]), unit, pos=pos)
-        negated = False
-        if tok is not None and tok[0] == "punct" and tok[1] == "(":
-            tok = self._next()
-            if tag == "<c>" and tok is not None and tok[0] == "punct" and tok[1] == "!":
-                negated = True
-                tok = self._next()
-            if tok is None or tok[0] != "name":
-                raise self._error(tok, "a name" if negated or tag == "<a>" else "'!' or a name")
-            args, _ = self._args()
-        else:
-            if tag == "<c>" and tok is not None and tok[0] == "punct" and tok[1] == "!":
-                negated = True
-                tok = self._next()
-                if tok is None or tok[0] != "name":
-                    raise self._error(tok, "a name")
-            elif tok is None or tok[0] != "name":
-                raise self._error(tok, "'(' or a name" if tag == "<a>" else "'(', '!' or a name")
-            args = ()
-        if tag == "<c>":
-            return Condition(tok[1], negated, args, pos=pos)
-        return Action(tok[1], args, pos=pos)
-
-    def _open_arg(self, tag: str) -> Any:
-        """The parenthesised argument of `<pl>` (optional), `<tt1>`, `<tt2>` and `<k>`."""
-        if tag == "<pl>":
-            tokens, i = self.tokens, self.i
-            while i < len(tokens) and tokens[i][0] in ("lcomment", "tcomment"):
-                i += 1
-            if i >= len(tokens) or tokens[i][1] != "(" or tokens[i][0] != "punct":
-                return None
-        elif tag not in ("<tt1>", "<tt2>", "<k>"):
+def _parse_fast(text: str, limits: Limits) -> Tree | None:
+    """The single-pass parser; ``None`` means "not valid, ask the reference parser"."""
+    match = _TOKEN_RE.match
+    max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
+    end = len(text)
+    pos = 0
+    line, line_start, last_line = 1, 0, 0
+    nodes = 0
+    # Open containers: [tag, children, (line, col), arg, leading comments, trailing comment].
+    stack: list[list[Any]] = []
+    children: list[Node] | None = None
+    root: Node | None = None
+    pending: list[str] = []
+    # What a trailing comment on this line belongs to: an open frame, or the last node built.
+    last_frame: list[Any] | None = None
+    last_node: Node | None = None
+    started = False
+    while pos < end:
+        m = match(text, pos)
+        if m is None:
             return None
-        self._expect_punct("(")
-        if tag == "<k>":
-            value = self._expect(("name",), "a placeholder name")[1]
-        else:
-            value = _number(self._expect(("number",), "a number")[1])
-        self._expect_punct(")")
-        return value
-
-    def run(self) -> Tree:
-        tokens = self.tokens
-        n = len(tokens)
-        stack: list[_Frame] = []
-        pending: list[str] = []
-        root: Node | None = None
-        # What a trailing comment on the current line belongs to: a frame (opening line of a
-        # container) or the index of a node in its parent's children (None parent = root).
-        last_frame: _Frame | None = None
-        last_node: tuple[list[Node] | None, int] | None = None
-        saw_root_tag = False
-        while self.i < n:
-            tok = tokens[self.i]
-            self.i += 1
-            kind, value = tok[0], tok[1]
-            if kind == "lcomment":
-                pending.append(value)
-                continue
-            if kind == "tcomment":
-                if last_frame is not None:
-                    last_frame.trailing = value
-                elif last_node is not None:
-                    siblings, idx = last_node
-                    node = siblings[idx] if siblings is not None else root
-                    assert node is not None
-                    where = "end_trailing" if isinstance(node, Container) else "trailing"
-                    node = _with_comments(node, **{where: value})
-                    if siblings is not None:
-                        siblings[idx] = node
-                    else:
-                        root = node
-                else:
-                    pending.append(value)
-                last_frame = last_node = None
-                continue
-            last_frame = last_node = None
-            if kind == "tag" and value == "<e>":
-                if not stack:
-                    raise self._error(tok, "end of input", ErrorCode.UNMATCHED_END)
-                frame = stack.pop()
-                node = _build(frame, pending)
-                pending = []
+        kind = m.lastgroup
+        start = pos
+        pos = m.end()
+        if kind == "ws":
+            newlines = text.count("\n", start, pos)
+            if newlines:
+                line += newlines
+                line_start = text.rfind("\n", start, pos) + 1
+            continue
+        col = start - line_start + 1
+        here = (line, col)
+        if kind == "comment":
+            comment = text[start + 1 : pos].rstrip()
+            if last_line != line:
+                pending.append(comment)
+            elif last_frame is not None:
+                last_frame[5] = comment
+                last_frame = None
+            elif last_node is not None:
+                where = "end_trailing" if isinstance(last_node, Container) else "trailing"
+                replaced = _with_comments(last_node, **{where: comment})
+                if children is not None and children and children[-1] is last_node:
+                    children[-1] = replaced
+                elif root is last_node:
+                    root = replaced
+                last_node = None
+            continue
+        last_line = line
+        last_frame = last_node = None
+        if kind == "cleaf" or kind == "aleaf":
+            if root is not None and not stack:
+                return None
+            nodes += 1
+            if len(stack) >= max_depth or nodes > max_nodes:
+                return None
+            if kind == "cleaf":
+                name = m.group("cname")
+                node: Node = _new(Condition)
+                d = node.__dict__
+                if m.group("neg"):
+                    d["negated"] = True
             else:
-                if not stack and root is not None:
-                    raise self._error(tok, "end of input", ErrorCode.EXTRA_ROOT)
-                pos = (tok[2], tok[3])
-                if kind == "cleaf":
-                    node = Condition(value[1], value[0], pos=pos)
-                elif kind == "aleaf":
-                    node = Action(value, pos=pos)
-                elif kind == "tag" and value in OPEN_TAGS:
-                    frame = _Frame(value, pos, self._open_arg(value), tuple(pending))
-                    pending = self.mid_comments
-                    self.mid_comments = []
-                    stack.append(frame)
-                    last_frame = frame
-                    continue
-                elif kind == "tag" and value in LEAF_TAGS:
-                    node = self._leaf(value, pos)
-                elif kind == "tag" and value == "<Root>" and self.i == _first_significant(tokens):
-                    saw_root_tag = True
-                    continue
+                name = m.group("aname")
+                node = _new(Action)
+                d = node.__dict__
+            if len(name) > max_lit:
+                return None
+            d["name"] = name
+            d["pos"] = here
+            if pending:
+                node = _with_comments(node, leading=tuple(pending))
+                pending = []
+        else:
+            tag = m.group()
+            if tag == "<e>":
+                if not stack:
+                    return None
+                frame = stack.pop()
+                cls, extra = _KINDS[frame[0]]
+                node = _new(cls)
+                d = node.__dict__
+                d["children"] = tuple(frame[1])
+                d["pos"] = frame[2]
+                if extra:
+                    d.update(extra)
+                if frame[3] is not None:
+                    d[_ARG_FIELD[frame[0]]] = frame[3]
+                if frame[4] or frame[5] is not None or pending:
+                    d["comments"] = Comments(tuple(frame[4]), frame[5], tuple(pending))
+                    pending = []
+                children = stack[-1][1] if stack else None
+            elif tag == "<Root>":
+                if started:
+                    return None
+                started = True
+                continue
+            else:
+                if root is not None and not stack:
+                    return None
+                nodes += 1
+                if len(stack) >= max_depth or nodes > max_nodes:
+                    return None
+                tail = _TAILS.get(tag)
+                t = None
+                if tail is not None:
+                    t = tail.match(text, pos)
+                    if t is None and tag != "<pl>":
+                        return None
+                if t is not None:
+                    span_start, pos = pos, t.end()
+                    newlines = text.count("\n", span_start, pos)
+                    if newlines:
+                        line += newlines
+                        line_start = text.rfind("\n", span_start, pos) + 1
+                        last_line = line
+                    if "#" in text[span_start:pos]:
+                        moved = _tail_comments(text[span_start:pos])
+                    else:
+                        moved = None
                 else:
-                    raise self._error(tok, "a node" + (" or <e>" if stack else ""))
+                    moved = None
+                if tag in OPEN_TAGS:
+                    arg: Any = None
+                    if t is not None:
+                        raw = t.group("name") if tag == "<k>" else t.group("num")
+                        if len(raw) > max_lit:
+                            return None
+                        arg = raw if tag == "<k>" else _number(raw)
+                    frame = [tag, [], here, arg, pending, None]
+                    pending = moved or []
+                    stack.append(frame)
+                    children = frame[1]
+                    last_frame = frame
+                    started = True
+                    continue
+                assert t is not None
+                leaf = _leaf(tag, t, here, max_lit)
+                if leaf is None:
+                    return None
+                node = leaf
                 if pending:
                     node = _with_comments(node, leading=tuple(pending))
-                pending = self.mid_comments
-                self.mid_comments = []
-            if stack:
-                siblings = stack[-1].children
-                siblings.append(node)
-                last_node = (siblings, len(siblings) - 1)
-            else:
-                root = node
-                last_node = (None, 0)
-        if stack:
-            opener = stack[-1]
-            err = self._error(None, "<e>", ErrorCode.UNEXPECTED_END)
-            err.message = (
-                f"input ends inside {opener.tag} opened at {opener.pos[0]}:{opener.pos[1]}; "
-                "expected <e>"
-            )
-            raise err
-        if root is None:
-            if saw_root_tag:
-                raise self._error(None, "a node", ErrorCode.UNEXPECTED_END)
-            raise self._error(None, "a node", ErrorCode.EMPTY)
-        return Tree(root, footer=tuple(pending))
+                pending = moved or []
+        started = True
+        if children is not None:
+            children.append(node)
+        else:
+            root = node
+        last_node = node
+    if stack or root is None:
+        return None
+    return Tree(root, footer=tuple(pending))
 
 
-def _first_significant(tokens: list[Token]) -> int:
-    """1 + index of the first non-comment token (where `<Root>` may stand)."""
-    for i, tok in enumerate(tokens):
-        if tok[0] != "lcomment" and tok[0] != "tcomment":
-            return i + 1
-    return 0
+def _leaf(tag: str, t: re.Match[str], pos: tuple[int, int], max_lit: int) -> Node | None:
+    """Build a leaf from its tail match; ``None`` if a literal is over the limit."""
+    if tag == "<w>" or tag == "<wt>":
+        raw = t.group("num") or t.group("num2")
+        if len(raw) > max_lit:
+            return None
+        return Wait(_number(raw), "ticks" if tag == "<w>" else "seconds", pos=pos)
+    name = t.group("name") or t.group("name2")
+    if len(name) > max_lit:
+        return None
+    args: tuple[tuple[str, Value], ...] = ()
+    raw_args = t.group("args")
+    if raw_args:
+        pairs = []
+        for a in _ARG_RE.finditer(raw_args):
+            key, value = a.group("key"), a.group("value")
+            if len(key) > max_lit or len(value) > max_lit:
+                return None
+            pairs.append((key, _value(value)))
+        args = tuple(pairs)
+    if tag == "<c>":
+        negated = bool(t.group("neg") or t.group("neg2"))
+        return Condition(name, negated, args, pos=pos)
+    return Action(name, args, pos=pos)
 
 
 def _with_comments(node: Node, **changes: Any) -> Node:
     return replace(node, comments=replace(node.comments or Comments(), **changes))
-
-
-def _build(frame: _Frame, end_comments: list[str]) -> Container:
-    kw: dict[str, Any] = {"pos": frame.pos}
-    if frame.comments or frame.trailing is not None or end_comments:
-        kw["comments"] = Comments(
-            leading=frame.comments, trailing=frame.trailing, end=tuple(end_comments)
-        )
-    return _CONTAINER_BUILDERS[frame.tag](tuple(frame.children), frame.arg, kw)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -537,75 +399,110 @@ def _lark() -> Any:
 
 
 def parse_reference(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
-    """Parse with lark's LALR parser over the normative grammar (slower; no comments kept).
+    """Parse with lark's LALR parser over the normative grammar (slower; comments dropped).
 
-    The definition of which texts are stringBT and what tree each denotes; used by the tests to
-    hold :func:`parse` to the grammar. Raises the same errors as :func:`parse`.
+    The definition of which texts are stringBT and what tree each denotes: :func:`parse` must
+    agree with it, and reports its errors through it.
     """
-    import lark
+    return _parse_reference(_decode(data, limits), limits)
+
+
+_OPENS = frozenset(("SEQ", "MSEQ", "SEL", "MSEL", "PAR", "NEG", "TT1", "TT2", "KB"))
+_LEAVES = frozenset(("COND", "ACT", "WAIT", "WAITS"))
+_LITERALS = frozenset(("NAME", "NUMBER", "STRING", "BOOL"))
+_INSIDE_LEAF = frozenset(
+    ("LPAR", "RPAR", "COMMA", "EQUAL", "BANG", "NAME", "NUMBER", "STRING", "BOOL")
+)
+_READABLE = {
+    "LPAR": "'('",
+    "RPAR": "')'",
+    "COMMA": "','",
+    "EQUAL": "'='",
+    "BANG": "'!'",
+    "NAME": "a name",
+    "NUMBER": "a number",
+    "STRING": "a string",
+    "BOOL": "true or false",
+    "END": "<e>",
+    "$END": "end of input",
+    "ROOT": "<Root>",
+}
+
+
+def _parse_reference(text: str, limits: Limits) -> Tree:
     from lark.exceptions import UnexpectedCharacters, UnexpectedInput
 
-    text = _decode(data, limits)
     parser = _lark()
     try:
         toks = list(parser.lex(text))
     except UnexpectedCharacters as exc:
-        bad = _BADTAG_RE.match(text, exc.pos_in_stream or 0)
-        code = ErrorCode.UNKNOWN_TAG if bad else ErrorCode.UNEXPECTED_CHARACTER
-        raise ParseError(code, "lexical error", exc.line, exc.column, source=text) from None
+        offset = exc.pos_in_stream or 0
+        bad = _BADTAG_RE.match(text, offset)
+        if bad:
+            code, message = ErrorCode.UNKNOWN_TAG, f"unknown tag {bad.group()}"
+        else:
+            code, message = ErrorCode.UNEXPECTED_CHARACTER, f"unexpected character {text[offset]!r}"
+        raise ParseError(code, message, exc.line, exc.column, source=text) from None
     _reference_limits(toks, limits, text)
     try:
         tree = parser.parse(text)
     except UnexpectedInput as exc:
         raise _reference_syntax_error(text, toks, exc) from None
-    root = _ReferenceBuilder().transform(tree)
-    return Tree(root)
+    return Tree(_ReferenceBuilder().transform(tree))
 
 
 def _reference_limits(toks: list[Any], limits: Limits, text: str) -> None:
     depth = nodes = 0
-    opens = {"SEQ", "MSEQ", "SEL", "MSEL", "PAR", "NEG", "TT1", "TT2", "KB"}
-    leaves = {"COND", "ACT", "WAIT", "WAITS"}
+    err: LimitError | None = None
     for tok in toks:
-        if tok.type in opens or tok.type in leaves:
+        kind = tok.type
+        if kind in _OPENS or kind in _LEAVES:
             nodes += 1
             if depth >= limits.max_depth or nodes > limits.max_nodes:
                 err = _limit_error(depth, nodes, limits, tok.line, tok.column)
-                err.excerpt = StringBTError(err.code, "", tok.line, tok.column, source=text).excerpt
-                raise err
-            if tok.type in opens:
+                break
+            if kind in _OPENS:
                 depth += 1
-        elif tok.type == "END" and depth:
-            depth -= 1
-        elif tok.type in ("NAME", "NUMBER", "STRING", "BOOL") and len(tok) > limits.max_literal:
-            raise _literal_error(str(tok), limits, tok.line, tok.column)
-
-
-_INSIDE_LEAF = frozenset(("LPAR", "RPAR", "COMMA", "EQUAL", "BANG", "NAME", "NUMBER", "STRING", "BOOL"))
+        elif kind == "END":
+            depth = max(depth - 1, 0)
+        elif kind in _LITERALS and len(tok) > limits.max_literal:
+            err = _literal_error(str(tok), limits, tok.line, tok.column)
+            break
+    if err is not None:
+        err.excerpt = StringBTError(err.code, "", err.line, err.column, source=text).excerpt
+        raise err
 
 
 def _reference_syntax_error(text: str, toks: list[Any], exc: Any) -> ParseError:
-    """Classify lark's error as the fast parser's stages do: by what the parser expected."""
+    """Classify lark's error by what the parser expected at the offending token."""
     token = getattr(exc, "token", None)
     if token is None or token.type == "$END":
         line, col = _position_of_end(text)
-        code = ErrorCode.UNEXPECTED_END if toks else ErrorCode.EMPTY
-        return ParseError(code, "unexpected end of input", line, col, source=text)
+        if not toks:
+            return ParseError(ErrorCode.EMPTY, "no node in the input", line, col, source=text)
+        opened: list[Any] = []
+        for tok in toks:
+            if tok.type in _OPENS:
+                opened.append(tok)
+            elif tok.type == "END" and opened:
+                opened.pop()
+        if opened:
+            o = opened[-1]
+            message = f"input ends inside {o} opened at {o.line}:{o.column}; expected <e>"
+        else:
+            message = "input ends before the node is complete"
+        return ParseError(ErrorCode.UNEXPECTED_END, message, line, col, source=text)
     expected = set(getattr(exc, "expected", ()) or ())
-    at_boundary = not (expected & _INSIDE_LEAF)
-    if token.type == "END" and at_boundary and "END" not in expected:
-        code = ErrorCode.UNMATCHED_END
+    if token.type == "END" and not (expected & _INSIDE_LEAF) and "END" not in expected:
+        code, message = ErrorCode.UNMATCHED_END, "<e> closes nothing: no node is open"
     elif expected == {"$END"}:
-        code = ErrorCode.EXTRA_ROOT
+        code, message = ErrorCode.EXTRA_ROOT, f"{token} after the root node; a tree has one root"
     else:
-        code = ErrorCode.UNEXPECTED_TOKEN
+        wanted = sorted(_READABLE.get(e, "a node") for e in expected)
+        readable = ", ".join(dict.fromkeys(wanted))
+        code, message = ErrorCode.UNEXPECTED_TOKEN, f"unexpected {token!s}, expected {readable}"
     return ParseError(
-        code,
-        f"unexpected {token!s}, expected one of {sorted(expected)}",
-        token.line,
-        token.column,
-        source=text,
-        expected=tuple(sorted(expected)),
+        code, message, token.line, token.column, source=text, expected=tuple(sorted(expected))
     )
 
 
@@ -676,7 +573,7 @@ class _ReferenceBuilder:
 
     def arg(self, items: list[Any]) -> tuple[str, Value]:
         key, value = items
-        return (str(key), _value((value.type.lower(), str(value), 0, 0)))
+        return (str(key), _value(str(value)))
 
     def condition(self, items: list[Any]) -> Node:
         negated = any(getattr(x, "type", "") == "BANG" for x in items)
@@ -689,5 +586,7 @@ class _ReferenceBuilder:
         return Action(str(items[1]), args, pos=self._pos(items[0]))
 
     def wait(self, items: list[Any]) -> Node:
-        unit = "ticks" if items[0].type == "WAIT" else "seconds"
-        return Wait(_number(items[1]), unit, pos=self._pos(items[0]))
+        pos = self._pos(items[0])
+        if items[0].type == "WAIT":
+            return Wait(_number(items[1]), "ticks", pos=pos)
+        return Wait(_number(items[1]), "seconds", pos=pos)

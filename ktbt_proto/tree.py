@@ -4,7 +4,8 @@ Equality is structural: source positions and comments never take part, so a tree
 reformatted, re-parsed self. Argument and duration values compare by type as well as value
 (``1``, ``1.0`` and ``true`` are three different literals with three different canonical forms).
 Trees are immutable so that a running agent can hand one to another thread, and a merge can
-share every untouched subtree with the tree it came from.
+share every untouched subtree with the tree it came from. Node classes keep their defaults on the
+class (no ``__slots__``) so the parser can build a node by filling only the fields it read.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ class Comments:
     end_trailing: str | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Node:
     """Base of every node: a source position and comments, neither of which affects equality."""
 
@@ -52,7 +53,7 @@ class Node:
         return self.pos[1] if self.pos else 0
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Container(Node):
     """A node with children, closed by ``<e>`` in stringBT."""
 
@@ -66,35 +67,35 @@ class Container(Node):
         return self.children[0]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Sequence(Container):
     """Ticks children left to right while they succeed. Reactive unless ``memory``."""
 
     memory: bool = False
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Selector(Container):
     """Ticks children left to right until one does not fail. Reactive unless ``memory``."""
 
     memory: bool = False
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Parallel(Container):
     """Ticks every child each tick; succeeds once ``threshold`` children succeed (all if None)."""
 
     threshold: int | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Inverter(Container):
     """Swaps SUCCESS and FAILURE of its child; RUNNING passes through."""
 
     is_decorator: ClassVar[bool] = True
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class WaitTimer(Container):
     """TT1, the paper's wait (pulse) timer: RUNNING for ``ticks`` ticks, then the child."""
 
@@ -102,7 +103,7 @@ class WaitTimer(Container):
     is_decorator: ClassVar[bool] = True
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class RunTimer(Container):
     """TT2, the paper's run timer: the child's status for ``ticks`` ticks, then FAILURE."""
 
@@ -110,7 +111,7 @@ class RunTimer(Container):
     is_decorator: ClassVar[bool] = True
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class Placeholder(Container):
     """A named knowledge segment (``common``, ``prior``, ``new``...) where learned subtrees are
     merged. Behaves as a reactive selector over its children; empty, it fails."""
@@ -127,7 +128,7 @@ def _args_key(args: Args) -> tuple[tuple[str, tuple[str, str]], ...]:
     return tuple((k, _value_key(v)) for k, v in args)
 
 
-@dataclass(frozen=True, slots=True, eq=False)
+@dataclass(frozen=True, eq=False)
 class Condition(Node):
     """A named check on the blackboard: SUCCESS when true (false if ``negated``), else FAILURE."""
 
@@ -148,7 +149,7 @@ class Condition(Node):
         return hash((Condition, self.name, self.negated, _args_key(self.args)))
 
 
-@dataclass(frozen=True, slots=True, eq=False)
+@dataclass(frozen=True, eq=False)
 class Action(Node):
     """A named behaviour: returns SUCCESS, FAILURE or RUNNING, and is halted when preempted."""
 
@@ -166,9 +167,9 @@ class Action(Node):
         return hash((Action, self.name, _args_key(self.args)))
 
 
-@dataclass(frozen=True, slots=True, eq=False)
+@dataclass(frozen=True, eq=False)
 class Wait(Node):
-    """RUNNING until ``duration`` has passed, then SUCCESS. ``<w>`` counts ticks, ``<wt>`` seconds."""
+    """RUNNING until ``duration`` has passed, then SUCCESS: ``<w>`` ticks, ``<wt>`` seconds."""
 
     duration: int | float
     unit: Literal["ticks", "seconds"] = "ticks"

@@ -108,8 +108,9 @@ def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]
         if not _name_ok(key, limits):
             out.append(_problem(ErrorCode.INVALID_NAME, f"invalid argument name {key!r}", node))
         elif key in seen:
-            out.append(_problem(ErrorCode.DUPLICATE_ARGUMENT, f"argument {key!r} given twice",
-                                node))
+            out.append(
+                _problem(ErrorCode.DUPLICATE_ARGUMENT, f"argument {key!r} given twice", node)
+            )
         seen.add(key)
         bad = None
         if isinstance(value, float) and not math.isfinite(value):
@@ -138,47 +139,80 @@ def check(
     problems: list[StringBTError] = []
     add = problems.append
     placeholders: set[str] = set()
-    count = 0
-    for node, depth in walk(as_node(tree)):
-        count += 1
+    for count, (node, depth) in enumerate(walk(as_node(tree)), 1):
         if depth > limits.max_depth or count > limits.max_nodes:
             line, column = node.pos if node.pos else (0, 0)
             if depth > limits.max_depth:
-                add(LimitError(ErrorCode.TOO_DEEP,
-                               f"node nested deeper than the depth limit of {limits.max_depth}",
-                               line, column))
+                add(
+                    LimitError(
+                        ErrorCode.TOO_DEEP,
+                        f"node nested deeper than the depth limit of {limits.max_depth}",
+                        line,
+                        column,
+                    )
+                )
             else:
-                add(LimitError(ErrorCode.TOO_MANY_NODES, f"more than {limits.max_nodes} nodes",
-                               line, column))
+                add(
+                    LimitError(
+                        ErrorCode.TOO_MANY_NODES,
+                        f"more than {limits.max_nodes} nodes",
+                        line,
+                        column,
+                    )
+                )
             break
         if isinstance(node, Container):
             n = len(node.children)
             tag = type(node).__name__
             if node.is_decorator and n != 1:
-                add(_problem(ErrorCode.DECORATOR_ARITY,
-                             f"{tag} must have exactly one child, it has {n}", node))
+                add(
+                    _problem(
+                        ErrorCode.DECORATOR_ARITY,
+                        f"{tag} must have exactly one child, it has {n}",
+                        node,
+                    )
+                )
             elif not node.is_decorator and n == 0 and not isinstance(node, Placeholder):
-                add(_problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} must have at least one child",
-                             node))
+                add(
+                    _problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} must have at least one child", node)
+                )
             if isinstance(node, WaitTimer | RunTimer) and not (
                 _is_int(node.ticks) and node.ticks >= 0
             ):
-                add(_problem(ErrorCode.INVALID_DURATION,
-                             f"{tag} ticks must be a non-negative integer, not {node.ticks!r}",
-                             node))
-            elif isinstance(node, Parallel) and node.threshold is not None and not (
-                _is_int(node.threshold) and 1 <= node.threshold <= max(n, 1)
+                add(
+                    _problem(
+                        ErrorCode.INVALID_DURATION,
+                        f"{tag} ticks must be a non-negative integer, not {node.ticks!r}",
+                        node,
+                    )
+                )
+            elif (
+                isinstance(node, Parallel)
+                and node.threshold is not None
+                and not (_is_int(node.threshold) and 1 <= node.threshold <= max(n, 1))
             ):
-                add(_problem(ErrorCode.INVALID_THRESHOLD,
-                             f"parallel threshold {node.threshold!r} is not in 1..{max(n, 1)}",
-                             node))
+                add(
+                    _problem(
+                        ErrorCode.INVALID_THRESHOLD,
+                        f"parallel threshold {node.threshold!r} is not in 1..{max(n, 1)}",
+                        node,
+                    )
+                )
             elif isinstance(node, Placeholder):
                 if not _name_ok(node.name, limits):
-                    add(_problem(ErrorCode.INVALID_NAME,
-                                 f"invalid placeholder name {node.name!r}", node))
+                    add(
+                        _problem(
+                            ErrorCode.INVALID_NAME, f"invalid placeholder name {node.name!r}", node
+                        )
+                    )
                 elif node.name in placeholders:
-                    add(_problem(ErrorCode.DUPLICATE_PLACEHOLDER,
-                                 f"placeholder {node.name!r} appears twice", node))
+                    add(
+                        _problem(
+                            ErrorCode.DUPLICATE_PLACEHOLDER,
+                            f"placeholder {node.name!r} appears twice",
+                            node,
+                        )
+                    )
                 placeholders.add(node.name)
         elif isinstance(node, Condition | Action):
             kind = "condition" if isinstance(node, Condition) else "action"
@@ -186,11 +220,13 @@ def check(
                 add(_problem(ErrorCode.INVALID_NAME, f"invalid {kind} name {node.name!r}", node))
             elif registry is not None:
                 if isinstance(node, Condition) and not registry.has_condition(node.name):
-                    add(_problem(ErrorCode.UNKNOWN_CONDITION,
-                                 f"unknown condition {node.name!r}", node))
+                    add(
+                        _problem(
+                            ErrorCode.UNKNOWN_CONDITION, f"unknown condition {node.name!r}", node
+                        )
+                    )
                 elif isinstance(node, Action) and not registry.has_action(node.name):
-                    add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {node.name!r}",
-                                 node))
+                    add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {node.name!r}", node))
             _check_args(node.args, node, limits, problems)
         elif isinstance(node, Wait):
             d = node.duration
@@ -198,8 +234,10 @@ def check(
                 ok = _is_int(d) and d >= 0
                 want = "a non-negative integer number of ticks"
             else:
-                ok = isinstance(d, int | float) and not isinstance(d, bool) and (
-                    math.isfinite(d) and d >= 0
+                ok = (
+                    isinstance(d, int | float)
+                    and not isinstance(d, bool)
+                    and (math.isfinite(d) and d >= 0)
                 )
                 want = "a non-negative, finite number of seconds"
             if not ok or node.unit not in ("ticks", "seconds"):

@@ -116,7 +116,9 @@ def _compact(root: Node) -> str:
 
 
 def _comment(text: str) -> str:
-    return "#" + text if not text or text.startswith(" ") else "# " + text
+    # As black does: one space after the '#'; further indentation is the author's.
+    text = text.rstrip()
+    return "# " + text if text else "#"
 
 
 def _pretty(tree: Tree | Node) -> str:
@@ -139,15 +141,12 @@ def _pretty(tree: Tree | Node) -> str:
             head = indent + opening_tag(item)
             trailing = notes.trailing if notes is not None else None
             end_trailing = notes.end_trailing if notes is not None else None
-            if not item.children and (notes is None or not notes.end):
-                extra = "".join(
-                    "  " + _comment(c) for c in (trailing, end_trailing) if c is not None
-                )
-                add(head + "<e>" + extra)
+            end = "<e>" if end_trailing is None else "<e>  " + _comment(end_trailing)
+            if not item.children and trailing is None and (notes is None or not notes.end):
+                add(head + end)
                 continue
             if trailing is not None:
                 head += "  " + _comment(trailing)
-            end = "<e>" if end_trailing is None else "<e>  " + _comment(end_trailing)
             add(head)
             closing: list[tuple[Node | str, int]] = [(end, depth)]
             if notes is not None:

@@ -186,8 +186,16 @@ _ARG_FIELD = {"<pl>": "threshold", "<tt1>": "ticks", "<tt2>": "ticks", "<k>": "n
 def _tail_comments(span: str) -> list[str]:
     """Comments written inside a node's parentheses (rare): they move to the next node."""
     return [
-        m.group("c").rstrip() for m in _COMMENT_OR_STRING.finditer(span) if m.group("c") is not None
+        _comment_text(m.group("c"))
+        for m in _COMMENT_OR_STRING.finditer(span)
+        if m.group("c") is not None
     ]
+
+
+def _comment_text(raw: str) -> str:
+    """A comment's text: without the '#', one space after it, or trailing blanks."""
+    raw = raw.rstrip()
+    return raw[1:] if raw.startswith(" ") else raw
 
 
 def _parse_fast(text: str, limits: Limits) -> Tree | None:
@@ -223,7 +231,7 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
         col = start - line_start + 1
         here = (line, col)
         if kind == "comment":
-            comment = text[start + 1 : pos].rstrip()
+            comment = _comment_text(text[start + 1 : pos])
             if last_line != line:
                 pending.append(comment)
             elif last_frame is not None:

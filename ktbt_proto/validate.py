@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Protocol
 
@@ -22,15 +23,17 @@ from .tree import (
     Args,
     Condition,
     Container,
+    Inverter,
     Node,
     Parallel,
     Placeholder,
     RunTimer,
+    Selector,
+    Sequence,
     Tree,
     Wait,
     WaitTimer,
     as_node,
-    walk,
 )
 
 _RESERVED = frozenset(("true", "false"))
@@ -93,10 +96,12 @@ def _is_int(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def _name_ok(name: object, limits: Limits) -> bool:
+@lru_cache(maxsize=4096)
+def _name_ok(name: object, max_literal: int) -> bool:
+    # Cached: a robot validates the same few dozen names over and over.
     return (
         isinstance(name, str)
-        and len(name) <= limits.max_literal
+        and len(name) <= max_literal
         and NAME_RE.fullmatch(name) is not None
         and name not in _RESERVED
     )
@@ -105,7 +110,7 @@ def _name_ok(name: object, limits: Limits) -> bool:
 def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]) -> None:
     seen: set[str] = set()
     for key, value in args:
-        if not _name_ok(key, limits):
+        if not _name_ok(key, limits.max_literal):
             out.append(_problem(ErrorCode.INVALID_NAME, f"invalid argument name {key!r}", node))
         elif key in seen:
             out.append(
@@ -126,6 +131,75 @@ def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]
             out.append(_problem(ErrorCode.INVALID_VALUE, bad, node))
 
 
+_TAG = {
+    Sequence: "<sq>",
+    Selector: "<sl>",
+    Parallel: "<pl>",
+    Inverter: "<neg>",
+    WaitTimer: "<tt1>",
+    RunTimer: "<tt2>",
+    Placeholder: "<k>",
+}
+
+
+def _check_container(
+    node: Container, limits: Limits, placeholders: set[str], add: Callable[[StringBTError], None]
+) -> None:
+    n = len(node.children)
+    tag = _TAG.get(type(node), type(node).__name__)
+    if node.is_decorator:
+        if n != 1:
+            add(
+                _problem(ErrorCode.DECORATOR_ARITY, f"{tag} needs exactly one child, not {n}", node)
+            )
+        if isinstance(node, WaitTimer | RunTimer) and not (_is_int(node.ticks) and node.ticks >= 0):
+            add(
+                _problem(
+                    ErrorCode.INVALID_DURATION,
+                    f"{tag} ticks must be a non-negative integer, not {node.ticks!r}",
+                    node,
+                )
+            )
+    elif isinstance(node, Placeholder):
+        if not _name_ok(node.name, limits.max_literal):
+            add(_problem(ErrorCode.INVALID_NAME, f"invalid placeholder name {node.name!r}", node))
+        elif node.name in placeholders:
+            add(
+                _problem(
+                    ErrorCode.DUPLICATE_PLACEHOLDER,
+                    f"placeholder {node.name!r} appears twice",
+                    node,
+                )
+            )
+        placeholders.add(node.name)
+    else:
+        if n == 0:
+            add(_problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} needs at least one child", node))
+        if isinstance(node, Parallel) and node.threshold is not None:
+            t = node.threshold
+            if not (_is_int(t) and 1 <= t <= max(n, 1)):
+                add(
+                    _problem(
+                        ErrorCode.INVALID_THRESHOLD,
+                        f"parallel threshold {t!r} is not in 1..{max(n, 1)}",
+                        node,
+                    )
+                )
+
+
+def _check_wait(node: Wait, add: Callable[[StringBTError], None]) -> None:
+    d = node.duration
+    if node.unit == "ticks":
+        ok = _is_int(d) and d >= 0
+        want = "a non-negative integer number of ticks"
+    else:
+        ok = node.unit == "seconds" and isinstance(d, int | float) and not isinstance(d, bool)
+        ok = ok and math.isfinite(d) and d >= 0
+        want = "a non-negative, finite number of seconds"
+    if not ok:
+        add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {d!r}", node))
+
+
 def check(
     tree: Tree | Node,
     registry: SupportsNames | None = None,
@@ -139,109 +213,46 @@ def check(
     problems: list[StringBTError] = []
     add = problems.append
     placeholders: set[str] = set()
-    for count, (node, depth) in enumerate(walk(as_node(tree)), 1):
-        if depth > limits.max_depth or count > limits.max_nodes:
+    max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
+    count = 0
+    stack: list[tuple[Node, int]] = [(as_node(tree), 1)]
+    pop, push = stack.pop, stack.append
+    while stack:
+        node, depth = pop()
+        count += 1
+        if depth > max_depth or count > max_nodes:
             line, column = node.pos if node.pos else (0, 0)
-            if depth > limits.max_depth:
-                add(
-                    LimitError(
-                        ErrorCode.TOO_DEEP,
-                        f"node nested deeper than the depth limit of {limits.max_depth}",
-                        line,
-                        column,
-                    )
-                )
+            if depth > max_depth:
+                message = f"node nested deeper than the depth limit of {max_depth}"
+                add(LimitError(ErrorCode.TOO_DEEP, message, line, column))
             else:
-                add(
-                    LimitError(
-                        ErrorCode.TOO_MANY_NODES,
-                        f"more than {limits.max_nodes} nodes",
-                        line,
-                        column,
-                    )
-                )
+                message = f"more than {max_nodes} nodes"
+                add(LimitError(ErrorCode.TOO_MANY_NODES, message, line, column))
             break
-        if isinstance(node, Container):
-            n = len(node.children)
-            tag = type(node).__name__
-            if node.is_decorator and n != 1:
-                add(
-                    _problem(
-                        ErrorCode.DECORATOR_ARITY,
-                        f"{tag} must have exactly one child, it has {n}",
-                        node,
-                    )
-                )
-            elif not node.is_decorator and n == 0 and not isinstance(node, Placeholder):
-                add(
-                    _problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} must have at least one child", node)
-                )
-            if isinstance(node, WaitTimer | RunTimer) and not (
-                _is_int(node.ticks) and node.ticks >= 0
-            ):
-                add(
-                    _problem(
-                        ErrorCode.INVALID_DURATION,
-                        f"{tag} ticks must be a non-negative integer, not {node.ticks!r}",
-                        node,
-                    )
-                )
-            elif (
-                isinstance(node, Parallel)
-                and node.threshold is not None
-                and not (_is_int(node.threshold) and 1 <= node.threshold <= max(n, 1))
-            ):
-                add(
-                    _problem(
-                        ErrorCode.INVALID_THRESHOLD,
-                        f"parallel threshold {node.threshold!r} is not in 1..{max(n, 1)}",
-                        node,
-                    )
-                )
-            elif isinstance(node, Placeholder):
-                if not _name_ok(node.name, limits):
-                    add(
-                        _problem(
-                            ErrorCode.INVALID_NAME, f"invalid placeholder name {node.name!r}", node
-                        )
-                    )
-                elif node.name in placeholders:
-                    add(
-                        _problem(
-                            ErrorCode.DUPLICATE_PLACEHOLDER,
-                            f"placeholder {node.name!r} appears twice",
-                            node,
-                        )
-                    )
-                placeholders.add(node.name)
-        elif isinstance(node, Condition | Action):
-            kind = "condition" if isinstance(node, Condition) else "action"
-            if not _name_ok(node.name, limits):
-                add(_problem(ErrorCode.INVALID_NAME, f"invalid {kind} name {node.name!r}", node))
+        kind = type(node)
+        if kind is Condition or kind is Action:
+            leaf: Condition | Action = node  # type: ignore[assignment]
+            if not _name_ok(leaf.name, max_lit):
+                what = "condition" if kind is Condition else "action"
+                add(_problem(ErrorCode.INVALID_NAME, f"invalid {what} name {leaf.name!r}", node))
             elif registry is not None:
-                if isinstance(node, Condition) and not registry.has_condition(node.name):
+                if kind is Condition and not registry.has_condition(leaf.name):
                     add(
                         _problem(
-                            ErrorCode.UNKNOWN_CONDITION, f"unknown condition {node.name!r}", node
+                            ErrorCode.UNKNOWN_CONDITION, f"unknown condition {leaf.name!r}", node
                         )
                     )
-                elif isinstance(node, Action) and not registry.has_action(node.name):
-                    add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {node.name!r}", node))
-            _check_args(node.args, node, limits, problems)
-        elif isinstance(node, Wait):
-            d = node.duration
-            if node.unit == "ticks":
-                ok = _is_int(d) and d >= 0
-                want = "a non-negative integer number of ticks"
-            else:
-                ok = (
-                    isinstance(d, int | float)
-                    and not isinstance(d, bool)
-                    and (math.isfinite(d) and d >= 0)
-                )
-                want = "a non-negative, finite number of seconds"
-            if not ok or node.unit not in ("ticks", "seconds"):
-                add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {d!r}", node))
+                elif kind is Action and not registry.has_action(leaf.name):
+                    add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {leaf.name!r}", node))
+            if leaf.args:
+                _check_args(leaf.args, node, limits, problems)
+        elif isinstance(node, Container):
+            _check_container(node, limits, placeholders, add)
+            children = node.children
+            for i in range(len(children) - 1, -1, -1):
+                push((children[i], depth + 1))
+        elif kind is Wait:
+            _check_wait(node, add)  # type: ignore[arg-type]
         else:
             add(_problem(ErrorCode.INVALID_VALUE, f"not a stringBT node: {node!r}", node))
             break

@@ -1,0 +1,12 @@
+<Root>
+<sl>
+ <sq><c>(_collisionDetectedF)
+      <a>(CollisionAvoidance)<e>
+ <sq><c>(_waitF)
+      <a>(StopWalk)<e>
+ <sq><c>(_treasureOnBoardF)
+      <sl><sq><c>(_inZoneF)
+               <a>(PlaceTreasure)<e>
+          <sq><c>(!_inZoneF)
+               <a>(WalkToCollection)<e><e><e>
+ <a>(RandomWalk)<e>

@@ -437,6 +437,10 @@ _READABLE = {
 }
 
 
+def _readable(expected: set[str]) -> str:
+    return ", ".join(sorted({_READABLE.get(e, "a node") for e in expected}))
+
+
 def _parse_reference(text: str, limits: Limits) -> Tree:
     from lark.exceptions import UnexpectedCharacters, UnexpectedInput
 
@@ -488,13 +492,20 @@ def _reference_syntax_error(text: str, toks: list[Any], exc: Any) -> ParseError:
         line, col = _position_of_end(text)
         if not toks:
             return ParseError(ErrorCode.EMPTY, "no node in the input", line, col, source=text)
+        expected = set(getattr(exc, "expected", ()) or ())
         opened: list[Any] = []
+        last_tag = toks[0]
         for tok in toks:
             if tok.type in _OPENS:
                 opened.append(tok)
             elif tok.type == "END" and opened:
                 opened.pop()
-        if opened:
+            if tok.type in _OPENS or tok.type in _LEAVES:
+                last_tag = tok
+        if expected & _INSIDE_LEAF:
+            where = f"{last_tag} at {last_tag.line}:{last_tag.column}"
+            message = f"input ends inside {where}; expected {_readable(expected)}"
+        elif opened:
             o = opened[-1]
             message = f"input ends inside {o} opened at {o.line}:{o.column}; expected <e>"
         else:
@@ -506,9 +517,8 @@ def _reference_syntax_error(text: str, toks: list[Any], exc: Any) -> ParseError:
     elif expected == {"$END"}:
         code, message = ErrorCode.EXTRA_ROOT, f"{token} after the root node; a tree has one root"
     else:
-        wanted = sorted(_READABLE.get(e, "a node") for e in expected)
-        readable = ", ".join(dict.fromkeys(wanted))
-        code, message = ErrorCode.UNEXPECTED_TOKEN, f"unexpected {token!s}, expected {readable}"
+        message = f"unexpected {token!s}, expected {_readable(expected)}"
+        code = ErrorCode.UNEXPECTED_TOKEN
     return ParseError(
         code, message, token.line, token.column, source=text, expected=tuple(sorted(expected))
     )

@@ -20,9 +20,9 @@ values = st.one_of(
     st.text(st.characters(codec="utf-8"), max_size=12),
 )
 args = st.lists(st.tuples(names, values), max_size=3, unique_by=lambda kv: kv[0]).map(tuple)
-comment_text = st.text(
-    st.characters(codec="utf-8", exclude_characters="\r\n"), max_size=20
-).map(str.rstrip)
+comment_text = st.text(st.characters(codec="utf-8", exclude_characters="\r\n"), max_size=20).map(
+    str.rstrip
+)
 comment_lists = st.lists(comment_text, max_size=2).map(tuple)
 
 

@@ -1,0 +1,5 @@
+"""``python -m ktbt_proto`` is the ``ktbt`` command."""
+
+from .cli import main
+
+main()

@@ -1,0 +1,259 @@
+"""The ``ktbt`` command line: ``fmt``, ``check``, ``show`` and ``demo``.
+
+Every failure a user can cause (a bad path, an unreadable or non-UTF-8 file, invalid stringBT)
+is one clear line on stderr and an exit code, never a traceback. ``fmt`` follows black: exit 0
+when nothing changed or files were rewritten, 1 when ``--check`` finds work, 123 on an error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from . import __version__
+from .errors import StringBTError
+from .format import Style
+from .format import format as format_tree
+from .render import render
+from .syntax import parse
+from .tree import Tree
+from .validate import Vocabulary, check
+
+app = typer.Typer(
+    name="ktbt",
+    help="KT-BT: behaviour trees that robots share while they run.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+EXIT_ERROR = 123
+STDIN = "-"
+
+
+def _say(message: str) -> None:
+    typer.echo(message, err=True)
+
+
+def _expand(paths: list[str]) -> Iterator[str]:
+    """Files as given; directories become the ``*.sbt`` files below them, sorted."""
+    for p in paths:
+        if p != STDIN and os.path.isdir(p):
+            yield from sorted(str(f) for f in Path(p).rglob("*.sbt") if f.is_file())
+        else:
+            yield p
+
+
+def _read(path: str) -> bytes:
+    if path == STDIN:
+        return sys.stdin.buffer.read()
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _io_reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+def _write_atomically(path: str, text: str) -> None:
+    """Replace a file's contents so that a crash leaves either the old or the new file."""
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".ktbt-", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        with contextlib.suppress(OSError):  # keep the file's permissions where we can
+            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _location(path: str) -> str:
+    return "<stdin>" if path == STDIN else path
+
+
+@app.command("fmt")
+def fmt_command(
+    files: Annotated[list[str], typer.Argument(help="Files or directories; '-' for stdin.")],
+    check_only: Annotated[
+        bool, typer.Option("--check", help="Write nothing; exit 1 if a file would change.")
+    ] = False,
+    diff: Annotated[
+        bool, typer.Option("--diff", help="Write nothing; print a unified diff instead.")
+    ] = False,
+    compact: Annotated[
+        bool, typer.Option("--compact", help="Canonical one-line form (drops comments).")
+    ] = False,
+) -> None:
+    """Reformat stringBT files in place (pretty by default)."""
+    style: Style = "compact" if compact else "pretty"
+    changed = unchanged = failed = 0
+    for path in _expand(files):
+        name = _location(path)
+        try:
+            data = _read(path)
+        except OSError as exc:
+            _say(f"error: cannot format {name}: {_io_reason(exc)}")
+            failed += 1
+            continue
+        try:
+            tree = parse(data)
+            new = format_tree(tree, style) + ("\n" if compact else "")
+        except StringBTError as err:
+            _say(f"error: cannot format {name}:{err.line}:{err.column}: {err.code} {err.message}")
+            failed += 1
+            continue
+        old = data.decode("utf-8")
+        if path == STDIN and not (check_only or diff):
+            sys.stdout.write(new)
+            changed += new != old
+            continue
+        if new == old:
+            unchanged += 1
+            continue
+        changed += 1
+        if diff:
+            sys.stdout.writelines(
+                difflib.unified_diff(
+                    old.splitlines(keepends=True),
+                    new.splitlines(keepends=True),
+                    fromfile=f"{name}\t(original)",
+                    tofile=f"{name}\t(formatted)",
+                )
+            )
+        if check_only or diff:
+            _say(f"would reformat {name}")
+            continue
+        try:
+            _write_atomically(path, new)
+        except OSError as exc:
+            _say(f"error: cannot write {name}: {_io_reason(exc)}")
+            failed += 1
+            changed -= 1
+            continue
+        _say(f"reformatted {name}")
+    verb = "would be reformatted" if (check_only or diff) else "reformatted"
+    parts = [f"{changed} file{'s' * (changed != 1)} {verb}"]
+    if unchanged:
+        parts.append(f"{unchanged} file{'s' * (unchanged != 1)} left unchanged")
+    if failed:
+        parts.append(f"{failed} file{'s' * (failed != 1)} failed")
+    _say(", ".join(parts) + ".")
+    if failed:
+        raise typer.Exit(EXIT_ERROR)
+    if check_only and changed:
+        raise typer.Exit(1)
+
+
+@app.command("check")
+def check_command(
+    files: Annotated[list[str], typer.Argument(help="Files or directories; '-' for stdin.")],
+    registry: Annotated[
+        Path | None,
+        typer.Option(
+            "--registry",
+            help="TOML file: conditions = [...], actions = [...]; unknown names are problems.",
+        ),
+    ] = None,
+) -> None:
+    """Report every problem as file:line:col: CODE message; exit 1 if there are any."""
+    vocabulary = None
+    if registry is not None:
+        try:
+            vocabulary = Vocabulary.load(registry)
+        except ValueError as exc:
+            _say(f"error: {exc}")
+            raise typer.Exit(2) from None
+    problems = 0
+    for path in _expand(files):
+        name = _location(path)
+        try:
+            data = _read(path)
+        except OSError as exc:
+            typer.echo(f"{name}: error: cannot read: {_io_reason(exc)}")
+            problems += 1
+            continue
+        try:
+            found: list[StringBTError] = check(parse(data), vocabulary)
+        except StringBTError as exc:
+            found = [exc]
+        for problem in found:
+            typer.echo(f"{name}:{problem.line}:{problem.column}: {problem.code} {problem.message}")
+        problems += len(found)
+    if problems:
+        raise typer.Exit(1)
+
+
+class RenderFormat(StrEnum):
+    outline = "outline"
+    dot = "dot"
+    mermaid = "mermaid"
+
+
+@app.command("show")
+def show_command(
+    file: Annotated[str, typer.Argument(help="A stringBT file; '-' for stdin.")],
+    fmt: Annotated[
+        RenderFormat, typer.Option("--format", "-f", help="outline, dot or mermaid.")
+    ] = RenderFormat.outline,
+) -> None:
+    """Draw a tree: a unicode outline, Graphviz DOT or a Mermaid flowchart."""
+    tree = _load_or_exit(file)
+    sys.stdout.write(render(tree, fmt.value))
+
+
+def _load_or_exit(path: str) -> Tree:
+    name = _location(path)
+    try:
+        return parse(_read(path))
+    except OSError as exc:
+        _say(f"error: cannot read {name}: {_io_reason(exc)}")
+    except StringBTError as err:
+        _say(f"{name}:{err}")
+    raise typer.Exit(1)
+
+
+@app.command("demo")
+def demo_command(
+    examples: Annotated[Path, typer.Option(help="Folder of .sbt files to show.")] = Path(
+        "examples"
+    ),
+) -> None:
+    """A short tour of stringBT on the example trees: format, check, render."""
+    from .demo import run_demo
+
+    raise typer.Exit(run_demo(examples))
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"ktbt {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+) -> None:
+    """KT-BT: behaviour trees that robots share while they run."""
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,151 @@
+"""The ``ktbt`` command line, run as a user runs it: a real process, real files."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+
+UGLY = "<sl><sq> <c>(X)   # why\n<a>(Y)<e><a>(Z)<e>"
+PRETTY = "<sl>\n    <sq>\n        <c>(X)  # why\n        <a>(Y)\n    <e>\n    <a>(Z)\n<e>\n"
+
+
+def ktbt(*args: str, stdin: bytes | None = None, cwd: Path | None = None) -> tuple[int, str, str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", *args],
+        input=stdin,
+        capture_output=True,
+        cwd=cwd or ROOT,
+        timeout=120,
+    )
+    return proc.returncode, proc.stdout.decode(), proc.stderr.decode()
+
+
+def test_fmt_rewrites_in_place(tmp_path: Path) -> None:
+    f = tmp_path / "tree.sbt"
+    f.write_text(UGLY)
+    code, _, err = ktbt("fmt", str(f))
+    assert code == 0
+    assert f.read_text() == PRETTY
+    assert f"reformatted {f}" in err
+    code, _, err = ktbt("fmt", str(f))
+    assert code == 0 and "1 file left unchanged" in err
+
+
+def test_fmt_check_and_diff_write_nothing(tmp_path: Path) -> None:
+    f = tmp_path / "tree.sbt"
+    f.write_text(UGLY)
+    code, out, err = ktbt("fmt", "--check", str(f))
+    assert (code, out) == (1, "")
+    assert f"would reformat {f}" in err
+    code, out, _ = ktbt("fmt", "--diff", str(f))
+    assert code == 0
+    assert out.startswith(f"--- {f}\t(original)\n+++ {f}\t(formatted)\n")
+    assert "+        <c>(X)  # why\n" in out
+    assert f.read_text() == UGLY
+    code, _, _ = ktbt("fmt", "--check", "--diff", str(f))
+    assert code == 1
+
+
+def test_fmt_stdin_to_stdout() -> None:
+    assert ktbt("fmt", "-", stdin=UGLY.encode())[:2] == (0, PRETTY)
+    code, out, _ = ktbt("fmt", "--compact", "-", stdin=UGLY.encode())
+    assert (code, out) == (0, "<sl><sq><c>(X)<a>(Y)<e><a>(Z)<e>\n")
+    assert ktbt("fmt", "--check", "-", stdin=PRETTY.encode())[0] == 0
+    assert ktbt("fmt", "--check", "-", stdin=UGLY.encode())[0] == 1
+
+
+def test_fmt_errors_exit_123_and_touch_nothing(tmp_path: Path) -> None:
+    good = tmp_path / "good.sbt"
+    good.write_text(UGLY)
+    bad = tmp_path / "bad.sbt"
+    bad.write_text("<sq>\n  <a>(X")
+    code, _, err = ktbt("fmt", str(bad), str(good), str(tmp_path / "missing.sbt"))
+    assert code == 123
+    lines = err.splitlines()
+    assert (
+        f"error: cannot format {bad}:2:8: SBT104 input ends inside <a> at 2:3; expected ')', ','"
+        in lines
+    )
+    assert f"error: cannot format {tmp_path / 'missing.sbt'}: No such file or directory" in lines
+    assert bad.read_text() == "<sq>\n  <a>(X"
+    assert good.read_text() == PRETTY  # the good file is still formatted
+    assert "Traceback" not in err
+
+
+def test_fmt_directory_and_non_utf8(tmp_path: Path) -> None:
+    (tmp_path / "a.sbt").write_text(UGLY)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "b.sbt").write_bytes(b"<a>(X)\xff")
+    (tmp_path / "notes.txt").write_text("not a tree")
+    code, _, err = ktbt("fmt", str(tmp_path))
+    assert code == 123
+    assert f"error: cannot format {tmp_path / 'sub' / 'b.sbt'}:1:7: SBT100" in err
+    assert (tmp_path / "a.sbt").read_text() == PRETTY
+    assert "notes.txt" not in err
+
+
+def test_check_reports_every_problem(tmp_path: Path) -> None:
+    f = tmp_path / "t.sbt"
+    f.write_text("<sq>\n    <neg><e>\n    <pl>(3)<a>(Go)<e>\n    <a>(Fly)\n<e>\n")
+    code, out, _ = ktbt("check", str(f))
+    assert code == 1
+    assert out.splitlines() == [
+        f"{f}:2:5: SBT301 <neg> needs exactly one child, not 0",
+        f"{f}:3:5: SBT308 parallel threshold 3 is not in 1..1",
+    ]
+    code, out, _ = ktbt("check", "--registry", str(EXAMPLES / "sar_registry.toml"), str(f))
+    assert f"{f}:3:12: SBT306 unknown action 'Go'" in out.splitlines()
+    assert f"{f}:4:5: SBT306 unknown action 'Fly'" in out.splitlines()
+
+
+def test_check_clean_files_and_bad_inputs(tmp_path: Path) -> None:
+    code, out, _ = ktbt(
+        "check",
+        "--registry",
+        str(EXAMPLES / "sar_registry.toml"),
+        str(EXAMPLES / "sar_control.sbt"),
+        str(EXAMPLES / "paper_control.sbt"),
+    )
+    assert (code, out) == (0, "")
+    code, out, err = ktbt("check", str(tmp_path / "nope.sbt"))
+    assert (
+        code == 1
+        and out == f"{tmp_path / 'nope.sbt'}: error: cannot read: No such file or directory\n"
+    )
+    code, out, _ = ktbt("check", "-", stdin=b"<sq><a>(X)<e><e>")
+    assert (code, out) == (1, "<stdin>:1:14: SBT105 <e> closes nothing: no node is open\n")
+    reg = tmp_path / "reg.toml"
+    reg.write_text("conditions = 3\n")
+    code, _, err = ktbt("check", "--registry", str(reg), str(EXAMPLES / "sar_control.sbt"))
+    assert code == 2 and "'conditions' must be a list of names" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("fmt", ["outline", "dot", "mermaid"])
+def test_show(fmt: str) -> None:
+    code, out, _ = ktbt("show", "--format", fmt, str(EXAMPLES / "sar_control.sbt"))
+    assert code == 0
+    first = {"outline": "Selector", "dot": "digraph stringbt {", "mermaid": "flowchart TD"}[fmt]
+    assert out.splitlines()[0] == first
+    assert "RandomWalk" in out
+
+
+def test_show_bad_input() -> None:
+    code, out, err = ktbt("show", "-", stdin=b"<sq>")
+    assert code == 1 and out == ""
+    assert err.startswith("<stdin>:1:5: SBT104 input ends inside <sq> opened at 1:1")
+
+
+def test_demo_runs() -> None:
+    code, out, _ = ktbt("demo")
+    assert code == 0
+    assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
+    assert "SBT306 unknown action 'Teleport'" in out
+    code, _, err = ktbt("demo", cwd=Path(os.sep))
+    assert code == 1 and "not found" in err

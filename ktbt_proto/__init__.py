@@ -6,6 +6,8 @@ The public names below are a contract (``ARCHITECTURE.md``); everything else may
 from .errors import ErrorCode, LimitError, ParseError, StringBTError, ValidationError
 from .format import format
 from .limits import DEFAULT_LIMITS, Limits
+from .merge import MergeError, merge
+from .render import render
 from .syntax import parse, parse_reference
 from .tree import (
     Action,
@@ -35,6 +37,7 @@ __all__ = [
     "Inverter",
     "LimitError",
     "Limits",
+    "MergeError",
     "Node",
     "Parallel",
     "ParseError",
@@ -51,8 +54,10 @@ __all__ = [
     "WaitTimer",
     "check",
     "format",
+    "merge",
     "parse",
     "parse_reference",
+    "render",
     "validate",
 ]
 

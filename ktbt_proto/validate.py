@@ -96,14 +96,15 @@ def _is_int(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-@lru_cache(maxsize=4096)
 def _name_ok(name: object, max_literal: int) -> bool:
+    return isinstance(name, str) and _well_formed(name, max_literal)
+
+
+@lru_cache(maxsize=4096)
+def _well_formed(name: str, max_literal: int) -> bool:
     # Cached: a robot validates the same few dozen names over and over.
     return (
-        isinstance(name, str)
-        and len(name) <= max_literal
-        and NAME_RE.fullmatch(name) is not None
-        and name not in _RESERVED
+        len(name) <= max_literal and NAME_RE.fullmatch(name) is not None and (name not in _RESERVED)
     )
 
 
@@ -171,7 +172,8 @@ def _check_container(
                     node,
                 )
             )
-        placeholders.add(node.name)
+        else:
+            placeholders.add(node.name)
     else:
         if n == 0:
             add(_problem(ErrorCode.EMPTY_COMPOSITE, f"{tag} needs at least one child", node))
@@ -194,7 +196,8 @@ def _check_wait(node: Wait, add: Callable[[StringBTError], None]) -> None:
         want = "a non-negative integer number of ticks"
     else:
         ok = node.unit == "seconds" and isinstance(d, int | float) and not isinstance(d, bool)
-        ok = ok and math.isfinite(d) and d >= 0
+        # isinstance first: math.isfinite cannot take an integer too large for a float.
+        ok = ok and (isinstance(d, int) or math.isfinite(d)) and d >= 0
         want = "a non-negative, finite number of seconds"
     if not ok:
         add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {d!r}", node))
@@ -265,12 +268,13 @@ def validate(
     *,
     limits: Limits = DEFAULT_LIMITS,
 ) -> None:
-    """Raise the first problem :func:`check` finds (a ``ValidationError`` carrying all of them
-    in ``problems``, or a ``LimitError``); return ``None`` for a valid tree."""
+    """Raise a ``LimitError`` if the tree breaks a limit, else the first problem :func:`check`
+    finds (a ``ValidationError`` carrying all of them in ``problems``); ``None`` if valid."""
     problems = check(tree, registry, limits=limits)
     if not problems:
         return
-    first = problems[0]
+    # A limit problem wins: it says the rest of the tree was not even read.
+    first = next((p for p in problems if isinstance(p, LimitError)), problems[0])
     if isinstance(first, ValidationError):
         first.problems = tuple(problems)
     raise first

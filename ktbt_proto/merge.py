@@ -1,0 +1,105 @@
+"""Merging learned knowledge into a named placeholder: the paper's Merge(T_Control, T_k).
+
+A merge builds a new tree that shares every untouched subtree with the old one, so the old tree
+stays valid for whoever still holds it (a running agent swaps trees between ticks), and the cost
+is proportional to the depth of the placeholder, not to the size of the tree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import replace
+
+from .errors import ErrorCode, StringBTError
+from .syntax import parse
+from .tree import Condition, Container, Node, Placeholder, Sequence, Tree, as_node
+
+
+class MergeError(StringBTError):
+    """The knowledge cannot go where it was asked to go; the tree is unchanged."""
+
+
+def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
+    """Condition nodes from what a user types: ``"_inZoneF"``, ``"!_inZoneF"``, or with
+    arguments ``"TargetSeen, colour=2"`` (the text between ``<c>(`` and ``)``)."""
+    out = []
+    for item in spec:
+        if isinstance(item, Condition):
+            out.append(item)
+            continue
+        node = parse(f"<c>({item})").root
+        if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
+            raise TypeError(item)
+        out.append(replace(node, pos=None))
+    return tuple(out)
+
+
+def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:
+    """The knowledge item ``Sequence(s_q, T_ka)``: the condition sequence, then the subtree."""
+    return Sequence((*conditions(when), as_node(subtree)))
+
+
+def find_placeholder(tree: Tree | Node, slot: str) -> tuple[int, ...] | None:
+    """Child-index path from the root to the placeholder named ``slot`` (iterative search)."""
+    stack: list[tuple[Node, tuple[int, ...]]] = [(as_node(tree), ())]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, Placeholder) and node.name == slot:
+            return path
+        if isinstance(node, Container):
+            stack.extend((c, (*path, i)) for i, c in reversed(list(enumerate(node.children))))
+    return None
+
+
+def _key(item: Node) -> tuple[Node, ...] | None:
+    """The condition sequence a knowledge item answers, or None if it is not of that shape."""
+    if isinstance(item, Sequence) and not item.memory and len(item.children) >= 2:
+        conds = item.children[:-1]
+        if all(isinstance(c, Condition) for c in conds):
+            return conds
+    return None
+
+
+def merge(
+    control: Tree | Node,
+    subtree: Tree | Node,
+    slot: str = "new",
+    when: Iterable[Condition | str] | None = None,
+) -> Tree:
+    """Append knowledge to placeholder ``slot`` and return the new tree.
+
+    With ``when``, the knowledge item is ``Sequence(when..., subtree)``; without, ``subtree`` is
+    the item itself. Merging an item the placeholder already holds returns the tree unchanged;
+    an item answering the same condition sequence differently raises :class:`MergeError`
+    (``SBT402``), as does a missing placeholder (``SBT401``).
+    """
+    item = knowledge(when, subtree) if when is not None else as_node(subtree)
+    root = as_node(control)
+    footer = control.footer if isinstance(control, Tree) else ()
+    path = find_placeholder(root, slot)
+    if path is None:
+        raise MergeError(ErrorCode.UNKNOWN_SLOT, f"the tree has no placeholder <k>({slot})")
+    chain: list[Container] = []
+    node = root
+    for index in path:
+        assert isinstance(node, Container)
+        chain.append(node)
+        node = node.children[index]
+    assert isinstance(node, Placeholder)
+    key = _key(item)
+    for existing in node.children:
+        if existing == item:
+            return control if isinstance(control, Tree) else Tree(root)
+        if key is not None and _key(existing) == key:
+            line, column = existing.pos if existing.pos else (0, 0)
+            raise MergeError(
+                ErrorCode.KNOWLEDGE_CONFLICT,
+                f"<k>({slot}) already answers this condition sequence with another subtree",
+                line,
+                column,
+            )
+    new: Node = replace(node, children=(*node.children, item))
+    for parent, index in zip(reversed(chain), reversed(path), strict=True):
+        children = parent.children
+        new = replace(parent, children=(*children[:index], new, *children[index + 1 :]))
+    return Tree(new, footer=footer)

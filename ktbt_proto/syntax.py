@@ -58,27 +58,57 @@ _VALUE = rf"(?:{_NUMBER}|{_STRING}|(?:true|false)(?![A-Za-z0-9_.]))"
 _W = r"(?:[ \t\r\n]++|#[^\n]*+)*+"
 _BADTAG_RE = re.compile(r"<[A-Za-z0-9_]*>")
 
-# The main alternation. `<c>(!X)` and `<a>(X)` (no arguments, no spaces: the canonical form of
-# most leaves) are single tokens; any other leaf or argument list is read by a tail pattern.
-_TOKEN_RE = re.compile(
-    rf"(?P<ws>[ \t\r\n]+)"
-    rf"|(?P<cleaf><c>\((?P<neg>!?)(?P<cname>{_NAME})\))"
-    rf"|(?P<aleaf><a>\((?P<aname>{_NAME})\))"
-    r"|(?P<tag><(?:Root|sq|msq|sl|msl|pl|neg|tt1|tt2|k|c|a|w|wt|e)>)"
-    r"|(?P<comment>#[^\n]*)"
+
+def _tail_patterns(named: bool) -> dict[str, str]:
+    """What may follow a tag: the same patterns with named groups (to read a token) or without
+    (to embed in the scanner, where group names must be unique)."""
+
+    def g(name: str, pattern: str) -> str:
+        return f"(?P<{name}>{pattern})" if named else f"(?:{pattern})"
+
+    args = g("args", rf"(?:{_W},{_W}{_NAME}{_W}={_W}{_VALUE})*") + rf"{_W}\)"
+    return {
+        "c": rf"{_W}\({_W}{g('neg', '!')}?{_W}{g('name', _NAME)}{args}"
+        rf"|{_W}{g('neg2', '!')}?{_W}{g('name2', _NAME)}",
+        "a": rf"{_W}\({_W}{g('name', _NAME)}{args}|{_W}{g('name2', _NAME)}",
+        "w": rf"{_W}\({_W}{g('num', _NUMBER)}{_W}\)|{_W}{g('num2', _NUMBER)}",
+        "n": rf"{_W}\({_W}{g('num', _NUMBER)}{_W}\)",
+        "k": rf"{_W}\({_W}{g('name', _NAME)}{_W}\)",
+    }
+
+
+_T = _tail_patterns(named=False)
+# The scanner: one capturing group per kind of token and no other groups, so that findall
+# returns plain tuples of strings. The commonest tokens come first. A leaf or an opening tag with
+# its parenthesised part is one token; anything that fits no alternative falls to the last group,
+# and the text is then left to the reference parser to explain.
+_SCAN_RE = re.compile(
+    rf"(<c>\(!?{_NAME}\))"  # a condition without arguments or blanks
+    rf"|(<a>\({_NAME}\))"  # an action without arguments or blanks
+    r"|(<e>)"
+    r"|(<(?:sq|msq|sl|msl|neg)>)"
+    r"|([ \t\r\n]+)"
+    rf"|(<c>(?:{_T['c']}))"  # any other condition
+    rf"|(<a>(?:{_T['a']}))"  # any other action
+    rf"|(<wt?>(?:{_T['w']}))"
+    rf"|(<(?:pl|tt1|tt2)>{_T['n']})"
+    rf"|(<k>{_T['k']})"
+    r"|(<pl>)"
+    r"|(<Root>)"
+    r"|(#[^\n]*)"
+    r"|([\s\S])"
 )
-_ARGS = rf"(?P<args>(?:{_W},{_W}{_NAME}{_W}={_W}{_VALUE})*){_W}\)"
+_NAMED = {k: re.compile(v) for k, v in _tail_patterns(named=True).items()}
 _TAILS = {
-    "<c>": re.compile(
-        rf"{_W}\({_W}(?P<neg>!)?{_W}(?P<name>{_NAME}){_ARGS}|{_W}(?P<neg2>!)?{_W}(?P<name2>{_NAME})"
-    ),
-    "<a>": re.compile(rf"{_W}\({_W}(?P<name>{_NAME}){_ARGS}|{_W}(?P<name2>{_NAME})"),
-    "<w>": re.compile(rf"{_W}\({_W}(?P<num>{_NUMBER}){_W}\)|{_W}(?P<num2>{_NUMBER})"),
-    "<pl>": re.compile(rf"{_W}\({_W}(?P<num>{_NUMBER}){_W}\)"),
-    "<k>": re.compile(rf"{_W}\({_W}(?P<name>{_NAME}){_W}\)"),
+    "<c>": _NAMED["c"],
+    "<a>": _NAMED["a"],
+    "<w>": _NAMED["w"],
+    "<wt>": _NAMED["w"],
+    "<pl>": _NAMED["n"],
+    "<tt1>": _NAMED["n"],
+    "<tt2>": _NAMED["n"],
+    "<k>": _NAMED["k"],
 }
-_TAILS["<wt>"] = _TAILS["<w>"]
-_TAILS["<tt1>"] = _TAILS["<tt2>"] = _TAILS["<pl>"]
 _ARG_RE = re.compile(rf"{_W},{_W}(?P<key>{_NAME}){_W}={_W}(?P<value>{_VALUE})")
 _COMMENT_OR_STRING = re.compile(rf"{_STRING}|#(?P<c>[^\n]*)")
 
@@ -200,10 +230,9 @@ def _comment_text(raw: str) -> str:
 
 def _parse_fast(text: str, limits: Limits) -> Tree | None:
     """The single-pass parser; ``None`` means "not valid, ask the reference parser"."""
-    match = _TOKEN_RE.match
     max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
-    end = len(text)
-    pos = 0
+    new = _new
+    offset = 0
     line, line_start, last_line = 1, 0, 0
     nodes = 0
     # Open containers: [tag, children, (line, col), arg, leading comments, trailing comment].
@@ -215,23 +244,19 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
     last_frame: list[Any] | None = None
     last_node: Node | None = None
     started = False
-    while pos < end:
-        m = match(text, pos)
-        if m is None:
-            return None
-        kind = m.lastgroup
-        start = pos
-        pos = m.end()
-        if kind == "ws":
-            newlines = text.count("\n", start, pos)
+    node: Node
+    for cl, al, en, op, ws, cg, ag, wg, og, kg, pl, rt, com, bad in _SCAN_RE.findall(text):
+        if ws:
+            newlines = ws.count("\n")
             if newlines:
                 line += newlines
-                line_start = text.rfind("\n", start, pos) + 1
+                line_start = offset + ws.rfind("\n") + 1
+            offset += len(ws)
             continue
-        col = start - line_start + 1
-        here = (line, col)
-        if kind == "comment":
-            comment = _comment_text(text[start + 1 : pos])
+        col = offset - line_start + 1
+        if com:
+            offset += len(com)
+            comment = _comment_text(com[1:])
             if last_line != line:
                 pending.append(comment)
             elif last_frame is not None:
@@ -246,24 +271,29 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
                     root = replaced
                 last_node = None
             continue
+        here = (line, col)
         last_line = line
         last_frame = last_node = None
-        if kind == "cleaf" or kind == "aleaf":
+        if cl or al:
             if root is not None and not stack:
                 return None
             nodes += 1
             if len(stack) >= max_depth or nodes > max_nodes:
                 return None
-            if kind == "cleaf":
-                name = m.group("cname")
-                node: Node = _new(Condition)
+            if cl:
+                offset += len(cl)
+                node = new(Condition)
                 d = node.__dict__
-                if m.group("neg"):
+                if cl[4] == "!":
                     d["negated"] = True
+                    name = cl[5:-1]
+                else:
+                    name = cl[4:-1]
             else:
-                name = m.group("aname")
-                node = _new(Action)
+                offset += len(al)
+                node = new(Action)
                 d = node.__dict__
+                name = al[4:-1]
             if len(name) > max_lit:
                 return None
             d["name"] = name
@@ -271,77 +301,76 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
             if pending:
                 node = _with_comments(node, leading=tuple(pending))
                 pending = []
+        elif en:
+            offset += 3
+            if not stack:
+                return None
+            frame = stack.pop()
+            cls, extra = _KINDS[frame[0]]
+            node = new(cls)
+            d = node.__dict__
+            d["children"] = tuple(frame[1])
+            d["pos"] = frame[2]
+            if extra:
+                d.update(extra)
+            if frame[3] is not None:
+                d[_ARG_FIELD[frame[0]]] = frame[3]
+            if frame[4] or frame[5] is not None or pending:
+                d["comments"] = Comments(tuple(frame[4]), frame[5], tuple(pending))
+                pending = []
+            children = stack[-1][1] if stack else None
+        elif bad:
+            return None
+        elif rt:
+            offset += 6
+            if started:
+                return None
+            started = True
+            continue
         else:
-            tag = m.group()
-            if tag == "<e>":
-                if not stack:
-                    return None
-                frame = stack.pop()
-                cls, extra = _KINDS[frame[0]]
-                node = _new(cls)
-                d = node.__dict__
-                d["children"] = tuple(frame[1])
-                d["pos"] = frame[2]
-                if extra:
-                    d.update(extra)
-                if frame[3] is not None:
-                    d[_ARG_FIELD[frame[0]]] = frame[3]
-                if frame[4] or frame[5] is not None or pending:
-                    d["comments"] = Comments(tuple(frame[4]), frame[5], tuple(pending))
-                    pending = []
-                children = stack[-1][1] if stack else None
-            elif tag == "<Root>":
-                if started:
-                    return None
+            if root is not None and not stack:
+                return None
+            nodes += 1
+            if len(stack) >= max_depth or nodes > max_nodes:
+                return None
+            tok = op or pl or og or kg or cg or ag or wg
+            start = offset
+            offset += len(tok)
+            tag = tok[: tok.index(">") + 1]
+            moved: list[str] = []
+            t = None
+            if not (op or pl):
+                newlines = tok.count("\n")
+                if newlines:
+                    line += newlines
+                    line_start = start + tok.rfind("\n") + 1
+                    last_line = line
+                if "#" in tok:
+                    moved = _tail_comments(tok[len(tag) :])
+                t = _TAILS[tag].match(tok, len(tag))
+                assert t is not None
+            if op or pl or og or kg:
+                arg: Any = None
+                if t is not None:
+                    raw = t.group("name") if kg else t.group("num")
+                    if len(raw) > max_lit:
+                        return None
+                    arg = raw if kg else _number(raw)
+                frame = [tag, [], here, arg, pending, None]
+                pending = moved
+                stack.append(frame)
+                children = frame[1]
+                last_frame = frame
                 started = True
                 continue
-            else:
-                if root is not None and not stack:
-                    return None
-                nodes += 1
-                if len(stack) >= max_depth or nodes > max_nodes:
-                    return None
-                tail = _TAILS.get(tag)
-                t = None
-                if tail is not None:
-                    t = tail.match(text, pos)
-                    if t is None and tag != "<pl>":
-                        return None
-                if t is not None:
-                    span_start, pos = pos, t.end()
-                    newlines = text.count("\n", span_start, pos)
-                    if newlines:
-                        line += newlines
-                        line_start = text.rfind("\n", span_start, pos) + 1
-                        last_line = line
-                    if "#" in text[span_start:pos]:
-                        moved = _tail_comments(text[span_start:pos])
-                    else:
-                        moved = None
-                else:
-                    moved = None
-                if tag in OPEN_TAGS:
-                    arg: Any = None
-                    if t is not None:
-                        raw = t.group("name") if tag == "<k>" else t.group("num")
-                        if len(raw) > max_lit:
-                            return None
-                        arg = raw if tag == "<k>" else _number(raw)
-                    frame = [tag, [], here, arg, pending, None]
-                    pending = moved or []
-                    stack.append(frame)
-                    children = frame[1]
-                    last_frame = frame
-                    started = True
-                    continue
-                assert t is not None
-                leaf = _leaf(tag, t, here, max_lit)
-                if leaf is None:
-                    return None
-                node = leaf
-                if pending:
-                    node = _with_comments(node, leading=tuple(pending))
-                pending = moved or []
+            assert t is not None
+            leaf = _leaf(tag, t, here, max_lit)
+            if leaf is None:
+                return None
+            node = leaf
+            if pending:
+                node = _with_comments(node, leading=tuple(pending))
+            pending = moved
         started = True
         if children is not None:
             children.append(node)

@@ -3,11 +3,15 @@
 The public names below are a contract (``ARCHITECTURE.md``); everything else may move.
 """
 
+from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, ParseError, StringBTError, ValidationError
 from .format import format
 from .limits import DEFAULT_LIMITS, Limits
 from .merge import MergeError, merge
+from .registry import Registry, StatefulAction
 from .render import render
+from .runtime import LiveTree
+from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse, parse_reference
 from .tree import (
     Action,
@@ -29,7 +33,11 @@ from .validate import SupportsNames, Vocabulary, check, validate
 
 __all__ = [
     "DEFAULT_LIMITS",
+    "FAILURE",
+    "RUNNING",
+    "SUCCESS",
     "Action",
+    "Blackboard",
     "Comments",
     "Condition",
     "Container",
@@ -37,14 +45,18 @@ __all__ = [
     "Inverter",
     "LimitError",
     "Limits",
+    "LiveTree",
     "MergeError",
     "Node",
     "Parallel",
     "ParseError",
     "Placeholder",
+    "Registry",
     "RunTimer",
     "Selector",
     "Sequence",
+    "StatefulAction",
+    "Status",
     "StringBTError",
     "SupportsNames",
     "Tree",

@@ -46,6 +46,7 @@ class ErrorCode(StrEnum):
     INVALID_THRESHOLD = ("SBT308", "a parallel threshold outside 1..number of children")
     DUPLICATE_ARGUMENT = ("SBT309", "the same argument given twice")
     INVALID_VALUE = ("SBT310", "an argument value of the wrong type or out of range")
+    INVALID_ARGUMENTS = ("SBT311", "arguments the registered condition or action does not take")
     # Merging knowledge into a placeholder.
     UNKNOWN_SLOT = ("SBT401", "no knowledge placeholder with the requested name")
     KNOWLEDGE_CONFLICT = ("SBT402", "the placeholder answers the same conditions differently")

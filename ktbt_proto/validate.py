@@ -217,6 +217,8 @@ def check(
     add = problems.append
     placeholders: set[str] = set()
     max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
+    # A runtime registry also knows the arguments each behaviour takes.
+    fits = getattr(registry, "arguments_problem", None)
     count = 0
     stack: list[tuple[Node, int]] = [(as_node(tree), 1)]
     pop, push = stack.pop, stack.append
@@ -249,6 +251,10 @@ def check(
                     add(_problem(ErrorCode.UNKNOWN_ACTION, f"unknown action {leaf.name!r}", node))
             if leaf.args:
                 _check_args(leaf.args, node, limits, problems)
+            if fits is not None:
+                why = fits("condition" if kind is Condition else "action", leaf.name, leaf.args)
+                if why is not None:
+                    add(_problem(ErrorCode.INVALID_ARGUMENTS, why, node))
         elif isinstance(node, Container):
             _check_container(node, limits, placeholders, add)
             children = node.children

@@ -1,0 +1,176 @@
+"""What a robot can execute: conditions and actions by name, with the arguments they take.
+
+The registry is also what the robot checks received knowledge against: a subtree naming a
+behaviour it does not have, or passing arguments a behaviour does not take, is refused before it
+touches the running tree.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any, Literal, Protocol, TypeVar, runtime_checkable
+
+from .status import Status
+from .tree import Args
+
+F = TypeVar("F", bound=Callable[..., Any])
+Kind = Literal["condition", "action"]
+
+
+@runtime_checkable
+class StatefulAction(Protocol):
+    """An action registered as a class: one instance per node, ``halt`` when preempted."""
+
+    def tick(self) -> Status | bool | None: ...
+
+    def halt(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class _Entry:
+    target: Any
+    params: frozenset[str]
+    required: frozenset[str]
+    var_kw: bool
+    is_class: bool = False
+    halt: Callable[..., None] | None = None
+    flag: str | None = None
+    doc: str = field(default="", compare=False)
+
+
+def _signature(target: Any, is_class: bool) -> tuple[frozenset[str], frozenset[str], bool]:
+    """Keyword parameters after the blackboard: all, required, and whether ``**kw`` is taken."""
+    try:
+        sig = inspect.signature(target.__init__ if is_class else target)
+    except (TypeError, ValueError):  # builtins without a signature: take anything
+        return frozenset(), frozenset(), True
+    params = list(sig.parameters.values())
+    if is_class:
+        params = params[1:]  # self
+    if not params or params[0].kind not in (
+        inspect.Parameter.POSITIONAL_ONLY,
+        inspect.Parameter.POSITIONAL_OR_KEYWORD,
+    ):
+        raise TypeError(f"{target!r} must take the blackboard as its first parameter")
+    rest = params[1:]
+    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    names = frozenset(p.name for p in rest if p.kind in kinds)
+    required = frozenset(
+        p.name for p in rest if p.kind in kinds and p.default is inspect.Parameter.empty
+    )
+    var_kw = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in rest)
+    return names, required, var_kw
+
+
+class Registry:
+    """Conditions and actions by name.
+
+    A condition is ``predicate(blackboard, **args) -> bool``. An action is
+    ``action(blackboard, **args) -> Status`` (``True``/``None`` count as SUCCESS and ``False``
+    as FAILURE), optionally with a ``halt(blackboard, **args)`` hook; or a class whose
+    ``__init__(self, blackboard, **args)`` makes one instance per node and whose ``tick()`` and
+    ``halt()`` keep state across ticks.
+    """
+
+    def __init__(self) -> None:
+        self._conditions: dict[str, _Entry] = {}
+        self._actions: dict[str, _Entry] = {}
+
+    # -- registering -----------------------------------------------------------------------
+
+    def condition(self, name: str | None = None) -> Callable[[F], F]:
+        """Decorator: register a predicate under ``name`` (default: the function's name)."""
+
+        def register(fn: F) -> F:
+            self.add_condition(name or fn.__name__, fn)
+            return fn
+
+        return register
+
+    def action(
+        self, name: str | None = None, *, halt: Callable[..., None] | None = None
+    ) -> Callable[[F], F]:
+        """Decorator: register an action function or class under ``name``."""
+
+        def register(target: F) -> F:
+            self.add_action(name or target.__name__, target, halt=halt)
+            return target
+
+        return register
+
+    def add_condition(self, name: str, fn: Callable[..., Any]) -> None:
+        params, required, var_kw = _signature(fn, False)
+        self._conditions[name] = _Entry(fn, params, required, var_kw, doc=fn.__doc__ or "")
+
+    def add_action(
+        self, name: str, target: Any, *, halt: Callable[..., None] | None = None
+    ) -> None:
+        is_class = isinstance(target, type)
+        if is_class and not callable(getattr(target, "tick", None)):
+            raise TypeError(f"action class {target.__name__} needs a tick() method")
+        params, required, var_kw = _signature(target, is_class)
+        self._actions[name] = _Entry(
+            target, params, required, var_kw, is_class, halt, doc=target.__doc__ or ""
+        )
+
+    def flags(self, *names: str) -> None:
+        """Register conditions that read blackboard flags of the same name (missing = false)."""
+        for name in names:
+            self._conditions[name] = _Entry(None, frozenset(), frozenset(), False, flag=name)
+
+    # -- what validation asks --------------------------------------------------------------
+
+    def has_condition(self, name: str) -> bool:
+        return name in self._conditions
+
+    def has_action(self, name: str) -> bool:
+        return name in self._actions
+
+    @property
+    def conditions(self) -> frozenset[str]:
+        return frozenset(self._conditions)
+
+    @property
+    def actions(self) -> frozenset[str]:
+        return frozenset(self._actions)
+
+    def arguments_problem(self, kind: Kind, name: str, args: Args) -> str | None:
+        """Why these arguments do not fit the registered behaviour, or None if they do."""
+        table = self._conditions if kind == "condition" else self._actions
+        entry = table.get(name)
+        if entry is None:
+            return None
+        given = {k for k, _ in args}
+        unknown = sorted(given - entry.params) if not entry.var_kw else []
+        missing = sorted(entry.required - given)
+        if unknown:
+            return f"{kind} {name!r} takes no argument {', '.join(map(repr, unknown))}"
+        if missing:
+            return f"{kind} {name!r} needs argument {', '.join(map(repr, missing))}"
+        return None
+
+    # -- what compilation asks -------------------------------------------------------------
+
+    def bind_condition(self, name: str, blackboard: Any, args: Args) -> Callable[[], Any]:
+        """A zero-argument predicate for one node: bound once, called every tick."""
+        entry = self._conditions[name]
+        if entry.flag is not None:
+            return partial(blackboard.get, entry.flag, False)
+        fn = entry.target
+        return partial(fn, blackboard, **dict(args)) if args else partial(fn, blackboard)
+
+    def bind_action(
+        self, name: str, blackboard: Any, args: Args
+    ) -> tuple[Callable[[], Any], Callable[[], None] | None]:
+        """``(tick, halt)`` for one node; a class gets a fresh instance per node."""
+        entry = self._actions[name]
+        kwargs = dict(args)
+        if entry.is_class:
+            instance = entry.target(blackboard, **kwargs)
+            return instance.tick, getattr(instance, "halt", None)
+        tick = partial(entry.target, blackboard, **kwargs)
+        halt = partial(entry.halt, blackboard, **kwargs) if entry.halt is not None else None
+        return tick, halt

@@ -1,0 +1,481 @@
+"""The live runtime: compile a tree into closures once, tick it fast, merge knowledge while it runs.
+
+Each node compiles to a pair of closures, ``tick() -> Status`` and ``halt()``, whose state
+(running child, counters, memory) lives in closure cells: no attribute lookups, no visitors, no
+per-tick allocation. Every ``halt`` is a no-op unless its node is running, so a parent may call it
+freely. Knowledge merged into a placeholder is validated and compiled outside the tick, then
+appended to that placeholder's child list at the next tick boundary, so a tick never sees a
+half-merged tree and every node outside the placeholder keeps its state, running actions included.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from .blackboard import Blackboard
+from .errors import ErrorCode, LimitError, ValidationError
+from .limits import DEFAULT_LIMITS, Limits
+from .merge import find_placeholder, merge
+from .registry import Registry
+from .status import FAILURE, RUNNING, SUCCESS, Status
+from .syntax import parse
+from .tree import (
+    Action,
+    Condition,
+    Container,
+    Inverter,
+    Node,
+    Parallel,
+    Placeholder,
+    RunTimer,
+    Selector,
+    Sequence,
+    Tree,
+    Wait,
+    WaitTimer,
+    walk,
+)
+from .validate import validate
+
+Tick = Callable[[], Status]
+Halt = Callable[[], None]
+Compiled = tuple[Tick, Halt]
+Clock = Callable[[], float]
+
+
+def _noop() -> None:
+    return None
+
+
+def _coerce(value: object, name: str) -> Status:
+    if value is True or value is None:
+        return SUCCESS
+    if value is False:
+        return FAILURE
+    raise TypeError(f"action {name!r} returned {value!r}; return a Status (or a bool)")
+
+
+# -- composites --------------------------------------------------------------------------------
+
+
+def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
+    """Sequence (go on while SUCCESS) or selector (go on while FAILURE), re-evaluated from the
+    left every tick; a running child to the right of where this tick stopped is halted."""
+    ticks = tuple(k[0] for k in kids)
+    halts = tuple(k[1] for k in kids)
+    running = -1
+
+    def tick() -> Status:
+        nonlocal running
+        for i, child in enumerate(ticks):
+            status = child()
+            if status is not go_on:
+                if running > i:
+                    halts[running]()
+                running = i if status is RUNNING else -1
+                return status
+        running = -1
+        return go_on
+
+    def halt() -> None:
+        nonlocal running
+        if running >= 0:
+            index, running = running, -1
+            halts[index]()
+
+    return tick, halt
+
+
+def _memory(kids: list[Compiled], go_on: Status) -> Compiled:
+    """Sequence or selector with memory: resume at the child that was running."""
+    ticks = tuple(k[0] for k in kids)
+    halts = tuple(k[1] for k in kids)
+    n = len(ticks)
+    running = -1
+
+    def tick() -> Status:
+        nonlocal running
+        for i in range(running if running >= 0 else 0, n):
+            status = ticks[i]()
+            if status is not go_on:
+                running = i if status is RUNNING else -1
+                return status
+        running = -1
+        return go_on
+
+    def halt() -> None:
+        nonlocal running
+        if running >= 0:
+            index, running = running, -1
+            halts[index]()
+
+    return tick, halt
+
+
+def _parallel(kids: list[Compiled], threshold: int | None) -> Compiled:
+    ticks = tuple(k[0] for k in kids)
+    halts = tuple(k[1] for k in kids)
+    n = len(ticks)
+    need = n if threshold is None else threshold
+    running = [False] * n
+
+    def halt() -> None:
+        for i in range(n):
+            if running[i]:
+                running[i] = False
+                halts[i]()
+
+    def tick() -> Status:
+        succeeded = failed = 0
+        for i, child in enumerate(ticks):
+            status = child()
+            if status is SUCCESS:
+                succeeded += 1
+                running[i] = False
+            elif status is FAILURE:
+                failed += 1
+                running[i] = False
+            else:
+                running[i] = True
+        if succeeded >= need:
+            halt()
+            return SUCCESS
+        if failed > n - need:
+            halt()
+            return FAILURE
+        return RUNNING
+
+    return tick, halt
+
+
+def _inverter(kid: Compiled) -> Compiled:
+    child = kid[0]
+
+    def tick() -> Status:
+        status = child()
+        if status is SUCCESS:
+            return FAILURE
+        if status is FAILURE:
+            return SUCCESS
+        return status
+
+    return tick, kid[1]
+
+
+def _wait_timer(kid: Compiled, ticks: int) -> Compiled:
+    """TT1: RUNNING on ticks 1..N of an activation, then the child's status."""
+    child, child_halt = kid
+    waited = 0
+    child_running = False
+
+    def tick() -> Status:
+        nonlocal waited, child_running
+        if waited < ticks:
+            waited += 1
+            return RUNNING
+        status = child()
+        if status is RUNNING:
+            child_running = True
+            return RUNNING
+        waited = 0
+        child_running = False
+        return status
+
+    def halt() -> None:
+        nonlocal waited, child_running
+        waited = 0
+        if child_running:
+            child_running = False
+            child_halt()
+
+    return tick, halt
+
+
+def _run_timer(kid: Compiled, ticks: int) -> Compiled:
+    """TT2: the child's status for up to N ticks; still running after its N-th tick: FAILURE."""
+    child, child_halt = kid
+    ran = 0
+
+    def tick() -> Status:
+        nonlocal ran
+        if ticks == 0:
+            return FAILURE
+        ran += 1
+        status = child()
+        if status is not RUNNING:
+            ran = 0
+            return status
+        if ran >= ticks:
+            ran = 0
+            child_halt()
+            return FAILURE
+        return RUNNING
+
+    def halt() -> None:
+        nonlocal ran
+        if ran:
+            ran = 0
+            child_halt()
+
+    return tick, halt
+
+
+@dataclass(eq=False)
+class _Slot:
+    """A compiled placeholder: a reactive selector over a child list that merges extend."""
+
+    name: str
+    ticks: list[Tick] = field(default_factory=list)
+    halts: list[Halt] = field(default_factory=list)
+    running: int = -1
+
+    def compiled(self) -> Compiled:
+        ticks, halts = self.ticks, self.halts
+        slot = self
+
+        def tick() -> Status:
+            for i, child in enumerate(ticks):
+                status = child()
+                if status is not FAILURE:
+                    if slot.running > i:
+                        halts[slot.running]()
+                    slot.running = i if status is RUNNING else -1
+                    return status
+            slot.running = -1
+            return FAILURE
+
+        def halt() -> None:
+            if slot.running >= 0:
+                index, slot.running = slot.running, -1
+                halts[index]()
+
+        return tick, halt
+
+
+# -- leaves ------------------------------------------------------------------------------------
+
+
+def _condition(node: Condition, registry: Registry, blackboard: Any) -> Compiled:
+    holds = registry.bind_condition(node.name, blackboard, node.args)
+    if node.negated:
+        return (lambda: FAILURE if holds() else SUCCESS), _noop
+    return (lambda: SUCCESS if holds() else FAILURE), _noop
+
+
+def _action(node: Action, registry: Registry, blackboard: Any) -> Compiled:
+    run, stop = registry.bind_action(node.name, blackboard, node.args)
+    name = node.name
+    running = False
+
+    def tick() -> Status:
+        nonlocal running
+        status = run()
+        if status.__class__ is not Status:
+            status = _coerce(status, name)
+        running = status is RUNNING
+        return status
+
+    def halt() -> None:
+        nonlocal running
+        if running:
+            running = False
+            if stop is not None:
+                stop()
+
+    return tick, halt
+
+
+def _wait(node: Wait, clock: Clock) -> Compiled:
+    if node.unit == "ticks":
+        limit = int(node.duration)
+        waited = 0
+
+        def tick() -> Status:
+            nonlocal waited
+            if waited < limit:
+                waited += 1
+                return RUNNING
+            waited = 0
+            return SUCCESS
+
+        def halt() -> None:
+            nonlocal waited
+            waited = 0
+
+        return tick, halt
+    seconds = float(node.duration)
+    deadline: float | None = None
+
+    def tick_seconds() -> Status:
+        nonlocal deadline
+        now = clock()
+        if deadline is None:
+            deadline = now + seconds
+        if now >= deadline:
+            deadline = None
+            return SUCCESS
+        return RUNNING
+
+    def halt_seconds() -> None:
+        nonlocal deadline
+        deadline = None
+
+    return tick_seconds, halt_seconds
+
+
+# -- compiling a tree ---------------------------------------------------------------------------
+
+
+def compile_node(
+    root: Node, registry: Registry, blackboard: Any, clock: Clock = time.monotonic
+) -> tuple[Compiled, dict[str, _Slot]]:
+    """Compile a (validated) tree bottom-up without recursion; returns the root's closures and
+    the placeholders by name."""
+    slots: dict[str, _Slot] = {}
+    done: list[Compiled] = []
+    stack: list[tuple[Node, bool]] = [(root, False)]
+    while stack:
+        node, ready = stack.pop()
+        if isinstance(node, Container) and not ready:
+            stack.append((node, True))
+            stack.extend((child, False) for child in reversed(node.children))
+            continue
+        if isinstance(node, Container):
+            n = len(node.children)
+            kids = done[len(done) - n :] if n else []
+            del done[len(done) - n :]
+            compiled = _compile_container(node, kids, slots)
+        elif isinstance(node, Condition):
+            compiled = _condition(node, registry, blackboard)
+        elif isinstance(node, Action):
+            compiled = _action(node, registry, blackboard)
+        elif isinstance(node, Wait):
+            compiled = _wait(node, clock)
+        else:
+            raise TypeError(f"not a stringBT node: {node!r}")
+        done.append(compiled)
+    return done[0], slots
+
+
+def _compile_container(node: Container, kids: list[Compiled], slots: dict[str, _Slot]) -> Compiled:
+    if isinstance(node, Sequence):
+        return (_memory if node.memory else _reactive)(kids, SUCCESS)
+    if isinstance(node, Selector):
+        return (_memory if node.memory else _reactive)(kids, FAILURE)
+    if isinstance(node, Parallel):
+        return _parallel(kids, node.threshold)
+    if isinstance(node, Inverter):
+        return _inverter(kids[0])
+    if isinstance(node, WaitTimer):
+        return _wait_timer(kids[0], node.ticks)
+    if isinstance(node, RunTimer):
+        return _run_timer(kids[0], node.ticks)
+    if isinstance(node, Placeholder):
+        slot = _Slot(node.name, [k[0] for k in kids], [k[1] for k in kids])
+        slots[node.name] = slot
+        return slot.compiled()
+    raise TypeError(f"not a stringBT node: {node!r}")
+
+
+# -- the live tree ------------------------------------------------------------------------------
+
+
+class LiveTree:
+    """A compiled tree bound to a registry and a blackboard, ticked by its owner.
+
+    ``merge`` may be called from any thread: the knowledge is checked and compiled in the
+    caller's thread and takes effect at the next tick boundary. Knowledge that does not fit
+    (no such placeholder, a conflicting answer, a behaviour the registry lacks, a limit) raises a
+    :class:`StringBTError` and changes nothing.
+    """
+
+    def __init__(
+        self,
+        tree: Tree | Node | str,
+        registry: Registry,
+        blackboard: Any = None,
+        *,
+        clock: Clock = time.monotonic,
+        limits: Limits = DEFAULT_LIMITS,
+    ) -> None:
+        parsed = parse(tree, limits=limits) if isinstance(tree, str) else tree
+        validate(parsed, registry, limits=limits)
+        self.registry = registry
+        self.blackboard = Blackboard() if blackboard is None else blackboard
+        self.clock = clock
+        self.limits = limits
+        self._tree = parsed if isinstance(parsed, Tree) else Tree(parsed)
+        (self._tick, self._halt), self._slots = compile_node(
+            self._tree.root, registry, self.blackboard, clock
+        )
+        self._lock = threading.Lock()
+        self._pending: list[tuple[_Slot, Compiled]] = []
+        self._nodes = sum(1 for _ in walk(self._tree.root))
+        self.ticks = 0
+
+    @property
+    def tree(self) -> Tree:
+        """The tree as of the last merge (merges still pending included)."""
+        return self._tree
+
+    def tick(self) -> Status:
+        """Tick the root once; merges made since the last tick take effect first."""
+        if self._pending:
+            self._apply()
+        self.ticks += 1
+        return self._tick()
+
+    def halt(self) -> None:
+        """Halt every running node (the robot stops, or the tree is being replaced)."""
+        self._halt()
+
+    def _apply(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, []
+        for slot, (tick, halt) in pending:
+            slot.ticks.append(tick)
+            slot.halts.append(halt)
+
+    def merge(
+        self,
+        subtree: Tree | Node | str,
+        slot: str = "new",
+        when: Iterable[Condition | str] | None = None,
+    ) -> bool:
+        """Merge knowledge into placeholder ``slot``; True if the tree changed, False if it
+        already held exactly this knowledge."""
+        item_tree = parse(subtree, limits=self.limits) if isinstance(subtree, str) else subtree
+        with self._lock:
+            merged = merge(self._tree, item_tree, slot, when)
+            if merged is self._tree:
+                return False
+            path = find_placeholder(merged, slot)
+            assert path is not None
+            placeholder: Node = merged.root
+            for index in path:
+                placeholder = placeholder.children[index]  # type: ignore[attr-defined]
+            item = placeholder.children[-1]  # type: ignore[attr-defined]
+            item_nodes = sum(1 for _ in walk(item))
+            # The item must fit the registry and, where it lands, the limits of the whole tree.
+            depth_left = self.limits.max_depth - len(path) - 1
+            nodes_left = self.limits.max_nodes - self._nodes
+            if depth_left < 1 or nodes_left < 1:
+                code = ErrorCode.TOO_DEEP if depth_left < 1 else ErrorCode.TOO_MANY_NODES
+                raise LimitError(code, "the tree has no room for more knowledge there")
+            room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
+            validate(item, self.registry, limits=room)
+            compiled, slots = compile_node(item, self.registry, self.blackboard, self.clock)
+            for name in slots:
+                if name in self._slots:
+                    raise ValidationError(
+                        ErrorCode.DUPLICATE_PLACEHOLDER, f"placeholder {name!r} appears twice"
+                    )
+            self._slots.update(slots)
+            self._pending.append((self._slots[slot], compiled))
+            self._tree = merged
+            self._nodes += item_nodes
+        return True

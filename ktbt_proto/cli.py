@@ -23,6 +23,7 @@ from . import __version__
 from .errors import StringBTError
 from .format import Style
 from .format import format as format_tree
+from .merge import conditions, merge, split_conditions
 from .render import render
 from .syntax import parse
 from .tree import Tree
@@ -196,6 +197,48 @@ def check_command(
         problems += len(found)
     if problems:
         raise typer.Exit(1)
+
+
+@app.command("merge")
+def merge_command(
+    control: Annotated[str, typer.Argument(help="The control tree; '-' for stdin.")],
+    subtree: Annotated[str, typer.Argument(help="The knowledge subtree; '-' for stdin.")],
+    slot: Annotated[str, typer.Option("--slot", help="The placeholder <k>(NAME).")] = "new",
+    when: Annotated[
+        str | None,
+        typer.Option(
+            "--when",
+            help="Conditions the knowledge answers: COND[,COND...], each NAME, !NAME or "
+            "NAME(key=value, ...). Without it the subtree is merged as it is.",
+        ),
+    ] = None,
+    compact: Annotated[bool, typer.Option("--compact", help="Write the one-line form.")] = False,
+    output: Annotated[
+        str | None, typer.Option("--output", "-o", help="Write here instead of stdout.")
+    ] = None,
+) -> None:
+    """Merge Sequence(conditions, subtree) into a placeholder; write the merged tree."""
+    if control == STDIN and subtree == STDIN:
+        _say("error: only one of CONTROL and SUBTREE can be '-'")
+        raise typer.Exit(2)
+    base = _load_or_exit(control)
+    knowledge = _load_or_exit(subtree)
+    try:
+        conds = None if when is None else conditions(split_conditions(when))
+        merged = merge(base, knowledge, slot, conds)
+        text = format_tree(merged, "compact" if compact else "pretty")
+    except StringBTError as err:
+        _say(f"error: {err.code} {err.message}")
+        raise typer.Exit(1) from None
+    text += "\n" if compact else ""
+    if output is None:
+        sys.stdout.write(text)
+        return
+    try:
+        _write_atomically(output, text)
+    except OSError as exc:
+        _say(f"error: cannot write {output}: {_io_reason(exc)}")
+        raise typer.Exit(1) from None
 
 
 class RenderFormat(StrEnum):

@@ -7,6 +7,7 @@ is proportional to the depth of the placeholder, not to the size of the tree.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import replace
 
@@ -19,19 +20,49 @@ class MergeError(StringBTError):
     """The knowledge cannot go where it was asked to go; the tree is unchanged."""
 
 
+_CALL = re.compile(r"\s*(!?\s*[A-Za-z0-9_.]+)\s*\((.*)\)\s*", re.S)
+
+
 def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
     """Condition nodes from what a user types: ``"_inZoneF"``, ``"!_inZoneF"``, or with
-    arguments ``"TargetSeen, colour=2"`` (the text between ``<c>(`` and ``)``)."""
+    arguments ``"TargetSeen(colour=2)"``; the text is read by the stringBT parser."""
     out = []
     for item in spec:
         if isinstance(item, Condition):
             out.append(item)
             continue
-        node = parse(f"<c>({item})").root
+        call = _CALL.fullmatch(item)
+        inner = f"{call.group(1)}, {call.group(2)}" if call else item
+        node = parse(f"<c>({inner})").root
         if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
             raise TypeError(item)
         out.append(replace(node, pos=None))
     return tuple(out)
+
+
+def split_conditions(text: str) -> list[str]:
+    """Split ``"A,!B,C(x=1, y=\"a,b\")"`` at the commas outside parentheses and strings."""
+    parts: list[str] = []
+    depth, quoted, escaped, start = 0, False, False, 0
+    for i, char in enumerate(text):
+        if quoted:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                quoted = False
+        elif char == '"':
+            quoted = True
+        elif char == "(":
+            depth += 1
+        elif char == ")":
+            depth -= 1
+        elif char == "," and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    parts.append(text[start:])
+    return [p.strip() for p in parts if p.strip()]
 
 
 def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:

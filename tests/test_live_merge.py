@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
 
@@ -21,7 +21,7 @@ CONTROL = """<sl>
 class Walk:
     """A stateful action: counts its own ticks and halts; RUNNING forever."""
 
-    instances: list[Walk] = []
+    instances: ClassVar[list[Walk]] = []
 
     def __init__(self, bb: kp.Blackboard) -> None:
         self.ticks = 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import replace
+from functools import lru_cache
 
 from .errors import ErrorCode, StringBTError
 from .syntax import parse
@@ -31,13 +32,19 @@ def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
         if isinstance(item, Condition):
             out.append(item)
             continue
-        call = _CALL.fullmatch(item)
-        inner = f"{call.group(1)}, {call.group(2)}" if call else item
-        node = parse(f"<c>({inner})").root
-        if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
-            raise TypeError(item)
-        out.append(replace(node, pos=None))
+        out.append(_condition_from_text(item))
     return tuple(out)
+
+
+@lru_cache(maxsize=1024)
+def _condition_from_text(text: str) -> Condition:
+    # Cached: robots ask about the same few condition sequences again and again.
+    call = _CALL.fullmatch(text)
+    inner = f"{call.group(1)}, {call.group(2)}" if call else text
+    node = parse(f"<c>({inner})").root
+    if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
+        raise TypeError(text)
+    return replace(node, pos=None)
 
 
 def split_conditions(text: str) -> list[str]:
@@ -105,11 +112,20 @@ def merge(
     (``SBT402``), as does a missing placeholder (``SBT401``).
     """
     item = knowledge(when, subtree) if when is not None else as_node(subtree)
-    root = as_node(control)
-    footer = control.footer if isinstance(control, Tree) else ()
-    path = find_placeholder(root, slot)
+    path = find_placeholder(control, slot)
     if path is None:
         raise MergeError(ErrorCode.UNKNOWN_SLOT, f"the tree has no placeholder <k>({slot})")
+    merged = merge_at(control, item, path)
+    return (
+        merged if merged is not None else (control if isinstance(control, Tree) else Tree(control))
+    )
+
+
+def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | None:
+    """Append ``item`` to the placeholder at ``path`` (from :func:`find_placeholder`); None if
+    the placeholder already holds it. The path of a placeholder never changes, since merges only
+    ever append inside placeholders, so a caller may keep it."""
+    root = as_node(control)
     chain: list[Container] = []
     node = root
     for index in path:
@@ -120,12 +136,12 @@ def merge(
     key = _key(item)
     for existing in node.children:
         if existing == item:
-            return control if isinstance(control, Tree) else Tree(root)
+            return None
         if key is not None and _key(existing) == key:
             line, column = existing.pos if existing.pos else (0, 0)
             raise MergeError(
                 ErrorCode.KNOWLEDGE_CONFLICT,
-                f"<k>({slot}) already answers this condition sequence with another subtree",
+                f"<k>({node.name}) already answers this condition sequence with another subtree",
                 line,
                 column,
             )
@@ -133,4 +149,4 @@ def merge(
     for parent, index in zip(reversed(chain), reversed(path), strict=True):
         children = parent.children
         new = replace(parent, children=(*children[:index], new, *children[index + 1 :]))
-    return Tree(new, footer=footer)
+    return Tree(new, footer=control.footer if isinstance(control, Tree) else ())

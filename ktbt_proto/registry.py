@@ -38,6 +38,7 @@ class _Entry:
     is_class: bool = False
     halt: Callable[..., None] | None = None
     flag: str | None = None
+    trusted: bool = False
     doc: str = field(default="", compare=False)
 
 
@@ -63,6 +64,18 @@ def _signature(target: Any, is_class: bool) -> tuple[frozenset[str], frozenset[s
     )
     var_kw = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in rest)
     return names, required, var_kw
+
+
+_STATUS_NAMES = frozenset(("Status", "kp.Status", "ktbt_proto.Status", "ktbt_proto.status.Status"))
+
+
+def _returns_status(fn: Any) -> bool:
+    """Whether ``fn`` is annotated to return exactly ``Status`` (then its result is trusted)."""
+    try:
+        annotation = inspect.signature(fn).return_annotation
+    except (TypeError, ValueError):
+        return False
+    return annotation is Status or (isinstance(annotation, str) and annotation in _STATUS_NAMES)
 
 
 class Registry:
@@ -112,8 +125,16 @@ class Registry:
         if is_class and not callable(getattr(target, "tick", None)):
             raise TypeError(f"action class {target.__name__} needs a tick() method")
         params, required, var_kw = _signature(target, is_class)
+        trusted = _returns_status(target.tick if is_class else target)
         self._actions[name] = _Entry(
-            target, params, required, var_kw, is_class, halt, doc=target.__doc__ or ""
+            target,
+            params,
+            required,
+            var_kw,
+            is_class,
+            halt,
+            trusted=trusted,
+            doc=target.__doc__ or "",
         )
 
     def flags(self, *names: str) -> None:
@@ -141,7 +162,7 @@ class Registry:
         """Why these arguments do not fit the registered behaviour, or None if they do."""
         table = self._conditions if kind == "condition" else self._actions
         entry = table.get(name)
-        if entry is None:
+        if entry is None or (not args and not entry.required):
             return None
         given = {k for k, _ in args}
         unknown = sorted(given - entry.params) if not entry.var_kw else []
@@ -164,13 +185,19 @@ class Registry:
 
     def bind_action(
         self, name: str, blackboard: Any, args: Args
-    ) -> tuple[Callable[[], Any], Callable[[], None] | None]:
-        """``(tick, halt)`` for one node; a class gets a fresh instance per node."""
+    ) -> tuple[Callable[[], Any], Callable[[], None] | None, bool]:
+        """``(tick, halt, trusted)`` for one node; a class gets a fresh instance per node.
+        ``trusted``: the behaviour is annotated to return a Status, so its result is used as
+        it is (anything else is checked and converted on every call)."""
         entry = self._actions[name]
         kwargs = dict(args)
         if entry.is_class:
             instance = entry.target(blackboard, **kwargs)
-            return instance.tick, getattr(instance, "halt", None)
-        tick = partial(entry.target, blackboard, **kwargs)
+            return instance.tick, getattr(instance, "halt", None), entry.trusted
+        tick = (
+            partial(entry.target, blackboard, **kwargs)
+            if kwargs
+            else partial(entry.target, blackboard)
+        )
         halt = partial(entry.halt, blackboard, **kwargs) if entry.halt is not None else None
-        return tick, halt
+        return tick, halt, entry.trusted

@@ -19,7 +19,7 @@ from typing import Any
 from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, ValidationError
 from .limits import DEFAULT_LIMITS, Limits
-from .merge import find_placeholder, merge
+from .merge import MergeError, find_placeholder, knowledge, merge_at
 from .registry import Registry
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse
@@ -37,7 +37,7 @@ from .tree import (
     Tree,
     Wait,
     WaitTimer,
-    walk,
+    as_node,
 )
 from .validate import validate
 
@@ -62,18 +62,36 @@ def _coerce(value: object, name: str) -> Status:
 # -- composites --------------------------------------------------------------------------------
 
 
+def _split(kids: list[Compiled]) -> tuple[tuple[Tick, ...], tuple[Halt, ...]]:
+    if not kids:
+        return (), ()
+    ticks, halts = zip(*kids, strict=True)
+    return ticks, halts
+
+
 def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
     """Sequence (go on while SUCCESS) or selector (go on while FAILURE), re-evaluated from the
     left every tick; a running child to the right of where this tick stopped is halted."""
-    ticks = tuple(k[0] for k in kids)
-    halts = tuple(k[1] for k in kids)
+    ticks, halts = _split(kids)
+    guards: list[Callable[[], object]] = []
+    if go_on is SUCCESS:
+        # Leading conditions of a sequence are called as plain predicates: no status to build.
+        for child in ticks:
+            holds = getattr(child, "holds", None)
+            if holds is None:
+                break
+            guards.append(holds)
+    if guards:
+        return _guarded_sequence(tuple(guards), ticks, halts)
+    index = ticks.index
     running = -1
 
     def tick() -> Status:
         nonlocal running
-        for i, child in enumerate(ticks):
+        for child in ticks:
             status = child()
             if status is not go_on:
+                i = index(child)
                 if running > i:
                     halts[running]()
                 running = i if status is RUNNING else -1
@@ -84,16 +102,52 @@ def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
     def halt() -> None:
         nonlocal running
         if running >= 0:
-            index, running = running, -1
-            halts[index]()
+            i, running = running, -1
+            halts[i]()
+
+    return tick, halt
+
+
+def _guarded_sequence(
+    guards: tuple[Callable[[], object], ...], ticks: tuple[Tick, ...], halts: tuple[Halt, ...]
+) -> Compiled:
+    """A reactive sequence whose first children are conditions (the usual shape of knowledge:
+    ``Sequence(s_q, T_ka)``)."""
+    rest = ticks[len(guards) :]
+    index = ticks.index
+    running = -1
+
+    def tick() -> Status:
+        nonlocal running
+        for holds in guards:
+            if not holds():
+                if running >= 0:
+                    i, running = running, -1
+                    halts[i]()
+                return FAILURE
+        for child in rest:
+            status = child()
+            if status is not SUCCESS:
+                i = index(child)
+                if running > i:
+                    halts[running]()
+                running = i if status is RUNNING else -1
+                return status
+        running = -1
+        return SUCCESS
+
+    def halt() -> None:
+        nonlocal running
+        if running >= 0:
+            i, running = running, -1
+            halts[i]()
 
     return tick, halt
 
 
 def _memory(kids: list[Compiled], go_on: Status) -> Compiled:
     """Sequence or selector with memory: resume at the child that was running."""
-    ticks = tuple(k[0] for k in kids)
-    halts = tuple(k[1] for k in kids)
+    ticks, halts = _split(kids)
     n = len(ticks)
     running = -1
 
@@ -117,8 +171,7 @@ def _memory(kids: list[Compiled], go_on: Status) -> Compiled:
 
 
 def _parallel(kids: list[Compiled], threshold: int | None) -> Compiled:
-    ticks = tuple(k[0] for k in kids)
-    halts = tuple(k[1] for k in kids)
+    ticks, halts = _split(kids)
     n = len(ticks)
     need = n if threshold is None else threshold
     running = [False] * n
@@ -262,31 +315,31 @@ class _Slot:
 def _condition(node: Condition, registry: Registry, blackboard: Any) -> Compiled:
     holds = registry.bind_condition(node.name, blackboard, node.args)
     if node.negated:
-        return (lambda: FAILURE if holds() else SUCCESS), _noop
-    return (lambda: SUCCESS if holds() else FAILURE), _noop
+        positive = holds
+
+        def holds() -> bool:
+            return not positive()
+
+    def tick() -> Status:
+        return SUCCESS if holds() else FAILURE
+
+    tick.holds = holds  # type: ignore[attr-defined]  # read by _reactive
+    return tick, _noop
 
 
 def _action(node: Action, registry: Registry, blackboard: Any) -> Compiled:
-    run, stop = registry.bind_action(node.name, blackboard, node.args)
+    # Every halt() in a compiled tree is called only on a node that returned RUNNING on its
+    # last tick, so an action needs no running flag of its own: the parent keeps it.
+    run, stop, trusted = registry.bind_action(node.name, blackboard, node.args)
+    if trusted:
+        return run, stop or _noop
     name = node.name
-    running = False
 
     def tick() -> Status:
-        nonlocal running
         status = run()
-        if status.__class__ is not Status:
-            status = _coerce(status, name)
-        running = status is RUNNING
-        return status
+        return status if status.__class__ is Status else _coerce(status, name)
 
-    def halt() -> None:
-        nonlocal running
-        if running:
-            running = False
-            if stop is not None:
-                stop()
-
-    return tick, halt
+    return tick, stop or _noop
 
 
 def _wait(node: Wait, clock: Clock) -> Compiled:
@@ -332,33 +385,44 @@ def _wait(node: Wait, clock: Clock) -> Compiled:
 
 def compile_node(
     root: Node, registry: Registry, blackboard: Any, clock: Clock = time.monotonic
-) -> tuple[Compiled, dict[str, _Slot]]:
-    """Compile a (validated) tree bottom-up without recursion; returns the root's closures and
-    the placeholders by name."""
+) -> tuple[Compiled, dict[str, _Slot], int]:
+    """Compile a (validated) tree without recursion; returns the root's closures, the
+    placeholders by name, and the number of nodes.
+
+    Nodes are listed in pre-order and compiled in reverse, so every child is compiled before
+    its parent and a parent finds its children, first child on top, on the result stack."""
     slots: dict[str, _Slot] = {}
-    done: list[Compiled] = []
-    stack: list[tuple[Node, bool]] = [(root, False)]
-    while stack:
-        node, ready = stack.pop()
-        if isinstance(node, Container) and not ready:
-            stack.append((node, True))
-            stack.extend((child, False) for child in reversed(node.children))
-            continue
-        if isinstance(node, Container):
-            n = len(node.children)
-            kids = done[len(done) - n :] if n else []
-            del done[len(done) - n :]
-            compiled = _compile_container(node, kids, slots)
-        elif isinstance(node, Condition):
-            compiled = _condition(node, registry, blackboard)
-        elif isinstance(node, Action):
-            compiled = _action(node, registry, blackboard)
-        elif isinstance(node, Wait):
-            compiled = _wait(node, clock)
+    order: list[Node] = []
+    leaves: list[Compiled | None] = []  # bound in document order: constructors run in order
+    pending: list[Node] = [root]
+    while pending:
+        node = pending.pop()
+        order.append(node)
+        kind = type(node)
+        if kind is Condition:
+            leaves.append(_condition(node, registry, blackboard))  # type: ignore[arg-type]
+        elif kind is Action:
+            leaves.append(_action(node, registry, blackboard))  # type: ignore[arg-type]
+        elif kind is Wait:
+            leaves.append(_wait(node, clock))  # type: ignore[arg-type]
+        elif isinstance(node, Container):
+            leaves.append(None)
+            pending.extend(reversed(node.children))
         else:
             raise TypeError(f"not a stringBT node: {node!r}")
-        done.append(compiled)
-    return done[0], slots
+    done: list[Compiled] = []
+    for i in range(len(order) - 1, -1, -1):
+        leaf = leaves[i]
+        if leaf is not None:
+            done.append(leaf)
+            continue
+        node = order[i]
+        assert isinstance(node, Container)
+        n = len(node.children)
+        kids = done[: -n - 1 : -1] if n else []
+        del done[len(done) - n :]
+        done.append(_compile_container(node, kids, slots))
+    return done[0], slots, len(order)
 
 
 def _compile_container(node: Container, kids: list[Compiled], slots: dict[str, _Slot]) -> Compiled:
@@ -409,13 +473,14 @@ class LiveTree:
         self.clock = clock
         self.limits = limits
         self._tree = parsed if isinstance(parsed, Tree) else Tree(parsed)
-        (self._tick, self._halt), self._slots = compile_node(
+        (self._tick, self._halt), self._slots, self._nodes = compile_node(
             self._tree.root, registry, self.blackboard, clock
         )
         self._lock = threading.Lock()
         self._pending: list[tuple[_Slot, Compiled]] = []
-        self._nodes = sum(1 for _ in walk(self._tree.root))
+        self._paths: dict[str, tuple[int, ...]] = {}
         self.ticks = 0
+        self._running = False
 
     @property
     def tree(self) -> Tree:
@@ -427,11 +492,16 @@ class LiveTree:
         if self._pending:
             self._apply()
         self.ticks += 1
-        return self._tick()
+        status = self._tick()
+        self._running = status is RUNNING
+        return status
 
     def halt(self) -> None:
         """Halt every running node (the robot stops, or the tree is being replaced)."""
-        self._halt()
+        # Halts are only ever sent to running nodes: the compiled nodes rely on it.
+        if self._running:
+            self._running = False
+            self._halt()
 
     def _apply(self) -> None:
         with self._lock:
@@ -449,17 +519,18 @@ class LiveTree:
         """Merge knowledge into placeholder ``slot``; True if the tree changed, False if it
         already held exactly this knowledge."""
         item_tree = parse(subtree, limits=self.limits) if isinstance(subtree, str) else subtree
+        item = knowledge(when, item_tree) if when is not None else as_node(item_tree)
         with self._lock:
-            merged = merge(self._tree, item_tree, slot, when)
-            if merged is self._tree:
+            path = self._paths.get(slot)
+            if path is None:
+                path = find_placeholder(self._tree, slot)
+                if path is None:
+                    message = f"the tree has no placeholder <k>({slot})"
+                    raise MergeError(ErrorCode.UNKNOWN_SLOT, message)
+                self._paths[slot] = path
+            merged = merge_at(self._tree, item, path)
+            if merged is None:
                 return False
-            path = find_placeholder(merged, slot)
-            assert path is not None
-            placeholder: Node = merged.root
-            for index in path:
-                placeholder = placeholder.children[index]  # type: ignore[attr-defined]
-            item = placeholder.children[-1]  # type: ignore[attr-defined]
-            item_nodes = sum(1 for _ in walk(item))
             # The item must fit the registry and, where it lands, the limits of the whole tree.
             depth_left = self.limits.max_depth - len(path) - 1
             nodes_left = self.limits.max_nodes - self._nodes
@@ -468,7 +539,9 @@ class LiveTree:
                 raise LimitError(code, "the tree has no room for more knowledge there")
             room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
             validate(item, self.registry, limits=room)
-            compiled, slots = compile_node(item, self.registry, self.blackboard, self.clock)
+            compiled, slots, item_nodes = compile_node(
+                item, self.registry, self.blackboard, self.clock
+            )
             for name in slots:
                 if name in self._slots:
                     raise ValidationError(

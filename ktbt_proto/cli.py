@@ -241,6 +241,25 @@ def merge_command(
         raise typer.Exit(1) from None
 
 
+@app.command("convert")
+def convert_command(
+    source: Annotated[str, typer.Argument(help="The file to read (.sbt or .xml).")],
+    target: Annotated[str, typer.Argument(help="The file to write (.xml or .sbt).")],
+) -> None:
+    """Convert between stringBT (.sbt) and BehaviorTree.CPP v4 XML (.xml), by extension."""
+    from .interop import convert
+
+    try:
+        convert(source, target)
+    except StringBTError as err:
+        _say(f"error: cannot convert {source}:{err.line}:{err.column}: {err.code} {err.message}")
+        raise typer.Exit(1) from None
+    except (OSError, ValueError) as exc:
+        reason = _io_reason(exc) if isinstance(exc, OSError) else str(exc)
+        _say(f"error: cannot convert {source}: {reason}")
+        raise typer.Exit(1) from None
+
+
 class RenderFormat(StrEnum):
     outline = "outline"
     dot = "dot"

@@ -149,3 +149,24 @@ def test_demo_runs() -> None:
     assert "SBT306 unknown action 'Teleport'" in out
     code, _, err = ktbt("demo", cwd=Path(os.sep))
     assert code == 1 and "not found" in err
+
+
+def test_convert_both_ways(tmp_path: Path) -> None:
+    xml = tmp_path / "tree.xml"
+    code, _, err = ktbt("convert", str(EXAMPLES / "sar_control.sbt"), str(xml))
+    assert code == 0, err
+    assert '<root BTCPP_format="4" main_tree_to_execute="MainTree">' in xml.read_text()
+    back = tmp_path / "back.sbt"
+    assert ktbt("convert", str(xml), str(back))[0] == 0
+    original = (EXAMPLES / "sar_control.sbt").read_bytes()
+    assert (
+        ktbt("fmt", "--compact", "-", stdin=back.read_bytes())[1]
+        == ktbt("fmt", "--compact", "-", stdin=original)[1]
+    )
+    bad = tmp_path / "bad.xml"
+    bad.write_text('<root BTCPP_format="4">\n  <BehaviorTree ID="MainTree">\n    <Foo/>\n')
+    code, _, err = ktbt("convert", str(bad), str(tmp_path / "x.sbt"))
+    assert code == 1 and err.startswith(f"error: cannot convert {bad}:"), err
+    assert "Traceback" not in err
+    code, _, err = ktbt("convert", str(bad), str(tmp_path / "x.txt"))
+    assert code == 1 and "Traceback" not in err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import ktbt_proto as kp
@@ -21,12 +22,20 @@ ACTIONS = (
 def sar_registry(log: list[str]) -> kp.Registry:
     reg = kp.Registry()
     reg.flags(*FLAGS)
+
+    def recorder(name: str) -> tuple[Callable[[kp.Blackboard], kp.Status], Callable[..., None]]:
+        def tick(bb: kp.Blackboard) -> kp.Status:
+            log.append(name)
+            return kp.RUNNING
+
+        def halt(bb: kp.Blackboard) -> None:
+            log.append(f"halt {name}")
+
+        return tick, halt
+
     for name in ACTIONS:
-        reg.add_action(
-            name,
-            lambda bb, name=name: (log.append(name), kp.RUNNING)[1],
-            halt=lambda bb, name=name: log.append(f"halt {name}"),
-        )
+        tick, halt = recorder(name)
+        reg.add_action(name, tick, halt=halt)
 
     @reg.condition("TargetSeen")
     def target_seen(bb: kp.Blackboard, colour: int) -> bool:

@@ -1,6 +1,8 @@
 """stringBT <-> BehaviorTree.CPP v4 XML, so trees can be drawn and edited in Groot2.
 
-The export loads in BT.CPP 4 and Groot2; every stringBT tree survives ``from_xml(to_xml(t)) == t``.
+Every tree the export accepts survives ``from_xml(to_xml(t)) == t``. The export keeps to the
+rules of BT.CPP 4's loader: one root per ``<BehaviorTree>``, a child under every control node,
+node IDs and port names without the characters it forbids.
 
 ====================  =======================================================================
 stringBT              BT.CPP v4 XML
@@ -8,26 +10,30 @@ stringBT              BT.CPP v4 XML
 ``<sq>`` / ``<sl>``   ``ReactiveSequence`` / ``ReactiveFallback``
 ``<msq>``             ``Sequence``: it resumes at its running child and restarts after a
                       FAILURE, like ``<msq>``. ``SequenceWithMemory`` also resumes at a child
-                      that *failed*, which stringBT cannot express, so it is refused on import.
+                      that *failed*, which stringBT cannot express, so import refuses it.
 ``<msl>``             ``Fallback`` (resumes at its running child, like ``<msl>``)
 ``<pl>(M)``           ``Parallel success_count="M" failure_count="N-M+1"``; plain ``<pl>`` is
-                      ``success_count="-1" failure_count="1"`` (BT.CPP's "all").
+                      ``success_count="-1" failure_count="1"`` (BT.CPP's "all"). One gap:
+                      BT.CPP does not tick again a child that finished earlier in the same
+                      activation; stringBT ticks every child on every tick.
 ``<neg>``             ``Inverter``
 ``<c>(X, k=v)``       ``<Condition ID="X" k="v"/>``; ``<c>(!X)`` is ``<Inverter name="!X">``
-                      around it. The name marks the inverter as a negation (same behaviour,
+                      around it. The name marks the inverter as a negation (the same behaviour,
                       since a condition never runs), so it imports as ``<c>(!X)``, not ``<neg>``.
 ``<a>(X, k=v)``       ``<Action ID="X" k="v"/>``
 ``<wt>(S)``           ``<Sleep msec="round(1000 S)"/>``. When those milliseconds do not read
                       back as exactly S (``<wt>(2.0)``, ``<wt>(0.0015)``), ``name="wt:S"`` keeps
                       the literal; import uses it only while it still agrees with ``msec``.
-``<tt1>(N)``          ``<Decorator ID="KTBT_TT1" ticks="N">``, a custom decorator: BT.CPP only
-``<tt2>(N)``          ``<Decorator ID="KTBT_TT2" ticks="N">`` has timers in milliseconds
-``<w>(N)``            ``<Action ID="KTBT_WaitTicks" ticks="N"/>``  (``Delay``/``Timeout``).
+``<tt1>(N)``          ``<Decorator ID="KTBT_TT1" ticks="N">``
+``<tt2>(N)``          ``<Decorator ID="KTBT_TT2" ticks="N">``
+``<w>(N)``            ``<Action ID="KTBT_WaitTicks" ticks="N"/>``
 ``<k>(name)``         ``<ReactiveFallback name="k:name">`` (a placeholder *is* a reactive
                       selector); empty, it holds one ``<AlwaysFailure/>``, because BT.CPP wants a
                       child under every control node and an empty placeholder fails.
 ====================  =======================================================================
 
+The three ``KTBT_`` nodes are custom because stringBT's timers count ticks and BT.CPP's
+(``Delay``, ``Timeout``) count milliseconds; ``Delay`` and ``Timeout`` are therefore not used.
 ``<TreeNodesModel>`` declares every condition, action and ``KTBT_`` node with its ports, so Groot2
 can draw and edit them; a BT.CPP program must register ``KTBT_TT1``, ``KTBT_TT2`` and
 ``KTBT_WaitTicks`` (semantics in ``spec/stringbt.md``, section 3.2) next to its own nodes.
@@ -43,7 +49,8 @@ as ``true``/``false``, which BT.CPP's converters read. A string is written as is
 read back as something else or cannot be an XML character: if it looks like a number or boolean,
 starts with ``"``, or holds a control character, it is written as its JSON literal (quotes
 included). Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
-anything else is a string. A ``{key}`` blackboard reference imports as that literal string.
+anything else is a string. A ``{key}`` blackboard reference imports as that literal string, and
+port defaults declared in a TreeNodesModel are not applied.
 
 Import accepts both ``<Action ID="X"/>`` and Groot2's ``<X/>`` (when the TreeNodesModel declares
 X). Anything without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting
@@ -137,7 +144,8 @@ _CUSTOM_MODELS = {
 
 
 def encode_value(value: Value) -> str:
-    """An argument as the attribute text that :func:`decode_value` reads back to it."""
+    """Attribute text BT.CPP's converters read naturally, and :func:`decode_value` reads back to
+    the same value and type (see the module docstring)."""
     if not isinstance(value, str):
         return format_value(value)
     if value in ("true", "false") or value.startswith('"') or _NUMBER.fullmatch(value):

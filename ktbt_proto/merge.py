@@ -78,14 +78,21 @@ def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:
 
 
 def find_placeholder(tree: Tree | Node, slot: str) -> tuple[int, ...] | None:
-    """Child-index path from the root to the placeholder named ``slot`` (iterative search)."""
-    stack: list[tuple[Node, tuple[int, ...]]] = [(as_node(tree), ())]
+    """Child-index path from the root to the placeholder named ``slot`` (iterative search;
+    only containers are visited, since only they can be or hold a placeholder)."""
+    root = as_node(tree)
+    if not isinstance(root, Container):
+        return None
+    stack: list[tuple[Container, tuple[int, ...]]] = [(root, ())]
     while stack:
         node, path = stack.pop()
         if isinstance(node, Placeholder) and node.name == slot:
             return path
-        if isinstance(node, Container):
-            stack.extend((c, (*path, i)) for i, c in reversed(list(enumerate(node.children))))
+        children = node.children
+        for i in range(len(children) - 1, -1, -1):
+            child = children[i]
+            if isinstance(child, Container):
+                stack.append((child, (*path, i)))
     return None
 
 

@@ -14,7 +14,16 @@ from functools import lru_cache
 
 from .errors import ErrorCode, StringBTError
 from .syntax import parse
-from .tree import Condition, Container, Node, Placeholder, Sequence, Tree, as_node
+from .tree import (
+    Condition,
+    Container,
+    Node,
+    Placeholder,
+    Sequence,
+    Tree,
+    as_node,
+    with_children,
+)
 
 
 class MergeError(StringBTError):
@@ -152,8 +161,8 @@ def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | 
                 line,
                 column,
             )
-    new: Node = replace(node, children=(*node.children, item))
+    new: Node = with_children(node, (*node.children, item))
     for parent, index in zip(reversed(chain), reversed(path), strict=True):
         children = parent.children
-        new = replace(parent, children=(*children[:index], new, *children[index + 1 :]))
+        new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
     return Tree(new, footer=control.footer if isinstance(control, Tree) else ())

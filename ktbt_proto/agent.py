@@ -1,0 +1,289 @@
+"""A KT-BT agent: ``Parallel(Control, Teach, Learn)`` (the paper's Definition 1).
+
+The three trees are live trees ticked in that order every tick. The control tree is the
+robot's own. The teach and learn trees are stringBT too, built from the behaviours this module
+registers under ``ktbt.``: the teacher answers what it knows (Algorithm 1) and then cools down
+under a TT1 timer; the learner asks once about an unknown sequence and waits under a TT2 timer
+(Algorithm 2), merging the first acceptable answer. Teach and learn share one cool-down flag, as
+in the paper, so a robot that has just asked or answered does neither for a while.
+
+Whatever a peer sends is checked before it can touch the control tree: size and depth limits,
+parsing, validation against the robot's own registry, and that it answers the sequence asked.
+A refusal is counted and logged with its reason, and the control tree stays as it was.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .blackboard import Blackboard
+from .errors import StringBTError
+from .format import format as format_tree
+from .knowledge import Knowledge, KnowledgeBase, parse_sequence, sequence_key
+from .limits import Limits
+from .merge import conditions as parse_conditions
+from .messages import Query, Response
+from .registry import Registry
+from .runtime import LiveTree
+from .status import FAILURE, RUNNING, SUCCESS, Status
+from .syntax import parse
+from .transport.base import Transport
+from .tree import Condition, Node, Tree
+
+log = logging.getLogger("ktbt.agent")
+
+RECEIVE_LIMITS = Limits(max_size=60_000, max_depth=32, max_nodes=2_000, max_literal=256)
+"""What a learner accepts from a peer: far tighter than a file on disk."""
+
+ENCOUNTERED = "ktbt.encountered"
+COOLING_DOWN = "ktbt.coolingDown"
+QUERYING = "ktbt.querying"
+TEACHING = "ktbt.teaching"
+
+TEACH_TREE = """<sl>
+    <sq>
+        <c>(ktbt.CoolingDown)
+        <tt1>({cooldown})
+            <a>(ktbt.EndCoolDown)
+        <e>
+    <e>
+    <sq>
+        <c>(ktbt.QueryReceived)
+        <a>(ktbt.Respond)
+    <e>
+<e>
+"""
+
+LEARN_TREE = """<sq>
+    <c>(!ktbt.CoolingDown)
+    <c>(ktbt.UnknownSequence)
+    <tt2>({wait})
+        <a>(ktbt.QueryAndWait)
+    <e>
+<e>
+"""
+
+
+@dataclass
+class Metrics:
+    """What an experiment reads off an agent."""
+
+    queries_sent: int = 0
+    queries_received: int = 0
+    responses_sent: int = 0
+    responses_received: int = 0
+    queries_lost: int = 0
+    refusals: list[tuple[int, str]] = field(default_factory=list)
+    learned: dict[str, tuple[int, str]] = field(default_factory=dict)
+    """Sequence key -> (tick it was learned, who taught it)."""
+
+
+class Agent:
+    """One robot's KT-BT trees, bound to a transport.
+
+    ``control``: the robot's control tree (with a ``<k>(new)`` placeholder for learned
+    knowledge); ``registry``: its conditions and actions, against which received knowledge is
+    checked. The application tells the agent what it faces with :meth:`encounter`.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        control: Tree | Node | str,
+        registry: Registry,
+        transport: Transport,
+        *,
+        blackboard: Blackboard | None = None,
+        wait_ticks: int = 1000,
+        cooldown_ticks: int = 1000,
+        knowledge_path: str | Path | None = None,
+        slot: str = "new",
+        receive_limits: Limits = RECEIVE_LIMITS,
+    ) -> None:
+        self.name = name
+        self.transport = transport
+        self.slot = slot
+        self.receive_limits = receive_limits
+        self.knowledge_path = Path(knowledge_path) if knowledge_path is not None else None
+        self.metrics = Metrics()
+        self.blackboard = Blackboard() if blackboard is None else blackboard
+        self.control = LiveTree(control, registry, self.blackboard)
+        self.registry = registry
+        self.knowledge = KnowledgeBase.from_tree(self.control.tree)
+        self.wait_ticks = wait_ticks
+        self.now = 0
+        self._queries: deque[Query] = deque(maxlen=64)
+        self._responses: deque[Response] = deque(maxlen=256)
+        self._asking: Query | None = None
+        if self.knowledge_path is not None and self.knowledge_path.exists():
+            self._resume(self.knowledge_path)
+        own = self._library()
+        self.teach = LiveTree(TEACH_TREE.format(cooldown=cooldown_ticks), own, self.blackboard)
+        self.learn = LiveTree(LEARN_TREE.format(wait=wait_ticks), own, self.blackboard)
+
+    # -- what the application calls -----------------------------------------------------------
+
+    def encounter(self, sequence: Iterable[Condition | str] | None) -> None:
+        """The condition sequence the robot faces now (None: nothing in particular)."""
+        self.blackboard[ENCOUNTERED] = (
+            None if sequence is None else sequence_key(parse_conditions(sequence))
+        )
+
+    def knows(self, sequence: Iterable[Condition | str] | str) -> bool:
+        key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
+        return key in self.knowledge
+
+    def tick(self) -> Status:
+        """One tick: read the transport, then tick Control, Teach and Learn."""
+        self.now += 1
+        for message in self.transport.receive():
+            if isinstance(message, Query):
+                self.metrics.queries_received += 1
+                self._queries.append(message)
+            elif isinstance(message, Response):
+                self._responses.append(message)
+        status = self.control.tick()
+        self.teach.tick()
+        self.learn.tick()
+        return status
+
+    # -- the library behaviours of the teach and learn trees ----------------------------------
+
+    def _library(self) -> Registry:
+        own = Registry()
+        bb = self.blackboard
+        own.add_condition("ktbt.CoolingDown", lambda _bb: bool(bb.get(COOLING_DOWN)))
+        own.add_condition("ktbt.QueryReceived", lambda _bb: bool(self._queries))
+        own.add_condition("ktbt.UnknownSequence", self._unknown)
+        own.add_action("ktbt.EndCoolDown", self._end_cooldown)
+        own.add_action("ktbt.Respond", self._respond)
+        agent = self
+
+        class QueryAndWait(_QueryAndWait):
+            def __init__(self, bb: Blackboard) -> None:
+                super().__init__(bb, agent)
+
+        own.add_action("ktbt.QueryAndWait", QueryAndWait)
+        return own
+
+    def _unknown(self, bb: Blackboard) -> bool:
+        key = bb.get(ENCOUNTERED)
+        return bool(key) and key not in self.knowledge
+
+    def _end_cooldown(self, bb: Blackboard) -> Status:
+        bb[COOLING_DOWN] = False
+        bb[TEACHING] = False
+        return SUCCESS
+
+    def _respond(self, bb: Blackboard) -> Status:
+        """Algorithm 1: take one query; answer it if the sequence is known."""
+        query = self._queries.popleft()
+        item = self.knowledge.lookup(query.sequence)
+        if item is None:
+            return FAILURE
+        self.transport.send(
+            query.sender,
+            Response(
+                id=query.id,
+                sender=self.name,
+                sequence=query.sequence,
+                subtree=format_tree(item.subtree, "compact"),
+            ),
+        )
+        self.metrics.responses_sent += 1
+        self._queries.clear()  # one query per cool-down: the others' askers will time out
+        bb[COOLING_DOWN] = True
+        bb[TEACHING] = True
+        return SUCCESS
+
+    # -- learning -------------------------------------------------------------------------------
+
+    def refuse(self, reason: str) -> None:
+        self.metrics.refusals.append((self.now, reason))
+        log.info("%s refused knowledge: %s", self.name, reason)
+
+    def accept(self, response: Response, asked: Query) -> bool:
+        """Check a response against every rule; merge it if it passes. True if learned."""
+        if response.sequence != asked.sequence:
+            self.refuse(f"from {response.sender}: answers {response.sequence}, not the question")
+            return False
+        try:
+            conds = parse_sequence(asked.sequence, self.receive_limits)
+            subtree = parse(response.subtree, limits=self.receive_limits).root
+            changed = self.control.merge(subtree, self.slot, when=conds)
+        except StringBTError as err:
+            self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
+            return False
+        if changed:
+            self._learned(Knowledge(conds, subtree, self.slot, response.sender, self.now))
+        return True
+
+    def _learned(self, item: Knowledge) -> None:
+        self.knowledge.add(item)
+        self.metrics.learned[item.key] = (self.now, item.source or "")
+        if self.knowledge_path is not None:
+            self._persisted().save(self.knowledge_path)
+
+    def _persisted(self) -> KnowledgeBase:
+        return KnowledgeBase(k for k in self.knowledge if k.source is not None)
+
+    def _resume(self, path: Path) -> None:
+        """Merge what a previous run learned (a corrupt file is refused, not fatal)."""
+        try:
+            saved = KnowledgeBase.load(path, self.receive_limits)
+        except (OSError, ValueError, KeyError, StringBTError) as exc:
+            self.refuse(f"cannot resume from {path}: {exc}")
+            return
+        for item in saved:
+            try:
+                self.control.merge(item.subtree, item.segment, when=item.conditions)
+            except StringBTError as err:
+                self.refuse(f"saved knowledge {item.key}: {err.code.value} {err.message}")
+                continue
+            self.knowledge.add(item)
+            self.metrics.learned[item.key] = (0, item.source or "")
+
+
+class _QueryAndWait:
+    """Algorithm 2 as a stateful action: ask once, then wait for the first acceptable answer.
+
+    Its TT2 parent halts it when the wait is over: the query is then lost."""
+
+    def __init__(self, bb: Blackboard, agent: Agent) -> None:
+        self.bb = bb
+        self.agent = agent
+        self.query: Query | None = None
+
+    def tick(self) -> Status:
+        agent = self.agent
+        if self.query is None:
+            key = self.bb.get(ENCOUNTERED)
+            if not key:
+                return FAILURE
+            self.query = Query(id=Query.new_id(), sender=agent.name, sequence=key)
+            agent.transport.broadcast(self.query)
+            agent.metrics.queries_sent += 1
+            self.bb[QUERYING] = True
+            return RUNNING
+        while agent._responses:
+            response = agent._responses.popleft()
+            if response.id != self.query.id:
+                continue  # late answer to an earlier question
+            agent.metrics.responses_received += 1
+            if agent.accept(response, self.query):
+                self._finish()
+                return SUCCESS
+        return RUNNING
+
+    def halt(self) -> None:
+        self.agent.metrics.queries_lost += 1
+        self._finish()
+
+    def _finish(self) -> None:
+        self.query = None
+        self.bb[QUERYING] = False
+        self.bb[COOLING_DOWN] = True

@@ -12,10 +12,10 @@ import difflib
 import os
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -28,6 +28,9 @@ from .render import render
 from .syntax import parse
 from .tree import Tree
 from .validate import Vocabulary, check
+
+if TYPE_CHECKING:
+    from .transport.zenoh import ZenohSettings
 
 app = typer.Typer(
     name="ktbt",
@@ -299,6 +302,151 @@ def demo_command(
     from .demo import run_demo
 
     raise typer.Exit(run_demo(examples))
+
+
+peer_app = typer.Typer(
+    help="Exchange knowledge with other robots over eclipse-zenoh.", no_args_is_help=True
+)
+app.add_typer(peer_app, name="peer")
+
+Listen = Annotated[
+    list[str] | None, typer.Option("--listen", help="Endpoint to listen on, e.g. tcp/0.0.0.0:7447.")
+]
+Connect = Annotated[
+    list[str] | None, typer.Option("--connect", help="Endpoint of a peer or router to connect to.")
+]
+Config = Annotated[
+    Path | None, typer.Option("--config", help="A zenoh JSON5 config file (TLS, auth...).")
+]
+Multicast = Annotated[
+    bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
+]
+
+
+def _settings(
+    listen: list[str] | None, connect: list[str] | None, config: Path | None, multicast: bool
+) -> ZenohSettings:
+    from .transport.zenoh import ZenohSettings  # zenoh and pydantic load only for peers
+
+    if config is not None and not config.is_file():
+        _say(f"error: config file {config} not found")
+        raise typer.Exit(2)
+    return ZenohSettings(listen or (), connect or (), config, multicast_scouting=multicast)
+
+
+def _peer_call(action: Callable[[], int]) -> None:
+    """Run a peer command; a zenoh or file problem is one line and exit 1, never a traceback."""
+    try:
+        code = action()
+    except StringBTError as err:
+        _say(f"error: {err.code} {err.line}:{err.column}: {err.message}")
+        code = 1
+    except (OSError, ValueError) as exc:
+        _say(f"error: {exc}")
+        code = 1
+    except Exception as exc:  # zenoh raises its own ZError for bad endpoints or configs
+        _say(f"error: {type(exc).__name__}: {exc}")
+        code = 1
+    raise typer.Exit(code)
+
+
+@peer_app.command("serve")
+def peer_serve(
+    knowledge: Annotated[Path, typer.Option("--knowledge", help="A .sbt knowledge file.")],
+    name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "server",
+    listen: Listen = None,
+    connect: Connect = None,
+    config: Config = None,
+    multicast: Multicast = False,
+) -> None:
+    """Answer queries for the knowledge in a file until stopped."""
+    from . import peer
+
+    settings = _settings(listen, connect, config, multicast)
+    _peer_call(lambda: peer.serve(name, peer.load_knowledge(knowledge), settings, typer.echo))
+
+
+@peer_app.command("ask")
+def peer_ask(
+    sequence: Annotated[str, typer.Option("--sequence", help="COND[,COND...] to ask about.")],
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for answers.")] = 2.0,
+    name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "asker",
+    listen: Listen = None,
+    connect: Connect = None,
+    config: Config = None,
+    multicast: Multicast = False,
+) -> None:
+    """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time."""
+    from . import peer
+
+    settings = _settings(listen, connect, config, multicast)
+    conds = split_conditions(sequence)
+    _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo)[0])
+
+
+@peer_app.command("run")
+def peer_run(
+    name: Annotated[str, typer.Option("--id", help="This agent's name.")] = "robot",
+    sequence: Annotated[
+        list[str] | None, typer.Option("--sequence", help="A sequence to meet (repeatable).")
+    ] = None,
+    duration: Annotated[float, typer.Option(help="Seconds to run.")] = 30.0,
+    exit_when_done: Annotated[
+        bool, typer.Option(help="Stop once every sequence is known.")
+    ] = False,
+    knowledge_file: Annotated[
+        Path | None, typer.Option("--save", help="Persist learned knowledge here.")
+    ] = None,
+    listen: Listen = None,
+    connect: Connect = None,
+    config: Config = None,
+    multicast: Multicast = False,
+) -> None:
+    """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
+    from . import peer
+
+    settings = _settings(listen, connect, config, multicast)
+    sequences = sequence or peer.COLOURS
+    _peer_call(
+        lambda: peer.run_agent(
+            name,
+            settings,
+            sequences,
+            typer.echo,
+            duration=duration,
+            exit_when_done=exit_when_done,
+            knowledge_path=str(knowledge_file) if knowledge_file else None,
+        )
+    )
+
+
+@peer_app.command("router")
+def peer_router(
+    listen: Listen = None,
+    connect: Connect = None,
+    config: Config = None,
+    multicast: Multicast = False,
+) -> None:
+    """Run a zenoh router, for fleets that span subnets."""
+    from . import peer
+
+    _peer_call(lambda: peer.router(_settings(listen, connect, config, multicast), typer.echo))
+
+
+@peer_app.command("list")
+def peer_list(
+    timeout: Annotated[float, typer.Option(help="Seconds to look.")] = 2.0,
+    name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "observer",
+    listen: Listen = None,
+    connect: Connect = None,
+    config: Config = None,
+    multicast: Multicast = False,
+) -> None:
+    """Show who is present and what each knows."""
+    from . import peer
+
+    settings = _settings(listen, connect, config, multicast)
+    _peer_call(lambda: peer.list_peers(name, settings, timeout, typer.echo))
 
 
 def _version(value: bool) -> None:

@@ -1,0 +1,220 @@
+"""What ``ktbt peer`` does: serve knowledge, ask for it, run a learning agent, route, list.
+
+Every command is a real zenoh peer (or router) with explicit endpoints, and closes its session
+on exit, including on SIGINT and SIGTERM.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from .agent import Agent
+from .blackboard import Blackboard
+from .format import format as format_tree
+from .knowledge import KnowledgeBase, sequence_key
+from .merge import conditions as parse_conditions
+from .messages import Query, Response
+from .registry import Registry
+from .status import RUNNING, SUCCESS, Status
+from .syntax import parse
+from .transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
+
+Say = Callable[[str], None]
+
+DEMO_CONTROL = """<sl>
+    <sq>
+        <c>(Carrying)
+        <a>(DeliverToZone)
+    <e>
+    <k>(prior)<e>
+    <k>(new)<e>
+    <a>(RandomWalk)
+<e>
+"""
+COLOURS = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
+
+
+def demo_registry() -> Registry:
+    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
+    reg = Registry()
+    reg.flags("Carrying")
+
+    @reg.condition("TargetSeen")
+    def target_seen(bb: Blackboard, colour: int) -> bool:
+        return bool(bb.get("target") == colour)
+
+    @reg.action("PickTreasure")
+    def pick(bb: Blackboard) -> Status:
+        bb["Carrying"] = True
+        return SUCCESS
+
+    @reg.action("AssignCollectionPoint")
+    def assign(bb: Blackboard, colour: int) -> Status:
+        bb["zone"] = colour
+        return SUCCESS
+
+    @reg.action("DeliverToZone")
+    def deliver(bb: Blackboard) -> Status:
+        bb["Carrying"] = False
+        bb["delivered"] = bb.get("delivered", 0) + 1
+        return SUCCESS
+
+    @reg.action("RandomWalk")
+    def walk(bb: Blackboard) -> Status:
+        return RUNNING
+
+    return reg
+
+
+@contextmanager
+def until_signalled() -> Iterator[threading.Event]:
+    """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly."""
+    stop = threading.Event()
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for sig in previous:
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def load_knowledge(path: str | Path) -> KnowledgeBase:
+    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve."""
+    return KnowledgeBase.from_tree(parse(Path(path).read_bytes()))
+
+
+def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[str]]:
+    deadline = time.monotonic() + timeout
+    found: dict[str, list[str]] = {}
+    while time.monotonic() < deadline:
+        found = peers(transport, timeout=0.3)
+        if found:
+            break
+        time.sleep(0.05)
+    return found
+
+
+def serve(name: str, knowledge: KnowledgeBase, settings: ZenohSettings, say: Say) -> int:
+    def lookup(key: str) -> str | None:
+        item = knowledge.lookup(key)
+        return None if item is None else format_tree(item.subtree, "compact")
+
+    with (
+        until_signalled() as stop,
+        ZenohTransport(name, settings, lookup=lookup, catalog=knowledge.keys),
+    ):
+        say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        for item in knowledge:
+            say(f"  {item.key}")
+        stop.wait()
+    say(f"{name}: stopped")
+    return 0
+
+
+def ask(
+    name: str, sequence: Sequence[str], settings: ZenohSettings, timeout: float, say: Say
+) -> tuple[int, list[Response]]:
+    key = sequence_key(parse_conditions(sequence))
+    with ZenohTransport(name, settings, query_timeout=timeout) as transport:
+        wait_for_peers(transport, min(timeout, 3.0))
+        answers = transport.ask(Query(id=Query.new_id(), sender=name, sequence=key), timeout)
+    responses = [a for a in answers if isinstance(a, Response) and a.sequence == key]
+    for response in responses:
+        say(f"# from {response.sender}")
+        say(format_tree(parse(response.subtree)).rstrip())
+    return (0 if responses else 1), responses
+
+
+def run_agent(
+    name: str,
+    settings: ZenohSettings,
+    sequences: Sequence[str],
+    say: Say,
+    *,
+    control: str = DEMO_CONTROL,
+    tick_rate: float = 100.0,
+    wait_ticks: int = 200,
+    cooldown_ticks: int = 50,
+    duration: float = 30.0,
+    knowledge_path: str | None = None,
+    exit_when_done: bool = False,
+) -> int:
+    """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
+    what it knows to whoever asks, and prints what it learned."""
+    with (
+        until_signalled() as stop,
+        ZenohTransport(name, settings, query_timeout=wait_ticks / tick_rate) as transport,
+    ):
+        robot = Agent(
+            name,
+            control,
+            demo_registry(),
+            transport,
+            wait_ticks=wait_ticks,
+            cooldown_ticks=cooldown_ticks,
+            knowledge_path=knowledge_path,
+        )
+        transport.catalog = robot.knowledge.keys
+        wait_for_peers(transport, 3.0)
+        deadline = time.monotonic() + duration
+        todo = list(sequences)
+        period = 1.0 / tick_rate
+        say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        announced = set(robot.metrics.learned)
+        while not stop.is_set() and time.monotonic() < deadline:
+            while todo and robot.knows([todo[0]]):
+                todo.pop(0)
+            if not todo and exit_when_done:
+                break
+            robot.encounter([todo[0]] if todo else None)
+            robot.tick()
+            for key in robot.metrics.learned.keys() - announced:
+                tick, source = robot.metrics.learned[key]
+                say(f"{name}: learned {key} from {source} at tick {tick}")
+                announced.add(key)
+            stop.wait(period)
+        m = robot.metrics
+        say(
+            f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
+            f"lost {m.queries_lost}, refused {len(m.refusals)}, taught {m.responses_sent}"
+        )
+        for item in robot.knowledge:
+            say(f"  knows {item.key}")
+        return 0 if all(robot.knows([s]) for s in sequences) else 1
+
+
+def router(settings: ZenohSettings, say: Say) -> int:
+    routed = ZenohSettings(
+        listen=settings.listen,
+        connect=settings.connect,
+        config=settings.config,
+        mode="router",
+        multicast_scouting=settings.multicast_scouting,
+    )
+    with until_signalled() as stop:
+        session = open_session(routed)
+        try:
+            say(f"router listening on {', '.join(settings.listen) or 'the configured endpoints'}")
+            stop.wait()
+        finally:
+            session.close()  # type: ignore[no-untyped-call]
+    return 0
+
+
+def list_peers(name: str, settings: ZenohSettings, timeout: float, say: Say) -> int:
+    with ZenohTransport(name, settings) as transport:
+        found = wait_for_peers(transport, timeout)
+    for peer, known in sorted(found.items()):
+        say(f"{peer}: {len(known)} skills")
+        for key in known:
+            say(f"  {key}")
+    if not found:
+        say("no peers found")
+    return 0 if found else 1

@@ -1,0 +1,310 @@
+"""The protocol over real zenoh sessions on loopback: in one process, across three processes,
+with a teacher killed mid-exchange, and from a program written against the spec alone."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import ktbt_proto as kp
+from ktbt_proto.agent import Agent
+from ktbt_proto.knowledge import KnowledgeBase
+from ktbt_proto.messages import ErrorReply, Query, Response, decode
+from ktbt_proto.peer import DEMO_CONTROL, demo_registry
+from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
+
+from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process
+
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
+GREEN = "<c>(TargetSeen,colour=2)"
+
+
+def settings(port: int, *connect: int) -> ZenohSettings:
+    return ZenohSettings(listen=[endpoint(port)], connect=[endpoint(p) for p in connect])
+
+
+def serve_lookup(kb: KnowledgeBase):  # type: ignore[no-untyped-def]
+    def lookup(key: str) -> str | None:
+        item = kb.lookup(key)
+        return None if item is None else kp.format(item.subtree, "compact")
+
+    return lookup
+
+
+def test_ask_answer_presence_and_refusals_in_one_process() -> None:
+    kb = KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
+    a, b = free_port(), free_port()
+    with (
+        ZenohTransport("teacher", settings(a), lookup=serve_lookup(kb), catalog=kb.keys) as t,
+        ZenohTransport("learner", settings(b, a)) as learner,
+    ):
+        deadline = time.monotonic() + 10
+        while "teacher" not in peers(learner, 0.3) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert peers(learner)["teacher"] == kb.keys()
+        answers = learner.ask(Query(id="q1", sender="learner", sequence=GREEN), timeout=2)
+        assert answers == [
+            Response(
+                id="q1",
+                sender="teacher",
+                sequence=GREEN,
+                subtree="<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>",
+            )
+        ]
+        assert learner.ask(Query(id="q2", sender="learner", sequence="<c>(X)"), 1) == []
+        # A malformed query gets an error reply, and the teacher counts the refusal.
+        replies = list(learner._session.get("ktbt/v1/knowledge/*", payload=b"{oops", timeout=2))
+        assert replies and all(r.err is not None for r in replies)  # the asker's own, too
+        error = decode(replies[0].err.payload.to_bytes())
+        assert isinstance(error, ErrorReply) and error.code == "refused"
+        assert t.refused == 1
+
+
+def test_agents_over_zenoh_teach_through_their_trees() -> None:
+    """No lookup: the teacher's own teach tree answers, through pending zenoh queries."""
+    a, b = free_port(), free_port()
+    with (
+        ZenohTransport("k", settings(a), query_timeout=2) as tk,
+        ZenohTransport("i", settings(b, a), query_timeout=2) as ti,
+    ):
+        teacher = Agent(
+            "k",
+            DEMO_CONTROL.replace(
+                "<k>(prior)<e>", "<k>(prior)" + KNOWLEDGE.read_text().split("<k>(prior)", 1)[1]
+            ),
+            demo_registry(),
+            tk,
+            wait_ticks=300,
+        )
+        learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, wait_ticks=300)
+        learner.encounter(["TargetSeen(colour=3)"])
+        deadline = time.monotonic() + 20
+        while not learner.knows(["TargetSeen(colour=3)"]) and time.monotonic() < deadline:
+            teacher.tick()
+            learner.tick()
+            time.sleep(0.005)
+        assert learner.knows(["TargetSeen(colour=3)"])
+        assert learner.metrics.learned["<c>(TargetSeen,colour=3)"][1] == "k"
+        assert teacher.metrics.responses_sent == 1
+        time.sleep(1.2)
+        tk.receive()
+        assert tk._pending == {}  # every query the teacher received was finished
+
+
+def test_three_processes_knowledge_spreads_along_a_chain() -> None:
+    """teacher -> r1 -> r2: r2 learns from r1 after the teacher has gone (Theorem 2)."""
+    pt, p1, p2 = free_port(), free_port(), free_port()
+    with (
+        ktbt_process(
+            "peer",
+            "serve",
+            "--id",
+            "teacher",
+            "--knowledge",
+            str(KNOWLEDGE),
+            "--listen",
+            endpoint(pt),
+            ready="serving",
+        ) as teacher,
+        ktbt_process(
+            "peer",
+            "run",
+            "--id",
+            "r1",
+            "--listen",
+            endpoint(p1),
+            "--connect",
+            endpoint(pt),
+            "--sequence",
+            "TargetSeen(colour=2)",
+            "--duration",
+            "60",
+            ready="learned <c>(TargetSeen,colour=2) from teacher",
+        ) as r1,
+    ):
+        teacher.send_signal(signal.SIGTERM)
+        assert teacher.wait(timeout=15) == 0
+        r2 = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ktbt_proto",
+                "peer",
+                "run",
+                "--id",
+                "r2",
+                "--listen",
+                endpoint(p2),
+                "--connect",
+                endpoint(p1),
+                "--sequence",
+                "TargetSeen(colour=2)",
+                "--exit-when-done",
+                "--duration",
+                "30",
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
+        assert r2.returncode == 0, r2.stdout + r2.stderr
+        assert "r2: learned <c>(TargetSeen,colour=2) from r1" in r2.stdout
+        assert r1.poll() is None  # still running, still teaching
+
+
+def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
+    pt, pl, ph = free_port(), free_port(), free_port()
+    with ZenohTransport("i", settings(pl, pt, ph), query_timeout=1.0) as ti:
+        learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, wait_ticks=100, cooldown_ticks=20)
+        with ktbt_process(
+            "peer",
+            "serve",
+            "--id",
+            "doomed",
+            "--knowledge",
+            str(KNOWLEDGE),
+            "--listen",
+            endpoint(pt),
+            ready="serving",
+        ) as doomed:
+            doomed.send_signal(signal.SIGKILL)
+            doomed.wait(timeout=15)
+        learner.encounter(["TargetSeen(colour=1)"])
+        for _ in range(150):
+            learner.tick()
+            time.sleep(0.01)
+        assert not learner.knows(["TargetSeen(colour=1)"])
+        assert learner.metrics.queries_lost >= 1
+        with ktbt_process(
+            "peer",
+            "serve",
+            "--id",
+            "honest",
+            "--knowledge",
+            str(KNOWLEDGE),
+            "--listen",
+            endpoint(ph),
+            "--connect",
+            endpoint(pl),
+            ready="serving",
+        ):
+            deadline = time.monotonic() + 30
+            while not learner.knows(["TargetSeen(colour=1)"]) and time.monotonic() < deadline:
+                learner.tick()
+                time.sleep(0.01)
+        assert learner.metrics.learned["<c>(TargetSeen,colour=1)"][1] == "honest"
+
+
+def test_a_program_written_from_the_spec_asks_a_ktbt_peer() -> None:
+    port = free_port()
+    with ktbt_process(
+        "peer",
+        "serve",
+        "--id",
+        "teacher",
+        "--knowledge",
+        str(KNOWLEDGE),
+        "--listen",
+        endpoint(port),
+        ready="serving",
+    ):
+        proc = subprocess.run(
+            [
+                sys.executable,
+                str(ROOT / "examples" / "ask_with_raw_zenoh.py"),
+                endpoint(port),
+                "<c>(TargetSeen,colour=4)",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    assert proc.returncode == 0, proc.stderr
+    answer = json.loads(proc.stdout)
+    assert answer["type"] == "response" and answer["sender"] == "teacher"
+    assert answer["subtree"] == "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>"
+
+
+def test_peer_ask_cli_exit_codes() -> None:
+    port = free_port()
+    with ktbt_process(
+        "peer",
+        "serve",
+        "--id",
+        "teacher",
+        "--knowledge",
+        str(KNOWLEDGE),
+        "--listen",
+        endpoint(port),
+        ready="serving",
+    ):
+        ok = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ktbt_proto",
+                "peer",
+                "ask",
+                "--sequence",
+                "TargetSeen(colour=1)",
+                "--connect",
+                endpoint(port),
+                "--timeout",
+                "3",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
+        assert ok.returncode == 0 and ok.stdout.startswith("# from teacher\n<sq>\n")
+        none = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ktbt_proto",
+                "peer",
+                "ask",
+                "--sequence",
+                "Nope",
+                "--connect",
+                endpoint(port),
+                "--timeout",
+                "1",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
+        assert (none.returncode, none.stdout) == (1, "")
+        listed = subprocess.run(
+            [sys.executable, "-m", "ktbt_proto", "peer", "list", "--connect", endpoint(port)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
+        assert listed.returncode == 0 and "teacher: 4 skills" in listed.stdout
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ktbt_proto",
+            "peer",
+            "ask",
+            "--sequence",
+            "A",
+            "--connect",
+            "nonsense://x",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr and bad.stderr.startswith("error:")

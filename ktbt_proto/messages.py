@@ -90,3 +90,10 @@ def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response 
 def json_schema() -> dict[str, object]:
     """The JSON Schema of a message (``spec/schemas/message.json``)."""
     return _ADAPTER.json_schema()
+
+
+def schema_text() -> str:
+    """What ``spec/schemas/message.json`` holds (a test keeps the file equal to it)."""
+    import json
+
+    return json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"

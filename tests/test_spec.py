@@ -90,3 +90,21 @@ def test_vectors_cover_every_parse_error_code() -> None:
         "SBT402",
     }
     assert {c.value for c in kp.ErrorCode} - not_in_vectors <= seen
+
+
+def test_message_schema_file_matches_the_models() -> None:
+    from ktbt_proto.messages import schema_text
+
+    committed = (SPEC / "schemas" / "message.json").read_text()
+    assert committed == schema_text(), "regenerate spec/schemas/message.json from the models"
+
+
+def test_protocol_examples_are_valid_messages() -> None:
+    from ktbt_proto.messages import Query, Response, decode
+
+    text = (SPEC / "protocol.md").read_text()
+    block = re.search(r"```json\n(.*?)```", text, re.S)
+    assert block is not None
+    lines = block.group(1).strip().split("\n", 1)
+    assert isinstance(decode(lines[0].encode()), Query)
+    assert isinstance(decode(lines[1].replace("\n", " ").encode()), Response)

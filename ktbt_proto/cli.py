@@ -321,17 +321,25 @@ Config = Annotated[
 Multicast = Annotated[
     bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
 ]
+Mode = Annotated[str, typer.Option("--mode", help="peer, or client (through a router).")]
 
 
 def _settings(
-    listen: list[str] | None, connect: list[str] | None, config: Path | None, multicast: bool
+    listen: list[str] | None,
+    connect: list[str] | None,
+    config: Path | None,
+    multicast: bool,
+    mode: str = "peer",
 ) -> ZenohSettings:
     from .transport.zenoh import ZenohSettings  # zenoh and pydantic load only for peers
 
     if config is not None and not config.is_file():
         _say(f"error: config file {config} not found")
         raise typer.Exit(2)
-    return ZenohSettings(listen or (), connect or (), config, multicast_scouting=multicast)
+    if mode not in ("peer", "client"):
+        _say(f"error: --mode must be peer or client, not {mode!r}")
+        raise typer.Exit(2)
+    return ZenohSettings(listen or (), connect or (), config, mode, multicast)
 
 
 def _peer_call(action: Callable[[], int]) -> None:
@@ -358,11 +366,12 @@ def peer_serve(
     connect: Connect = None,
     config: Config = None,
     multicast: Multicast = False,
+    mode: Mode = "peer",
 ) -> None:
     """Answer queries for the knowledge in a file until stopped."""
     from . import peer
 
-    settings = _settings(listen, connect, config, multicast)
+    settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.serve(name, peer.load_knowledge(knowledge), settings, typer.echo))
 
 
@@ -375,11 +384,12 @@ def peer_ask(
     connect: Connect = None,
     config: Config = None,
     multicast: Multicast = False,
+    mode: Mode = "peer",
 ) -> None:
     """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time."""
     from . import peer
 
-    settings = _settings(listen, connect, config, multicast)
+    settings = _settings(listen, connect, config, multicast, mode)
     conds = split_conditions(sequence)
     _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo)[0])
 
@@ -401,11 +411,12 @@ def peer_run(
     connect: Connect = None,
     config: Config = None,
     multicast: Multicast = False,
+    mode: Mode = "peer",
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
 
-    settings = _settings(listen, connect, config, multicast)
+    settings = _settings(listen, connect, config, multicast, mode)
     sequences = sequence or peer.COLOURS
     _peer_call(
         lambda: peer.run_agent(
@@ -441,11 +452,12 @@ def peer_list(
     connect: Connect = None,
     config: Config = None,
     multicast: Multicast = False,
+    mode: Mode = "peer",
 ) -> None:
     """Show who is present and what each knows."""
     from . import peer
 
-    settings = _settings(listen, connect, config, multicast)
+    settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.list_peers(name, settings, timeout, typer.echo))
 
 

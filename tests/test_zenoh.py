@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
@@ -308,3 +309,79 @@ def test_peer_ask_cli_exit_codes() -> None:
         cwd=ROOT,
     )
     assert bad.returncode == 1 and "Traceback" not in bad.stderr and bad.stderr.startswith("error:")
+
+
+def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ktbt_proto",
+            "peer",
+            "ask",
+            "--sequence",
+            "TargetSeen(colour=1)",
+            "--connect",
+            endpoint(port),
+            "--timeout",
+            "2",
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+def test_clients_through_a_router() -> None:
+    port = free_port()
+    with (
+        ktbt_process("peer", "router", "--listen", endpoint(port), ready="router listening"),
+        ktbt_process(
+            "peer",
+            "serve",
+            "--id",
+            "teacher",
+            "--knowledge",
+            str(KNOWLEDGE),
+            "--mode",
+            "client",
+            "--connect",
+            endpoint(port),
+            ready="serving",
+        ),
+    ):
+        asked = _ask(port, "--mode", "client")
+        assert asked.returncode == 0, asked.stdout + asked.stderr
+        assert asked.stdout.startswith("# from teacher\n")
+
+
+def test_user_password_authentication_from_a_config_file(tmp_path: Path) -> None:
+    dictionary = tmp_path / "users.txt"
+    dictionary.write_text("teacher:s3cret\nlearner:letmein\n")
+
+    def config(user: str, password: str) -> Path:
+        path = tmp_path / f"{user}-{password}.json5"
+        auth = {"user": user, "password": password, "dictionary_file": str(dictionary)}
+        path.write_text(json.dumps({"transport": {"auth": {"usrpwd": auth}}}))
+        return path
+
+    port = free_port()
+    with ktbt_process(
+        "peer",
+        "serve",
+        "--id",
+        "teacher",
+        "--knowledge",
+        str(KNOWLEDGE),
+        "--listen",
+        endpoint(port),
+        "--config",
+        str(config("teacher", "s3cret")),
+        ready="serving",
+    ):
+        good = _ask(port, "--config", str(config("learner", "letmein")))
+        assert good.returncode == 0, good.stdout + good.stderr
+        refused = _ask(port, "--config", str(config("learner", "guess")))
+        assert (refused.returncode, refused.stdout) == (1, "")

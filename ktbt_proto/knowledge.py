@@ -10,6 +10,7 @@ import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 from .format import format as format_tree
@@ -27,8 +28,10 @@ def sequence_key(conditions: Iterable[Condition]) -> str:
     return "".join(format_tree(c, "compact") for c in conditions)
 
 
+@lru_cache(maxsize=1024)
 def parse_sequence(key: str, limits: Limits = DEFAULT_LIMITS) -> tuple[Condition, ...]:
-    """The conditions of a sequence key (``<c>(A)<c>(!B)``); raises StringBTError."""
+    """The conditions of a sequence key (``<c>(A)<c>(!B)``); raises StringBTError. Cached:
+    a robot asks and is asked about the same few sequences again and again."""
     root = parse(f"<sq>{key}<e>", limits=limits).root
     assert isinstance(root, Sequence)
     conds = root.children

@@ -178,6 +178,7 @@ class ZenohTransport:
                 f"{PREFIX}/knowledge/*",
                 payload=encode(message),
                 timeout=self.query_timeout if timeout is None else timeout,
+                allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
             )
             for reply in replies:
                 sample = reply.ok if reply.ok is not None else reply.err

@@ -1,0 +1,408 @@
+"""End-to-end knowledge transfer over eclipse-zenoh, against a raw zenoh round trip in the same run.
+
+Run with ``python -m benchmarks.bench_transfer`` (or ``python -m benchmarks`` for every module).
+Prints Markdown tables and writes the numbers to ``benchmarks/results/transfer.json``.
+
+Four zenoh sessions in this process, on loopback with explicit ``tcp/127.0.0.1:<free port>``
+endpoints and multicast scouting off, in two separate pairs (a listener and a peer connecting
+to it):
+
+* raw (the anchor): ``session.get(selector, payload=...)`` answered by a queryable whose callback
+  replies with a fixed payload; the time covers the get and reading every reply's bytes. Its
+  payloads have exactly the sizes of ours' query and response.
+* ours: a learner ``ZenohTransport`` asks a teacher ``ZenohTransport`` serving
+  ``examples/knowledge/colours.sbt`` through ``lookup=`` (as ``ktbt peer serve`` does). The time
+  covers building the ``Query``, ``learner.ask(query, timeout)`` (encode, get, the teacher's
+  lookup and reply, decode), the checks of ``Agent.accept`` (the answer is to the question, the
+  sequence and the subtree parsed with ``RECEIVE_LIMITS``), ``live.merge(subtree, "new",
+  when=conditions)`` and one ``live.tick()``, which runs the new knowledge. Every sample merges
+  into a fresh, already running ``LiveTree(DEMO_CONTROL, demo_registry())`` built outside the
+  timed region, and asks about the next colour (1 to 4 in turn).
+
+The two contenders alternate round by round (the first one alternating too), after the peers see
+each other and a warm-up; the cyclic collector is off while timing and runs every 100 rounds,
+outside the timed region. The Python-side work of ours is also timed alone, without zenoh, to
+show where the difference from the anchor goes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import importlib.metadata
+import socket
+import time
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+import ktbt_proto as kp
+from ktbt_proto.agent import RECEIVE_LIMITS
+from ktbt_proto.knowledge import KnowledgeBase, parse_sequence
+from ktbt_proto.messages import Query, Response, decode, encode
+from ktbt_proto.peer import DEMO_CONTROL, demo_registry, load_knowledge
+from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
+
+from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
+
+ROUNDS = 2000
+"""Interleaved rounds (each times one raw round trip and one transfer of ours)."""
+WARMUP = 50
+"""Untimed rounds once the peers see each other."""
+COMPONENT_ROUNDS = 2000
+"""Interleaved rounds of the zenoh-free breakdown of ours."""
+GET_TIMEOUT = 2.0
+"""Seconds a get may wait; the replies end it long before."""
+CONNECT_TIMEOUT = 10.0
+"""Seconds to wait for each pair of sessions to see each other."""
+KNOWLEDGE_PATH = Path(__file__).resolve().parents[1] / "examples" / "knowledge" / "colours.sbt"
+TEACHER, LEARNER = "teacher", "learner"
+COLOURS = (1, 2, 3, 4)
+RAW_SELECTOR = "bench/raw/*"
+RAW_KEY = "bench/raw/server"
+SLOT = "new"
+
+TARGET_RATIO = 2.0
+"""Ours' median may take at most this many times the raw round trip's."""
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def settings(listen: int, *connect: int) -> ZenohSettings:
+    """Explicit loopback endpoints; ``ZenohSettings`` turns multicast scouting off."""
+    return ZenohSettings(
+        listen=[f"tcp/127.0.0.1:{listen}"], connect=[f"tcp/127.0.0.1:{p}" for p in connect]
+    )
+
+
+def sequence_of(colour: int) -> str:
+    return f"<c>(TargetSeen,colour={colour})"
+
+
+def serve_lookup(kb: KnowledgeBase) -> Callable[[str], str | None]:
+    """What ``ktbt peer serve`` answers queries with."""
+
+    def lookup(key: str) -> str | None:
+        item = kb.lookup(key)
+        return None if item is None else kp.format(item.subtree, "compact")
+
+    return lookup
+
+
+def wire_messages(lookup: Callable[[str], str | None]) -> tuple[Query, Response]:
+    """A query of ours and the teacher's response to it, as they travel."""
+    key = sequence_of(COLOURS[0])
+    subtree = lookup(key)
+    if subtree is None:
+        raise AssertionError(f"{KNOWLEDGE_PATH.name} does not know {key}")
+    query = Query(id=Query.new_id(), sender=LEARNER, sequence=key)
+    return query, Response(id=query.id, sender=TEACHER, sequence=key, subtree=subtree)
+
+
+def _wait(until: Callable[[], bool], what: str) -> float:
+    """Poll ``until`` (which may block briefly) until it holds; seconds it took."""
+    start = time.monotonic()
+    while not until():
+        if time.monotonic() - start > CONNECT_TIMEOUT:
+            raise TimeoutError(f"{what} within {CONNECT_TIMEOUT:.0f} s")
+        time.sleep(0.02)
+    return time.monotonic() - start
+
+
+Timed = tuple[int, bool]
+"""Nanoseconds of one timed region, and whether it did what it should."""
+
+
+# -- raw zenoh -----------------------------------------------------------------------------------
+
+
+def raw_server(reply: bytes) -> Callable[[zenoh.Query], None]:
+    def on_query(query: zenoh.Query) -> None:
+        query.reply(RAW_KEY, reply)
+        query.drop()  # type: ignore[no-untyped-call]
+
+    return on_query
+
+
+def raw_round_trip(session: zenoh.Session, payload: bytes, expected: bytes) -> Callable[[], Timed]:
+    clock = time.perf_counter_ns
+
+    def run() -> Timed:
+        start = clock()
+        got = [
+            r.ok.payload.to_bytes()
+            for r in session.get(RAW_SELECTOR, payload=payload, timeout=GET_TIMEOUT)
+            if r.ok is not None
+        ]
+        elapsed = clock() - start
+        return elapsed, got == [expected]
+
+    return run
+
+
+# -- ours ----------------------------------------------------------------------------------------
+
+PHASES = ("ask", "check_parse", "merge_tick")
+"""Parts of a transfer of ours: query built and asked through the answer decoded; the answer
+checked and parsed; the merge and the first tick after it."""
+
+
+@dataclass
+class _Learner:
+    """A fresh running control tree that does not know ``colour`` yet (built untimed)."""
+
+    colour: int
+    key: str
+    live: kp.LiveTree
+
+
+def fresh_learner(control: kp.Tree, registry: kp.Registry, colour: int) -> _Learner:
+    live = kp.LiveTree(control, registry, kp.Blackboard(target=colour))
+    if live.tick() is not kp.RUNNING:  # RandomWalk runs: nothing known about this colour
+        raise AssertionError("the demo control tree should be running its fallback")
+    return _Learner(colour, sequence_of(colour), live)
+
+
+def transfer(transport: ZenohTransport, p: _Learner, phases: list[list[int]]) -> Timed:
+    """One transfer of ours, as ``Agent`` does it (``_QueryAndWait`` then ``accept``)."""
+    live, key, clock = p.live, p.key, time.perf_counter_ns
+    start = clock()
+    query = Query(id=Query.new_id(), sender=transport.name, sequence=key)
+    answers = transport.ask(query, GET_TIMEOUT)
+    asked = clock()
+    response = next((a for a in answers if isinstance(a, Response) and a.id == query.id), None)
+    if response is None or response.sequence != query.sequence:
+        return clock() - start, False
+    conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
+    subtree = kp.parse(response.subtree, limits=RECEIVE_LIMITS).root
+    parsed = clock()
+    changed = live.merge(subtree, SLOT, when=conds)
+    status = live.tick()
+    end = clock()
+    for samples, ns in zip(phases, (asked - start, parsed - asked, end - parsed), strict=True):
+        samples.append(ns)
+    learned = changed and status is kp.SUCCESS and live.blackboard.get("zone") == p.colour
+    return end - start, learned
+
+
+# -- the run -------------------------------------------------------------------------------------
+
+
+def _us(samples: Sequence[int]) -> dict[str, float]:
+    ordered = sorted(samples)
+    return {
+        "median": round(percentile(ordered, 0.5) / 1_000, 1),
+        "p90": round(percentile(ordered, 0.9) / 1_000, 1),
+        "p99": round(percentile(ordered, 0.99) / 1_000, 1),
+    }
+
+
+def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
+    kb = load_knowledge(KNOWLEDGE_PATH)
+    lookup = serve_lookup(kb)
+    query, response = wire_messages(lookup)
+    query_bytes, response_bytes = encode(query), encode(response)
+    control = kp.parse(DEMO_CONTROL)
+    registry = demo_registry()
+    pt, pl, ps, pc = (free_port() for _ in range(4))
+    with ExitStack() as stack:
+        stack.enter_context(ZenohTransport(TEACHER, settings(pt), lookup=lookup, catalog=kb.keys))
+        learner = stack.enter_context(ZenohTransport(LEARNER, settings(pl, pt)))
+        server = stack.enter_context(open_session(settings(ps)))
+        client = stack.enter_context(open_session(settings(pc, ps)))
+        stack.enter_context(server.declare_queryable(RAW_KEY, raw_server(response_bytes)))
+        raw = raw_round_trip(client, query_bytes, response_bytes)
+        connect_s = {
+            "ours": _wait(lambda: TEACHER in peers(learner, 0.3), "the learner sees no teacher"),
+            "raw": _wait(lambda: raw()[1], "the raw queryable does not answer"),
+        }
+
+        raw_ns: list[int] = []
+        ours_ns: list[int] = []
+        phases: list[list[int]] = [[] for _ in PHASES]
+        with gc_paused():
+            for r in range(warmup + rounds):
+                if r and r % 100 == 0:
+                    gc.collect()
+                fresh = fresh_learner(control, registry, COLOURS[r % len(COLOURS)])
+                timed = phases if r >= warmup else [[] for _ in PHASES]
+                for contender in ("raw", "ours") if r % 2 else ("ours", "raw"):
+                    if contender == "raw":
+                        elapsed, ok = raw()
+                    else:
+                        elapsed, ok = transfer(learner, fresh, timed)
+                    if not ok:
+                        raise AssertionError(f"{contender}: round {r} did not complete")
+                    if r >= warmup:
+                        (raw_ns if contender == "raw" else ours_ns).append(elapsed)
+    result: dict[str, Any] = {
+        "rounds": rounds,
+        "warmup_rounds": warmup,
+        "connect_s": {k: round(v, 2) for k, v in connect_s.items()},
+        "payload_bytes": {"query": len(query_bytes), "response": len(response_bytes)},
+        "raw": _us(raw_ns),
+        "ours": _us(ours_ns),
+        "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
+    }
+    result["ratio"] = {
+        q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
+    }
+    return result
+
+
+def run_components(rounds: int) -> dict[str, dict[str, float]]:
+    """The Python-side work of one transfer of ours, each part alone and without zenoh."""
+    kb = load_knowledge(KNOWLEDGE_PATH)
+    lookup = serve_lookup(kb)
+    query, response = wire_messages(lookup)
+    query_bytes, response_bytes = encode(query), encode(response)
+
+    def teacher_answers() -> bytes:
+        # ZenohTransport._on_query with a lookup, less the zenoh calls.
+        asked = decode(query_bytes)
+        assert isinstance(asked, Query)
+        subtree = lookup(asked.sequence)
+        assert subtree is not None
+        return encode(
+            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=subtree)
+        )
+
+    def check_parse() -> object:
+        conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
+        return conds, kp.parse(response.subtree, limits=RECEIVE_LIMITS)
+
+    stats = interleaved(
+        {
+            "build_encode_query": lambda: encode(
+                Query(id=Query.new_id(), sender=LEARNER, sequence=query.sequence)
+            ),
+            "own_queryable_decode": lambda: decode(query_bytes),
+            "teacher_answer": teacher_answers,
+            "decode_response": lambda: decode(response_bytes),
+            "check_parse": check_parse,
+        },
+        rounds=rounds,
+    )
+    return {
+        name: {"median": round(st.median_us, 1), "p90": round(st.p90_us, 1)}
+        for name, st in stats.items()
+    }
+
+
+def run(rounds: int = ROUNDS, component_rounds: int = COMPONENT_ROUNDS) -> dict[str, Any]:
+    started = time.perf_counter()
+    result: dict[str, Any] = {
+        "python": machine(),
+        "zenoh": importlib.metadata.version("eclipse-zenoh"),
+        "pydantic": importlib.metadata.version("pydantic"),
+        "transfer": run_round_trips(rounds),
+        "components": run_components(component_rounds),
+    }
+    result["targets"] = {
+        "ours_over_raw_median_max": TARGET_RATIO,
+        "met": result["transfer"]["ratio"]["median"] <= TARGET_RATIO,
+    }
+    result["seconds"] = round(time.perf_counter() - started, 1)
+    return result
+
+
+# -- report ----------------------------------------------------------------------------------------
+
+
+def report(result: Mapping[str, Any]) -> str:
+    t = result["transfer"]
+    raw, ours, ratio = t["raw"], t["ours"], t["ratio"]
+    q_bytes, r_bytes = t["payload_bytes"]["query"], t["payload_bytes"]["response"]
+
+    def us(d: Mapping[str, float]) -> list[str]:
+        return [f"{d['median']:,.1f}", f"{d['p90']:,.1f}", f"{d['p99']:,.1f}"]
+
+    met = result["targets"]["met"]
+    main_table = markdown_table(
+        ["loopback, one process", "median µs", "p90 µs", "p99 µs", "vs raw (median)"],
+        [
+            [
+                f"raw zenoh: get -> queryable -> reply ({q_bytes} B / {r_bytes} B)",
+                *us(raw),
+                "1.00x",
+            ],
+            [
+                "ours: Query -> `ask` -> Response -> parse -> `merge` + tick",
+                *us(ours),
+                f"{ratio['median']:.2f}x",
+            ],
+            ["  of which build + `ask` (encode, get, decode)", *us(t["ours_phases"]["ask"]), ""],
+            [
+                "  of which checks + `kp.parse(..., limits=RECEIVE_LIMITS)`",
+                *us(t["ours_phases"]["check_parse"]),
+                "",
+            ],
+            [
+                "  of which `live.merge(subtree, 'new', when=...)` + `live.tick()`",
+                *us(t["ours_phases"]["merge_tick"]),
+                "",
+            ],
+        ],
+    )
+    target = (
+        f"Target: ours' median ≤ {TARGET_RATIO:.0f}x raw's: {ratio['median']:.2f}x "
+        f"({'met' if met else 'missed'}); p99 {ratio['p99']:.2f}x."
+    )
+    c = result["components"]
+    labels = {
+        "build_encode_query": "learner: `Query(...)` + `encode`",
+        "own_queryable_decode": "learner's own queryable (matches `knowledge/*`): `decode` query",
+        "teacher_answer": "teacher: `decode` query + lookup + format + `encode` response",
+        "decode_response": "learner: `decode` response",
+        "check_parse": "learner: `parse_sequence` + `kp.parse` subtree (`RECEIVE_LIMITS`)",
+    }
+    python_sum = sum(c[name]["median"] for name in labels)
+    component_table = markdown_table(
+        ["Python-side work of one transfer, timed alone", "median µs", "p90 µs"],
+        [
+            *(
+                [labels[name], f"{c[name]['median']:,.1f}", f"{c[name]['p90']:,.1f}"]
+                for name in labels
+            ),
+            ["sum of the medians", f"{python_sum:,.1f}", ""],
+        ],
+    )
+    note = (
+        f"{result['python']}, eclipse-zenoh {result['zenoh']}, pydantic {result['pydantic']}. "
+        f"{t['rounds']} interleaved rounds after {t['warmup_rounds']} warm-up rounds, tcp on "
+        "127.0.0.1 with explicit endpoints and multicast scouting off, gc off while timing; "
+        "every transfer of ours merged new knowledge into a fresh running tree. "
+        f"Whole run: {result['seconds']:.0f} s."
+    )
+    return "\n\n".join(
+        ["## Knowledge transfer over zenoh", main_table, target, component_table, note]
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_transfer")
+    parser.add_argument("--rounds", type=int, default=ROUNDS, help="interleaved rounds")
+    parser.add_argument(
+        "--component-rounds", type=int, default=COMPONENT_ROUNDS, help="breakdown rounds"
+    )
+    parser.add_argument("--no-json", action="store_true", help="do not write results/transfer.json")
+    args = parser.parse_args(argv)
+    result = run(args.rounds, args.component_rounds)
+    print(report(result))
+    if not args.no_json:
+        path = write_json("transfer", result)
+        print(f"\nWrote {path.relative_to(path.parents[2])}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

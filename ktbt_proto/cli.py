@@ -20,10 +20,11 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from . import __version__
-from .errors import StringBTError
+from .errors import ErrorCode, StringBTError
 from .format import Style
 from .format import format as format_tree
-from .merge import conditions, merge, split_conditions
+from .limits import DEFAULT_LIMITS
+from .merge import MergeError, conditions, merge, split_conditions
 from .render import render
 from .syntax import parse
 from .tree import Tree
@@ -58,10 +59,15 @@ def _expand(paths: list[str]) -> Iterator[str]:
 
 
 def _read(path: str) -> bytes:
+    """At most one byte more than the size limit: enough for the parser to refuse a file that
+    is too large without ever holding all of it (``/dev/zero`` included)."""
+    limit = DEFAULT_LIMITS.max_size + 1
     if path == STDIN:
-        return sys.stdin.buffer.read()
+        if sys.stdin is None:
+            raise OSError("standard input is closed")
+        return sys.stdin.buffer.read(limit)
     with open(path, "rb") as f:
-        return f.read()
+        return f.read(limit)
 
 
 def _io_reason(exc: OSError) -> str:
@@ -69,8 +75,16 @@ def _io_reason(exc: OSError) -> str:
 
 
 def _write_atomically(path: str, text: str) -> None:
-    """Replace a file's contents so that a crash leaves either the old or the new file."""
-    directory = os.path.dirname(os.path.abspath(path))
+    """Replace a file's contents so that a crash leaves either the old or the new file.
+
+    A symlink is written through (its target changes, the link stays); a file in a folder we
+    cannot create files in is rewritten in place instead."""
+    path = os.path.realpath(path)
+    directory = os.path.dirname(path)
+    if not os.access(directory, os.W_OK):
+        with open(path, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+        return
     fd, tmp = tempfile.mkstemp(dir=directory, prefix=".ktbt-", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
@@ -228,10 +242,16 @@ def merge_command(
     knowledge = _load_or_exit(subtree)
     try:
         conds = None if when is None else conditions(split_conditions(when))
+        if conds == ():
+            raise MergeError(ErrorCode.UNEXPECTED_TOKEN, "--when names no condition")
         merged = merge(base, knowledge, slot, conds)
+        problems = check(merged)
+        if problems:  # never write a tree the toolkit itself would refuse
+            raise problems[0]
         text = format_tree(merged, "compact" if compact else "pretty")
     except StringBTError as err:
-        _say(f"error: {err.code} {err.message}")
+        where = f" {err.line}:{err.column}" if err.line else ""
+        _say(f"error: cannot merge{where}: {err.code} {err.message}")
         raise typer.Exit(1) from None
     text += "\n" if compact else ""
     if output is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from typing import Literal
 
 from .errors import ErrorCode, ValidationError
@@ -31,6 +32,7 @@ from .tree import (
 )
 
 Style = Literal["pretty", "compact"]
+_SURROGATE = re.compile("[\ud800-\udfff]")
 INDENT = "    "
 
 
@@ -47,7 +49,9 @@ def format_value(value: Value) -> str:
             raise ValidationError(ErrorCode.INVALID_VALUE, f"{value} has no stringBT literal")
         return repr(value)
     if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)
+        text = json.dumps(value, ensure_ascii=False)
+        # A lone surrogate (from a "\ud800" escape) cannot be UTF-8: keep it escaped.
+        return _SURROGATE.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
     raise ValidationError(
         ErrorCode.INVALID_VALUE, f"{type(value).__name__} values have no stringBT literal"
     )

@@ -36,8 +36,14 @@ _CALL = re.compile(r"\s*(!?\s*[A-Za-z0-9_.]+)\s*\((.*)\)\s*", re.S)
 def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
     """Condition nodes from what a user types: ``"_inZoneF"``, ``"!_inZoneF"``, or with
     arguments ``"TargetSeen(colour=2)"``; the text is read by the stringBT parser."""
+    if isinstance(spec, str):
+        spec = [spec]  # one condition, not its characters
     out = []
     for item in spec:
+        if not isinstance(item, Condition | str):
+            raise MergeError(
+                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {item!r}"
+            )
         if isinstance(item, Condition):
             out.append(item)
             continue
@@ -121,6 +127,9 @@ def merge(
     when: Iterable[Condition | str] | None = None,
 ) -> Tree:
     """Append knowledge to placeholder ``slot`` and return the new tree.
+
+    This is the structural merge only: validate the result (``kp.validate``) before using it,
+    as ``LiveTree.merge`` and ``ktbt merge`` do.
 
     With ``when``, the knowledge item is ``Sequence(when..., subtree)``; without, ``subtree`` is
     the item itself. Merging an item the placeholder already holds returns the tree unchanged;

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .blackboard import Blackboard
-from .errors import ErrorCode, LimitError, ValidationError
+from .errors import ErrorCode, LimitError, StringBTError, ValidationError
 from .limits import DEFAULT_LIMITS, Limits
 from .merge import MergeError, find_placeholder, knowledge, merge_at
 from .registry import Registry
@@ -459,15 +459,23 @@ class LiveTree:
 
     def __init__(
         self,
-        tree: Tree | Node | str,
+        tree: Tree | Node | str | bytes,
         registry: Registry,
         blackboard: Any = None,
         *,
         clock: Clock = time.monotonic,
         limits: Limits = DEFAULT_LIMITS,
     ) -> None:
-        parsed = parse(tree, limits=limits) if isinstance(tree, str) else tree
-        validate(parsed, registry, limits=limits)
+        source = tree.decode("utf-8", "replace") if isinstance(tree, bytes) else tree
+        parsed = parse(tree, limits=limits) if isinstance(tree, str | bytes) else tree
+        try:
+            validate(parsed, registry, limits=limits)
+        except StringBTError as err:
+            if isinstance(source, str) and not err.excerpt and err.line:
+                err.excerpt = StringBTError(
+                    err.code, "", err.line, err.column, source=source
+                ).excerpt
+            raise
         self.registry = registry
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.clock = clock
@@ -512,13 +520,15 @@ class LiveTree:
 
     def merge(
         self,
-        subtree: Tree | Node | str,
+        subtree: Tree | Node | str | bytes,
         slot: str = "new",
         when: Iterable[Condition | str] | None = None,
     ) -> bool:
         """Merge knowledge into placeholder ``slot``; True if the tree changed, False if it
         already held exactly this knowledge."""
-        item_tree = parse(subtree, limits=self.limits) if isinstance(subtree, str) else subtree
+        item_tree = (
+            parse(subtree, limits=self.limits) if isinstance(subtree, str | bytes) else subtree
+        )
         item = knowledge(when, item_tree) if when is not None else as_node(item_tree)
         with self._lock:
             path = self._paths.get(slot)

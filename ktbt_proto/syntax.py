@@ -122,7 +122,12 @@ def _position_of_end(text: str) -> tuple[int, int]:
 
 
 def _decode(data: str | bytes, limits: Limits) -> str:
+    if isinstance(data, bytearray | memoryview):
+        data = bytes(data)
+    if not isinstance(data, str | bytes):
+        raise TypeError(f"parse() takes str or bytes, not {type(data).__name__}")
     if isinstance(data, str):
+        data = data.removeprefix("\ufeff")  # a byte-order mark is not part of the text
         if len(data) > limits.max_size:
             raise LimitError(
                 ErrorCode.TOO_LARGE,
@@ -134,7 +139,7 @@ def _decode(data: str | bytes, limits: Limits) -> str:
             ErrorCode.TOO_LARGE, f"input is {len(data)} bytes, the limit is {limits.max_size}"
         )
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as exc:
         good = data[: exc.start].decode("utf-8")
         line, column = _position_of_end(good)

@@ -170,3 +170,45 @@ def test_convert_both_ways(tmp_path: Path) -> None:
     assert "Traceback" not in err
     code, _, err = ktbt("convert", str(bad), str(tmp_path / "x.txt"))
     assert code == 1 and "Traceback" not in err
+
+
+def test_hostile_inputs_get_one_line_not_a_traceback(tmp_path: Path) -> None:
+    s = tmp_path / "s.sbt"
+    s.write_text('<a>(X, s="\\ud800")\n')
+    code, _, err = ktbt("fmt", str(s))
+    assert code == 0 and "Traceback" not in err
+    assert s.read_text() == '<a>(X, s="\\ud800")\n'  # still escaped: UTF-8 cannot carry it
+    code, out, _ = ktbt("check", str(s))
+    assert code == 1 and "SBT310" in out
+    code, out, _ = ktbt("check", "/dev/zero")  # refused after reading just past the limit
+    assert (code, out) == (
+        1,
+        "/dev/zero:1:1: SBT201 input is 4000001 bytes, the limit is 4000000\n",
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", "fmt", "-"],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 123 and "Traceback" not in proc.stderr
+
+
+def test_fmt_writes_through_symlinks(tmp_path: Path) -> None:
+    target = tmp_path / "t.sbt"
+    target.write_text(UGLY)
+    link = tmp_path / "link.sbt"
+    link.symlink_to(target)
+    assert ktbt("fmt", str(link))[0] == 0
+    assert link.is_symlink() and target.read_text() == PRETTY
+
+
+def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:
+    control = tmp_path / "c.sbt"
+    control.write_text("<sl><sq><k>(new)<e><e><a>(R)<e>")
+    code, out, err = ktbt("merge", str(control), "-", stdin=b"<sq><k>(new)<e><a>(Z)<e>")
+    assert (code, out) == (1, "") and "SBT304" in err
+    code, _, err = ktbt("merge", str(control), "-", "--when", ",,", stdin=b"<a>(Z)")
+    assert code == 1 and "names no condition" in err

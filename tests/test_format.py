@@ -151,3 +151,11 @@ def test_pretty_keeps_every_comment(tree: kp.Node) -> None:
 @given(trees(), trees())
 def test_compact_form_is_a_digest(a: kp.Node, b: kp.Node) -> None:
     assert (kp.format(a, "compact") == kp.format(b, "compact")) == (a == b)
+
+
+def test_lone_surrogates_stay_escaped_in_the_canonical_form() -> None:
+    tree = kp.parse('<a>(X, s="\\ud800")')
+    text = kp.format(tree, "compact")
+    assert text == '<a>(X,s="\\ud800")'
+    text.encode("utf-8")  # a digest can be taken
+    assert kp.parse(text) == tree

@@ -145,3 +145,12 @@ def test_cli_merge(tmp_path: Path) -> None:
     assert code == 1 and "SBT401" in err
     code, _, err = ktbt("merge", str(EXAMPLES / "sar_control.sbt"), str(skill), "--when", "A B")
     assert code == 1 and "SBT103" in err and "Traceback" not in err
+
+
+def test_when_as_one_string_is_one_condition() -> None:
+    merged = kp.merge(CONTROL, SKILL, "new", when="TargetSeen(colour=2)")
+    assert slot(merged, "new").children[0].children[0] == kp.Condition(  # type: ignore[attr-defined]
+        "TargetSeen", args=(("colour", 2),)
+    )
+    with pytest.raises(kp.MergeError):
+        kp.merge(CONTROL, SKILL, "new", when=[5])  # type: ignore[list-item]

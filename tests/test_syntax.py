@@ -278,3 +278,9 @@ def test_nothing_but_stringbt_errors_escape() -> None:
     ]:
         with contextlib.suppress(kp.StringBTError):
             kp.parse(text)
+
+
+def test_byte_order_mark_is_not_text() -> None:
+    assert kp.parse("\ufeff<a>(X)").root == kp.Action("X")
+    assert kp.parse(b"\xef\xbb\xbf<a>(X)").root == kp.Action("X")
+    assert kp.parse(bytearray(b"<a>(X)")).root == kp.Action("X")  # type: ignore[arg-type]

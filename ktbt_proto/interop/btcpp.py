@@ -524,7 +524,10 @@ class _Importer:
             return Wait(self.integer(el, "ticks"), "ticks", pos=pos)
         if kind == "wt":
             msec = self.integer(el, "msec")
-            seconds = _seconds(msec)
+            try:
+                seconds = _seconds(msec)
+            except OverflowError:
+                self.fail(ErrorCode.INVALID_DURATION, f"<{el.tag}> msec {msec} is too large", el)
             literal = el.attrs.get("name", "").removeprefix(SECONDS_PREFIX)
             if el.attrs.get("name", "").startswith(SECONDS_PREFIX) and _NUMBER.fullmatch(literal):
                 exact = decode_value(literal)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -198,8 +198,8 @@ def parse(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
     text = _decode(data, limits)
     tree = _parse_fast(text, limits)
     if tree is None:
-        # Not valid (or not within limits): the reference parser says exactly why.
-        tree = _parse_reference(text, limits)
+        # Not valid (or not within limits): the grammar says exactly why.
+        tree = _explain(text, limits)
     return tree
 
 
@@ -250,7 +250,9 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
     last_node: Node | None = None
     started = False
     node: Node
-    for cl, al, en, op, ws, cg, ag, wg, og, kg, pl, rt, com, bad in _SCAN_RE.findall(text):
+    # finditer, not findall: a refusal comes at the first bad token, not after reading it all.
+    for match in _SCAN_RE.finditer(text):
+        cl, al, en, op, ws, cg, ag, wg, og, kg, pl, rt, com, bad = match.groups("")
         if ws:
             newlines = ws.count("\n")
             if newlines:
@@ -493,7 +495,7 @@ def _parse_reference(text: str, limits: Limits) -> Tree:
     try:
         tree = parser.parse(text)
     except UnexpectedInput as exc:
-        raise _reference_syntax_error(text, toks, exc) from None
+        raise _reference_syntax_error(text, _Summary.of(toks), exc) from None
     return Tree(_ReferenceBuilder().transform(tree))
 
 
@@ -519,33 +521,44 @@ def _reference_limits(toks: list[Any], limits: Limits, text: str) -> None:
         raise err
 
 
-def _reference_syntax_error(text: str, toks: list[Any], exc: Any) -> ParseError:
-    """Classify lark's error by what the parser expected at the offending token."""
-    token = getattr(exc, "token", None)
-    if token is None or token.type == "$END":
-        line, col = _position_of_end(text)
-        if not toks:
-            return ParseError(ErrorCode.EMPTY, "no node in the input", line, col, source=text)
-        expected = set(getattr(exc, "expected", ()) or ())
-        opened: list[Any] = []
-        last_tag = toks[0]
+@dataclass
+class _Summary:
+    """What the syntax-error messages need to know of the tokens read."""
+
+    tokens: bool = False
+    opened: list[tuple[str, int, int]] = field(default_factory=list)
+    last_tag: tuple[str, int, int] | None = None
+
+    @classmethod
+    def of(cls, toks: list[Any]) -> _Summary:
+        summary = cls(tokens=bool(toks))
         for tok in toks:
             if tok.type in _OPENS:
-                opened.append(tok)
-            elif tok.type == "END" and opened:
-                opened.pop()
+                summary.opened.append((str(tok), tok.line, tok.column))
+            elif tok.type == "END" and summary.opened:
+                summary.opened.pop()
             if tok.type in _OPENS or tok.type in _LEAVES:
-                last_tag = tok
-        if expected & _INSIDE_LEAF:
-            where = f"{last_tag} at {last_tag.line}:{last_tag.column}"
-            message = f"input ends inside {where}; expected {_readable(expected)}"
-        elif opened:
-            o = opened[-1]
-            message = f"input ends inside {o} opened at {o.line}:{o.column}; expected <e>"
+                summary.last_tag = (str(tok), tok.line, tok.column)
+        return summary
+
+
+def _reference_syntax_error(text: str, summary: _Summary, exc: Any) -> ParseError:
+    """Classify lark's error by what the parser expected at the offending token."""
+    token = getattr(exc, "token", None)
+    expected = set(getattr(exc, "expected", ()) or ())
+    if token is None or token.type == "$END":
+        line, col = _position_of_end(text)
+        if not summary.tokens:
+            return ParseError(ErrorCode.EMPTY, "no node in the input", line, col, source=text)
+        if expected & _INSIDE_LEAF and summary.last_tag is not None:
+            tag, tl, tc = summary.last_tag
+            message = f"input ends inside {tag} at {tl}:{tc}; expected {_readable(expected)}"
+        elif summary.opened:
+            tag, ol, oc = summary.opened[-1]
+            message = f"input ends inside {tag} opened at {ol}:{oc}; expected <e>"
         else:
             message = "input ends before the node is complete"
         return ParseError(ErrorCode.UNEXPECTED_END, message, line, col, source=text)
-    expected = set(getattr(exc, "expected", ()) or ())
     if token.type == "END" and not (expected & _INSIDE_LEAF) and "END" not in expected:
         code, message = ErrorCode.UNMATCHED_END, "<e> closes nothing: no node is open"
     elif expected == {"$END"}:
@@ -556,6 +569,99 @@ def _reference_syntax_error(text: str, toks: list[Any], exc: Any) -> ParseError:
     return ParseError(
         code, message, token.line, token.column, source=text, expected=tuple(sorted(expected))
     )
+
+
+# The explainer's scanner: stages 2 and 3 at C speed for what cannot matter (blanks, comments,
+# punctuation are read as one run), the same tokens as lark's lexer for the rest. The agreement
+# tests hold ``parse`` (which uses it) to ``parse_reference`` (which uses lark's lexer).
+_EXPLAIN_RE = re.compile(
+    r"(?P<run>(?:[ \t\r\n]++|#[^\n]*+|[(),=!])++)"
+    r"|(?P<tag><(?:Root|sq|msq|sl|msl|pl|neg|tt1|tt2|k|c|a|w|wt|e)>)"
+    rf"|(?P<lit>(?:true|false)(?![A-Za-z0-9_.])|{NAME_PATTERN}|{_NUMBER}|{_STRING})"
+)
+_PUNCT_RE = re.compile(r"[(),=!]")
+
+
+def _explain(text: str, limits: Limits) -> Tree:
+    """Stages 2 to 4 for text the fast parser refused: raise the error the grammar defines
+    (or, should the text be valid after all, return the grammar's tree)."""
+    from lark.exceptions import UnexpectedInput
+
+    match = _EXPLAIN_RE.match
+    summary = _Summary()
+    depth = nodes = 0
+    limit: tuple[ErrorCode | None, int, str] = (None, 0, "")
+    deep: bool
+    pos, end = 0, len(text)
+    opens, leaves = OPEN_TAGS, LEAF_TAGS
+    while pos < end:
+        m = match(text, pos)
+        if m is None:
+            line, col = _line_col(text, pos)
+            bad = _BADTAG_RE.match(text, pos)
+            if bad:
+                raise ParseError(
+                    ErrorCode.UNKNOWN_TAG, f"unknown tag {bad.group()}", line, col, source=text
+                )
+            raise ParseError(
+                ErrorCode.UNEXPECTED_CHARACTER,
+                f"unexpected character {text[pos]!r}",
+                line,
+                col,
+                source=text,
+            )
+        kind, start, pos = m.lastgroup, pos, m.end()
+        if kind == "run":
+            if not summary.tokens and _PUNCT_RE.search(text, start, pos):
+                summary.tokens = True
+            continue
+        summary.tokens = True
+        value = m.group()
+        if kind == "tag":
+            if value in opens or value in leaves:
+                nodes += 1
+                if limit[0] is None and (depth >= limits.max_depth or nodes > limits.max_nodes):
+                    deep = depth >= limits.max_depth
+                    limit = (ErrorCode.TOO_DEEP if deep else ErrorCode.TOO_MANY_NODES, start, "")
+                summary.last_tag = (value, start, 0)
+                if value in opens:
+                    depth += 1
+                    summary.opened.append((value, start, 0))
+            elif value == "<e>":
+                depth = max(depth - 1, 0)
+                if summary.opened:
+                    summary.opened.pop()
+        elif len(value) > limits.max_literal and limit[0] is None:
+            limit = (ErrorCode.LITERAL_TOO_LONG, start, value)
+    code, offset, literal = limit
+    if code is not None:
+        line, col = _line_col(text, offset)
+        if code is ErrorCode.LITERAL_TOO_LONG:
+            err = _literal_error(literal, limits, line, col)
+        else:
+            err = _limit_error(
+                limits.max_depth if code is ErrorCode.TOO_DEEP else 0,
+                limits.max_nodes + 1,
+                limits,
+                line,
+                col,
+            )
+        err.excerpt = StringBTError(err.code, "", line, col, source=text).excerpt
+        raise err
+    # Offsets to positions, only for the few entries a message may name.
+    summary.opened = [(t, *_line_col(text, o)) for t, o, _ in summary.opened[-1:]]
+    if summary.last_tag is not None:
+        tag, offset, _ = summary.last_tag
+        summary.last_tag = (tag, *_line_col(text, offset))
+    try:
+        tree = _lark().parse(text)
+    except UnexpectedInput as exc:
+        raise _reference_syntax_error(text, summary, exc) from None
+    return Tree(_ReferenceBuilder().transform(tree))
+
+
+def _line_col(text: str, offset: int) -> tuple[int, int]:
+    return text.count("\n", 0, offset) + 1, offset - (text.rfind("\n", 0, offset) + 1) + 1
 
 
 class _ReferenceBuilder:

@@ -71,48 +71,18 @@ def _split(kids: list[Compiled]) -> tuple[tuple[Tick, ...], tuple[Halt, ...]]:
 
 def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
     """Sequence (go on while SUCCESS) or selector (go on while FAILURE), re-evaluated from the
-    left every tick; a running child to the right of where this tick stopped is halted."""
+    left every tick; a running child to the right of where this tick stopped is halted.
+
+    The conditions that lead a sequence (the usual shape of knowledge, ``Sequence(s_q, T_ka)``)
+    are called as plain predicates: no status to build for them."""
     ticks, halts = _split(kids)
     guards: list[Callable[[], object]] = []
     if go_on is SUCCESS:
-        # Leading conditions of a sequence are called as plain predicates: no status to build.
         for child in ticks:
             holds = getattr(child, "holds", None)
             if holds is None:
                 break
             guards.append(holds)
-    if guards:
-        return _guarded_sequence(tuple(guards), ticks, halts)
-    index = ticks.index
-    running = -1
-
-    def tick() -> Status:
-        nonlocal running
-        for child in ticks:
-            status = child()
-            if status is not go_on:
-                i = index(child)
-                if running > i:
-                    halts[running]()
-                running = i if status is RUNNING else -1
-                return status
-        running = -1
-        return go_on
-
-    def halt() -> None:
-        nonlocal running
-        if running >= 0:
-            i, running = running, -1
-            halts[i]()
-
-    return tick, halt
-
-
-def _guarded_sequence(
-    guards: tuple[Callable[[], object], ...], ticks: tuple[Tick, ...], halts: tuple[Halt, ...]
-) -> Compiled:
-    """A reactive sequence whose first children are conditions (the usual shape of knowledge:
-    ``Sequence(s_q, T_ka)``)."""
     rest = ticks[len(guards) :]
     index = ticks.index
     running = -1
@@ -127,14 +97,14 @@ def _guarded_sequence(
                 return FAILURE
         for child in rest:
             status = child()
-            if status is not SUCCESS:
+            if status is not go_on:
                 i = index(child)
                 if running > i:
                     halts[running]()
                 running = i if status is RUNNING else -1
                 return status
         running = -1
-        return SUCCESS
+        return go_on
 
     def halt() -> None:
         nonlocal running

@@ -17,7 +17,7 @@ from ktbt_proto.messages import ErrorReply, Query, Response, decode
 from ktbt_proto.peer import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
 
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process
+from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, make_tls
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -385,3 +385,69 @@ def test_user_password_authentication_from_a_config_file(tmp_path: Path) -> None
         assert good.returncode == 0, good.stdout + good.stderr
         refused = _ask(port, "--config", str(config("learner", "guess")))
         assert (refused.returncode, refused.stdout) == (1, "")
+
+
+def test_tls_from_a_config_file(tmp_path: Path) -> None:
+    tls = make_tls(tmp_path)
+    server = tmp_path / "server.json5"
+    server.write_text(
+        json.dumps(
+            {
+                "transport": {
+                    "link": {
+                        "tls": {
+                            "listen_private_key": str(tls["key"]),
+                            "listen_certificate": str(tls["cert"]),
+                            "root_ca_certificate": str(tls["ca"]),
+                        }
+                    }
+                }
+            }
+        )
+    )
+    client = tmp_path / "client.json5"
+    client.write_text(
+        json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": str(tls["ca"])}}}})
+    )
+    port = free_port()
+    address = f"tls/localhost:{port}"
+    with ktbt_process(
+        "peer",
+        "serve",
+        "--id",
+        "teacher",
+        "--knowledge",
+        str(KNOWLEDGE),
+        "--listen",
+        address,
+        "--config",
+        str(server),
+        ready="serving",
+    ):
+
+        def ask(*extra: str) -> subprocess.CompletedProcess[str]:
+            return subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "ktbt_proto",
+                    "peer",
+                    "ask",
+                    "--sequence",
+                    "TargetSeen(colour=3)",
+                    "--connect",
+                    address,
+                    "--timeout",
+                    "2",
+                    *extra,
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=ROOT,
+            )
+
+        trusted = ask("--config", str(client))
+        assert trusted.returncode == 0, trusted.stdout + trusted.stderr
+        assert "colour=3" in trusted.stdout
+        assert ask().returncode != 0  # no CA, no connection: nothing answers

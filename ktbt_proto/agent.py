@@ -58,7 +58,7 @@ TEACH_TREE = """<sl>
 <e>
 """
 
-LEARN_TREE = """<sq>
+LEARN_TREE = """<msq>
     <c>(!ktbt.CoolingDown)
     <c>(ktbt.UnknownSequence)
     <tt2>({wait})
@@ -66,6 +66,8 @@ LEARN_TREE = """<sq>
     <e>
 <e>
 """
+# A memory sequence: the guards decide whether to start asking; once asked, the robot waits its
+# full time, even if it teaches meanwhile (which sets the shared cool-down flag).
 
 
 @dataclass
@@ -77,7 +79,9 @@ class Metrics:
     responses_sent: int = 0
     responses_received: int = 0
     queries_lost: int = 0
-    refusals: list[tuple[int, str]] = field(default_factory=list)
+    refused: int = 0
+    refusals: deque[tuple[int, str]] = field(default_factory=lambda: deque(maxlen=256))
+    """The latest refusals (tick, reason); ``refused`` counts them all."""
     learned: dict[str, tuple[int, str]] = field(default_factory=dict)
     """Sequence key -> (tick it was learned, who taught it)."""
 
@@ -203,6 +207,7 @@ class Agent:
     # -- learning -------------------------------------------------------------------------------
 
     def refuse(self, reason: str) -> None:
+        self.metrics.refused += 1
         self.metrics.refusals.append((self.now, reason))
         log.info("%s refused knowledge: %s", self.name, reason)
 
@@ -226,7 +231,10 @@ class Agent:
         self.knowledge.add(item)
         self.metrics.learned[item.key] = (self.now, item.source or "")
         if self.knowledge_path is not None:
-            self._persisted().save(self.knowledge_path)
+            try:
+                self._persisted().save(self.knowledge_path)
+            except OSError as exc:  # the robot keeps what it learned in memory and goes on
+                self.refuse(f"cannot save knowledge to {self.knowledge_path}: {exc}")
 
     def _persisted(self) -> KnowledgeBase:
         return KnowledgeBase(k for k in self.knowledge if k.source is not None)
@@ -235,7 +243,7 @@ class Agent:
         """Merge what a previous run learned (a corrupt file is refused, not fatal)."""
         try:
             saved = KnowledgeBase.load(path, self.receive_limits)
-        except (OSError, ValueError, KeyError, StringBTError) as exc:
+        except (OSError, ValueError, StringBTError) as exc:
             self.refuse(f"cannot resume from {path}: {exc}")
             return
         for item in saved:
@@ -272,7 +280,8 @@ class _QueryAndWait:
         while agent._responses:
             response = agent._responses.popleft()
             if response.id != self.query.id:
-                continue  # late answer to an earlier question
+                agent.refuse(f"from {response.sender}: an answer to no open question")
+                continue
             agent.metrics.responses_received += 1
             if agent.accept(response, self.query):
                 self._finish()

@@ -362,6 +362,18 @@ def _settings(
     return ZenohSettings(listen or (), connect or (), config, mode, multicast)
 
 
+def _check_peer(name: str, timeout: float = 1.0) -> None:
+    import math
+    import re
+
+    if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name):
+        _say(f"error: --id {name!r}: use 1 to 64 letters, digits, '_', '.' or '-'")
+        raise typer.Exit(2)
+    if not (math.isfinite(timeout) and 0 < timeout <= 3600):
+        _say(f"error: --timeout {timeout}: use a number of seconds in (0, 3600]")
+        raise typer.Exit(2)
+
+
 def _peer_call(action: Callable[[], int]) -> None:
     """Run a peer command; a zenoh or file problem is one line and exit 1, never a traceback."""
     try:
@@ -391,6 +403,7 @@ def peer_serve(
     """Answer queries for the knowledge in a file until stopped."""
     from . import peer
 
+    _check_peer(name)
     settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.serve(name, peer.load_knowledge(knowledge), settings, typer.echo))
 
@@ -409,6 +422,7 @@ def peer_ask(
     """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time."""
     from . import peer
 
+    _check_peer(name, timeout)
     settings = _settings(listen, connect, config, multicast, mode)
     conds = split_conditions(sequence)
     _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo)[0])
@@ -436,6 +450,7 @@ def peer_run(
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
 
+    _check_peer(name, duration)
     settings = _settings(listen, connect, config, multicast, mode)
     sequences = sequence or peer.COLOURS
     _peer_call(
@@ -477,6 +492,7 @@ def peer_list(
     """Show who is present and what each knows."""
     from . import peer
 
+    _check_peer(name, timeout)
     settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.list_peers(name, settings, timeout, typer.echo))
 

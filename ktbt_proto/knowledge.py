@@ -130,20 +130,27 @@ class KnowledgeBase:
     @classmethod
     def from_json(cls, text: str, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
         """Read a saved base; raises ValueError (bad file) or StringBTError (bad tree)."""
-        data = json.loads(text)
-        if not isinstance(data, dict) or data.get("version") != FORMAT_VERSION:
-            raise ValueError(f"not a version-{FORMAT_VERSION} knowledge file")
-        kb = cls()
-        for entry in data.get("knowledge", []):
-            kb.add(
-                Knowledge(
-                    parse_sequence(str(entry["sequence"]), limits),
-                    parse(str(entry["subtree"]), limits=limits).root,
-                    str(entry.get("segment", "new")),
-                    entry.get("source"),
-                    entry.get("learned_at"),
+        try:
+            data = json.loads(text)
+            if not isinstance(data, dict) or data.get("version") != FORMAT_VERSION:
+                raise ValueError(f"not a version-{FORMAT_VERSION} knowledge file")
+            entries = data.get("knowledge", [])
+            if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+                raise ValueError("'knowledge' must be a list of objects")
+            kb = cls()
+            for entry in entries:
+                source, learned_at = entry.get("source"), entry.get("learned_at")
+                kb.add(
+                    Knowledge(
+                        parse_sequence(str(entry["sequence"]), limits),
+                        parse(str(entry["subtree"]), limits=limits).root,
+                        str(entry.get("segment", "new")),
+                        None if source is None else str(source),
+                        learned_at if isinstance(learned_at, int | float) else None,
+                    )
                 )
-            )
+        except (KeyError, TypeError, RecursionError) as exc:
+            raise ValueError(f"malformed knowledge file: {exc!r}") from None
         return kb
 
     def save(self, path: str | Path) -> None:

@@ -13,8 +13,9 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from .agent import Agent
+from .agent import RECEIVE_LIMITS, Agent
 from .blackboard import Blackboard
+from .errors import StringBTError
 from .format import format as format_tree
 from .knowledge import KnowledgeBase, sequence_key
 from .merge import conditions as parse_conditions
@@ -86,8 +87,15 @@ def until_signalled() -> Iterator[threading.Event]:
 
 
 def load_knowledge(path: str | Path) -> KnowledgeBase:
-    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve."""
-    return KnowledgeBase.from_tree(parse(Path(path).read_bytes()))
+    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve.
+    Items too large to send are refused here, not at every query."""
+    kb = KnowledgeBase.from_tree(parse(Path(path).read_bytes()))
+    for item in kb:
+        if len(format_tree(item.subtree, "compact")) > 60_000:
+            raise ValueError(f"{path}: the subtree for {item.key} is too large to send")
+    if not len(kb):
+        raise ValueError(f"{path}: no knowledge items (Sequence(conditions, subtree) in <k>)")
+    return kb
 
 
 def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[str]]:
@@ -122,13 +130,22 @@ def ask(
     name: str, sequence: Sequence[str], settings: ZenohSettings, timeout: float, say: Say
 ) -> tuple[int, list[Response]]:
     key = sequence_key(parse_conditions(sequence))
-    with ZenohTransport(name, settings, query_timeout=timeout) as transport:
-        wait_for_peers(transport, min(timeout, 3.0))
-        answers = transport.ask(Query(id=Query.new_id(), sender=name, sequence=key), timeout)
-    responses = [a for a in answers if isinstance(a, Response) and a.sequence == key]
-    for response in responses:
-        say(f"# from {response.sender}")
-        say(format_tree(parse(response.subtree)).rstrip())
+    query = Query(id=Query.new_id(), sender=name, sequence=key)
+    with ZenohTransport(name, settings, query_timeout=timeout, serving=False) as transport:
+        wait_for_peers(transport, timeout)
+        answers = transport.ask(query, timeout)
+    responses = []
+    for answer in answers:
+        if not isinstance(answer, Response) or answer.id != query.id or answer.sequence != key:
+            continue
+        try:  # an answer is shown only if it is stringBT a robot would accept
+            tree = parse(answer.subtree, limits=RECEIVE_LIMITS)
+        except StringBTError as err:
+            say(f"# from {answer.sender}: refused, {err.code.value} {err.message}")
+            continue
+        say(f"# from {answer.sender}")
+        say(format_tree(tree).rstrip())
+        responses.append(answer)
     return (0 if responses else 1), responses
 
 
@@ -209,7 +226,7 @@ def router(settings: ZenohSettings, say: Say) -> int:
 
 
 def list_peers(name: str, settings: ZenohSettings, timeout: float, say: Say) -> int:
-    with ZenohTransport(name, settings) as transport:
+    with ZenohTransport(name, settings, serving=False) as transport:
         found = wait_for_peers(transport, timeout)
     for peer, known in sorted(found.items()):
         say(f"{peer}: {len(known)} skills")

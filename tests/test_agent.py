@@ -273,3 +273,47 @@ def test_knowledge_file_survives_sigkill(tmp_path: Path) -> None:
     restarted = agent(MemoryNetwork(), "i", knowledge_path=path)
     assert len(restarted.metrics.learned) == learned
     assert restarted.knows(["TargetSeen(colour=1)"])
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        '{"version":1,"knowledge":[1,2]}',
+        '{"version":1,"knowledge":null}',
+        '{"version":1,"knowledge":{"a":1}}',
+        "[" * 100_000,
+        '{"version":1,"knowledge":[{}]}',
+    ],
+)
+def test_a_corrupt_knowledge_file_is_refused_and_the_agent_starts(
+    tmp_path: Path, content: str
+) -> None:
+    path = tmp_path / "kb.json"
+    path.write_text(content)
+    robot = agent(MemoryNetwork(), "i", knowledge_path=path)
+    assert robot.metrics.refused == 1 and "cannot resume" in robot.metrics.refusals[0][1]
+    assert robot.tick() is kp.RUNNING
+
+
+def test_a_failed_save_is_a_refusal_not_a_crash(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    net = MemoryNetwork()
+    k, i = agent(net, "k", KNOWER), agent(net, "i", knowledge_path=blocker / "kb.json")
+    i.encounter(SEQUENCE)
+    run(net, [k, i], 4)
+    assert i.knows(SEQUENCE)
+    assert any("cannot save" in reason for _, reason in i.metrics.refusals)
+
+
+def test_teaching_does_not_cut_the_own_wait_short() -> None:
+    net = MemoryNetwork()
+    a = agent(net, "a", KNOWER, wait_ticks=30, cooldown_ticks=5)
+    b = agent(net, "b", wait_ticks=30, cooldown_ticks=5)
+    a.encounter(["TargetSeen(colour=7)"])  # nobody knows it: a waits its full 30 ticks
+    b.encounter(SEQUENCE)  # a teaches b meanwhile
+    run(net, [a, b], 10)
+    assert b.knows(SEQUENCE)
+    assert a.metrics.queries_lost == 0  # still waiting
+    run(net, [a, b], 25)
+    assert a.metrics.queries_lost == 1

@@ -451,3 +451,54 @@ def test_tls_from_a_config_file(tmp_path: Path) -> None:
         assert trusted.returncode == 0, trusted.stdout + trusted.stderr
         assert "colour=3" in trusted.stdout
         assert ask().returncode != 0  # no CA, no connection: nothing answers
+
+
+def test_hostile_peers_cannot_break_asking_or_listing() -> None:
+    good, evil, me = free_port(), free_port(), free_port()
+    kb = KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
+    with (
+        ZenohTransport("teacher", settings(good), lookup=serve_lookup(kb), catalog=kb.keys),
+        ZenohTransport("evil", settings(evil)) as bad,
+    ):
+        # The evil peer's catalog is deeply nested JSON, and its answers are garbage.
+        bad._declared.append(
+            bad._session.declare_queryable(
+                "ktbt/v1/catalog/evil2",
+                lambda q: (q.reply("ktbt/v1/catalog/evil2", b"[" * 100_000), q.drop()),
+            )
+        )
+        bad._declared.append(
+            bad._session.declare_queryable(
+                "ktbt/v1/knowledge/evil2",
+                lambda q: (q.reply("ktbt/v1/knowledge/evil2", b"{nope"), q.drop()),
+            )
+        )
+        with ZenohTransport("me", settings(me, good, evil), serving=False) as asker:
+            deadline = time.monotonic() + 10
+            while len(peers(asker, 0.3)) < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert peers(asker)["teacher"] == kb.keys()
+            answers = asker.ask(Query(id="q", sender="me", sequence=GREEN), 2)
+            assert [a.sender for a in answers] == ["teacher"]
+            assert asker.refused >= 1
+
+
+def test_pending_queries_are_bounded_and_keyed_by_sender() -> None:
+    a, b = free_port(), free_port()
+    with (
+        ZenohTransport("t", settings(a), max_pending=3) as teacher,
+        ZenohTransport("x", settings(b, a)) as other,
+    ):
+        deadline = time.monotonic() + 10
+        while "t" not in peers(other, 0.3) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for n in range(8):
+            other.broadcast(Query(id=f"q{n}", sender=f"s{n}", sequence=GREEN))
+        time.sleep(1.0)
+        assert len(teacher._pending) <= 3
+        # Answering (sender, id) reaches that sender's query only.
+        key = next(iter(teacher._pending))
+        teacher.send(
+            "someone-else", Response(id=key[1], sender="t", sequence=GREEN, subtree="<a>(X)")
+        )
+        assert key in teacher._pending

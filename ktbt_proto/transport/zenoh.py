@@ -87,6 +87,10 @@ class ZenohTransport:
     catalog: Callable[[], list[str]] | None = None
     query_timeout: float = 2.0
     answer_window: float = 1.0
+    serving: bool = True
+    """False for a peer that only asks (``ktbt peer ask``, ``list``): queries to it are
+    finished at once, unanswered."""
+    max_pending: int = 256
     inbox_limit: int = 1024
     max_bytes: int = MAX_MESSAGE_BYTES
     refused: int = 0
@@ -95,7 +99,7 @@ class ZenohTransport:
     def __post_init__(self) -> None:
         self._inbox: deque[Message] = deque(maxlen=self.inbox_limit)
         self._lock = threading.Lock()
-        self._pending: dict[str, tuple[Any, float]] = {}
+        self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
         self._workers = ThreadPoolExecutor(max_workers=2, thread_name_prefix=f"ktbt-{self.name}")
         self._session = open_session(self.settings)
         try:
@@ -124,7 +128,7 @@ class ZenohTransport:
             return
         payload = encode(message)
         with self._lock:
-            pending = self._pending.pop(message.id, None)
+            pending = self._pending.pop((to, message.id), None)
         if pending is not None:
             query = pending[0]
             try:
@@ -189,11 +193,11 @@ class ZenohTransport:
                     log.info("%s refused a reply: %s", self.name, exc.reason)
                     continue
                 answers.append(answer)
+                if keep:
+                    with self._lock:
+                        self._inbox.append(answer)
         except Exception:  # a closing session; the query is simply lost
             log.debug("%s: query failed", self.name, exc_info=True)
-        if keep:
-            with self._lock:
-                self._inbox.extend(answers)
         return answers
 
     # -- being asked ------------------------------------------------------------------------------
@@ -210,7 +214,7 @@ class ZenohTransport:
             query.reply_err(encode(error))
             query.drop()
             return
-        if message.sender == self.name:
+        if message.sender == self.name or not self.serving:
             query.drop()
             return
         if self.lookup is not None:
@@ -222,9 +226,18 @@ class ZenohTransport:
                 query.reply(f"{PREFIX}/knowledge/{self.name}", encode(response))
             query.drop()
             return
+        self._expire()
         with self._lock:
-            self._pending[message.id] = (query, time.monotonic() + self.answer_window)
+            if len(self._pending) >= self.max_pending:
+                # Full: this one is finished unanswered, as a teacher in cool-down would.
+                query.drop()
+                return
+            key = (message.sender, message.id)
+            stale = self._pending.pop(key, None)
+            self._pending[key] = (query, time.monotonic() + self.answer_window)
             self._inbox.append(message)
+        if stale is not None:
+            stale[0].drop()
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
@@ -263,9 +276,12 @@ def peers(session_owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list
         if reply.ok is None:
             continue
         name = str(reply.ok.key_expr).rsplit("/", 1)[-1]
+        payload = reply.ok.payload.to_bytes()
+        if len(payload) > MAX_MESSAGE_BYTES:
+            continue
         try:
-            value = json.loads(reply.ok.payload.to_bytes())
-        except ValueError:
+            value = json.loads(payload)
+        except (ValueError, RecursionError):  # a peer's garbage is its own problem
             continue
         if isinstance(value, list):
             known[name] = [str(v) for v in value]

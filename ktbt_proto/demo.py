@@ -78,8 +78,36 @@ def run_demo(examples: Path) -> int:
         typer.echo(
             f"knowledge.sbt:{problem.line}:{problem.column}: {problem.code} {problem.message}"
         )
+    _section("Knowledge transfer: r2 meets a green target it knows nothing about")
+    _transfer_showcase()
     typer.echo("")
-    typer.echo(
-        "Next: `ktbt fmt --help`, `ktbt check --help`, `ktbt show --help`; spec/stringbt.md."
-    )
+    typer.echo("Next: `ktbt fmt --help`, `ktbt peer --help`; spec/stringbt.md, spec/protocol.md.")
     return 0
+
+
+def _transfer_showcase() -> None:
+    """Two agents on the in-memory network: r1 knows the green skill, r2 asks and learns it."""
+    from .agent import Agent
+    from .peer import DEMO_CONTROL, demo_registry
+    from .transport.memory import MemoryNetwork
+
+    skill = (
+        "<sq><c>(TargetSeen, colour=2)"
+        "<sq><a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e><e>"
+    )
+    net = MemoryNetwork()
+    knower = DEMO_CONTROL.replace("<k>(prior)<e>", f"<k>(prior){skill}<e>")
+    r1 = Agent("r1", knower, demo_registry(), net.join("r1"), wait_ticks=20, cooldown_ticks=20)
+    r2 = Agent("r2", DEMO_CONTROL, demo_registry(), net.join("r2"), wait_ticks=20)
+    r2.encounter(["TargetSeen(colour=2)"])
+    r2.blackboard["target"] = 2
+    for tick in range(1, 6):
+        net.step()
+        r1.tick()
+        r2.tick()
+        if "<c>(TargetSeen,colour=2)" in r2.metrics.learned:
+            typer.echo(f"tick {tick}: r2 asked, r1 answered, r2 merged the skill while running:")
+            break
+    typer.echo(render(r2.control.tree).rstrip())
+    r2.tick()
+    typer.echo(f"next tick: r2 picks the target up and heads for zone {r2.blackboard.get('zone')}")

@@ -147,6 +147,7 @@ def test_demo_runs() -> None:
     assert code == 0
     assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
     assert "SBT306 unknown action 'Teleport'" in out
+    assert "r2 asked, r1 answered" in out and "heads for zone 2" in out
     code, _, err = ktbt("demo", cwd=Path(os.sep))
     assert code == 1 and "not found" in err
 

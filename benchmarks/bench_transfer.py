@@ -44,7 +44,7 @@ import ktbt_proto as kp
 from ktbt_proto.agent import RECEIVE_LIMITS
 from ktbt_proto.knowledge import KnowledgeBase, parse_sequence
 from ktbt_proto.messages import Query, Response, decode, encode
-from ktbt_proto.peer import DEMO_CONTROL, demo_registry, load_knowledge
+from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry, load_knowledge
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
@@ -89,13 +89,8 @@ def sequence_of(colour: int) -> str:
 
 
 def serve_lookup(kb: KnowledgeBase) -> Callable[[str], str | None]:
-    """What ``ktbt peer serve`` answers queries with."""
-
-    def lookup(key: str) -> str | None:
-        item = kb.lookup(key)
-        return None if item is None else kp.format(item.subtree, "compact")
-
-    return lookup
+    """The lookup ``ktbt peer serve`` uses."""
+    return answers(kb)
 
 
 def wire_messages(lookup: Callable[[str], str | None]) -> tuple[Query, Response]:

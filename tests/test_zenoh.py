@@ -17,7 +17,7 @@ from ktbt_proto.messages import ErrorReply, Query, Response, decode
 from ktbt_proto.peer import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
 
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, make_tls
+from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, make_tls, serving
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -99,17 +99,7 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
     """teacher -> r1 -> r2: r2 learns from r1 after the teacher has gone (Theorem 2)."""
     pt, p1, p2 = free_port(), free_port(), free_port()
     with (
-        ktbt_process(
-            "peer",
-            "serve",
-            "--id",
-            "teacher",
-            "--knowledge",
-            str(KNOWLEDGE),
-            "--listen",
-            endpoint(pt),
-            ready="serving",
-        ) as teacher,
+        serving(pt) as teacher,
         ktbt_process(
             "peer",
             "run",
@@ -128,29 +118,20 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
     ):
         teacher.send_signal(signal.SIGTERM)
         assert teacher.wait(timeout=15) == 0
-        r2 = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "ktbt_proto",
-                "peer",
-                "run",
-                "--id",
-                "r2",
-                "--listen",
-                endpoint(p2),
-                "--connect",
-                endpoint(p1),
-                "--sequence",
-                "TargetSeen(colour=2)",
-                "--exit-when-done",
-                "--duration",
-                "30",
-            ],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=90,
+        r2 = ktbt_run(
+            "peer",
+            "run",
+            "--id",
+            "r2",
+            "--listen",
+            endpoint(p2),
+            "--connect",
+            endpoint(p1),
+            "--sequence",
+            "TargetSeen(colour=2)",
+            "--exit-when-done",
+            "--duration",
+            "30",
         )
         assert r2.returncode == 0, r2.stdout + r2.stderr
         assert "r2: learned <c>(TargetSeen,colour=2) from r1" in r2.stdout
@@ -161,17 +142,7 @@ def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
     pt, pl, ph = free_port(), free_port(), free_port()
     with ZenohTransport("i", settings(pl, pt, ph), query_timeout=1.0) as ti:
         learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, wait_ticks=100, cooldown_ticks=20)
-        with ktbt_process(
-            "peer",
-            "serve",
-            "--id",
-            "doomed",
-            "--knowledge",
-            str(KNOWLEDGE),
-            "--listen",
-            endpoint(pt),
-            ready="serving",
-        ) as doomed:
+        with serving(pt, name="doomed") as doomed:
             doomed.send_signal(signal.SIGKILL)
             doomed.wait(timeout=15)
         learner.encounter(["TargetSeen(colour=1)"])
@@ -180,19 +151,7 @@ def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
             time.sleep(0.01)
         assert not learner.knows(["TargetSeen(colour=1)"])
         assert learner.metrics.queries_lost >= 1
-        with ktbt_process(
-            "peer",
-            "serve",
-            "--id",
-            "honest",
-            "--knowledge",
-            str(KNOWLEDGE),
-            "--listen",
-            endpoint(ph),
-            "--connect",
-            endpoint(pl),
-            ready="serving",
-        ):
+        with serving(ph, "--connect", endpoint(pl), name="honest"):
             deadline = time.monotonic() + 30
             while not learner.knows(["TargetSeen(colour=1)"]) and time.monotonic() < deadline:
                 learner.tick()
@@ -202,17 +161,7 @@ def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
 
 def test_a_program_written_from_the_spec_asks_a_ktbt_peer() -> None:
     port = free_port()
-    with ktbt_process(
-        "peer",
-        "serve",
-        "--id",
-        "teacher",
-        "--knowledge",
-        str(KNOWLEDGE),
-        "--listen",
-        endpoint(port),
-        ready="serving",
-    ):
+    with serving(port):
         proc = subprocess.run(
             [
                 sys.executable,
@@ -232,91 +181,8 @@ def test_a_program_written_from_the_spec_asks_a_ktbt_peer() -> None:
 
 def test_peer_ask_cli_exit_codes() -> None:
     port = free_port()
-    with ktbt_process(
-        "peer",
-        "serve",
-        "--id",
-        "teacher",
-        "--knowledge",
-        str(KNOWLEDGE),
-        "--listen",
-        endpoint(port),
-        ready="serving",
-    ):
-        ok = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "ktbt_proto",
-                "peer",
-                "ask",
-                "--sequence",
-                "TargetSeen(colour=1)",
-                "--connect",
-                endpoint(port),
-                "--timeout",
-                "3",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=ROOT,
-        )
-        assert ok.returncode == 0 and ok.stdout.startswith("# from teacher\n<sq>\n")
-        none = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "ktbt_proto",
-                "peer",
-                "ask",
-                "--sequence",
-                "Nope",
-                "--connect",
-                endpoint(port),
-                "--timeout",
-                "1",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=ROOT,
-        )
-        assert (none.returncode, none.stdout) == (1, "")
-        listed = subprocess.run(
-            [sys.executable, "-m", "ktbt_proto", "peer", "list", "--connect", endpoint(port)],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=ROOT,
-        )
-        assert listed.returncode == 0 and "teacher: 4 skills" in listed.stdout
-    bad = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "ktbt_proto",
-            "peer",
-            "ask",
-            "--sequence",
-            "A",
-            "--connect",
-            "nonsense://x",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
-    assert bad.returncode == 1 and "Traceback" not in bad.stderr and bad.stderr.startswith("error:")
-
-
-def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "ktbt_proto",
+    with serving(port):
+        ok = ktbt_run(
             "peer",
             "ask",
             "--sequence",
@@ -324,13 +190,30 @@ def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
             "--connect",
             endpoint(port),
             "--timeout",
-            "2",
-            *extra,
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
+            "3",
+        )
+        assert ok.returncode == 0 and ok.stdout.startswith("# from teacher\n<sq>\n")
+        none = ktbt_run(
+            "peer", "ask", "--sequence", "Nope", "--connect", endpoint(port), "--timeout", "1"
+        )
+        assert (none.returncode, none.stdout) == (1, "")
+        listed = ktbt_run("peer", "list", "--connect", endpoint(port))
+        assert listed.returncode == 0 and "teacher: 4 skills" in listed.stdout
+    bad = ktbt_run("peer", "ask", "--sequence", "A", "--connect", "nonsense://x")
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr and bad.stderr.startswith("error:")
+
+
+def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
+    return ktbt_run(
+        "peer",
+        "ask",
+        "--sequence",
+        "TargetSeen(colour=1)",
+        "--connect",
+        endpoint(port),
+        "--timeout",
+        "2",
+        *extra,
     )
 
 
@@ -368,19 +251,7 @@ def test_user_password_authentication_from_a_config_file(tmp_path: Path) -> None
         return path
 
     port = free_port()
-    with ktbt_process(
-        "peer",
-        "serve",
-        "--id",
-        "teacher",
-        "--knowledge",
-        str(KNOWLEDGE),
-        "--listen",
-        endpoint(port),
-        "--config",
-        str(config("teacher", "s3cret")),
-        ready="serving",
-    ):
+    with serving(port, "--config", str(config("teacher", "s3cret"))):
         good = _ask(port, "--config", str(config("learner", "letmein")))
         assert good.returncode == 0, good.stdout + good.stderr
         refused = _ask(port, "--config", str(config("learner", "guess")))
@@ -426,25 +297,16 @@ def test_tls_from_a_config_file(tmp_path: Path) -> None:
     ):
 
         def ask(*extra: str) -> subprocess.CompletedProcess[str]:
-            return subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "ktbt_proto",
-                    "peer",
-                    "ask",
-                    "--sequence",
-                    "TargetSeen(colour=3)",
-                    "--connect",
-                    address,
-                    "--timeout",
-                    "2",
-                    *extra,
-                ],
-                capture_output=True,
-                text=True,
-                timeout=60,
-                cwd=ROOT,
+            return ktbt_run(
+                "peer",
+                "ask",
+                "--sequence",
+                "TargetSeen(colour=3)",
+                "--connect",
+                address,
+                "--timeout",
+                "2",
+                *extra,
             )
 
         trusted = ask("--config", str(client))

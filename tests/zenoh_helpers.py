@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -113,3 +114,23 @@ def make_tls(folder: Path) -> dict[str, Path]:
         )
     )
     return files
+
+
+def ktbt_run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess[str]:
+    """Run ``python -m ktbt_proto ARGS`` to completion."""
+    return subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def serving(port: int, *extra: str, name: str = "teacher") -> Any:
+    """A ``ktbt peer serve`` of the example colour skills on ``port``."""
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
+    return ktbt_process(
+        "peer", "serve", "--id", name, "--knowledge", str(knowledge),
+        "--listen", endpoint(port), *extra, ready="serving",
+    )  # fmt: skip

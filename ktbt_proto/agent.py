@@ -122,7 +122,6 @@ class Agent:
         self.now = 0
         self._queries: deque[Query] = deque(maxlen=64)
         self._responses: deque[Response] = deque(maxlen=256)
-        self._asking: Query | None = None
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
         own = self._library()

@@ -362,15 +362,15 @@ def _settings(
     return ZenohSettings(listen or (), connect or (), config, mode, multicast)
 
 
-def _check_peer(name: str, timeout: float = 1.0) -> None:
+def _check_peer(name: str, seconds: float = 1.0, most: float = 3600) -> None:
     import math
     import re
 
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name):
         _say(f"error: --id {name!r}: use 1 to 64 letters, digits, '_', '.' or '-'")
         raise typer.Exit(2)
-    if not (math.isfinite(timeout) and 0 < timeout <= 3600):
-        _say(f"error: --timeout {timeout}: use a number of seconds in (0, 3600]")
+    if not (math.isfinite(seconds) and 0 < seconds <= most):
+        _say(f"error: {seconds} seconds: use a number in (0, {most:g}]")
         raise typer.Exit(2)
 
 
@@ -450,7 +450,7 @@ def peer_run(
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
 
-    _check_peer(name, duration)
+    _check_peer(name, duration, most=365 * 86400)  # an agent may run for days
     settings = _settings(listen, connect, config, multicast, mode)
     sequences = sequence or peer.COLOURS
     _peer_call(

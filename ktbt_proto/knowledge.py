@@ -19,8 +19,6 @@ from .syntax import parse
 from .tree import Condition, Node, Placeholder, Sequence, Tree, as_node, walk
 
 FORMAT_VERSION = 1
-SEGMENTS = ("common", "prior", "new")
-"""The control tree's knowledge segments, in the paper's priority order (Definition 2)."""
 
 
 def sequence_key(conditions: Iterable[Condition]) -> str:

@@ -154,8 +154,8 @@ def _decode(data: str | bytes, limits: Limits) -> str:
         ) from None
 
 
-def _limit_error(depth: int, nodes: int, limits: Limits, line: int, col: int) -> LimitError:
-    if depth >= limits.max_depth:
+def _limit_error(deep: bool, limits: Limits, line: int, col: int) -> LimitError:
+    if deep:
         return LimitError(
             ErrorCode.TOO_DEEP,
             f"node nested deeper than the depth limit of {limits.max_depth}",
@@ -509,7 +509,8 @@ def _reference_limits(toks: list[Any], limits: Limits, text: str) -> None:
         if kind in _OPENS or kind in _LEAVES:
             nodes += 1
             if depth >= limits.max_depth or nodes > limits.max_nodes:
-                err = _limit_error(depth, nodes, limits, tok.line, tok.column)
+                deep = depth >= limits.max_depth
+                err = _limit_error(deep, limits, tok.line, tok.column)
                 break
             if kind in _OPENS:
                 depth += 1
@@ -641,13 +642,7 @@ def _explain(text: str, limits: Limits) -> Tree:
         if code is ErrorCode.LITERAL_TOO_LONG:
             err = _literal_error(literal, limits, line, col)
         else:
-            err = _limit_error(
-                limits.max_depth if code is ErrorCode.TOO_DEEP else 0,
-                limits.max_nodes + 1,
-                limits,
-                line,
-                col,
-            )
+            err = _limit_error(code is ErrorCode.TOO_DEEP, limits, line, col)
         err.excerpt = StringBTError(err.code, "", line, col, source=text).excerpt
         raise err
     # Offsets to positions, only for the few entries a message may name.

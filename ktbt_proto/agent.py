@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -107,8 +107,16 @@ class Agent:
         knowledge_path: str | Path | None = None,
         slot: str = "new",
         receive_limits: Limits = RECEIVE_LIMITS,
+        teach_if: Callable[[Query], bool] | None = None,
+        repeat_every: int = 0,
     ) -> None:
         self.name = name
+        self.repeat_every = repeat_every
+        """While waiting, broadcast the open query again every this many ticks (0: once), so
+        that peers who come into range during the wait hear it, as a radio beacon would."""
+        self.teach_if = teach_if
+        """The application's own teaching rule, asked before answering a query it could answer
+        (the search-and-rescue robots do not teach while carrying a target)."""
         self.transport = transport
         self.slot = slot
         self.receive_limits = receive_limits
@@ -140,16 +148,34 @@ class Agent:
         key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
         return key in self.knowledge
 
-    def tick(self) -> Status:
-        """One tick: read the transport, then tick Control, Teach and Learn."""
-        self.now += 1
+    @property
+    def engaged(self) -> bool:
+        """True while the teach or learn tree has work: cooling down, asking, or messages taken
+        in and not yet handled. An agent that is not engaged, and whose control tree's inputs
+        have not changed, would change nothing by ticking (a simulator of many robots skips it).
+        """
+        bb = self.blackboard
+        return bool(
+            bb.get(COOLING_DOWN) or bb.get(QUERYING) or self._queries or self._responses
+        )
+
+    def tick(self, *, control: bool = True, now: int | None = None) -> Status | None:
+        """One tick: read the transport, then tick Control, Teach and Learn.
+
+        ``control=False`` leaves the control tree out of this tick: only for a caller that knows
+        the control tree's inputs have not changed and its behaviours keep no state, so that
+        ticking it again would change nothing. ``now`` sets the agent's clock (the tick number
+        its metrics are stamped with) when the caller keeps its own.
+        """
+        self.now = self.now + 1 if now is None else now
         for message in self.transport.receive():
             if isinstance(message, Query):
                 self.metrics.queries_received += 1
-                self._queries.append(message)
+                if not self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
+                    self._queries.append(message)
             elif isinstance(message, Response):
                 self._responses.append(message)
-        status = self.control.tick()
+        status = self.control.tick() if control else None
         self.teach.tick()
         self.learn.tick()
         return status
@@ -186,7 +212,7 @@ class Agent:
         """Algorithm 1: take one query; answer it if the sequence is known."""
         query = self._queries.popleft()
         item = self.knowledge.lookup(query.sequence)
-        if item is None:
+        if item is None or (self.teach_if is not None and not self.teach_if(query)):
             return FAILURE
         self.transport.send(
             query.sender,
@@ -264,6 +290,7 @@ class _QueryAndWait:
         self.bb = bb
         self.agent = agent
         self.query: Query | None = None
+        self.waited = 0
 
     def tick(self) -> Status:
         agent = self.agent
@@ -275,6 +302,7 @@ class _QueryAndWait:
             agent.transport.broadcast(self.query)
             agent.metrics.queries_sent += 1
             self.bb[QUERYING] = True
+            self.waited = 0
             return RUNNING
         while agent._responses:
             response = agent._responses.popleft()
@@ -285,6 +313,9 @@ class _QueryAndWait:
             if agent.accept(response, self.query):
                 self._finish()
                 return SUCCESS
+        self.waited += 1
+        if agent.repeat_every and self.waited % agent.repeat_every == 0:
+            agent.transport.broadcast(self.query)
         return RUNNING
 
     def halt(self) -> None:

@@ -107,8 +107,16 @@ class Timing(_Model):
     dt: float = Field(default=0.01, gt=0, description="seconds of simulated time per iteration")
     wait_ticks: int = Field(default=1000, ge=0, description="stopped after a query or a teach")
     cooldown_ticks: int = Field(default=1000, ge=0, description="no sensing, asking or teaching")
-    walk_goal_min_s: float = Field(default=1.0, gt=0)
+    walk_goal_min_s: float = Field(
+        default=1.0, gt=0, description="random walk: a new goal point every U(min, max) s"
+    )
     walk_goal_max_s: float = Field(default=5.0, gt=0)
+    repeat_every: int = Field(
+        default=10,
+        ge=0,
+        description="a waiting learner repeats its query this often, so a knower that comes"
+        " into range during the wait can teach it (the release's rule); 0: ask once",
+    )
 
 
 class Scenario(_Model):

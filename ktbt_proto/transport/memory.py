@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import random
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from .base import Message
@@ -20,9 +20,15 @@ InRange = Callable[[str, str], bool]
 class MemoryNetwork:
     """Agents join by name. ``in_range(sender, receiver)`` is asked when a message is sent;
     ``loss`` is the probability that one delivery is lost; ``latency`` ticks pass between
-    sending and arrival (0: it arrives before the receiver's next ``receive``)."""
+    sending and arrival (0: it arrives before the receiver's next ``receive``).
+
+    ``audience(sender)``, if given, names who may hear a broadcast, so that a network of
+    thousands does not ask ``in_range`` of every member; ``on_deliver(receiver)`` is told of
+    each message put in an inbox, so an owner of many agents knows which ones have mail."""
 
     in_range: InRange = lambda a, b: True
+    audience: Callable[[str], Iterable[str]] | None = None
+    on_deliver: Callable[[str], None] | None = None
     loss: float = 0.0
     latency: int = 0
     seed: int = 0
@@ -80,6 +86,8 @@ class MemoryNetwork:
             if member is not None and not member.closed:
                 member._inbox.append(message)
                 self.delivered += 1
+                if self.on_deliver is not None:
+                    self.on_deliver(receiver)
 
 
 @dataclass(eq=False)
@@ -95,8 +103,10 @@ class MemoryTransport:
     def broadcast(self, message: Message) -> None:
         if self.closed:
             return
-        for receiver in list(self.network._members):
-            self.network._post(self.name, receiver, message)
+        network = self.network
+        audience = network._members if network.audience is None else network.audience(self.name)
+        for receiver in list(audience):
+            network._post(self.name, receiver, message)
 
     def send(self, to: str, message: Message) -> None:
         if not self.closed:

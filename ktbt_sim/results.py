@@ -1,0 +1,125 @@
+"""What a study leaves on disk, and reading it back.
+
+Layout of an output folder: one folder per scenario, holding ``scenario.json`` and one Parquet
+file per finished trial (``trial-0003.parquet``, the scenario and seed in its metadata). A trial
+file is written to a temporary name and renamed, so it is either whole or absent: that is what
+makes a sweep resumable. ``<scenario>.csv`` and ``<scenario>.parquet`` beside the folder hold
+every trial's rows together, with a ``trial`` column.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from .scenario import Scenario
+
+
+@dataclass(frozen=True)
+class Results:
+    """Every finished trial of one scenario, aligned on the recorded iterations."""
+
+    scenario: Scenario
+    trials: tuple[int, ...]
+    iterations: np.ndarray
+    """(rows,): the iteration of each recorded step."""
+    data: dict[str, np.ndarray]
+    """column -> (trials, rows)."""
+
+    def __getitem__(self, column: str) -> np.ndarray:
+        return self.data[column]
+
+    @property
+    def total_targets(self) -> int:
+        return self.scenario.targets.total
+
+
+def trial_path(folder: Path, trial: int) -> Path:
+    return folder / f"trial-{trial:04d}.parquet"
+
+
+def write_trial(
+    folder: Path, scenario: Scenario, trial: int, seed: int, rows: dict[str, list[int]]
+) -> Path:
+    """Write one trial atomically: a temporary file, fsync, rename."""
+    folder.mkdir(parents=True, exist_ok=True)
+    table = pa.table({name: pa.array(values, pa.int64()) for name, values in rows.items()})
+    meta = {b"ktbt.scenario": scenario.dump().encode(), b"ktbt.trial": str(trial).encode()}
+    meta[b"ktbt.seed"] = str(seed).encode()
+    table = table.replace_schema_metadata(meta)
+    final = trial_path(folder, trial)
+    tmp = final.with_suffix(f".tmp{os.getpid()}")
+    pq.write_table(table, tmp)
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, final)
+    return final
+
+
+def finished(folder: Path) -> set[int]:
+    """Trials whose file is complete (a torn temporary file does not count)."""
+    done = set()
+    for path in folder.glob("trial-*.parquet"):
+        try:
+            done.add(int(path.stem.split("-")[1]))
+        except ValueError:
+            continue
+    return done
+
+
+def load_folder(folder: Path) -> Results | None:
+    scenario_file = folder / "scenario.json"
+    if not scenario_file.exists():
+        return None
+    scenario = Scenario.model_validate(json.loads(scenario_file.read_text(encoding="utf-8")))
+    trials = sorted(finished(folder))
+    if not trials:
+        return None
+    tables = [pq.read_table(trial_path(folder, t)) for t in trials]
+    rows = min(t.num_rows for t in tables)
+    names = [n for n in tables[0].column_names if n != "iteration"]
+    data = {
+        name: np.stack([t.column(name).to_numpy()[:rows] for t in tables]) for name in names
+    }
+    iterations = tables[0].column("iteration").to_numpy()[:rows]
+    return Results(scenario, tuple(trials), iterations, data)
+
+
+def load(directory: str | Path) -> dict[str, Results]:
+    """Every scenario with at least one finished trial under ``directory``, by name."""
+    out: dict[str, Results] = {}
+    for folder in sorted(Path(directory).iterdir()):
+        if folder.is_dir():
+            results = load_folder(folder)
+            if results is not None:
+                out[results.scenario.name] = results
+    return out
+
+
+def combine(folder: Path) -> None:
+    """Write ``<scenario>.parquet`` and ``<scenario>.csv`` with every finished trial's rows."""
+    trials = sorted(finished(folder))
+    if not trials:
+        return
+    tables = []
+    for t in trials:
+        table = pq.read_table(trial_path(folder, t))
+        tables.append(table.add_column(0, "trial", pa.array([t] * table.num_rows, pa.int64())))
+    combined = pa.concat_tables(tables).replace_schema_metadata(
+        {b"ktbt.scenario": (folder / "scenario.json").read_bytes()}
+    )
+    for suffix, write in (
+        (".parquet", lambda tbl, p: pq.write_table(tbl, p)),
+        (".csv", lambda tbl, p: pacsv.write_csv(tbl, p)),
+    ):
+        final = folder.with_suffix(suffix)
+        tmp = folder.parent / f".{folder.name}{suffix}.tmp"
+        write(combined, tmp)
+        os.replace(tmp, final)

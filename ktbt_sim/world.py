@@ -1,0 +1,534 @@
+"""The search-and-rescue world: a pymunk arena with walls, zones, targets, obstacles and robots,
+each robot a ``ktbt_proto`` agent on an in-memory network limited by communication range.
+
+Speed comes from doing per robot only what changed. Sensors are pymunk sensor shapes whose
+begin/separate callbacks keep counts up to date, so nothing is searched per step; flags are
+packed into one integer per robot with numpy; a robot's agent is ticked only when its flags
+changed or its teach/learn trees have work (``Agent.engaged``), because the behaviours keep no
+state and a tick with unchanged inputs would change nothing; motion is computed for all robots
+at once and written to pymunk in one batch call.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+import pymunk.batch
+
+from ktbt_proto import Condition
+from ktbt_proto.agent import COOLING_DOWN, QUERYING, TEACHING, Agent
+from ktbt_proto.messages import Query
+from ktbt_proto.transport.memory import MemoryNetwork
+
+from . import robot as rb
+from .obstacles import layout
+from .scenario import COLOURS, Mode, Scenario
+
+# Collision types and filter categories.
+BODY, WALL, TARGET, TARGET_SENSOR, COLLISION_SENSOR = 1, 2, 4, 8, 16
+TARGET_RADIUS = 10.0
+"""Targets are 20-unit cubes in the release; here discs of that width."""
+
+ZONE_SIGNS = ((-1, 1), (1, 1), (-1, -1), (1, -1))
+"""Zone corner of colour 1..4: red top left, green top right, yellow bottom left, blue bottom
+right."""
+
+
+RECORD_COLUMNS = (
+    "iteration",
+    *(f"collected_{c}" for c in COLOURS),
+    "collected",
+    "querying",
+    "teaching",
+    "walking",
+    "carrying",
+    "avoiding",
+    "cooling",
+    "queries",
+    "responses",
+    "lost",
+    *(f"knows_{k}" for k in range(5)),
+    *(f"knows_{c}" for c in COLOURS),
+)
+"""The per-step record, every ``record_every`` iterations. Per colour: targets collected and
+robots that know it. Now: robots querying, teaching, walking at random, carrying, avoiding a
+collision, cooling down. Cumulative: queries sent, responses sent, queries lost (a learner's wait
+ran out). ``knows_k``: robots that know exactly k colours."""
+
+
+def _filter(category: int, mask: int) -> pymunk.ShapeFilter:
+    return pymunk.ShapeFilter(categories=category, mask=mask)
+
+
+@dataclass(frozen=True)
+class Counters:
+    """Totals the world keeps as it runs (the per-step records add the per-robot counts)."""
+
+    collected: tuple[int, int, int, int]
+    picked: int
+    queries: int
+    responses: int
+    lost: int
+
+
+class World:
+    """One trial of a scenario. ``seed`` (default: the scenario's) fixes everything random:
+    placements, random walks and who meets whom, so the same seed replays bit for bit."""
+
+    def __init__(self, scenario: Scenario, seed: int | np.random.SeedSequence | None = None):
+        self.scenario = scenario
+        root = np.random.SeedSequence(scenario.seed) if seed is None else seed
+        self.rng = np.random.default_rng(
+            root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
+        )
+        self.iteration = 0
+        self.kt_bt = scenario.mode is Mode.KT_BT
+        arena, spec, timing = scenario.arena, scenario.robot, scenario.timing
+        r = scenario.robots
+        self.kinds = rb.kinds(
+            zip("IMRGYB", (r.ignorant, r.multi, r.red, r.green, r.yellow, r.blue), strict=True)
+        )
+        n = self.n = len(self.kinds)
+        self.radius = spec.body / 2
+        self.dt = timing.dt
+        self.space = pymunk.Space()
+        self.obstacles = layout(arena) if arena.obstacles else []
+        self._build_walls()
+
+        # Targets: colour 1..4, position, still lying (not picked).
+        counts = scenario.targets
+        self.target_colour = np.repeat(
+            np.arange(1, 5), (counts.red, counts.green, counts.yellow, counts.blue)
+        ).astype(np.int64)
+        self.target_pos = self._free_points(len(self.target_colour), TARGET_RADIUS + 5)
+        self.target_free = np.ones(len(self.target_colour), dtype=bool)
+        self._target_shapes: list[pymunk.Shape] = []
+        self._shape_target: dict[pymunk.Shape, int] = {}
+        for t, (x, y) in enumerate(self.target_pos):
+            shape = pymunk.Circle(self.space.static_body, TARGET_RADIUS, (float(x), float(y)))
+            shape.sensor = True
+            shape.collision_type = TARGET
+            shape.filter = _filter(TARGET, TARGET_SENSOR)
+            self._target_shapes.append(shape)
+            self._shape_target[shape] = t
+            self.space.add(shape)
+
+        # Robots: state arrays, bodies and sensors.
+        self.pos = self._free_points(n, self.radius + 5)
+        self.heading = self.rng.uniform(-math.pi, math.pi, n)
+        self.mode = np.full(n, rb.WALK, dtype=np.int64)
+        self.walk_goal = np.zeros((n, 2))
+        self.walk_until = np.zeros(n, dtype=np.int64)
+        self.avoid_angle = np.zeros(n)
+        self.goal = np.zeros(n, dtype=np.int64)  # zone colour assigned, 0: none
+        self.carrying = np.full(n, -1, dtype=np.int64)
+        self.collisions = np.zeros(n, dtype=np.int64)
+        self.seen = np.zeros((n, 4), dtype=np.int64)
+        self.waiting = np.zeros(n, dtype=bool)
+        self.cooling = np.zeros(n, dtype=bool)
+        self.querying = np.zeros(n, dtype=bool)
+        self.teaching = np.zeros(n, dtype=bool)
+        self.known = np.zeros((n, 4), dtype=bool)
+        self.collected = np.zeros(4, dtype=np.int64)
+        self.delivered_to = np.zeros(len(self.target_colour), dtype=np.int64)
+        self.picked = 0
+        self._visible: list[set[int]] = [set() for _ in range(n)]
+        self._watchers: list[set[int]] = [set() for _ in self.target_colour]
+        """Who sees each target: pymunk does not always report a separation when a sensor's
+        partner is removed, so a pick clears the target from every watcher itself."""
+        self._contacts: list[dict[pymunk.Shape, int]] = [{} for _ in range(n)]
+        self._shape_robot: dict[pymunk.Shape, int] = {}
+        self.bodies: list[pymunk.Body] = []
+        for i in range(n):
+            self._add_robot(i)
+        self._handlers()
+        self._velocities = np.zeros(2 * (n + 1))  # the space's static body comes last
+        self._out = pymunk.batch.Buffer()
+        self._in = pymunk.batch.Buffer()
+        self._in.set_float_buf(self._velocities)
+
+        # Agents on a network limited by communication range.
+        self.network = MemoryNetwork(
+            in_range=self._in_range, audience=self._audience, on_deliver=self._mail
+        )
+        self.names = [f"r{i}" for i in range(n)]
+        self._index = {name: i for i, name in enumerate(self.names)}
+        self.registry = rb.registry(self)
+        self.agents: list[Agent] = []
+        self._taught: list[str] = [""] * n
+        self._learned = [0] * n
+        for i, kind in enumerate(self.kinds):
+            agent = Agent(
+                self.names[i],
+                rb.control_tree(rb.KINDS[kind]),
+                self.registry,
+                self.network.join(self.names[i]),
+                wait_ticks=timing.wait_ticks,
+                cooldown_ticks=timing.cooldown_ticks,
+                teach_if=self._teacher(i),
+                repeat_every=timing.repeat_every,
+            )
+            agent.blackboard[rb.INDEX] = i
+            self.agents.append(agent)
+            for colour in rb.KINDS[kind]:
+                self.known[i, colour - 1] = True
+        self._engaged: set[int] = set()
+        self._signature = np.full(n, -1, dtype=np.int64)
+        self._keys = [rb.sequence_of(c) for c in range(1, 5)]
+        self._zone_centre = np.array(
+            [(sx * arena.zone_centre, sy * arena.zone_centre) for sx, sy in ZONE_SIGNS]
+        )
+        self._zone_half = arena.zone_inner / 2 - self.radius
+        self._bit = np.array([1, 2, 4, 8], dtype=np.int64)
+
+    # -- construction ---------------------------------------------------------------------
+
+    def _build_walls(self) -> None:
+        h = self.scenario.arena.half_size
+        corners = [(-h, -h), (h, -h), (h, h), (-h, h)]
+        static = self.space.static_body
+        shapes: list[pymunk.Shape] = []
+        for a, b in zip(corners, corners[1:] + corners[:1], strict=True):
+            shapes.append(pymunk.Segment(static, a, b, 5.0))
+        for x0, y0, x1, y1 in self.obstacles:
+            shapes.append(
+                pymunk.Poly(static, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+            )
+        for shape in shapes:
+            shape.collision_type = WALL
+            shape.filter = _filter(WALL, BODY | COLLISION_SENSOR)
+            shape.friction = 0.0
+        self.space.add(*shapes)
+
+    def _free_points(self, count: int, margin: float) -> np.ndarray:
+        """``count`` points uniform in the spawn area, none inside an obstacle."""
+        half = self.scenario.arena.spawn_half
+        points = self.rng.uniform(-half, half, (count, 2))
+        if self.obstacles:
+            boxes = np.array(self.obstacles)
+            for _ in range(1000):
+                x, y = points[:, 0:1], points[:, 1:2]
+                bad = (
+                    (x > boxes[:, 0] - margin)
+                    & (x < boxes[:, 2] + margin)
+                    & (y > boxes[:, 1] - margin)
+                    & (y < boxes[:, 3] + margin)
+                ).any(axis=1)
+                if not bad.any():
+                    break
+                points[bad] = self.rng.uniform(-half, half, (int(bad.sum()), 2))
+        return points
+
+    def _add_robot(self, i: int) -> None:
+        spec = self.scenario.robot
+        body = pymunk.Body(1.0, math.inf)
+        body.position = (float(self.pos[i, 0]), float(self.pos[i, 1]))
+        hull = pymunk.Circle(body, self.radius)
+        hull.collision_type = BODY
+        hull.filter = _filter(BODY, BODY | WALL | COLLISION_SENSOR)
+        hull.friction = 0.0
+        eyes = pymunk.Circle(body, spec.target_sensor)
+        eyes.sensor = True
+        eyes.collision_type = TARGET_SENSOR
+        eyes.filter = _filter(TARGET_SENSOR, TARGET)
+        bumper = pymunk.Circle(body, spec.collision_sensor)
+        bumper.sensor = True
+        bumper.collision_type = COLLISION_SENSOR
+        bumper.filter = _filter(COLLISION_SENSOR, BODY | WALL)
+        for shape in (hull, eyes, bumper):
+            self._shape_robot[shape] = i
+        self.space.add(body, hull, eyes, bumper)
+        self.bodies.append(body)
+
+    def _handlers(self) -> None:
+        robot_of, target_of = self._shape_robot, self._shape_target
+        seen, visible, colour = self.seen, self._visible, self.target_colour
+        watchers = self._watchers
+        collisions, contacts = self.collisions, self._contacts
+
+        def saw(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+            eyes, target = arbiter.shapes
+            i, t = robot_of[eyes], target_of[target]
+            if t not in visible[i]:
+                visible[i].add(t)
+                watchers[t].add(i)
+                seen[i, colour[t] - 1] += 1
+
+        def lost(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+            eyes, target = arbiter.shapes
+            i, t = robot_of.get(eyes, -1), target_of.get(target, -1)
+            if i >= 0 and t in visible[i]:
+                visible[i].discard(t)
+                watchers[t].discard(i)
+                seen[i, colour[t] - 1] -= 1
+
+        def touch(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+            bumper, other = arbiter.shapes
+            i = robot_of[bumper]
+            contacts[i][other] = contacts[i].get(other, 0) + 1
+            collisions[i] += 1
+
+        def untouch(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+            bumper, other = arbiter.shapes
+            i = robot_of.get(bumper, -1)
+            if i < 0 or other not in contacts[i]:  # the space is being torn down
+                return
+            left = contacts[i][other] - 1
+            if left > 0:
+                contacts[i][other] = left
+            else:
+                contacts[i].pop(other, None)
+            collisions[i] -= 1
+
+        self.space.on_collision(TARGET_SENSOR, TARGET, begin=saw, separate=lost)
+        self.space.on_collision(COLLISION_SENSOR, BODY, begin=touch, separate=untouch)
+        self.space.on_collision(COLLISION_SENSOR, WALL, begin=touch, separate=untouch)
+
+    # -- communication ----------------------------------------------------------------------
+
+    def _in_range(self, sender: str, receiver: str) -> bool:
+        a, b = self.pos[self._index[sender]], self.pos[self._index[receiver]]
+        return bool((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 <= self.scenario.comm_range**2)
+
+    def _audience(self, sender: str) -> list[str]:
+        i = self._index[sender]
+        d2 = ((self.pos - self.pos[i]) ** 2).sum(axis=1)
+        near = np.flatnonzero(d2 <= self.scenario.comm_range**2)
+        return [self.names[j] for j in near if j != i]
+
+    def _mail(self, receiver: str) -> None:
+        self._engaged.add(self._index[receiver])
+
+    def _teacher(self, i: int):  # type: ignore[no-untyped-def]
+        """The release's teaching rule for robot ``i``: it teaches only when not carrying a
+        target, and only a learner nobody is teaching yet (the knowledge check is the agent's)."""
+        taught, index, carrying = self._taught, self._index, self.carrying
+
+        def teach_if(query: Query) -> bool:
+            learner = index.get(query.sender)
+            if learner is None or carrying[i] >= 0 or taught[learner] == query.id:
+                return False
+            taught[learner] = query.id
+            return True
+
+        return teach_if
+
+    # -- the actuators' side of actions -----------------------------------------------------
+
+    def pick(self, i: int, colour: int | None) -> bool:
+        """Pick up the nearest visible target (of ``colour``, if given); False if none."""
+        if self.carrying[i] >= 0:
+            return False
+        best, best_d = -1, math.inf
+        x, y = self.pos[i]
+        for t in self._visible[i]:
+            if colour is not None and self.target_colour[t] != int(colour):
+                continue
+            tx, ty = self.target_pos[t]
+            d = (tx - x) ** 2 + (ty - y) ** 2
+            if d < best_d or (d == best_d and t < best):
+                best, best_d = t, d
+        if best < 0:
+            return False
+        self.carrying[i] = best
+        self.target_free[best] = False
+        self.picked += 1
+        self.space.remove(self._target_shapes[best])
+        k = int(self.target_colour[best]) - 1
+        for j in self._watchers[best]:
+            self._visible[j].discard(best)
+            self.seen[j, k] -= 1
+        self._watchers[best].clear()
+        return True
+
+    def place(self, i: int) -> bool:
+        """Deliver the carried target: only inside the zone of the target's own colour."""
+        t = int(self.carrying[i])
+        if t < 0 or not self._inside_zone(i, int(self.target_colour[t])):
+            return False
+        self.carrying[i] = -1
+        self.goal[i] = 0
+        self.collected[self.target_colour[t] - 1] += 1
+        self.delivered_to[t] += 1
+        return True
+
+    def _inside_zone(self, i: int, colour: int) -> bool:
+        cx, cy = self._zone_centre[colour - 1]
+        x, y = self.pos[i]
+        return abs(x - cx) <= self._zone_half and abs(y - cy) <= self._zone_half
+
+    # -- one step -------------------------------------------------------------------------
+
+    def signature(self) -> np.ndarray:
+        """Every robot's control-tree inputs packed in one integer."""
+        carrying = self.carrying >= 0
+        goal = np.maximum(self.goal, 1) - 1
+        centre = self._zone_centre[goal]
+        inside = (np.abs(self.pos - centre) <= self._zone_half).all(axis=1)
+        in_zone = carrying & (self.goal > 0) & inside
+        seen = ((self.seen > 0) @ self._bit) * ~self.cooling
+        return (
+            (self.collisions > 0)
+            | (self.waiting << 1)
+            | (carrying << 2)
+            | (in_zone << 3)
+            | (self.cooling << 4)
+            | (seen << 5)
+        )
+
+    def step(self) -> None:
+        """Sense, tick the agents that need it, move, and advance the physics by ``dt``."""
+        self.iteration += 1
+        self.network.step()
+        signature = self.signature()
+        changed = np.flatnonzero(signature != self._signature)
+        self._signature = signature
+        fresh = set(changed.tolist())
+        due = fresh | self._engaged if self._engaged else fresh
+        for i in sorted(due):
+            self._tick(i, int(signature[i]), i in fresh)
+        self._move()
+        self.space.step(self.dt)
+        self._read_positions()
+
+    def _tick(self, i: int, signature: int, control: bool) -> None:
+        agent = self.agents[i]
+        bb = agent.blackboard
+        if control:
+            bb[rb.COLLISION] = signature & 1
+            bb[rb.WAIT] = signature >> 1 & 1
+            bb[rb.CARRYING] = signature >> 2 & 1
+            bb[rb.IN_ZONE] = signature >> 3 & 1
+            bb[rb.SEEN] = seen = signature >> 5
+            if self.kt_bt:
+                agent.encounter(self._unknown(i, seen, signature))
+        agent.tick(control=control, now=self.iteration)
+        cooling = bool(bb.get(COOLING_DOWN))
+        querying = bool(bb.get(QUERYING))
+        teaching = bool(bb.get(TEACHING))
+        self.cooling[i], self.querying[i], self.teaching[i] = cooling, querying, teaching
+        self.waiting[i] = querying or teaching
+        if agent.engaged:
+            self._engaged.add(i)
+        else:
+            self._engaged.discard(i)
+        learned = len(agent.metrics.learned)
+        if learned != self._learned[i]:
+            self._learned[i] = learned
+            for c, key in enumerate(self._keys):
+                self.known[i, c] = key in agent.knowledge
+
+    def _unknown(self, i: int, seen: int, signature: int) -> tuple[Condition, ...] | None:
+        """The sequence robot ``i`` faces and does not know: a target colour in view, while it
+        carries nothing (a robot busy carrying does not attend to other targets)."""
+        if signature & 4:
+            return None
+        for c in range(4):
+            if seen >> c & 1 and not self.known[i, c]:
+                return rb.sequence(c + 1)
+        return None
+
+    def _move(self) -> None:
+        spec, dt, n = self.scenario.robot, self.dt, self.n
+        mode = self.mode
+        walking = mode == rb.WALK
+        due = walking & (self.walk_until <= self.iteration)
+        if due.any():
+            k = int(due.sum())
+            half = self.scenario.arena.spawn_half
+            self.walk_goal[due] = self.rng.uniform(-half, half, (k, 2))
+            lo, hi = self.scenario.timing.walk_goal_min_s, self.scenario.timing.walk_goal_max_s
+            span = self.rng.uniform(lo, hi, k) / dt
+            self.walk_until[due] = self.iteration + span.astype(np.int64)
+        avoiding = np.flatnonzero(mode == rb.AVOID).tolist()
+        for i in avoiding:
+            self.avoid_angle[i] = self._away(i)
+        if avoiding:
+            self.walk_until[avoiding] = 0  # a collision ends the current random-walk leg
+        goal = np.maximum(self.goal, 1) - 1
+        target = np.where(
+            (mode == rb.TO_ZONE)[:, None], self._zone_centre[goal], self.walk_goal
+        )
+        to = target - self.pos
+        want = np.where(mode == rb.AVOID, self.avoid_angle, np.arctan2(to[:, 1], to[:, 0]))
+        error = (want - self.heading + math.pi) % (2 * math.pi) - math.pi
+        turn = math.radians(spec.max_turn_deg) * dt
+        self.heading = self.heading + np.clip(error, -turn, turn)
+        aligned = np.abs(error) <= turn + math.radians(spec.heading_tolerance_deg)
+        speed = np.where(aligned & (mode != rb.STOP), spec.max_speed, 0.0)
+        v = self._velocities[: 2 * n].reshape(n, 2)
+        v[:, 0] = speed * np.cos(self.heading)
+        v[:, 1] = speed * np.sin(self.heading)
+        pymunk.batch.set_space_bodies(self.space, pymunk.batch.BodyFields.VELOCITY, self._in)
+
+    def _away(self, i: int) -> float:
+        """Heading away from V_c, the sum of the vectors to every object in collision range."""
+        x, y = self.pos[i]
+        vx = vy = 0.0
+        for shape, _ in self._contacts[i].items():
+            j = self._shape_robot.get(shape)
+            if j is not None:
+                cx, cy = self.pos[j]
+            else:
+                point = shape.point_query((float(x), float(y))).point
+                cx, cy = point.x, point.y
+            vx += cx - x
+            vy += cy - y
+        if vx == 0.0 and vy == 0.0:
+            return float(self.heading[i])
+        return math.atan2(-vy, -vx)
+
+    def _read_positions(self) -> None:
+        out = self._out
+        out.clear()
+        pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.POSITION, out)
+        data = np.frombuffer(out.float_buf(), dtype=np.float64)
+        self.pos = data[: 2 * self.n].reshape(self.n, 2).copy()
+
+    # -- what an experiment reads -----------------------------------------------------------
+
+    def run(self, iterations: int) -> None:
+        for _ in range(iterations):
+            self.step()
+
+    def record(self) -> dict[str, int]:
+        """One row of the per-step record (see ``RECORD_COLUMNS``)."""
+        m = [a.metrics for a in self.agents]
+        levels = np.bincount(self.known.sum(axis=1), minlength=5)
+        known = self.known.sum(axis=0)
+        mode, carrying = self.mode, self.carrying >= 0
+        row = {"iteration": self.iteration}
+        for c, name in enumerate(COLOURS):
+            row[f"collected_{name}"] = int(self.collected[c])
+        row["collected"] = int(self.collected.sum())
+        row["querying"] = int(self.querying.sum())
+        row["teaching"] = int(self.teaching.sum())
+        row["walking"] = int(((mode == rb.WALK) & ~carrying).sum())
+        row["carrying"] = int(carrying.sum())
+        row["avoiding"] = int((mode == rb.AVOID).sum())
+        row["cooling"] = int(self.cooling.sum())
+        row["queries"] = sum(x.queries_sent for x in m)
+        row["responses"] = sum(x.responses_sent for x in m)
+        row["lost"] = sum(x.queries_lost for x in m)
+        for level in range(5):
+            row[f"knows_{level}"] = int(levels[level])
+        for c, name in enumerate(COLOURS):
+            row[f"knows_{name}"] = int(known[c])
+        return row
+
+    def counters(self) -> Counters:
+        m = [a.metrics for a in self.agents]
+        return Counters(
+            collected=tuple(int(c) for c in self.collected),  # type: ignore[arg-type]
+            picked=self.picked,
+            queries=sum(x.queries_sent for x in m),
+            responses=sum(x.responses_sent for x in m),
+            lost=sum(x.queries_lost for x in m),
+        )
+
+    @property
+    def colours(self) -> tuple[str, ...]:
+        return COLOURS

@@ -155,9 +155,7 @@ class Agent:
         have not changed, would change nothing by ticking (a simulator of many robots skips it).
         """
         bb = self.blackboard
-        return bool(
-            bb.get(COOLING_DOWN) or bb.get(QUERYING) or self._queries or self._responses
-        )
+        return bool(bb.get(COOLING_DOWN) or bb.get(QUERYING) or self._queries or self._responses)
 
     def tick(self, *, control: bool = True, now: int | None = None) -> Status | None:
         """One tick: read the transport, then tick Control, Teach and Learn.

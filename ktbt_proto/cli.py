@@ -312,8 +312,8 @@ def _load_or_exit(path: str) -> Tree:
     raise typer.Exit(1)
 
 
-@app.command("demo")
-def demo_command(
+@app.command("tour")
+def tour_command(
     examples: Annotated[Path, typer.Option(help="Folder of .sbt files to show.")] = Path(
         "examples"
     ),
@@ -511,6 +511,21 @@ def main_options(
     ] = False,
 ) -> None:
     """KT-BT: behaviour trees that robots share while they run."""
+
+
+def _plugins() -> None:
+    """Commands other packages add (the simulator adds ``sim`` and ``demo``) through the
+    ``ktbt.commands`` entry point: this package never imports them itself."""
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group="ktbt.commands"):
+        try:
+            entry.load()(app)
+        except Exception as exc:  # a broken plugin must not take the core commands down
+            _say(f"warning: cannot load ktbt command plugin {entry.name}: {exc}")
+
+
+_plugins()
 
 
 def main() -> None:

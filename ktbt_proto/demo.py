@@ -1,4 +1,4 @@
-"""``ktbt demo``: a short tour of the language on the example trees.
+"""``ktbt tour``: a short tour of the language on the example trees.
 
 It runs the same code paths as ``ktbt fmt``, ``check`` and ``show``, so what a newcomer sees
 is what the tools do, on the paper's own control tree.

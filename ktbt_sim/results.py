@@ -85,9 +85,7 @@ def load_folder(folder: Path) -> Results | None:
     tables = [pq.read_table(trial_path(folder, t)) for t in trials]
     rows = min(t.num_rows for t in tables)
     names = [n for n in tables[0].column_names if n != "iteration"]
-    data = {
-        name: np.stack([t.column(name).to_numpy()[:rows] for t in tables]) for name in names
-    }
+    data = {name: np.stack([t.column(name).to_numpy()[:rows] for t in tables]) for name in names}
     iterations = tables[0].column("iteration").to_numpy()[:rows]
     return Results(scenario, tuple(trials), iterations, data)
 

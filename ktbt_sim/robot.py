@@ -76,7 +76,7 @@ def control_tree(known: tuple[int, ...]) -> kp.Tree:
 def registry(world: World) -> kp.Registry:
     """The behaviours of ``world``'s robots; the robot is found through ``bb["index"]``."""
     reg = kp.Registry()
-    mode = world.mode
+    set_mode = world.set_mode
 
     @reg.condition("_collisionDetectedF")
     def collision(bb: kp.Blackboard) -> bool:
@@ -100,7 +100,7 @@ def registry(world: World) -> kp.Registry:
 
     def moving(name: str, value: int) -> None:
         def act(bb: kp.Blackboard) -> kp.Status:
-            mode[bb[INDEX]] = value
+            set_mode(bb[INDEX], value)
             return kp.RUNNING
 
         reg.add_action(name, act)
@@ -116,7 +116,7 @@ def registry(world: World) -> kp.Registry:
 
     @reg.action("AssignCollectionPoint")
     def assign(bb: kp.Blackboard, colour: int) -> kp.Status:
-        world.goal[bb[INDEX]] = int(colour)
+        world.set_goal(bb[INDEX], int(colour))
         return kp.SUCCESS
 
     @reg.action("PlaceTreasure")

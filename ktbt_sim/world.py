@@ -122,13 +122,27 @@ class World:
         self.mode = np.full(n, rb.WALK, dtype=np.int64)
         self.walk_goal = np.zeros((n, 2))
         self.walk_until = np.zeros(n, dtype=np.int64)
-        self.avoid_angle = np.zeros(n)
         self.goal = np.zeros(n, dtype=np.int64)  # zone colour assigned, 0: none
+        self._aim = self.walk_goal.copy()
+        """Where each robot heads: its zone's centre once assigned, else its walk goal."""
+        self._has_goal = np.zeros(n, dtype=bool)
+        self._moving = np.ones(n, dtype=bool)
+        self._avoiding: set[int] = set()
+        self._next_walk = 0
         self.carrying = np.full(n, -1, dtype=np.int64)
-        self.collisions = np.zeros(n, dtype=np.int64)
-        self.seen = np.zeros((n, 4), dtype=np.int64)
-        self.waiting = np.zeros(n, dtype=bool)
         self.cooling = np.zeros(n, dtype=bool)
+        # What the control tree reads, kept in Python lists: they are read one robot at a time.
+        self._collisions = [0] * n
+        self._seen = [[0, 0, 0, 0] for _ in range(n)]
+        self._waiting = [False] * n
+        self._cooling = [False] * n
+        self._querying = [False] * n
+        self._teaching = [False] * n
+        self._in_zone = [False] * n
+        self._in_zone_now = np.zeros(n, dtype=bool)
+        self._carriers: set[int] = set()
+        self._touched: set[int] = set(range(n))
+        """Robots whose control-tree inputs may have changed since their last tick."""
         self.querying = np.zeros(n, dtype=bool)
         self.teaching = np.zeros(n, dtype=bool)
         self.known = np.zeros((n, 4), dtype=bool)
@@ -145,6 +159,7 @@ class World:
         for i in range(n):
             self._add_robot(i)
         self._handlers()
+        self._pos_list: list[list[float]] = []
         self._velocities = np.zeros(2 * (n + 1))  # the space's static body comes last
         self._out = pymunk.batch.Buffer()
         self._in = pymunk.batch.Buffer()
@@ -176,13 +191,14 @@ class World:
             for colour in rb.KINDS[kind]:
                 self.known[i, colour - 1] = True
         self._engaged: set[int] = set()
-        self._signature = np.full(n, -1, dtype=np.int64)
+        self._signature = [-1] * n
         self._keys = [rb.sequence_of(c) for c in range(1, 5)]
         self._zone_centre = np.array(
             [(sx * arena.zone_centre, sy * arena.zone_centre) for sx, sy in ZONE_SIGNS]
         )
         self._zone_half = arena.zone_inner / 2 - self.radius
-        self._bit = np.array([1, 2, 4, 8], dtype=np.int64)
+        self._turn = math.radians(spec.max_turn_deg) * timing.dt
+        self._aligned = self._turn + math.radians(spec.heading_tolerance_deg)
 
     # -- construction ---------------------------------------------------------------------
 
@@ -193,10 +209,15 @@ class World:
         shapes: list[pymunk.Shape] = []
         for a, b in zip(corners, corners[1:] + corners[:1], strict=True):
             shapes.append(pymunk.Segment(static, a, b, 5.0))
+        boxes = [
+            (min(a[0], b[0]), min(a[1], b[1]), max(a[0], b[0]), max(a[1], b[1]))
+            for a, b in zip(corners, corners[1:] + corners[:1], strict=True)
+        ]
         for x0, y0, x1, y1 in self.obstacles:
-            shapes.append(
-                pymunk.Poly(static, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
-            )
+            shapes.append(pymunk.Poly(static, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]))
+            boxes.append((x0, y0, x1, y1))
+        self._box_of = dict(zip(shapes, boxes, strict=True))
+        """Each wall and obstacle as a box, for the nearest point of a collision."""
         for shape in shapes:
             shape.collision_type = WALL
             shape.filter = _filter(WALL, BODY | COLLISION_SENSOR)
@@ -245,9 +266,10 @@ class World:
 
     def _handlers(self) -> None:
         robot_of, target_of = self._shape_robot, self._shape_target
-        seen, visible, colour = self.seen, self._visible, self.target_colour
+        seen, visible, colour = self._seen, self._visible, self.target_colour.tolist()
+        touched = self._touched
         watchers = self._watchers
-        collisions, contacts = self.collisions, self._contacts
+        collisions, contacts = self._collisions, self._contacts
 
         def saw(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
             eyes, target = arbiter.shapes
@@ -255,7 +277,8 @@ class World:
             if t not in visible[i]:
                 visible[i].add(t)
                 watchers[t].add(i)
-                seen[i, colour[t] - 1] += 1
+                seen[i][colour[t] - 1] += 1
+                touched.add(i)
 
         def lost(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
             eyes, target = arbiter.shapes
@@ -263,13 +286,15 @@ class World:
             if i >= 0 and t in visible[i]:
                 visible[i].discard(t)
                 watchers[t].discard(i)
-                seen[i, colour[t] - 1] -= 1
+                seen[i][colour[t] - 1] -= 1
+                touched.add(i)
 
         def touch(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
             bumper, other = arbiter.shapes
             i = robot_of[bumper]
             contacts[i][other] = contacts[i].get(other, 0) + 1
             collisions[i] += 1
+            touched.add(i)
 
         def untouch(arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
             bumper, other = arbiter.shapes
@@ -282,6 +307,7 @@ class World:
             else:
                 contacts[i].pop(other, None)
             collisions[i] -= 1
+            touched.add(i)
 
         self.space.on_collision(TARGET_SENSOR, TARGET, begin=saw, separate=lost)
         self.space.on_collision(COLLISION_SENSOR, BODY, begin=touch, separate=untouch)
@@ -340,8 +366,11 @@ class World:
         k = int(self.target_colour[best]) - 1
         for j in self._watchers[best]:
             self._visible[j].discard(best)
-            self.seen[j, k] -= 1
+            self._seen[j][k] -= 1
+        self._touched |= self._watchers[best]
+        self._touched.add(i)
         self._watchers[best].clear()
+        self._carriers.add(i)
         return True
 
     def place(self, i: int) -> bool:
@@ -350,10 +379,29 @@ class World:
         if t < 0 or not self._inside_zone(i, int(self.target_colour[t])):
             return False
         self.carrying[i] = -1
-        self.goal[i] = 0
+        self.set_goal(i, 0)
+        self._carriers.discard(i)
+        self._in_zone[i] = self._in_zone_now[i] = False
+        self._touched.add(i)
         self.collected[self.target_colour[t] - 1] += 1
         self.delivered_to[t] += 1
         return True
+
+    def set_mode(self, i: int, mode: int) -> None:
+        self.mode[i] = mode
+        self._moving[i] = mode != rb.STOP
+        if mode == rb.AVOID:
+            self._avoiding.add(i)
+        else:
+            self._avoiding.discard(i)
+            if mode == rb.WALK:
+                self._next_walk = min(self._next_walk, int(self.walk_until[i]))
+
+    def set_goal(self, i: int, colour: int) -> None:
+        """Assign zone ``colour`` (0: none, back to walking at random)."""
+        self.goal[i] = colour
+        self._has_goal[i] = colour > 0
+        self._aim[i] = self._zone_centre[colour - 1] if colour else self.walk_goal[i]
 
     def _inside_zone(self, i: int, colour: int) -> bool:
         cx, cy = self._zone_centre[colour - 1]
@@ -362,34 +410,46 @@ class World:
 
     # -- one step -------------------------------------------------------------------------
 
-    def signature(self) -> np.ndarray:
-        """Every robot's control-tree inputs packed in one integer."""
-        carrying = self.carrying >= 0
-        goal = np.maximum(self.goal, 1) - 1
-        centre = self._zone_centre[goal]
-        inside = (np.abs(self.pos - centre) <= self._zone_half).all(axis=1)
-        in_zone = carrying & (self.goal > 0) & inside
-        seen = ((self.seen > 0) @ self._bit) * ~self.cooling
+    def signature(self, i: int) -> int:
+        """Robot ``i``'s control-tree inputs packed in one integer: collision, waiting,
+        carrying, in its zone, cooling down, then one bit per colour in view (none while
+        cooling down: sensing is off)."""
+        seen = 0
+        if not self._cooling[i]:
+            s = self._seen[i]
+            seen = (s[0] > 0) | (s[1] > 0) << 1 | (s[2] > 0) << 2 | (s[3] > 0) << 3
         return (
-            (self.collisions > 0)
-            | (self.waiting << 1)
-            | (carrying << 2)
-            | (in_zone << 3)
-            | (self.cooling << 4)
-            | (seen << 5)
+            (self._collisions[i] > 0)
+            | self._waiting[i] << 1
+            | (i in self._carriers) << 2
+            | self._in_zone[i] << 3
+            | self._cooling[i] << 4
+            | seen << 5
         )
 
     def step(self) -> None:
         """Sense, tick the agents that need it, move, and advance the physics by ``dt``."""
         self.iteration += 1
         self.network.step()
-        signature = self.signature()
-        changed = np.flatnonzero(signature != self._signature)
-        self._signature = signature
-        fresh = set(changed.tolist())
-        due = fresh | self._engaged if self._engaged else fresh
+        if self._carriers:
+            # Only carriers with a zone assigned can be in "their" zone.
+            near = np.abs(self.pos - self._aim) <= self._zone_half
+            inside = near[:, 0] & near[:, 1] & self._has_goal
+            for i in np.flatnonzero(inside != self._in_zone_now).tolist():
+                self._in_zone_now[i] = self._in_zone[i] = bool(inside[i])
+                self._touched.add(i)
+        due = set(self._touched)  # the sensor callbacks hold this very set: keep it
+        self._touched.clear()
+        engaged = self._engaged
+        if engaged:
+            due |= engaged
+        last = self._signature
         for i in sorted(due):
-            self._tick(i, int(signature[i]), i in fresh)
+            signature = self.signature(i)
+            control = signature != last[i]
+            if control or i in engaged:
+                last[i] = signature
+                self._tick(i, signature, control)
         self._move()
         self.space.step(self.dt)
         self._read_positions()
@@ -409,9 +469,17 @@ class World:
         cooling = bool(bb.get(COOLING_DOWN))
         querying = bool(bb.get(QUERYING))
         teaching = bool(bb.get(TEACHING))
-        self.cooling[i], self.querying[i], self.teaching[i] = cooling, querying, teaching
-        self.waiting[i] = querying or teaching
-        if agent.engaged:
+        if (
+            cooling != self._cooling[i]
+            or querying != self._querying[i]
+            or (teaching != self._teaching[i])
+        ):
+            self._cooling[i] = self.cooling[i] = cooling
+            self._querying[i] = self.querying[i] = querying
+            self._teaching[i] = self.teaching[i] = teaching
+            self._waiting[i] = querying or teaching
+            self._touched.add(i)
+        if cooling or querying or agent.engaged:
             self._engaged.add(i)
         else:
             self._engaged.discard(i)
@@ -432,49 +500,63 @@ class World:
         return None
 
     def _move(self) -> None:
+        """Turn every robot towards where it heads, at most ``max_turn`` a second, and drive
+        at full speed once aligned (the release's rule); all robots in one go."""
         spec, dt, n = self.scenario.robot, self.dt, self.n
-        mode = self.mode
-        walking = mode == rb.WALK
-        due = walking & (self.walk_until <= self.iteration)
+        if self.iteration >= self._next_walk:
+            self._new_walk_goals()
+        to = self._aim - self.pos
+        want = np.arctan2(to[:, 1], to[:, 0])
+        if self._avoiding:
+            self._pos_list = self.pos.tolist()
+            for i in self._avoiding:
+                want[i] = self._away(i)
+                self.walk_until[i] = 0  # a collision ends the current random-walk leg
+            self._next_walk = 0
+        error = want - self.heading
+        error += math.pi
+        error %= 2 * math.pi
+        error -= math.pi
+        turn = self._turn
+        self.heading += np.minimum(np.maximum(error, -turn), turn)
+        go = np.abs(error) <= self._aligned
+        go &= self._moving
+        speed = go * spec.max_speed
+        v = self._velocities[: 2 * n].reshape(n, 2)
+        np.multiply(speed, np.cos(self.heading), out=v[:, 0])
+        np.multiply(speed, np.sin(self.heading), out=v[:, 1])
+        pymunk.batch.set_space_bodies(self.space, pymunk.batch.BodyFields.VELOCITY, self._in)
+
+    def _new_walk_goals(self) -> None:
+        """A new random goal in the search area for every walker whose leg is over."""
+        due = self.walk_until <= self.iteration
+        due &= self.mode == rb.WALK
         if due.any():
             k = int(due.sum())
             half = self.scenario.arena.spawn_half
             self.walk_goal[due] = self.rng.uniform(-half, half, (k, 2))
-            lo, hi = self.scenario.timing.walk_goal_min_s, self.scenario.timing.walk_goal_max_s
-            span = self.rng.uniform(lo, hi, k) / dt
+            timing = self.scenario.timing
+            span = self.rng.uniform(timing.walk_goal_min_s, timing.walk_goal_max_s, k) / self.dt
             self.walk_until[due] = self.iteration + span.astype(np.int64)
-        avoiding = np.flatnonzero(mode == rb.AVOID).tolist()
-        for i in avoiding:
-            self.avoid_angle[i] = self._away(i)
-        if avoiding:
-            self.walk_until[avoiding] = 0  # a collision ends the current random-walk leg
-        goal = np.maximum(self.goal, 1) - 1
-        target = np.where(
-            (mode == rb.TO_ZONE)[:, None], self._zone_centre[goal], self.walk_goal
-        )
-        to = target - self.pos
-        want = np.where(mode == rb.AVOID, self.avoid_angle, np.arctan2(to[:, 1], to[:, 0]))
-        error = (want - self.heading + math.pi) % (2 * math.pi) - math.pi
-        turn = math.radians(spec.max_turn_deg) * dt
-        self.heading = self.heading + np.clip(error, -turn, turn)
-        aligned = np.abs(error) <= turn + math.radians(spec.heading_tolerance_deg)
-        speed = np.where(aligned & (mode != rb.STOP), spec.max_speed, 0.0)
-        v = self._velocities[: 2 * n].reshape(n, 2)
-        v[:, 0] = speed * np.cos(self.heading)
-        v[:, 1] = speed * np.sin(self.heading)
-        pymunk.batch.set_space_bodies(self.space, pymunk.batch.BodyFields.VELOCITY, self._in)
+            free = due & ~self._has_goal
+            self._aim[free] = self.walk_goal[free]
+        walking = self.walk_until[self.mode == rb.WALK]
+        self._next_walk = int(walking.min()) if len(walking) else self.iteration + 1
 
     def _away(self, i: int) -> float:
         """Heading away from V_c, the sum of the vectors to every object in collision range."""
-        x, y = self.pos[i]
+        pos = self._pos_list
+        x, y = pos[i]
         vx = vy = 0.0
-        for shape, _ in self._contacts[i].items():
-            j = self._shape_robot.get(shape)
+        robot_of, box_of = self._shape_robot, self._box_of
+        for shape in self._contacts[i]:
+            j = robot_of.get(shape)
             if j is not None:
-                cx, cy = self.pos[j]
+                cx, cy = pos[j]
             else:
-                point = shape.point_query((float(x), float(y))).point
-                cx, cy = point.x, point.y
+                x0, y0, x1, y1 = box_of[shape]
+                cx = x0 if x < x0 else x1 if x > x1 else x
+                cy = y0 if y < y0 else y1 if y > y1 else y
             vx += cx - x
             vy += cy - y
         if vx == 0.0 and vy == 0.0:

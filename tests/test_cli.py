@@ -142,13 +142,13 @@ def test_show_bad_input() -> None:
     assert err.startswith("<stdin>:1:5: SBT104 input ends inside <sq> opened at 1:1")
 
 
-def test_demo_runs() -> None:
-    code, out, _ = ktbt("demo")
+def test_tour_runs() -> None:
+    code, out, _ = ktbt("tour")
     assert code == 0
     assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
     assert "SBT306 unknown action 'Teleport'" in out
     assert "r2 asked, r1 answered" in out and "heads for zone 2" in out
-    code, _, err = ktbt("demo", cwd=Path(os.sep))
+    code, _, err = ktbt("tour", cwd=Path(os.sep))
     assert code == 1 and "not found" in err
 
 

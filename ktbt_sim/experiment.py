@@ -1,0 +1,198 @@
+"""Running studies: many trials of some scenarios, in parallel processes or on a Ray cluster.
+
+Every trial has its own seed, derived from the scenario's root seed and the trial number
+(``SeedSequence(root, spawn_key=(trial,))``, the same stream as ``SeedSequence(root).spawn``),
+so a trial gives the same rows wherever and in whatever order it runs. Workers return rows; the
+driver alone writes files, one per finished trial, atomically: an interrupted sweep restarted
+with the same output folder runs only the trials that are missing.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .results import Results, combine, finished, load_folder, write_trial
+from .scenario import PRESETS, Scenario
+
+STUDIES: dict[str, tuple[str, ...]] = {
+    "transfer": ("bl1", "bl2", "ktbt", "bl1-obstacles", "bl2-obstacles", "ktbt-obstacles"),
+    "opportunities": tuple(f"opportunities-{n}" for n in (10, 25, 50, 100)),
+    "range": (*(f"range-{r}" for r in (100, 200, 500, 800, 1000)), "bl1"),
+    "heterogeneity": ("heterogeneity-39i1m", "heterogeneity-10rgyb"),
+    "demo": ("bl1", "bl2", "ktbt"),
+}
+"""The paper's studies by name, each a list of presets (``range`` includes BL1 to compare)."""
+STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name in study))
+
+Rows = dict[str, list[int]]
+
+
+def trial_seed(scenario: Scenario, trial: int) -> np.random.SeedSequence:
+    return np.random.SeedSequence(scenario.seed, spawn_key=(trial,))
+
+
+def run_trial(scenario_json: str, trial: int) -> Rows:
+    """One trial from scratch: the rows recorded every ``record_every`` iterations (and at 0).
+
+    Takes the scenario as JSON so that it crosses process and machine boundaries as data."""
+    from .world import RECORD_COLUMNS, World
+
+    scenario = Scenario.model_validate_json(scenario_json)
+    world = World(scenario, seed=trial_seed(scenario, trial))
+    rows: Rows = {name: [] for name in RECORD_COLUMNS}
+
+    def keep() -> None:
+        for name, value in world.record().items():
+            rows[name].append(value)
+
+    keep()
+    every = scenario.record_every
+    for _ in range(scenario.iterations // every):
+        world.run(every)
+        keep()
+    if scenario.iterations % every:
+        world.run(scenario.iterations % every)
+        keep()
+    return rows
+
+
+def scenarios_for(target: str) -> list[Scenario]:
+    """A study name, a preset name, or a scenario file (TOML or JSON)."""
+    if target in STUDIES:
+        return [PRESETS[name] for name in STUDIES[target]]
+    if target in PRESETS:
+        return [PRESETS[target]]
+    path = Path(target)
+    if path.exists():
+        return [Scenario.load(path)]
+    known = ", ".join([*STUDIES, *sorted(PRESETS)])
+    raise ValueError(f"{target!r} is neither a study, a preset nor a file; known: {known}")
+
+
+@dataclass(frozen=True)
+class Job:
+    scenario: Scenario
+    folder: Path
+    trial: int
+
+
+def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
+    """The trials still to run; each scenario's folder is claimed with its ``scenario.json``.
+
+    A folder that already holds a different scenario is refused rather than mixed."""
+    jobs = []
+    for scenario in scenarios:
+        folder = out / scenario.name
+        spec = folder / "scenario.json"
+        text = scenario.dump()
+        if spec.exists():
+            if json.loads(spec.read_text(encoding="utf-8")) != json.loads(text):
+                raise ValueError(
+                    f"{folder} holds results of a different {scenario.name!r} scenario; "
+                    "choose another --out or remove it"
+                )
+        else:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = spec.with_suffix(".tmp")
+            tmp.write_text(text, encoding="utf-8")
+            tmp.replace(spec)
+        done = finished(folder)
+        jobs += [Job(scenario, folder, t) for t in range(scenario.trials) if t not in done]
+    return jobs
+
+
+Progress = Callable[[Job, float], None]
+"""Told of each finished trial and how long it took."""
+
+
+def run(
+    scenarios: list[Scenario],
+    out: Path,
+    *,
+    workers: int = 1,
+    executor: str = "local",
+    address: str | None = None,
+    progress: Progress | None = None,
+) -> dict[str, Results]:
+    """Run every missing trial of ``scenarios`` into ``out`` and return all results."""
+    jobs = plan(scenarios, out)
+    if jobs:
+        if executor == "ray":
+            _run_ray(jobs, workers, address, progress)
+        elif executor == "local":
+            _run_local(jobs, workers, progress)
+        else:
+            raise ValueError(f"unknown executor {executor!r}: local or ray")
+    results = {}
+    for scenario in scenarios:
+        folder = out / scenario.name
+        combine(folder)
+        loaded = load_folder(folder)
+        if loaded is not None:
+            results[scenario.name] = loaded
+    return results
+
+
+def _finish(job: Job, rows: Rows, started: float, progress: Progress | None) -> None:
+    seed = int(trial_seed(job.scenario, job.trial).generate_state(1)[0])
+    write_trial(job.folder, job.scenario, job.trial, seed, rows)
+    if progress is not None:
+        progress(job, time.perf_counter() - started)
+
+
+def _run_local(jobs: list[Job], workers: int, progress: Progress | None) -> None:
+    if workers <= 1:
+        for job in jobs:
+            started = time.perf_counter()
+            _finish(job, run_trial(job.scenario.dump(), job.trial), started, progress)
+        return
+    context = multiprocessing.get_context("spawn")  # never fork near pymunk or zenoh
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        pending: dict[Future[Rows], tuple[Job, float]] = {}
+        queue = list(reversed(jobs))
+        while queue or pending:
+            while queue and len(pending) < workers * 2:
+                job = queue.pop()
+                future = pool.submit(run_trial, job.scenario.dump(), job.trial)
+                pending[future] = (job, time.perf_counter())
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                job, started = pending.pop(future)
+                _finish(job, future.result(), started, progress)
+
+
+def _run_ray(jobs: list[Job], workers: int, address: str | None, progress: Progress | None) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("the Ray executor needs the ray extra: pip install 'ktbt[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        if address:
+            ray.init(address=address, **options)
+        else:
+            ray.init(num_cpus=max(1, workers), **options)
+    try:
+        remote = ray.remote(run_trial)
+        pending = {
+            remote.remote(job.scenario.dump(), job.trial): (job, time.perf_counter())
+            for job in jobs
+        }
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                job, started = pending.pop(ref)
+                _finish(job, ray.get(ref), started, progress)
+    finally:
+        if started_here:
+            ray.shutdown()

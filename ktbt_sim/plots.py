@@ -1,0 +1,382 @@
+"""The paper's figures, drawn from whatever finished trials a study folder holds.
+
+Every figure is drawn only when at least one of its scenarios has results, so a partial sweep
+still gives partial figures; each is written as PNG (to look at) and SVG (to edit). Spreads are
+one sample standard deviation across trials everywhere, the same as in ``summary.md``, so a
+figure and the table can be read against each other.
+
+Figures are built on ``matplotlib.figure.Figure`` without pyplot: nothing is registered with a
+GUI or kept alive between calls, so plotting a long sweep does not leak figures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import numpy.typing as npt
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from . import metrics
+from .results import Results, load
+from .scenario import PRESETS
+
+matplotlib.use("Agg")
+
+GROUPS = ("bl1", "bl2", "ktbt")
+GROUP_LABELS = {
+    "bl1": "bl1: 40M, no transfer",
+    "bl2": "bl2: 10RGYB, no transfer",
+    "ktbt": "ktbt: 10RGYB, KT-BT",
+}
+OBSTACLES = tuple(f"{g}-obstacles" for g in GROUPS)
+OPPORTUNITIES = tuple(f"opportunities-{n}" for n in (10, 25, 50, 100))
+RANGES = tuple(f"range-{r}" for r in (100, 200, 500, 800, 1000))
+HETEROGENEITY = ("heterogeneity-39i1m", "heterogeneity-10rgyb")
+COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
+
+STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "performance": (("collection", "t99"), GROUPS + OBSTACLES),
+    "opportunities": (("opportunities",), OPPORTUNITIES),
+    "range": (("range", "queries_lost"), (*RANGES, "bl1")),
+    "heterogeneity": (HETEROGENEITY, HETEROGENEITY),
+}
+"""Each study's figures and scenarios: ``plot(study=...)`` draws only those figures and tables
+only those scenarios (the range study compares against bl1, so it keeps that too)."""
+
+SPREAD = "mean ± 1 s.d. over trials"
+Drawer = Callable[[Mapping[str, Results]], Figure | None]
+
+
+# -- helpers ---------------------------------------------------------------------------------
+
+
+def _present(results: Mapping[str, Results], names: Sequence[str]) -> list[Results]:
+    return [results[n] for n in names if n in results]
+
+
+def _figure(width: float = 7.0, height: float = 4.5) -> Figure:
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _mean_band(
+    ax: Axes,
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    label: str,
+    colour: str | None = None,
+    style: str = "-",
+    alpha: float = 0.2,
+) -> None:
+    """A mean line over trials with its ±1 s.d. band (no band for a single trial)."""
+    values = np.asarray(y, dtype=np.float64)
+    mean, spread = values.mean(axis=0), metrics.std(values)
+    (line,) = ax.plot(x, mean, style, color=colour, label=label, linewidth=1.5)
+    if not np.all(np.isnan(spread)):
+        ax.fill_between(x, mean - spread, mean + spread, color=line.get_color(), alpha=alpha)
+
+
+def _label(res: Results) -> str:
+    name = res.scenario.name
+    return GROUP_LABELS.get(name.removesuffix("-obstacles"), name) + f" (n={len(res.trials)})"
+
+
+def _save(fig: Figure, directory: Path, stem: str) -> list[Path]:
+    """PNG and SVG; the SVG carries no date and fixed ids, so reruns diff cleanly."""
+    paths = [directory / f"{stem}.png", directory / f"{stem}.svg"]
+    with matplotlib.rc_context({"svg.hashsalt": "ktbt"}):
+        fig.savefig(paths[0], dpi=150)
+        fig.set_layout_engine("none")  # laid out by the first save; skip doing it again
+        fig.savefig(paths[1], metadata={"Date": None})
+    return paths
+
+
+def _base_name(base: float) -> str:
+    return "e" if base == math.e else f"{base:g}"
+
+
+# -- figures ---------------------------------------------------------------------------------
+
+
+def draw_collection(results: Mapping[str, Results]) -> Figure | None:
+    """Study 1: does KT-BT close the gap to bl1's all-knowing robots, with and without walls?"""
+    panels = [
+        (title, runs)
+        for title, names in (("no obstacles", GROUPS), ("with obstacles", OBSTACLES))
+        if (runs := _present(results, names))
+    ]
+    if not panels:
+        return None
+    fig = _figure(width=6.0 * len(panels))
+    axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    for ax, (title, runs) in zip(axes, panels, strict=True):
+        for res in runs:
+            colour = COLOURS[res.scenario.name.removesuffix("-obstacles")]
+            _mean_band(ax, res.iterations, metrics.percent_collected(res), _label(res), colour)
+        ax.set(title=title, xlabel="iterations", ylim=(0, 105))
+        ax.legend(loc="lower right", fontsize="small")
+    axes[0].set_ylabel("targets collected (%)")
+    fig.suptitle(f"Targets collected over time ({SPREAD})")
+    return fig
+
+
+def _t99_bar(ax: Axes, x: float, res: Results, colour: str, obstacles: bool) -> None:
+    """One bar: mean over the trials that reached 99 %, labelled with how many did. If none
+    did, a hatched outline up to the run length says "not within the run" instead."""
+    t = metrics.t_fraction(res["collected"], res.total_targets, res.iterations, 0.99)
+    done, n = t[~np.isnan(t)], len(t)
+    width = 0.38
+    if done.size:
+        spread = float(metrics.std(done)) if done.size > 1 else 0.0
+        alpha = 0.5 if obstacles else 1.0
+        ax.bar(x, done.mean(), width, yerr=spread, color=colour, alpha=alpha, capsize=4)
+        ax.bar(x, done.mean(), width, fill=False, edgecolor="black", hatch=".." * obstacles)
+        top = done.mean() + spread
+    else:
+        top = float(res.iterations[-1])
+        ax.bar(x, top, width, fill=False, edgecolor=colour, hatch="xx")
+    ax.annotate(
+        f"{done.size}/{n}\nreached",
+        (x, top),
+        xytext=(0, 3),
+        textcoords="offset points",
+        ha="center",
+        fontsize="x-small",
+    )
+
+
+def draw_t99(results: Mapping[str, Results]) -> Figure | None:
+    """Study 1: time to collect 99 %, with the trials that never did shown rather than dropped."""
+    if not _present(results, GROUPS + OBSTACLES):
+        return None
+    fig = _figure()
+    ax = fig.subplots()
+    for i, group in enumerate(GROUPS):
+        for offset, name in ((-0.2, group), (0.2, f"{group}-obstacles")):
+            if name in results:
+                _t99_bar(ax, i + offset, results[name], COLOURS[group], name != group)
+    ax.set_xticks(range(len(GROUPS)), [GROUP_LABELS[g] for g in GROUPS], fontsize="small")
+    ax.set_ylabel("iterations to collect 99 % of targets")
+    ax.margins(y=0.15)
+    ax.legend(
+        handles=[
+            Patch(facecolor="grey", edgecolor="black", label="no obstacles"),
+            Patch(facecolor="grey", alpha=0.5, edgecolor="black", hatch="..", label="obstacles"),
+            Patch(
+                fill=False,
+                edgecolor="grey",
+                hatch="xx",
+                label="none reached 99 %: bar = run length",
+            ),
+        ],
+        fontsize="small",
+    )
+    ax.set_title(
+        "Iterations to 99 % collected: mean ± 1 s.d. over the trials that reached it",
+        fontsize="medium",
+    )
+    return fig
+
+
+def draw_opportunities(results: Mapping[str, Results]) -> Figure | None:
+    """Study 2: more targets, more chances to meet a teacher, so more robots end knowing all."""
+    runs = _present(results, OPPORTUNITIES)
+    if not runs:
+        return None
+    fig = _figure()
+    ax = fig.subplots()
+    levels = np.arange(metrics.LEVELS)
+    width = 0.8 / len(runs)
+    for i, res in enumerate(runs):
+        final = metrics.level_counts(res)[:, -1, :]
+        spread = np.nan_to_num(metrics.std(final))
+        x = levels - 0.4 + width * (i + 0.5)
+        per_colour = res.scenario.targets.red
+        label = f"{per_colour} per colour ({res.total_targets} targets, n={len(res.trials)})"
+        ax.bar(x, final.mean(axis=0), width, yerr=spread, capsize=3, label=label)
+    ax.set_xticks(levels, [f"g{k}: {k} colour{'s' * (k != 1)}" for k in range(metrics.LEVELS)])
+    ax.set(xlabel="knowledge level at the end of the run", ylabel="robots")
+    ax.legend(fontsize="small", title="targets")
+    ax.set_title(f"Robots at each knowledge level at the end ({SPREAD})", fontsize="medium")
+    return fig
+
+
+def draw_range(results: Mapping[str, Results]) -> Figure | None:
+    """Study 3: collection over time as the communication range grows, against bl1's ideal."""
+    runs = _present(results, RANGES)
+    if not runs:
+        return None
+    fig = _figure()
+    ax = fig.subplots()
+    for res in runs:
+        label = f"range {res.scenario.comm_range:g} (n={len(res.trials)})"
+        _mean_band(ax, res.iterations, metrics.percent_collected(res), label, alpha=0.1)
+    if "bl1" in results:
+        bl1 = results["bl1"]
+        _mean_band(ax, bl1.iterations, metrics.percent_collected(bl1), _label(bl1), "k", "--")
+    ax.set(xlabel="iterations", ylabel="targets collected (%)", ylim=(0, 105))
+    ax.legend(loc="lower right", fontsize="small")
+    ax.set_title(f"Targets collected by communication range, 39I-1M ({SPREAD})", fontsize="medium")
+    return fig
+
+
+def draw_queries_lost(results: Mapping[str, Results]) -> Figure | None:
+    """Study 3: queries nobody answered before the learner gave up, by range."""
+    runs = _present(results, RANGES)
+    if not runs:
+        return None
+    fig = _figure()
+    ax = fig.subplots()
+    lost = [np.asarray(res["lost"][:, -1], dtype=np.float64) for res in runs]
+    labels = [f"{res.scenario.comm_range:g}\n(n={len(res.trials)})" for res in runs]
+    ax.boxplot(lost, tick_labels=labels)
+    ax.plot(range(1, len(runs) + 1), [v.mean() for v in lost], "D", color="C3", label="mean")
+    ax.set(xlabel="communication range (units)", ylabel="queries lost by the end (cumulative)")
+    ax.legend(fontsize="small")
+    ax.set_title("Queries lost per trial: box = quartiles, whiskers = 1.5 IQR", fontsize="medium")
+    return fig
+
+
+def draw_heterogeneity(
+    res: Results | None, base: float = math.e, exponent: float = 1.0
+) -> Figure | None:
+    """Complexity, disparity, heterogeneity and mean knowledge score over time, each computed
+    per trial and then averaged, so a trial's own mix of levels is never blended away."""
+    if res is None:
+        return None
+    counts = metrics.level_counts(res)
+    complexity, disparity, hetero = metrics.heterogeneity(counts, base, exponent)
+    panels = (
+        (f"complexity (entropy, log base {_base_name(base)})", complexity),
+        (f"disparity (Rao, d = 0.25·|Δlevel|, exponent {exponent:g})", disparity),
+        ("heterogeneity = complexity · disparity", hetero),
+        ("mean knowledge score (0.25 per colour)", metrics.mean_knowledge_score(counts)),
+    )
+    fig = _figure(width=10.0, height=6.5)
+    axes = fig.subplots(2, 2, sharex=True).ravel()
+    for i, (ax, (title, values)) in enumerate(zip(axes, panels, strict=True)):
+        _mean_band(ax, res.iterations, values, title, f"C{i}")
+        ax.set_title(title, fontsize="small")
+    for ax in axes[2:]:
+        ax.set_xlabel("iterations")
+    scenario = res.scenario
+    fig.suptitle(
+        f"{scenario.name} ({scenario.robots.label()}, {scenario.targets.total} targets, "
+        f"n={len(res.trials)}): species g0..g4, log base {_base_name(base)}, "
+        f"exponent {exponent:g}; {SPREAD}",
+        fontsize="medium",
+    )
+    return fig
+
+
+# -- summary table ---------------------------------------------------------------------------
+
+
+def _pm(mean: float, spread: float, digits: int = 0) -> str:
+    if math.isnan(mean):
+        return "—"
+    if math.isnan(spread):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} ± {spread:.{digits}f}"
+
+
+def _ordered(results: Mapping[str, Results]) -> list[Results]:
+    """The paper's order for presets, then anything else by name."""
+    known = [results[n] for n in PRESETS if n in results]
+    return known + [results[n] for n in sorted(results) if n not in PRESETS]
+
+
+def summary_table(results: Mapping[str, Results]) -> str:
+    """One Markdown row per scenario, the numbers of ``metrics.summary``."""
+    head = (
+        "| scenario | robots | mode | targets | trials | collected % | t99 (iterations) "
+        "| queries | responses | lost | robots knowing 4 |"
+    )
+    lines = [
+        "# Summary",
+        "",
+        "Mean ± sample standard deviation over trials, at the last recorded iteration. t99 "
+        "averages only the trials that collected 99 % of targets; `reached/N` says how many.",
+        "",
+        head,
+        "|" + " --- |" * (head.count("|") - 1),
+    ]
+    for res in _ordered(results):
+        s, sc = metrics.summary(res), res.scenario
+        t99 = f"{_pm(s['t99_mean'], s['t99_std'])} ({s['t99_reached']}/{s['trials']})"
+        cells = [
+            sc.name,
+            sc.robots.label(),
+            sc.mode.value,
+            str(sc.targets.total),
+            str(s["trials"]),
+            _pm(s["collected_pct_mean"], s["collected_pct_std"], 1),
+            t99,
+            *(_pm(s[f"{k}_mean"], s[f"{k}_std"]) for k in ("queries", "responses", "lost")),
+            _pm(s["knows_4_mean"], s["knows_4_std"], 1),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# -- entry point -----------------------------------------------------------------------------
+
+
+def _drawers(base: float, exponent: float) -> list[tuple[str, Drawer]]:
+    out: list[tuple[str, Drawer]] = [
+        ("collection", draw_collection),
+        ("t99", draw_t99),
+        ("opportunities", draw_opportunities),
+        ("range", draw_range),
+        ("queries_lost", draw_queries_lost),
+    ]
+    for name in HETEROGENEITY:
+        out.append((name, partial(_heterogeneity_of, name, base=base, exponent=exponent)))
+    return out
+
+
+def _heterogeneity_of(
+    name: str, results: Mapping[str, Results], base: float, exponent: float
+) -> Figure | None:
+    return draw_heterogeneity(results.get(name), base, exponent)
+
+
+def plot(
+    directory: str | Path,
+    results: Mapping[str, Results] | None = None,
+    study: str | None = None,
+    *,
+    base: float = math.e,
+    exponent: float = 1.0,
+) -> list[Path]:
+    """Draw every figure there are results for into ``directory``, plus ``summary.md``.
+
+    ``results`` defaults to what ``results.load(directory)`` finds. ``study`` (a key of
+    ``STUDIES``) draws only that study's figures and tables only its scenarios. ``base``
+    and ``exponent`` are the heterogeneity parameters (see ``metrics``). Returns the files
+    written, PNG then SVG for each figure, the table last.
+    """
+    folder = Path(directory)
+    if study is not None and study not in STUDIES:
+        raise ValueError(f"no study {study!r}; studies: {', '.join(STUDIES)}")
+    runs = dict(load(folder) if results is None else results)
+    drawers = _drawers(base, exponent)
+    if study is not None:
+        figures, scenarios = STUDIES[study]
+        runs = {n: r for n, r in runs.items() if n in scenarios}
+        drawers = [(stem, draw) for stem, draw in drawers if stem in figures]
+    folder.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for stem, draw in drawers:
+        fig = draw(runs)
+        if fig is not None:
+            written += _save(fig, folder, stem)
+    table = folder / "summary.md"
+    table.write_text(summary_table(runs), encoding="utf-8")
+    return [*written, table]

@@ -95,7 +95,11 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
         spec = folder / "scenario.json"
         text = scenario.dump()
         if spec.exists():
-            if json.loads(spec.read_text(encoding="utf-8")) != json.loads(text):
+            held = json.loads(spec.read_text(encoding="utf-8"))
+            held.pop("trials", None)  # more or fewer trials of the same scenario mix well
+            wanted = json.loads(text)
+            wanted.pop("trials")
+            if held != wanted:
                 raise ValueError(
                     f"{folder} holds results of a different {scenario.name!r} scenario; "
                     "choose another --out or remove it"

@@ -1,0 +1,126 @@
+"""Sweeps: seeds per trial, 1 vs 2 workers, resumption after a kill, Ray, plots, the CLI."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ktbt_sim.experiment import run, scenarios_for
+from ktbt_sim.results import finished, load
+from ktbt_sim.scenario import Scenario, preset
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def small(name: str = "small", trials: int = 3, iterations: int = 400) -> Scenario:
+    return preset("ktbt").with_(name=name, trials=trials, iterations=iterations, record_every=50)
+
+
+def same(a: dict, b: dict) -> bool:  # type: ignore[type-arg]
+    return a.keys() == b.keys() and all(
+        a[k].trials == b[k].trials
+        and all(np.array_equal(a[k].data[c], b[k].data[c]) for c in a[k].data)
+        for k in a
+    )
+
+
+def ktbt(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def test_one_and_two_workers_give_identical_results(tmp_path: Path) -> None:
+    one = run([small()], tmp_path / "one", workers=1)
+    two = run([small()], tmp_path / "two", workers=2)
+    assert same(one, two)
+    results = one["small"]
+    assert results.trials == (0, 1, 2)
+    assert results.iterations.tolist() == list(range(0, 401, 50))
+    # Each trial has its own seed: the trials differ from one another.
+    assert not np.array_equal(results["walking"][0], results["walking"][1])
+    header = (tmp_path / "one" / "small.csv").read_text().splitlines()[0]
+    assert header.replace('"', "").startswith("trial,iteration,")
+    assert (tmp_path / "one" / "small.parquet").stat().st_size > 0
+
+
+def test_a_killed_sweep_resumes_with_only_the_missing_trials(tmp_path: Path) -> None:
+    scenario = small(trials=6, iterations=3000)
+    spec = tmp_path / "small.json"
+    spec.write_text(scenario.dump())
+    out = tmp_path / "out"
+    args = [sys.executable, "-m", "ktbt_proto", "sim", "run", str(spec), "--out", str(out)]
+    proc = subprocess.Popen([*args, "-j", "1"], cwd=ROOT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(finished(out / "small")) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    done = finished(out / "small")
+    assert 2 <= len(done) < 6
+    stamps = {t: (out / "small" / f"trial-{t:04d}.parquet").stat().st_mtime_ns for t in done}
+    resumed = ktbt("sim", "run", str(spec), "--out", str(out), "-j", "2")
+    assert resumed.returncode == 0, resumed.stderr
+    for t, stamp in stamps.items():  # finished trials were not run again
+        assert (out / "small" / f"trial-{t:04d}.parquet").stat().st_mtime_ns == stamp
+    assert finished(out / "small") == set(range(6))
+    assert not list((out / "small").glob("*.tmp*"))
+    assert same(load(out), run([scenario], tmp_path / "straight", workers=2))
+
+
+def test_a_folder_of_another_scenario_is_refused(tmp_path: Path) -> None:
+    run([small(iterations=100, trials=1)], tmp_path, workers=1)
+    with pytest.raises(ValueError, match="different 'small' scenario"):
+        run([small(iterations=200, trials=1)], tmp_path, workers=1)
+    result = ktbt("sim", "run", "no-such-study", "--out", str(tmp_path))
+    assert result.returncode == 2 and "neither a study, a preset nor a file" in result.stderr
+
+
+def test_ray_executor_matches_the_local_pool(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    scenario = small(trials=2, iterations=300)
+    local = run([scenario], tmp_path / "local", workers=2)
+    remote = run([scenario], tmp_path / "ray", workers=2, executor="ray")
+    assert same(local, remote)
+
+
+def test_sim_plot_draws_files_from_a_real_sweep(tmp_path: Path) -> None:
+    scenarios = [p.with_(trials=2, iterations=600, record_every=50) for p in scenarios_for("demo")]
+    run(scenarios, tmp_path, workers=2)
+    result = ktbt("sim", "plot", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    for name in ("collection.png", "collection.svg", "t99.png", "summary.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    summary = (tmp_path / "summary.md").read_text()
+    assert all(f"| {name} " in summary for name in ("bl1", "bl2", "ktbt"))
+
+
+def test_demo_prints_the_summary_and_writes_the_figure(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    result = ktbt("demo", "--trials", "1", "--iterations", "300", "--out", str(out), "-j", "2")
+    assert result.returncode == 0, result.stderr
+    assert "| bl1 " in result.stdout and "| ktbt " in result.stdout
+    assert (out / "collection.png").stat().st_size > 0
+
+
+def test_sim_list_and_scenario_print_what_a_user_can_run(tmp_path: Path) -> None:
+    listed = ktbt("sim", "list")
+    assert listed.returncode == 0 and "opportunities-100" in listed.stdout
+    shown = ktbt("sim", "scenario", "range-500")
+    assert shown.returncode == 0
+    path = tmp_path / "mine.json"
+    path.write_text(shown.stdout)
+    assert Scenario.load(path).comm_range == 500.0

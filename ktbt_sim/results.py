@@ -113,11 +113,11 @@ def combine(folder: Path) -> None:
     combined = pa.concat_tables(tables).replace_schema_metadata(
         {b"ktbt.scenario": (folder / "scenario.json").read_bytes()}
     )
-    for suffix, write in (
-        (".parquet", lambda tbl, p: pq.write_table(tbl, p)),
-        (".csv", lambda tbl, p: pacsv.write_csv(tbl, p)),
-    ):
+    for suffix in (".parquet", ".csv"):
         final = folder.with_suffix(suffix)
         tmp = folder.parent / f".{folder.name}{suffix}.tmp"
-        write(combined, tmp)
+        if suffix == ".csv":
+            pacsv.write_csv(combined, tmp)
+        else:
+            pq.write_table(combined, tmp)
         os.replace(tmp, final)

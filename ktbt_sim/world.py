@@ -421,7 +421,7 @@ class World:
     def _inside_zone(self, i: int, colour: int) -> bool:
         cx, cy = self._zone_centre[colour - 1]
         x, y = self.pos[i]
-        return abs(x - cx) <= self._zone_half and abs(y - cy) <= self._zone_half
+        return bool(abs(x - cx) <= self._zone_half and abs(y - cy) <= self._zone_half)
 
     # -- one step -------------------------------------------------------------------------
 

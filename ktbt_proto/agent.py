@@ -123,18 +123,29 @@ class Agent:
         self.knowledge_path = Path(knowledge_path) if knowledge_path is not None else None
         self.metrics = Metrics()
         self.blackboard = Blackboard() if blackboard is None else blackboard
-        self.control = LiveTree(control, registry, self.blackboard)
+        self.now = 0
+        self.control = LiveTree(control, registry, self.blackboard, ticks=self._clock)
         self.registry = registry
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         self.wait_ticks = wait_ticks
-        self.now = 0
+        self.cooldown_ticks = cooldown_ticks
+        self._cooling_since: int | None = None
+        self._asking: _QueryAndWait | None = None
         self._queries: deque[Query] = deque(maxlen=64)
         self._responses: deque[Response] = deque(maxlen=256)
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
         own = self._library()
-        self.teach = LiveTree(TEACH_TREE.format(cooldown=cooldown_ticks), own, self.blackboard)
-        self.learn = LiveTree(LEARN_TREE.format(wait=wait_ticks), own, self.blackboard)
+        self.teach = LiveTree(
+            TEACH_TREE.format(cooldown=cooldown_ticks), own, self.blackboard, ticks=self._clock
+        )
+        self.learn = LiveTree(
+            LEARN_TREE.format(wait=wait_ticks), own, self.blackboard, ticks=self._clock
+        )
+
+    def _clock(self) -> int:
+        """The agent's clock: every timer of its three trees measures against ``now``."""
+        return self.now
 
     # -- what the application calls -----------------------------------------------------------
 
@@ -156,6 +167,35 @@ class Agent:
         """
         bb = self.blackboard
         return bool(bb.get(COOLING_DOWN) or bb.get(QUERYING) or self._queries or self._responses)
+
+    def next_due(self) -> int | None:
+        """The first tick at which ticking this agent could change something if nothing new
+        arrives and the control tree's inputs stay as they are: messages to handle, a wait or
+        cool-down ending, a query to repeat. None: nothing pending at all. A caller that ticks
+        the agent then (and whenever a message arrives) sees exactly what ticking it every
+        tick would give, because every timer reads the agent's clock."""
+        now = self.now
+        if self._queries or self._responses:
+            return now + 1
+        due: int | None = None
+        asking = self._asking
+        if asking is not None and asking.query is not None:
+            start = asking.asked_at
+            due = start + max(self.wait_ticks - 1, 0)  # TT2's last tick
+            if self.repeat_every:
+                beacon = start + ((now - start) // self.repeat_every + 1) * self.repeat_every
+                due = min(due, beacon)
+        since = self._cooling_since
+        if since is not None and self.blackboard.get(COOLING_DOWN):
+            # TT1 starts on the tick after the flag was set and runs its child N ticks later.
+            end = since + 1 if now <= since else since + 1 + self.cooldown_ticks
+            due = end if due is None else min(due, end)
+        return max(due, now + 1) if due is not None else None
+
+    def _cool_down(self, bb: Blackboard) -> None:
+        if not bb.get(COOLING_DOWN):
+            self._cooling_since = self.now
+        bb[COOLING_DOWN] = True
 
     def tick(self, *, control: bool = True, now: int | None = None) -> Status | None:
         """One tick: read the transport, then tick Control, Teach and Learn.
@@ -223,7 +263,7 @@ class Agent:
         )
         self.metrics.responses_sent += 1
         self._queries.clear()  # one query per cool-down: the others' askers will time out
-        bb[COOLING_DOWN] = True
+        self._cool_down(bb)
         bb[TEACHING] = True
         return SUCCESS
 
@@ -288,7 +328,8 @@ class _QueryAndWait:
         self.bb = bb
         self.agent = agent
         self.query: Query | None = None
-        self.waited = 0
+        self.asked_at = 0
+        agent._asking = self
 
     def tick(self) -> Status:
         agent = self.agent
@@ -300,7 +341,7 @@ class _QueryAndWait:
             agent.transport.broadcast(self.query)
             agent.metrics.queries_sent += 1
             self.bb[QUERYING] = True
-            self.waited = 0
+            self.asked_at = agent.now
             return RUNNING
         while agent._responses:
             response = agent._responses.popleft()
@@ -311,8 +352,8 @@ class _QueryAndWait:
             if agent.accept(response, self.query):
                 self._finish()
                 return SUCCESS
-        self.waited += 1
-        if agent.repeat_every and self.waited % agent.repeat_every == 0:
+        waited = agent.now - self.asked_at
+        if agent.repeat_every and waited > 0 and waited % agent.repeat_every == 0:
             agent.transport.broadcast(self.query)
         return RUNNING
 
@@ -323,4 +364,4 @@ class _QueryAndWait:
     def _finish(self) -> None:
         self.query = None
         self.bb[QUERYING] = False
-        self.bb[COOLING_DOWN] = True
+        self.agent._cool_down(self.bb)

@@ -45,6 +45,8 @@ Tick = Callable[[], Status]
 Halt = Callable[[], None]
 Compiled = tuple[Tick, Halt]
 Clock = Callable[[], float]
+TickClock = Callable[[], int]
+"""The tick number TT1, TT2 and ``<w>N`` measure against (a tree's own count by default)."""
 
 
 def _noop() -> None:
@@ -189,28 +191,33 @@ def _inverter(kid: Compiled) -> Compiled:
     return tick, kid[1]
 
 
-def _wait_timer(kid: Compiled, ticks: int) -> Compiled:
-    """TT1: RUNNING on ticks 1..N of an activation, then the child's status."""
+def _wait_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
+    """TT1: RUNNING on ticks 1..N of an activation, then the child's status.
+
+    Ticks are read off the tick clock, not counted here, so an owner that ticks the tree only
+    when something can happen (at the deadline) keeps exact time."""
     child, child_halt = kid
-    waited = 0
+    start: int | None = None
     child_running = False
 
     def tick() -> Status:
-        nonlocal waited, child_running
-        if waited < ticks:
-            waited += 1
+        nonlocal start, child_running
+        t = now()
+        if start is None:
+            start = t
+        if t - start < ticks:
             return RUNNING
         status = child()
         if status is RUNNING:
             child_running = True
             return RUNNING
-        waited = 0
+        start = None
         child_running = False
         return status
 
     def halt() -> None:
-        nonlocal waited, child_running
-        waited = 0
+        nonlocal start, child_running
+        start = None
         if child_running:
             child_running = False
             child_halt()
@@ -218,30 +225,33 @@ def _wait_timer(kid: Compiled, ticks: int) -> Compiled:
     return tick, halt
 
 
-def _run_timer(kid: Compiled, ticks: int) -> Compiled:
-    """TT2: the child's status for up to N ticks; still running after its N-th tick: FAILURE."""
+def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
+    """TT2: the child's status for up to N ticks; still running after its N-th tick: FAILURE.
+    (Ticks read off the tick clock, as for TT1.)"""
     child, child_halt = kid
-    ran = 0
+    start: int | None = None
 
     def tick() -> Status:
-        nonlocal ran
+        nonlocal start
         if ticks == 0:
             return FAILURE
-        ran += 1
+        t = now()
+        if start is None:
+            start = t
         status = child()
         if status is not RUNNING:
-            ran = 0
+            start = None
             return status
-        if ran >= ticks:
-            ran = 0
+        if t - start >= ticks - 1:
+            start = None
             child_halt()
             return FAILURE
         return RUNNING
 
     def halt() -> None:
-        nonlocal ran
-        if ran:
-            ran = 0
+        nonlocal start
+        if start is not None:
+            start = None
             child_halt()
 
     return tick, halt
@@ -312,22 +322,24 @@ def _action(node: Action, registry: Registry, blackboard: Any) -> Compiled:
     return tick, stop or _noop
 
 
-def _wait(node: Wait, clock: Clock) -> Compiled:
+def _wait(node: Wait, clock: Clock, now: TickClock) -> Compiled:
     if node.unit == "ticks":
         limit = int(node.duration)
-        waited = 0
+        start: int | None = None
 
         def tick() -> Status:
-            nonlocal waited
-            if waited < limit:
-                waited += 1
+            nonlocal start
+            t = now()
+            if start is None:
+                start = t
+            if t - start < limit:
                 return RUNNING
-            waited = 0
+            start = None
             return SUCCESS
 
         def halt() -> None:
-            nonlocal waited
-            waited = 0
+            nonlocal start
+            start = None
 
         return tick, halt
     seconds = float(node.duration)
@@ -354,7 +366,11 @@ def _wait(node: Wait, clock: Clock) -> Compiled:
 
 
 def compile_node(
-    root: Node, registry: Registry, blackboard: Any, clock: Clock = time.monotonic
+    root: Node,
+    registry: Registry,
+    blackboard: Any,
+    clock: Clock,
+    ticks: TickClock,
 ) -> tuple[Compiled, dict[str, _Slot], int]:
     """Compile a (validated) tree without recursion; returns the root's closures, the
     placeholders by name, and the number of nodes.
@@ -374,7 +390,7 @@ def compile_node(
         elif kind is Action:
             leaves.append(_action(node, registry, blackboard))  # type: ignore[arg-type]
         elif kind is Wait:
-            leaves.append(_wait(node, clock))  # type: ignore[arg-type]
+            leaves.append(_wait(node, clock, ticks))  # type: ignore[arg-type]
         elif isinstance(node, Container):
             leaves.append(None)
             pending.extend(reversed(node.children))
@@ -391,11 +407,13 @@ def compile_node(
         n = len(node.children)
         kids = done[: -n - 1 : -1] if n else []
         del done[len(done) - n :]
-        done.append(_compile_container(node, kids, slots))
+        done.append(_compile_container(node, kids, slots, ticks))
     return done[0], slots, len(order)
 
 
-def _compile_container(node: Container, kids: list[Compiled], slots: dict[str, _Slot]) -> Compiled:
+def _compile_container(
+    node: Container, kids: list[Compiled], slots: dict[str, _Slot], ticks: TickClock
+) -> Compiled:
     if isinstance(node, Sequence):
         return (_memory if node.memory else _reactive)(kids, SUCCESS)
     if isinstance(node, Selector):
@@ -405,9 +423,9 @@ def _compile_container(node: Container, kids: list[Compiled], slots: dict[str, _
     if isinstance(node, Inverter):
         return _inverter(kids[0])
     if isinstance(node, WaitTimer):
-        return _wait_timer(kids[0], node.ticks)
+        return _wait_timer(kids[0], node.ticks, ticks)
     if isinstance(node, RunTimer):
-        return _run_timer(kids[0], node.ticks)
+        return _run_timer(kids[0], node.ticks, ticks)
     if isinstance(node, Placeholder):
         slot = _Slot(node.name, [k[0] for k in kids], [k[1] for k in kids])
         slots[node.name] = slot
@@ -435,7 +453,12 @@ class LiveTree:
         *,
         clock: Clock = time.monotonic,
         limits: Limits = DEFAULT_LIMITS,
+        ticks: TickClock | None = None,
     ) -> None:
+        """``clock`` (seconds) times ``<wt>``; ``ticks`` is the tick number TT1, TT2 and
+        ``<w>N`` measure against: by default this tree's own count of ticks. An owner whose
+        clock runs on while it skips ticks that could change nothing (a simulator) passes its
+        own, and ticks the tree again by the deadline."""
         source = tree.decode("utf-8", "replace") if isinstance(tree, bytes) else tree
         parsed = parse(tree, limits=limits) if isinstance(tree, str | bytes) else tree
         try:
@@ -450,15 +473,19 @@ class LiveTree:
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.clock = clock
         self.limits = limits
+        self.ticks = 0
+        self._tick_clock: TickClock = ticks if ticks is not None else self._own_ticks
         self._tree = parsed if isinstance(parsed, Tree) else Tree(parsed)
         (self._tick, self._halt), self._slots, self._nodes = compile_node(
-            self._tree.root, registry, self.blackboard, clock
+            self._tree.root, registry, self.blackboard, clock, self._tick_clock
         )
         self._lock = threading.Lock()
         self._pending: list[tuple[_Slot, Compiled]] = []
         self._paths: dict[str, tuple[int, ...]] = {}
-        self.ticks = 0
         self._running = False
+
+    def _own_ticks(self) -> int:
+        return self.ticks
 
     @property
     def tree(self) -> Tree:
@@ -520,7 +547,7 @@ class LiveTree:
             room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
             validate(item, self.registry, limits=room)
             compiled, slots, item_nodes = compile_node(
-                item, self.registry, self.blackboard, self.clock
+                item, self.registry, self.blackboard, self.clock, self._tick_clock
             )
             for name in slots:
                 if name in self._slots:

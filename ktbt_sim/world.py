@@ -4,8 +4,9 @@ each robot a ``ktbt_proto`` agent on an in-memory network limited by communicati
 Speed comes from doing per robot only what changed. Sensors are pymunk sensor shapes whose
 begin/separate callbacks keep counts up to date, so nothing is searched per step; flags are
 packed into one integer per robot with numpy; a robot's agent is ticked only when its flags
-changed or its teach/learn trees have work (``Agent.engaged``), because the behaviours keep no
-state and a tick with unchanged inputs would change nothing; motion is computed for all robots
+changed, when a message reached it, or at the tick its agent names (``Agent.next_due``: a wait
+or cool-down ending, a query to repeat), because the behaviours keep no state, a tick with
+unchanged inputs would change nothing, and every timer reads the agent's clock; motion is computed for all robots
 at once and written to pymunk in one batch call.
 """
 
@@ -88,8 +89,8 @@ class World:
     ):
         self.scenario = scenario
         self.lazy = lazy
-        """Tick only the agents whose inputs changed or that are engaged; ``False`` ticks every
-        agent every step (slow; the tests use it to show that skipping changes nothing)."""
+        """Tick only the agents whose inputs changed, that have mail or whose agent is due;
+        ``False`` ticks every agent every step (slow; the tests use it to show that skipping changes nothing)."""
         root = np.random.SeedSequence(scenario.seed) if seed is None else seed
         self.rng = np.random.default_rng(
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
@@ -200,7 +201,9 @@ class World:
             self.agents.append(agent)
             for colour in rb.KINDS[kind]:
                 self.known[i, colour - 1] = True
-        self._engaged: set[int] = set()
+        self._mail: set[int] = set()
+        self._wake: dict[int, int] = {}
+        self._wakeups: list[tuple[int, int]] = []
         self._due: list[int] = []
         self._current = n
         self._signature = [-1] * n
@@ -339,7 +342,7 @@ class World:
 
     def _mail(self, receiver: str) -> None:
         j = self._index[receiver]
-        self._engaged.add(j)
+        self._mail.add(j)
         if j > self._current:
             heapq.heappush(self._due, j)
 
@@ -455,9 +458,16 @@ class World:
                 self._touched.add(i)
         due = set(self._touched)  # the sensor callbacks hold this very set: keep it
         self._touched.clear()
-        engaged = self._engaged
-        if engaged:
-            due |= engaged
+        now = self.iteration
+        woken = self._mail
+        self._mail = set()
+        wakeups, wake = self._wakeups, self._wake
+        while wakeups and wakeups[0][0] <= now:
+            when, i = heapq.heappop(wakeups)
+            if wake.get(i) == when:
+                del wake[i]
+                woken.add(i)
+        due |= woken
         if not self.lazy:
             due = set(range(self.n))
         last = self._signature
@@ -472,7 +482,7 @@ class World:
             self._current = previous = i
             signature = self.signature(i)
             control = signature != last[i] or not self.lazy
-            if control or i in engaged:
+            if control or i in woken or i in self._mail:
                 last[i] = signature
                 self._tick(i, signature, control)
         self._current = self.n
@@ -505,10 +515,13 @@ class World:
             self._teaching[i] = self.teaching[i] = teaching
             self._waiting[i] = querying or teaching
             self._touched.add(i)
-        if cooling or querying or agent.engaged:
-            self._engaged.add(i)
-        else:
-            self._engaged.discard(i)
+        self._mail.discard(i)
+        due = agent.next_due()
+        if due is None:
+            self._wake.pop(i, None)
+        elif self._wake.get(i) != due:
+            self._wake[i] = due
+            heapq.heappush(self._wakeups, (due, i))
         learned = len(agent.metrics.learned)
         if learned != self._learned[i]:
             self._learned[i] = learned

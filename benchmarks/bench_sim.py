@@ -3,9 +3,10 @@
 Run with ``python -m benchmarks.bench_sim`` (or ``python -m benchmarks`` for every module).
 Prints a Markdown table and writes ``benchmarks/results/sim.json``.
 
-Three sizes, KT-BT mode, no obstacles, range 200, in the release's 8000 × 8000 arena for the
-paper's 40 robots (10 of each colour, 25 targets a colour), then 10× and 100× that (400 and
-4,000 robots, targets scaled alike, in an arena scaled to keep the paper's density). After a warm-up, each sample is one ``World.step`` (sense,
+Three sizes, KT-BT mode, no obstacles, range 200, in the release's 8000 by 8000 arena for the
+paper's 40 robots (10 of each colour, 25 targets a colour), then 10 and 100 times that (400 and
+4,000 robots, targets scaled alike, in an arena scaled to keep the paper's density). After a
+warm-up, each sample is one ``World.step`` (sense,
 tick the agents that need it, move, physics). The anchor is a second world built from the same
 seed whose space is only stepped (``space.step(dt)``: the same bodies, sensors and contacts,
 and no robot control at all); the two alternate step by step. The mean over the timed steps is
@@ -89,7 +90,7 @@ def measure(robots: int, warmup: int, steps: int) -> dict[str, Any]:
 
 def report(rows: list[dict[str, Any]]) -> str:
     table = markdown_table(
-        ["robots", "step median", "p90", "mean", "steps/s", "bare pymunk", "× bare"],
+        ["robots", "step median", "p90", "mean", "steps/s", "bare pymunk", "x bare"],
         [
             [
                 str(r["robots"]),

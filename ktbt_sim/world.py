@@ -6,8 +6,8 @@ begin/separate callbacks keep counts up to date, so nothing is searched per step
 packed into one integer per robot with numpy; a robot's agent is ticked only when its flags
 changed, when a message reached it, or at the tick its agent names (``Agent.next_due``: a wait
 or cool-down ending, a query to repeat), because the behaviours keep no state, a tick with
-unchanged inputs would change nothing, and every timer reads the agent's clock; motion is computed for all robots
-at once and written to pymunk in one batch call.
+unchanged inputs would change nothing, and every timer reads the agent's clock. Motion is
+computed for all robots at once and written to pymunk in one batch call.
 """
 
 from __future__ import annotations
@@ -90,7 +90,8 @@ class World:
         self.scenario = scenario
         self.lazy = lazy
         """Tick only the agents whose inputs changed, that have mail or whose agent is due;
-        ``False`` ticks every agent every step (slow; the tests use it to show that skipping changes nothing)."""
+        ``False`` ticks every agent every step (slow; the tests use it to show that skipping
+        changes nothing)."""
         root = np.random.SeedSequence(scenario.seed) if seed is None else seed
         self.rng = np.random.default_rng(
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
@@ -178,7 +179,7 @@ class World:
 
         # Agents on a network limited by communication range.
         self.network = MemoryNetwork(
-            in_range=self._in_range, audience=self._audience, on_deliver=self._mail
+            in_range=self._in_range, audience=self._audience, on_deliver=self._delivered
         )
         self.names = [f"r{i}" for i in range(n)]
         self._index = {name: i for i, name in enumerate(self.names)}
@@ -340,7 +341,7 @@ class World:
         near = np.flatnonzero(d2 <= self.scenario.comm_range**2)
         return [self.names[j] for j in near if j != i]
 
-    def _mail(self, receiver: str) -> None:
+    def _delivered(self, receiver: str) -> None:
         j = self._index[receiver]
         self._mail.add(j)
         if j > self._current:

@@ -3,8 +3,11 @@
 Heterogeneity follows Twu, Mostofi and Egerstedt (ACC 2014), as the paper's section "Knowledge
 and Functional Heterogeneity" does: heterogeneity = complexity x disparity, where complexity is
 the Shannon entropy of the species proportions and disparity is Rao's quadratic entropy over the
-distances between species. The species are the paper's knowledge levels g0..g4 (robots that know
-0..4 target colours), which is what the recorder keeps (``knows_0`` .. ``knows_4``).
+distances between species. A species is a set of colours known (16 sets, ``set_*`` columns):
+the paper counts 10 R + 10 G + 10 Y + 10 B robots as "four different types" at the start, which
+only sets distinguish, and its distance "g0 to g1 is 1, g0 to g4 is 4" is the number of colours
+in which two sets differ. Grouping by level only (``knows_0`` .. ``knows_4``, the paper's
+g0..g4, ``level_distance``) is available too; both coincide for 39I-1M.
 
 Defaults, and why:
 
@@ -37,6 +40,24 @@ LEVELS = 5
 KNOWLEDGE_SCORE = 0.25
 """The paper's ``ks`` of one colour: four equally hard colours, whole ability summing to one."""
 LEVEL_COLUMNS = tuple(f"knows_{k}" for k in range(LEVELS))
+SETS = 16
+"""Species: the sets of colours a robot knows, bit k-1 for colour k (red 1 .. blue 4)."""
+
+
+def set_name(bits: int) -> str:
+    """``set_RG`` for red and green, ``set_none`` for nothing."""
+    return "set_" + ("".join(c for k, c in enumerate("RGYB") if bits >> k & 1) or "none")
+
+
+SET_COLUMNS = tuple(set_name(b) for b in range(SETS))
+
+
+def set_distance(unit: float = KNOWLEDGE_SCORE) -> Array:
+    """Colours in which two sets differ, times ``unit``."""
+    bits = np.arange(SETS)
+    xor = bits[:, None] ^ bits[None, :]
+    differ = sum((xor >> k) & 1 for k in range(4))
+    return np.asarray(differ, dtype=np.float64) * unit
 
 
 def level_distance(levels: int = LEVELS, unit: float = KNOWLEDGE_SCORE) -> Array:
@@ -151,6 +172,13 @@ def percent_collected(results: Results) -> Array:
     total = results.total_targets
     collected = np.asarray(results["collected"], dtype=np.float64)
     return collected * 100.0 / total if total else np.full_like(collected, np.nan)
+
+
+def set_counts(results: Results) -> npt.NDArray[np.int64] | None:
+    """``(trials, rows, 16)`` robots per set of colours known; None for records without sets."""
+    if SET_COLUMNS[0] not in results.data:
+        return None
+    return np.stack([results[c] for c in SET_COLUMNS], axis=-1).astype(np.int64)
 
 
 def level_counts(results: Results) -> npt.NDArray[np.int64]:

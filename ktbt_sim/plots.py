@@ -251,10 +251,15 @@ def draw_heterogeneity(
     if res is None:
         return None
     counts = metrics.level_counts(res)
-    complexity, disparity, hetero = metrics.heterogeneity(counts, base, exponent)
+    sets = metrics.set_counts(res)
+    if sets is None:
+        species, distance, unit = counts, metrics.level_distance(), "|Δlevel|"
+    else:
+        species, distance, unit = sets, metrics.set_distance(), "colours differing"
+    complexity, disparity, hetero = metrics.heterogeneity(species, base, exponent, distance)
     panels = (
         (f"complexity (entropy, log base {_base_name(base)})", complexity),
-        (f"disparity (Rao, d = 0.25·|Δlevel|, exponent {exponent:g})", disparity),
+        (f"disparity (Rao, d = 0.25·{unit}, exponent {exponent:g})", disparity),
         ("heterogeneity = complexity · disparity", hetero),
         ("mean knowledge score (0.25 per colour)", metrics.mean_knowledge_score(counts)),
     )
@@ -268,7 +273,7 @@ def draw_heterogeneity(
     scenario = res.scenario
     fig.suptitle(
         f"{scenario.name} ({scenario.robots.label()}, {scenario.targets.total} targets, "
-        f"n={len(res.trials)}): species g0..g4, log base {_base_name(base)}, "
+        f"n={len(res.trials)}): species {'g0..g4' if sets is None else 'sets of colours'}, log base {_base_name(base)}, "
         f"exponent {exponent:g}; {SPREAD}",
         fontsize="medium",
     )

@@ -26,6 +26,7 @@ from ktbt_proto.messages import Query
 from ktbt_proto.transport.memory import MemoryNetwork
 
 from . import robot as rb
+from .metrics import set_name
 from .obstacles import layout
 from .scenario import COLOURS, Mode, Scenario
 
@@ -33,6 +34,11 @@ from .scenario import COLOURS, Mode, Scenario
 BODY, WALL, TARGET, TARGET_SENSOR, COLLISION_SENSOR = 1, 2, 4, 8, 16
 TARGET_RADIUS = 10.0
 """Targets are 20-unit cubes in the release; here discs of that width."""
+
+SET_BITS = np.array([1, 2, 4, 8])
+
+ESCAPE_S = 2.0
+"""After a collision, the random walk first leads this many seconds away from it."""
 
 ZONE_SIGNS = ((-1, 1), (1, 1), (-1, -1), (1, -1))
 """Zone corner of colour 1..4: red top left, green top right, yellow bottom left, blue bottom
@@ -54,11 +60,13 @@ RECORD_COLUMNS = (
     "lost",
     *(f"knows_{k}" for k in range(5)),
     *(f"knows_{c}" for c in COLOURS),
+    *(set_name(b) for b in range(16)),
 )
 """The per-step record, every ``record_every`` iterations. Per colour: targets collected and
 robots that know it. Now: robots querying, teaching, walking at random, carrying, avoiding a
 collision, cooling down. Cumulative: queries sent, responses sent, queries lost (a learner's wait
-ran out). ``knows_k``: robots that know exactly k colours."""
+ran out). ``knows_k``: robots that know exactly k colours; ``set_RG``: robots that know exactly
+red and green (``set_none``: nothing), one column per set of colours."""
 
 
 def _filter(category: int, mask: int) -> pymunk.ShapeFilter:
@@ -549,10 +557,15 @@ class World:
         want = np.arctan2(to[:, 1], to[:, 0])
         if self._avoiding:
             self._pos_list = self.pos.tolist()
+            escape = self.scenario.robot.max_speed * ESCAPE_S
             for i in self._avoiding:
-                want[i] = self._away(i)
-                self.walk_until[i] = 0  # a collision ends the current random-walk leg
-            self._next_walk = 0
+                away = want[i] = self._away(i)
+                # A collision ends the current random-walk leg; the next one leads away.
+                x, y = self._pos_list[i]
+                self.walk_goal[i] = (x + escape * math.cos(away), y + escape * math.sin(away))
+                self.walk_until[i] = self.iteration + int(ESCAPE_S / self.dt)
+                if not self._has_goal[i]:
+                    self._aim[i] = self.walk_goal[i]
         error = want - self.heading
         error += math.pi
         error %= 2 * math.pi
@@ -639,6 +652,9 @@ class World:
             row[f"knows_{level}"] = int(levels[level])
         for c, name in enumerate(COLOURS):
             row[f"knows_{name}"] = int(known[c])
+        sets = np.bincount(self.known @ SET_BITS, minlength=16)
+        for bits in range(16):
+            row[set_name(bits)] = int(sets[bits])
         return row
 
     def counters(self) -> Counters:

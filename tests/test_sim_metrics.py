@@ -165,3 +165,20 @@ def test_summary_of_one_trial_has_no_spread_and_nothing_reached_is_nan() -> None
     s = summary(_results([[10, 20, 30]], {}))
     assert s["collected_pct_mean"] == 30.0 and math.isnan(s["collected_pct_std"])
     assert s["t99_reached"] == 0 and math.isnan(s["t99_mean"]) and math.isnan(s["t99_std"])
+
+
+def test_colour_sets_as_species_10rgyb_starts_heterogeneous() -> None:
+    from ktbt_sim import metrics
+
+    # 10 R + 10 G + 10 Y + 10 B: four species of a quarter each. Complexity ln 4; any two of
+    # them differ in 2 colours (distance 2 x 0.25 = 0.5), and there are 12 ordered pairs:
+    # disparity = 12 x 1/16 x 0.5 = 0.375.
+    counts = np.zeros(metrics.SETS)
+    for bits in (1, 2, 4, 8):
+        counts[bits] = 10
+    complexity, disparity, hetero = metrics.heterogeneity(counts, distance=metrics.set_distance())
+    assert complexity == pytest.approx(math.log(4))
+    assert disparity == pytest.approx(0.375)
+    assert hetero == pytest.approx(math.log(4) * 0.375)
+    assert metrics.set_name(0) == "set_none" and metrics.set_name(0b1011) == "set_RGB"
+    assert metrics.set_distance()[0, 15] == pytest.approx(1.0)  # nothing vs all four colours

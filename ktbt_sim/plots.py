@@ -273,7 +273,8 @@ def draw_heterogeneity(
     scenario = res.scenario
     fig.suptitle(
         f"{scenario.name} ({scenario.robots.label()}, {scenario.targets.total} targets, "
-        f"n={len(res.trials)}): species {'g0..g4' if sets is None else 'sets of colours'}, log base {_base_name(base)}, "
+        f"n={len(res.trials)}): species {'g0..g4' if sets is None else 'sets of colours'}, "
+        f"log base {_base_name(base)}, "
         f"exponent {exponent:g}; {SPREAD}",
         fontsize="medium",
     )

@@ -124,3 +124,58 @@ def test_sim_list_and_scenario_print_what_a_user_can_run(tmp_path: Path) -> None
     path = tmp_path / "mine.json"
     path.write_text(shown.stdout)
     assert Scenario.load(path).comm_range == 500.0
+
+
+def test_sim_view_records_frames_headless(tmp_path: Path) -> None:
+    gif = tmp_path / "run.gif"
+    env = {**os.environ, "SDL_VIDEODRIVER": "dummy", "SDL_AUDIODRIVER": "dummy"}
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ktbt_proto",
+            "sim",
+            "view",
+            "bl1",
+            "--record",
+            str(gif),
+            "--frames",
+            "3",
+            "--every",
+            "20",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        env=env,
+    )
+    assert result.returncode == 0, result.stderr
+    from PIL import Image
+
+    with Image.open(gif) as image:
+        assert image.n_frames == 3
+    folder = tmp_path / "frames"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ktbt_proto",
+            "sim",
+            "view",
+            "ktbt",
+            "--record",
+            str(folder),
+            "--frames",
+            "2",
+            "--every",
+            "5",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        env=env,
+    )
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in folder.iterdir()) == ["frame-0000.png", "frame-0001.png"]

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
 
 import numpy as np
 import pymunk
@@ -71,17 +71,6 @@ red and green (``set_none``: nothing), one column per set of colours."""
 
 def _filter(category: int, mask: int) -> pymunk.ShapeFilter:
     return pymunk.ShapeFilter(categories=category, mask=mask)
-
-
-@dataclass(frozen=True)
-class Counters:
-    """Totals the world keeps as it runs (the per-step records add the per-robot counts)."""
-
-    collected: tuple[int, int, int, int]
-    picked: int
-    queries: int
-    responses: int
-    lost: int
 
 
 class World:
@@ -355,7 +344,7 @@ class World:
         if j > self._current:
             heapq.heappush(self._due, j)
 
-    def _teacher(self, i: int):  # type: ignore[no-untyped-def]
+    def _teacher(self, i: int) -> Callable[[Query], bool]:
         """The release's teaching rule for robot ``i``: it teaches only when not carrying a
         target, and only a learner nobody is teaching yet (the knowledge check is the agent's)."""
         taught, index, carrying = self._taught, self._index, self.carrying
@@ -656,17 +645,3 @@ class World:
         for bits in range(16):
             row[set_name(bits)] = int(sets[bits])
         return row
-
-    def counters(self) -> Counters:
-        m = [a.metrics for a in self.agents]
-        return Counters(
-            collected=tuple(int(c) for c in self.collected),  # type: ignore[arg-type]
-            picked=self.picked,
-            queries=sum(x.queries_sent for x in m),
-            responses=sum(x.responses_sent for x in m),
-            lost=sum(x.queries_lost for x in m),
-        )
-
-    @property
-    def colours(self) -> tuple[str, ...]:
-        return COLOURS

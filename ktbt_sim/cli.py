@@ -62,13 +62,14 @@ def sweep(
         TimeRemainingColumn,
     )
 
-    from .experiment import plan, run
+    from .experiment import plan, run, twins
 
     try:
         todo = len(plan(scenarios, out))
     except ValueError as exc:
         raise _fail(str(exc)) from None
-    total = sum(s.trials for s in scenarios)
+    original = twins(scenarios)
+    total = sum(s.trials for s in scenarios if original[s.name] == s.name)
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
+import shutil
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -20,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .results import Results, combine, finished, load_folder, write_trial
+from .results import Results, combine, finished, load_folder, trial_path, write_trial
 from .scenario import PRESETS, Scenario
 
 STUDIES: dict[str, tuple[str, ...]] = {
@@ -85,10 +87,24 @@ class Job:
     trial: int
 
 
-def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
-    """The trials still to run; each scenario's folder is claimed with its ``scenario.json``.
+def twins(scenarios: Iterable[Scenario]) -> dict[str, str]:
+    """Each scenario's name -> the name of the first one with the same configuration (the
+    paper's studies share some: ``range-200`` is ``opportunities-25``). A twin's trials are
+    the same trials, so they run once and are copied."""
+    first: dict[str, str] = {}
+    out = {}
+    for scenario in scenarios:
+        key = json.dumps(scenario.model_dump(mode="json", exclude={"name"}), sort_keys=True)
+        out[scenario.name] = first.setdefault(key, scenario.name)
+    return out
 
-    A folder that already holds a different scenario is refused rather than mixed."""
+
+def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
+    """The trials still to run (a twin's only once); each scenario's folder is claimed with
+    its ``scenario.json``. A folder that already holds a different scenario is refused rather
+    than mixed."""
+    scenarios = list(scenarios)
+    original = twins(scenarios)
     jobs = []
     for scenario in scenarios:
         folder = out / scenario.name
@@ -109,9 +125,20 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
             tmp = spec.with_suffix(".tmp")
             tmp.write_text(text, encoding="utf-8")
             tmp.replace(spec)
+        if original[scenario.name] != scenario.name:
+            continue
         done = finished(folder)
         jobs += [Job(scenario, folder, t) for t in range(scenario.trials) if t not in done]
     return jobs
+
+
+def _mirror(source: Path, target: Path) -> None:
+    """Copy a twin's finished trials (each whole, through a temporary name)."""
+    for trial in sorted(finished(source) - finished(target)):
+        final = trial_path(target, trial)
+        tmp = final.with_suffix(".tmp-copy")
+        shutil.copyfile(trial_path(source, trial), tmp)
+        os.replace(tmp, final)
 
 
 Progress = Callable[[Job, float], None]
@@ -136,9 +163,12 @@ def run(
             _run_local(jobs, workers, progress)
         else:
             raise ValueError(f"unknown executor {executor!r}: local or ray")
+    original = twins(scenarios)
     results = {}
     for scenario in scenarios:
         folder = out / scenario.name
+        if original[scenario.name] != scenario.name:
+            _mirror(out / original[scenario.name], folder)
         combine(folder)
         loaded = load_folder(folder)
         if loaded is not None:

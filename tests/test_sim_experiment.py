@@ -179,3 +179,14 @@ def test_sim_view_records_frames_headless(tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in folder.iterdir()) == ["frame-0000.png", "frame-0001.png"]
+
+
+def test_twin_scenarios_run_once_and_both_get_the_trials(tmp_path: Path) -> None:
+    a, b = small("a", trials=2, iterations=200), small("b", trials=2, iterations=200)
+    results = run([a, b], tmp_path, workers=1)
+    assert same({"x": results["a"]}, {"x": results["b"]})
+    # Identical configuration, one run: the twin's files are copies of the first's.
+    for t in (0, 1):
+        first = (tmp_path / "a" / f"trial-{t:04d}.parquet").read_bytes()
+        assert (tmp_path / "b" / f"trial-{t:04d}.parquet").read_bytes() == first
+    assert results["b"].scenario.name == "b"

@@ -171,6 +171,10 @@ class World:
         self._pos_list: list[list[float]] = []
         self._velocities = np.zeros(2 * (n + 1))  # the space's static body comes last
         self._out = pymunk.batch.Buffer()
+        self._positions = np.zeros(2 * (n + 1) + 4)  # room: pymunk grows a full array
+        self._positions[: 2 * n] = self.pos.ravel()
+        self._out.set_float_buf(self._positions)  # pymunk writes positions straight into it
+        self.pos = self._positions[: 2 * n].reshape(n, 2)
         self._in = pymunk.batch.Buffer()
         self._in.set_float_buf(self._velocities)
 
@@ -607,10 +611,12 @@ class World:
 
     def _read_positions(self) -> None:
         out = self._out
-        out.clear()
+        out.clear()  # refills ``self._positions``, of which ``self.pos`` is a view
         pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.POSITION, out)
-        data = np.frombuffer(out.float_buf(), dtype=np.float64)
-        self.pos = data[: 2 * self.n].reshape(self.n, 2).copy()
+        if out._float_arr.max != len(self._positions):  # pymunk moved to a bigger array
+            data = np.frombuffer(out.float_buf(), dtype=np.float64)
+            self._positions[: len(data)] = data
+            out.set_float_buf(self._positions)
 
     # -- what an experiment reads -----------------------------------------------------------
 

@@ -173,7 +173,9 @@ class Agent:
         arrives and the control tree's inputs stay as they are: messages to handle, a wait or
         cool-down ending, a query to repeat. None: nothing pending at all. A caller that ticks
         the agent then (and whenever a message arrives) sees exactly what ticking it every
-        tick would give, because every timer reads the agent's clock."""
+        tick would give, because every timer reads the agent's clock. Timers inside the control
+        tree are not counted: skipping ticks suits a control tree without them (the
+        simulator's has none)."""
         now = self.now
         if self._queries or self._responses:
             return now + 1
@@ -193,9 +195,12 @@ class Agent:
         return max(due, now + 1) if due is not None else None
 
     def _cool_down(self, bb: Blackboard) -> None:
+        """Start (or keep) the shared cool-down. Queries still waiting are dropped: a robot
+        in cool-down does not listen, and their askers will have stopped waiting by its end."""
         if not bb.get(COOLING_DOWN):
             self._cooling_since = self.now
         bb[COOLING_DOWN] = True
+        self._queries.clear()
 
     def tick(self, *, control: bool = True, now: int | None = None) -> Status | None:
         """One tick: read the transport, then tick Control, Teach and Learn.
@@ -212,7 +217,11 @@ class Agent:
                 if not self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
                     self._queries.append(message)
             elif isinstance(message, Response):
-                self._responses.append(message)
+                asking = self._asking
+                if asking is None or asking.query is None or asking.query.id != message.id:
+                    self.refuse(f"from {message.sender}: an answer to no open question")
+                else:
+                    self._responses.append(message)
         status = self.control.tick() if control else None
         self.teach.tick()
         self.learn.tick()
@@ -262,8 +271,7 @@ class Agent:
             ),
         )
         self.metrics.responses_sent += 1
-        self._queries.clear()  # one query per cool-down: the others' askers will time out
-        self._cool_down(bb)
+        self._cool_down(bb)  # one query per cool-down: the others' askers will time out
         bb[TEACHING] = True
         return SUCCESS
 

@@ -66,7 +66,7 @@ def sweep(
 
     try:
         todo = len(plan(scenarios, out))
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         raise _fail(str(exc)) from None
     original = twins(scenarios)
     total = sum(s.trials for s in scenarios if original[s.name] == s.name)
@@ -88,7 +88,7 @@ def sweep(
 
         try:
             run(scenarios, out, workers=workers, executor=executor, address=address, progress=done)
-        except ValueError as exc:
+        except (ValueError, OSError) as exc:
             raise _fail(str(exc)) from None
     return time.perf_counter() - started
 
@@ -124,12 +124,17 @@ def plot_command(
 ) -> None:
     """Draw every figure the folder has data for (PNG and SVG) and a summary table."""
     from .plots import plot
+    from .results import load
 
     if not directory.is_dir():
         raise _fail(f"{directory} is not a folder")
-    written = plot(directory)
-    if not written:
-        raise _fail(f"{directory} holds no finished trial")
+    try:
+        results = load(directory)
+        if not results:
+            raise _fail(f"{directory} holds no finished trial")
+        written = plot(directory, results)
+    except (ValueError, OSError) as exc:
+        raise _fail(str(exc)) from None
     for path in written:
         typer.echo(str(path))
 
@@ -164,12 +169,12 @@ def scenario_command(
 @sim.command("view")
 def view_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")] = "ktbt",
-    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the run.")] = 0,
     record: Annotated[
         Path | None, typer.Option(help="Write frames headless: out.gif or a folder of PNGs.")
     ] = None,
-    frames: Annotated[int, typer.Option(help="Frames to record.")] = 100,
-    every: Annotated[int, typer.Option(help="Iterations between recorded frames.")] = 50,
+    frames: Annotated[int, typer.Option(min=1, help="Frames to record.")] = 100,
+    every: Annotated[int, typer.Option(min=1, help="Iterations between recorded frames.")] = 50,
 ) -> None:
     """Watch a run: space pauses, right arrow steps, +/- change speed, q quits."""
     scenarios = _scenarios(target, None, None, None)
@@ -179,11 +184,14 @@ def view_command(
     from .world import World
 
     world = World(scenarios[0], seed=seed)
-    if record is not None:
-        viewer.record(world, record, frames=frames, every=every)
-        typer.echo(str(record))
-    else:
-        viewer.run(world)
+    try:
+        if record is not None:
+            viewer.record(world, record, frames=frames, every=every)
+            typer.echo(str(record))
+        else:
+            viewer.run(world)
+    except (ValueError, OSError, RuntimeError) as exc:  # pygame.error is a RuntimeError
+        raise _fail(str(exc)) from None
 
 
 def demo_command(
@@ -197,13 +205,21 @@ def demo_command(
     from .plots import plot
     from .scenario import PRESETS
 
-    scenarios = [PRESETS[n].with_(trials=trials, iterations=iterations) for n in STUDIES["demo"]]
+    try:
+        scenarios = [
+            PRESETS[n].with_(trials=trials, iterations=iterations) for n in STUDIES["demo"]
+        ]
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
     typer.echo(
         f"BL1 (40 robots that know every colour), BL2 (10 per colour, no transfer) and KT-BT "
         f"(10 per colour, sharing knowledge): {trials} trials of {iterations:,} iterations each."
     )
     seconds = sweep(scenarios, out, workers or os.cpu_count() or 1)
-    plot(out)
+    try:
+        plot(out)
+    except (ValueError, OSError) as exc:
+        raise _fail(str(exc)) from None
     typer.echo((out / "summary.md").read_text(encoding="utf-8"))
     typer.echo(f"figures in {out}/ ({seconds:.0f} s); the full studies: ktbt sim run all")
 

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-import os
-import shutil
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -22,7 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from .results import Results, combine, finished, load_folder, trial_path, write_trial
+from .results import (
+    Results,
+    combine,
+    finished,
+    load_folder,
+    read_trial,
+    trial_path,
+    write_trial,
+)
 from .scenario import PRESETS, Scenario
 
 STUDIES: dict[str, tuple[str, ...]] = {
@@ -111,7 +117,12 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
         spec = folder / "scenario.json"
         text = scenario.dump()
         if spec.exists():
-            held = json.loads(spec.read_text(encoding="utf-8"))
+            try:
+                held = json.loads(spec.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, ValueError) as exc:
+                raise ValueError(f"{spec}: not a scenario ({exc})") from None
+            if not isinstance(held, dict):
+                raise ValueError(f"{spec}: not a scenario")
             held.pop("trials", None)  # more or fewer trials of the same scenario mix well
             wanted = json.loads(text)
             wanted.pop("trials")
@@ -127,18 +138,19 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
             tmp.replace(spec)
         if original[scenario.name] != scenario.name:
             continue
+        for torn in folder.glob("trial-*.tmp*"):  # left by a run that was killed mid-write
+            torn.unlink(missing_ok=True)
         done = finished(folder)
         jobs += [Job(scenario, folder, t) for t in range(scenario.trials) if t not in done]
     return jobs
 
 
-def _mirror(source: Path, target: Path) -> None:
-    """Copy a twin's finished trials (each whole, through a temporary name)."""
+def _mirror(source: Path, twin: Scenario, target: Path) -> None:
+    """Copy a twin's finished trials, each under its own scenario's name, written whole."""
     for trial in sorted(finished(source) - finished(target)):
-        final = trial_path(target, trial)
-        tmp = final.with_suffix(".tmp-copy")
-        shutil.copyfile(trial_path(source, trial), tmp)
-        os.replace(tmp, final)
+        rows = read_trial(trial_path(source, trial))
+        seed = int(trial_seed(twin, trial).generate_state(1)[0])
+        write_trial(target, twin, trial, seed, rows)
 
 
 Progress = Callable[[Job, float], None]
@@ -168,7 +180,7 @@ def run(
     for scenario in scenarios:
         folder = out / scenario.name
         if original[scenario.name] != scenario.name:
-            _mirror(out / original[scenario.name], folder)
+            _mirror(out / original[scenario.name], scenario, folder)
         combine(folder)
         loaded = load_folder(folder)
         if loaded is not None:

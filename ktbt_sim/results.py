@@ -60,7 +60,17 @@ def write_trial(
     with open(tmp, "rb") as fh:
         os.fsync(fh.fileno())
     os.replace(tmp, final)
+    directory = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(directory)  # the rename itself survives a power loss
+    finally:
+        os.close(directory)
     return final
+
+
+def read_trial(path: Path) -> dict[str, list[int]]:
+    table = pq.read_table(path)
+    return {name: table.column(name).to_pylist() for name in table.column_names}
 
 
 def finished(folder: Path) -> set[int]:
@@ -78,11 +88,19 @@ def load_folder(folder: Path) -> Results | None:
     scenario_file = folder / "scenario.json"
     if not scenario_file.exists():
         return None
-    scenario = Scenario.model_validate(json.loads(scenario_file.read_text(encoding="utf-8")))
+    try:
+        scenario = Scenario.model_validate(json.loads(scenario_file.read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"{scenario_file}: not a scenario ({exc})") from None
     trials = sorted(finished(folder))
     if not trials:
         return None
-    tables = [pq.read_table(trial_path(folder, t)) for t in trials]
+    tables = []
+    for t in trials:
+        try:
+            tables.append(pq.read_table(trial_path(folder, t)))
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{trial_path(folder, t)}: unreadable ({exc}); remove it") from None
     rows = min(t.num_rows for t in tables)
     names = [n for n in tables[0].column_names if n != "iteration"]
     data = {name: np.stack([t.column(name).to_numpy()[:rows] for t in tables]) for name in names}

@@ -144,8 +144,11 @@ class Scenario(_Model):
         return self
 
     def with_(self, **changes: Any) -> Scenario:
-        """A copy with some fields changed, validated again."""
-        return Scenario.model_validate({**self.model_dump(), **changes})
+        """A copy with some fields changed, validated again (ValueError with one line)."""
+        try:
+            return Scenario.model_validate({**self.model_dump(), **changes})
+        except ValidationError as exc:
+            raise ValueError(_one_line(exc)) from None
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
@@ -157,13 +160,17 @@ class Scenario(_Model):
             return cls.model_validate(data)
         except (OSError, UnicodeDecodeError, ValueError, tomllib.TOMLDecodeError) as exc:
             if isinstance(exc, ValidationError):
-                first = exc.errors()[0]
-                where = ".".join(str(p) for p in first["loc"]) or "scenario"
-                raise ValueError(f"{path}: {where}: {first['msg']}") from None
+                raise ValueError(f"{path}: {_one_line(exc)}") from None
             raise ValueError(f"{path}: {exc}") from None
 
     def dump(self) -> str:
         return self.model_dump_json(indent=2)
+
+
+def _one_line(exc: ValidationError) -> str:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "scenario"
+    return f"{where}: {first['msg']}"
 
 
 def _study_1() -> dict[str, Scenario]:

@@ -171,7 +171,9 @@ class World:
         self._pos_list: list[list[float]] = []
         self._velocities = np.zeros(2 * (n + 1))  # the space's static body comes last
         self._out = pymunk.batch.Buffer()
-        self._positions = np.zeros(2 * (n + 1) + 4)  # room: pymunk grows a full array
+        # pymunk writes positions straight into this array. It reallocates an array that is
+        # about to fill, so leave room; the world never adds bodies after this point.
+        self._positions = np.zeros(2 * (n + 1) + 4)
         self._positions[: 2 * n] = self.pos.ravel()
         self._out.set_float_buf(self._positions)  # pymunk writes positions straight into it
         self.pos = self._positions[: 2 * n].reshape(n, 2)
@@ -613,10 +615,6 @@ class World:
         out = self._out
         out.clear()  # refills ``self._positions``, of which ``self.pos`` is a view
         pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.POSITION, out)
-        if out._float_arr.max != len(self._positions):  # pymunk moved to a bigger array
-            data = np.frombuffer(out.float_buf(), dtype=np.float64)
-            self._positions[: len(data)] = data
-            out.set_float_buf(self._positions)
 
     # -- what an experiment reads -----------------------------------------------------------
 

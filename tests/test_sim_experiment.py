@@ -185,8 +185,33 @@ def test_twin_scenarios_run_once_and_both_get_the_trials(tmp_path: Path) -> None
     a, b = small("a", trials=2, iterations=200), small("b", trials=2, iterations=200)
     results = run([a, b], tmp_path, workers=1)
     assert same({"x": results["a"]}, {"x": results["b"]})
-    # Identical configuration, one run: the twin's files are copies of the first's.
+    # Identical configuration, one run: the twin's files hold the same rows, under its name.
+    import pyarrow.parquet as pq
+
     for t in (0, 1):
-        first = (tmp_path / "a" / f"trial-{t:04d}.parquet").read_bytes()
-        assert (tmp_path / "b" / f"trial-{t:04d}.parquet").read_bytes() == first
+        meta = pq.read_table(tmp_path / "b" / f"trial-{t:04d}.parquet").schema.metadata
+        assert Scenario.model_validate_json(meta[b"ktbt.scenario"]).name == "b"
     assert results["b"].scenario.name == "b"
+
+
+def test_user_errors_are_one_line_and_exit_2(tmp_path: Path) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    broken = tmp_path / "broken" / "s"
+    broken.mkdir(parents=True)
+    (broken / "scenario.json").write_text("[1, 2]")
+    cases = [
+        (("sim", "plot", str(empty)), "holds no finished trial"),
+        (("sim", "run", "bl1", "--out", str(afile), "--iterations", "10"), "afile"),
+        (("sim", "run", "bl1", "--trials", "0"), "trials"),
+        (("demo", "--trials", "0", "--out", str(tmp_path / "d")), "trials"),
+        (("sim", "plot", str(tmp_path / "broken")), "not a scenario"),
+        (("sim", "view", "bl1", "--record", str(tmp_path / "x.gif"), "--frames", "0"), "frames"),
+    ]
+    for args, words in cases:
+        result = ktbt(*args)
+        assert result.returncode == 2, (args, result.stderr)
+        assert "Traceback" not in result.stderr and words in result.stderr, (args, result.stderr)
+    assert not (empty / "summary.md").exists()

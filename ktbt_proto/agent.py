@@ -159,15 +159,6 @@ class Agent:
         key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
         return key in self.knowledge
 
-    @property
-    def engaged(self) -> bool:
-        """True while the teach or learn tree has work: cooling down, asking, or messages taken
-        in and not yet handled. An agent that is not engaged, and whose control tree's inputs
-        have not changed, would change nothing by ticking (a simulator of many robots skips it).
-        """
-        bb = self.blackboard
-        return bool(bb.get(COOLING_DOWN) or bb.get(QUERYING) or self._queries or self._responses)
-
     def next_due(self) -> int | None:
         """The first tick at which ticking this agent could change something if nothing new
         arrives and the control tree's inputs stay as they are: messages to handle, a wait or

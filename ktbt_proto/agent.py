@@ -342,11 +342,8 @@ class _QueryAndWait:
             self.bb[QUERYING] = True
             self.asked_at = agent.now
             return RUNNING
-        while agent._responses:
+        while agent._responses:  # only answers to this query are let in (``Agent.tick``)
             response = agent._responses.popleft()
-            if response.id != self.query.id:
-                agent.refuse(f"from {response.sender}: an answer to no open question")
-                continue
             agent.metrics.responses_received += 1
             if agent.accept(response, self.query):
                 self._finish()
@@ -361,6 +358,9 @@ class _QueryAndWait:
         self._finish()
 
     def _finish(self) -> None:
+        while self.agent._responses:  # more answers to the finished query: nobody asks now
+            late = self.agent._responses.popleft()
+            self.agent.refuse(f"from {late.sender}: an answer to no open question")
         self.query = None
         self.bb[QUERYING] = False
         self.agent._cool_down(self.bb)

@@ -145,10 +145,7 @@ class World:
         self._seen = [[0, 0, 0, 0] for _ in range(n)]
         self._waiting = [False] * n
         self._cooling = [False] * n
-        self._querying = [False] * n
-        self._teaching = [False] * n
-        self._in_zone = [False] * n
-        self._in_zone_now = np.zeros(n, dtype=bool)
+        self._in_zone = np.zeros(n, dtype=bool)
         self._carriers: set[int] = set()
         self._touched: set[int] = set(range(n))
         """Robots whose control-tree inputs may have changed since their last tick."""
@@ -403,7 +400,7 @@ class World:
         self.carrying[i] = -1
         self.set_goal(i, 0)
         self._carriers.discard(i)
-        self._in_zone[i] = self._in_zone_now[i] = False
+        self._in_zone[i] = False
         self._touched.add(i)
         self.collected[self.target_colour[t] - 1] += 1
         self.delivered_to[t] += 1
@@ -444,7 +441,7 @@ class World:
             (self._collisions[i] > 0)
             | self._waiting[i] << 1
             | (i in self._carriers) << 2
-            | self._in_zone[i] << 3
+            | bool(self._in_zone[i]) << 3
             | self._cooling[i] << 4
             | seen << 5
         )
@@ -457,8 +454,8 @@ class World:
             # Only carriers with a zone assigned can be in "their" zone.
             near = np.abs(self.pos - self._aim) <= self._zone_half
             inside = near[:, 0] & near[:, 1] & self._has_goal
-            for i in np.flatnonzero(inside != self._in_zone_now).tolist():
-                self._in_zone_now[i] = self._in_zone[i] = bool(inside[i])
+            for i in np.flatnonzero(inside != self._in_zone).tolist():
+                self._in_zone[i] = inside[i]
                 self._touched.add(i)
         due = set(self._touched)  # the sensor callbacks hold this very set: keep it
         self._touched.clear()
@@ -509,15 +506,11 @@ class World:
         cooling = bool(bb.get(COOLING_DOWN))
         querying = bool(bb.get(QUERYING))
         teaching = bool(bb.get(TEACHING))
-        if (
-            cooling != self._cooling[i]
-            or querying != self._querying[i]
-            or (teaching != self._teaching[i])
-        ):
+        waiting = querying or teaching
+        self.querying[i], self.teaching[i] = querying, teaching
+        if cooling != self._cooling[i] or waiting != self._waiting[i]:  # the signature's inputs
             self._cooling[i] = self.cooling[i] = cooling
-            self._querying[i] = self.querying[i] = querying
-            self._teaching[i] = self.teaching[i] = teaching
-            self._waiting[i] = querying or teaching
+            self._waiting[i] = waiting
             self._touched.add(i)
         self._mail.discard(i)
         due = agent.next_due()

@@ -133,6 +133,9 @@ class Agent:
         self._asking: _QueryAndWait | None = None
         self._queries: deque[Query] = deque(maxlen=64)
         self._responses: deque[Response] = deque(maxlen=256)
+        self._open: Query | None = None
+        self._answered = False
+        self._heard: dict[str, Query] = {}
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
         own = self._library()
@@ -217,6 +220,87 @@ class Agent:
         self.teach.tick()
         self.learn.tick()
         return status
+
+    # -- application-timed teaching and learning (spec/protocol.md section 4.1) ---------------
+
+    HEARD_LIMIT = 1024
+    """Open queries an application-timed agent remembers, one per asker (oldest dropped)."""
+
+    def ask(self, sequence: Iterable[Condition | str] | str) -> Query:
+        """Broadcast a query now, outside the learn tree, for an application that owns the
+        wait and cool-down itself (the simulator's release timing). The query stays open until
+        :meth:`close_query`; :meth:`receive` merges the first acceptable answer to it."""
+        if self._open is not None:
+            self.close_query()
+        key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
+        query = Query(id=Query.new_id(), sender=self.name, sequence=key)
+        self._open, self._answered = query, False
+        self.transport.broadcast(query)
+        self.metrics.queries_sent += 1
+        return query
+
+    @property
+    def open_query(self) -> Query | None:
+        """The query :meth:`ask` sent and not yet closed (answered or not)."""
+        return self._open
+
+    def announce(self, to: str) -> None:
+        """Send the open, unanswered query again to one peer (one that just came into range),
+        so that it stays answerable for the asker's whole wait."""
+        if self._open is not None and not self._answered:
+            self.transport.send(to, self._open)
+
+    def close_query(self) -> None:
+        """The asker's wait is over: a query nobody answered counts as lost, and answers to it
+        that arrive later are refused."""
+        if self._open is not None and not self._answered:
+            self.metrics.queries_lost += 1
+        self._open = None
+
+    def heard(self, sender: str) -> Query | None:
+        """The latest query received from ``sender`` by :meth:`receive`, if any."""
+        return self._heard.get(sender)
+
+    def answer(self, query: Query) -> bool:
+        """Answer ``query`` (one this agent heard) if its sequence is known; True if sent."""
+        item = self.knowledge.lookup(query.sequence)
+        if item is None:
+            return False
+        self.transport.send(
+            query.sender,
+            Response(
+                id=query.id,
+                sender=self.name,
+                sequence=query.sequence,
+                subtree=format_tree(item.subtree, "compact"),
+            ),
+        )
+        self.metrics.responses_sent += 1
+        return True
+
+    def receive(self) -> int:
+        """Read the transport without ticking any tree: queries are remembered by asker (for
+        :meth:`heard`); an answer to the open query is checked and merged (section 2), any
+        other answer refused. Returns how many items were learned."""
+        learned = 0
+        heard = self._heard
+        for message in self.transport.receive():
+            if isinstance(message, Query):
+                self.metrics.queries_received += 1
+                heard.pop(message.sender, None)
+                heard[message.sender] = message
+                if len(heard) > self.HEARD_LIMIT:
+                    del heard[next(iter(heard))]
+            elif isinstance(message, Response):
+                asked = self._open
+                if asked is None or self._answered or asked.id != message.id:
+                    self.refuse(f"from {message.sender}: an answer to no open question")
+                    continue
+                self.metrics.responses_received += 1
+                if self.accept(message, asked):
+                    self._answered = True
+                    learned += 1
+        return learned
 
     # -- the library behaviours of the teach and learn trees ----------------------------------
 

@@ -110,12 +110,38 @@ def run_command(
     address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray).")
     ] = None,
+    release_csv: Annotated[
+        bool,
+        typer.Option(help="Also write each trial in the release's 35-column CSV format."),
+    ] = False,
 ) -> None:
     """Run a study; an interrupted run restarted with the same --out runs only what is
     missing."""
     scenarios = _scenarios(target, trials, iterations, seed)
     seconds = sweep(scenarios, out, workers or os.cpu_count() or 1, executor, address)
+    if release_csv:
+        from .records import export_release
+
+        for scenario in scenarios:
+            typer.echo(str(export_release(out / scenario.name)))
     typer.echo(f"{sum(s.trials for s in scenarios)} trials in {out} ({seconds:.1f} s)")
+
+
+@sim.command("compare")
+def compare_command(
+    ours: Annotated[Path, typer.Argument(help="A scenario folder (ours or a release one).")],
+    theirs: Annotated[Path, typer.Argument(help="Another, e.g. a release SimData folder.")],
+    out: Annotated[
+        Path | None, typer.Option(help="Write OUT.png and OUT.md beside the printed table.")
+    ] = None,
+) -> None:
+    """Two runs of one configuration side by side: the numbers and one figure."""
+    from .compare import compare
+
+    try:
+        typer.echo(compare(ours, theirs, out))
+    except (ValueError, OSError) as exc:
+        raise _fail(str(exc)) from None
 
 
 @sim.command("plot")
@@ -161,9 +187,12 @@ def list_command() -> None:
 def scenario_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")],
 ) -> None:
-    """Print a scenario as JSON: a starting point for a file of your own."""
+    """Print a scenario as JSON (a starting point for a file of your own), then the physical
+    values its numbers stand for in the release (radius in units, seconds per iteration)."""
     for scenario in _scenarios(target, None, None, None):
         typer.echo(scenario.dump())
+        for key, value in scenario.derived().items():
+            typer.echo(f"# {key}: {value:g}")
 
 
 @sim.command("view")

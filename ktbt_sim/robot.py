@@ -26,8 +26,10 @@ CONTROL_TREE = files("ktbt_sim") / "trees" / "sar_control.sbt"
 KINDS = {"I": (), "M": (1, 2, 3, 4), "R": (1,), "G": (2,), "Y": (3,), "B": (4,)}
 """Robot types of the paper's tables and the colours (1 red .. 4 blue) each knows at start."""
 
-# Motion modes an action selects; the world drives every robot by its mode.
-STOP, WALK, TO_ZONE, AVOID = 0, 1, 2, 3
+# Motion modes an action selects; the world writes every robot's resultant velocity by its
+# mode each iteration, as the release's actions do each tick (release-behaviour.md §4).
+STOP, WALK, TO_ZONE, AVOID, IDLE = 0, 1, 2, 3, 4
+"""IDLE: the last tick ran a pick or a place, which leave the velocity as it was."""
 
 # Blackboard keys written by sensing.
 COLLISION = "_collisionDetectedF"
@@ -35,7 +37,7 @@ WAIT = "_waitF"
 CARRYING = "_treasureOnBoardF"
 IN_ZONE = "_inZoneF"
 SEEN = "seen"
-"""Bit k-1 set: a target of colour k is in target-sensor range (and sensing is on)."""
+"""The colour (1..4) of the target the target sensor has registered, 0 for none (§5.1)."""
 INDEX = "index"
 
 
@@ -96,12 +98,12 @@ def registry(world: World) -> kp.Registry:
 
     @reg.condition("TargetSeen")
     def target_seen(bb: kp.Blackboard, colour: int) -> bool:
-        return bool(bb[SEEN] >> (int(colour) - 1) & 1)
+        return bool(bb[SEEN] == colour)
 
     def moving(name: str, value: int) -> None:
         def act(bb: kp.Blackboard) -> kp.Status:
             set_mode(bb[INDEX], value)
-            return kp.RUNNING
+            return kp.SUCCESS
 
         reg.add_action(name, act)
 

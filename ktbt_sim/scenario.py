@@ -2,8 +2,10 @@
 presets.
 
 Units: lengths in world units (the release's arena is 8000 by 8000), speeds per second, time in
-iterations of ``dt`` seconds (0.01 s, as in the release). Where the paper is silent, defaults are
-the values read off the authors' release.
+iterations of ``dt`` seconds. A scenario keeps the paper's numbers (communication range 100 to
+1000, iterations, targets) and names the physical values they stand for in the release
+(``comm_radius``, ``seconds``). Every default is the release's, with its section of
+``reference/release-behaviour.md``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,20 @@ COLOURS = ("red", "green", "yellow", "blue")
 
 class Mode(StrEnum):
     NO_TRANSFER = "no-transfer"
+    """The release's NL: no queries, no teaching (§9.2)."""
     KT_BT = "kt-bt"
+    """The release's RL: query, answer, merge (§8)."""
+
+
+class Teaching(StrEnum):
+    """Who answers a query (§8.2)."""
+
+    RELEASE = "release"
+    """Each free knower considers only its first untaught querying neighbour (in order of
+    entry into range) and answers nobody if it cannot answer that one: the release's rule."""
+    BROADCAST = "broadcast"
+    """Any free knower in range answers the first untaught querying neighbour whose question
+    it can answer: the rule of a broadcast protocol, and ours before the release was read."""
 
 
 class _Model(BaseModel):
@@ -75,47 +90,49 @@ class Targets(_Model):
 
 
 class Arena(_Model):
-    half_size: float = Field(default=4000.0, gt=0, description="walls at x, y = ±half_size")
-    spawn_half: float = Field(default=2000.0, gt=0, description="robots and targets spawn here")
-    zone_centre: float = Field(default=2800.0, gt=0, description="zones centred at (±c, ±c)")
-    zone_outer: float = Field(default=1000.0, gt=0)
-    zone_inner: float = Field(default=800.0, gt=0)
-    obstacles: bool = Field(default=False, description="the release's 47 wall blocks")
+    """The release's arena (§2): walls at ±4000, zones at the corners (zone 4 at x = 2812),
+    robots and targets spawned in [−2000, 2000]². Only the obstacle flag is a choice."""
 
-    @model_validator(mode="after")
-    def _fits(self) -> Arena:
-        if self.spawn_half >= self.half_size or self.zone_centre + self.zone_outer / 2 > (
-            self.half_size
-        ):
-            raise ValueError("spawn area and zones must lie inside the walls")
-        if self.zone_inner > self.zone_outer:
-            raise ValueError("zone_inner must not exceed zone_outer")
-        return self
+    obstacles: bool = Field(default=False, description="the release's 47 wall segments")
 
 
 class RobotSpec(_Model):
-    body: float = Field(default=66.0, gt=0)
-    max_speed: float = Field(default=300.0, gt=0, description="units per second")
-    max_turn_deg: float = Field(default=200.0, gt=0, description="degrees per second")
-    heading_tolerance_deg: float = Field(default=5.0, ge=0, description="drives only when aligned")
-    target_sensor: float = Field(default=60.0, gt=0)
-    collision_sensor: float = Field(default=75.0, gt=0)
-    zone_sensor: float = Field(default=90.0, gt=0)
+    body: float = Field(default=66.0, gt=0, description="the body box's side (§2)")
+    contact_radius: float = Field(
+        default=36.0,
+        gt=0,
+        description="the body as a disc for contacts, the collision sensor and the comms range"
+        " (the release's body is a 66 x 66 box: 33 to 47 from its centre; spec section 12)",
+    )
+    max_speed: float = Field(default=300.0, gt=0, description="units per second (§4.1)")
+    max_turn_deg: float = Field(default=200.0, gt=0, description="degrees per second (§4.1)")
+    heading_tolerance_deg: float = Field(
+        default=5.0, ge=0, description="drives only when the heading error is below this (§4.1)"
+    )
+    target_sensor: float = Field(default=60.0, gt=0, description="sphere radius (§2, §5.1)")
+    collision_sensor: float = Field(default=75.0, gt=0, description="sphere radius (§4.6)")
+    zone_sensor: float = Field(default=90.0, gt=0, description="sphere radius (§4.5)")
+    avoid_turn_deg: tuple[int, int] = Field(
+        default=(70, 79), description="avoidance turns Σ(self − other) by U{a..b} degrees (§4.6)"
+    )
+    carry_jitter_deg: tuple[int, int] = Field(
+        default=(-5, 4), description="a carrier's aim turns by U{a..b} degrees a tick (§4.4)"
+    )
 
 
 class Timing(_Model):
-    dt: float = Field(default=0.01, gt=0, description="seconds of simulated time per iteration")
-    wait_ticks: int = Field(default=1000, ge=0, description="stopped after a query or a teach")
-    cooldown_ticks: int = Field(default=1000, ge=0, description="no sensing, asking or teaching")
+    dt: float = Field(default=0.02, gt=0, description="seconds per iteration (§1)")
+    wait_limit: int = Field(default=1000, ge=0, description="waitLimit (§7)")
+    cooldown_limit: int = Field(default=1000, ge=0, description="coolDownLimit (§7)")
+    walk_first_max_s: float = Field(
+        default=5.0, ge=0, description="the first random-walk leg lasts U(0, this) s (§4.2)"
+    )
     walk_goal_min_s: float = Field(
-        default=1.0, gt=0, description="random walk: a new goal point every U(min, max) s"
+        default=1.0, ge=0, description="later legs last U(min, max) s of random walking (§4.2)"
     )
     walk_goal_max_s: float = Field(default=5.0, gt=0)
-    repeat_every: int = Field(
-        default=10,
-        ge=0,
-        description="a waiting learner repeats its query this often, so a knower that comes"
-        " into range during the wait can teach it (the release's rule); 0: ask once",
+    walk_goal_span: int = Field(
+        default=10_000, gt=0, description="goals are integer points in [−span, span − 1]² (§4.2)"
     )
 
 
@@ -126,7 +143,16 @@ class Scenario(_Model):
     mode: Mode = Mode.KT_BT
     robots: Robots = Robots.of(0, 0, 10, 10, 10, 10)
     targets: Targets = Targets()
-    comm_range: float = Field(default=200.0, ge=0, description="who can hear whom, in units")
+    comm_range: float = Field(
+        default=200.0,
+        ge=0,
+        description="the paper's and the launcher's range (100 to 1000); the radius in units is"
+        " comm_radius (§5.3)",
+    )
+    teaching: Teaching = Field(default=Teaching.RELEASE, description="who answers (§8.2)")
+    memory_size: int = Field(
+        default=4, ge=0, description="a learner with this many known colours is not taught (§8.2)"
+    )
     iterations: int = Field(default=50_000, gt=0)
     trials: int = Field(default=20, gt=0)
     record_every: int = Field(default=10, gt=0, description="iterations between two metric rows")
@@ -142,6 +168,32 @@ class Scenario(_Model):
         if self.robots.total > 10_000:
             raise ValueError("at most 10,000 robots")
         return self
+
+    @property
+    def comm_radius(self) -> float:
+        """The communication radius in units, measured from a robot's centre to the other's
+        body: the release sets its comms sphere's local radius to the range on a robot scaled
+        by 3 (§5.3)."""
+        return 3.0 * self.comm_range + self.robot.contact_radius
+
+    @property
+    def seconds(self) -> float:
+        """Simulated seconds of the whole run."""
+        return self.iterations * self.timing.dt
+
+    def derived(self) -> dict[str, float]:
+        """The physical values the scenario's numbers stand for (``ktbt sim scenario``)."""
+        t = self.timing
+        checks = 2  # RegLearnBT and TeachBT each advance the counters once per iteration (§7)
+        return {
+            "seconds_per_iteration": t.dt,
+            "simulated_seconds": self.seconds,
+            "comm_radius_units": self.comm_radius,
+            "speed_units_per_iteration": self.robot.max_speed * t.dt,
+            "turn_deg_per_iteration": self.robot.max_turn_deg * t.dt,
+            "wait_iterations": (t.wait_limit + 2) // checks,
+            "cooldown_iterations": t.cooldown_limit // checks,
+        }
 
     def with_(self, **changes: Any) -> Scenario:
         """A copy with some fields changed, validated again (ValueError with one line)."""
@@ -226,7 +278,44 @@ def _heterogeneity() -> dict[str, Scenario]:
     }
 
 
-PRESETS: dict[str, Scenario] = {**_study_1(), **_study_2(), **_study_3(), **_heterogeneity()}
+def _calibration() -> dict[str, Scenario]:
+    """The release's two published runs (``reference/release-data``), at their size."""
+    rgyb = Robots.of(0, 0, 10, 10, 10, 10)
+    return {
+        "calibration-nl": Scenario(
+            name="calibration-nl",
+            mode=Mode.NO_TRANSFER,
+            robots=rgyb,
+            targets=Targets(red=45, green=18, yellow=19, blue=18),
+            iterations=100_000,
+        ),
+        "calibration-rl": Scenario(
+            name="calibration-rl", robots=rgyb, targets=Targets.each(100), iterations=100_000
+        ),
+    }
+
+
+def _teaching() -> dict[str, Scenario]:
+    """Our finding, not the paper's: the broadcast teaching rule beside the release's."""
+    return {
+        "ktbt-broadcast": Scenario(name="ktbt-broadcast", teaching=Teaching.BROADCAST),
+        "heterogeneity-39i1m-broadcast": Scenario(
+            name="heterogeneity-39i1m-broadcast",
+            robots=Robots.of(39, 1, 0, 0, 0, 0),
+            targets=Targets.each(100),
+            teaching=Teaching.BROADCAST,
+        ),
+    }
+
+
+PRESETS: dict[str, Scenario] = {
+    **_study_1(),
+    **_study_2(),
+    **_study_3(),
+    **_heterogeneity(),
+    **_calibration(),
+    **_teaching(),
+}
 """Every configuration of the paper's tables, by name."""
 
 

@@ -1,0 +1,179 @@
+"""What a robot senses (``release-behaviour.md`` §4.5, §4.6, §5), after every physics step.
+
+The release's sensors are trigger callbacks that fire after the physics step. Ours are the same:
+pymunk sensor shapes with begin/separate callbacks for targets and walls (only what changed costs
+anything), and one distance matrix per step for the robot-to-robot sensors (the collision sensor
+and the comms sphere), which every robot needs every step anyway.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymunk
+
+# Collision types and filter categories.
+BODY, WALL, TARGET, TARGET_SENSOR, WALL_SENSOR = 1, 2, 4, 8, 16
+
+
+class TargetSensor:
+    """The target sensor's event semantics (§5.1), for every robot.
+
+    ``tsr[i]`` is the target robot ``i`` has registered, or −1. On enter of a target still
+    lying: if sensing is on, it is registered (the most recent enter wins); if sensing is off
+    (carrying or cooling down), the registration is *cleared*. On exit of any target, the
+    registration is cleared, even if other targets are still inside. Nothing is registered again
+    while it stays inside. A picked target leaves every sensor it was in (its exit clears them).
+    """
+
+    def __init__(self, space: pymunk.Space, robots: int, targets: int) -> None:
+        self.tsr = np.full(robots, -1, dtype=np.int64)
+        self.enabled = np.ones(robots, dtype=bool)
+        """Whether each robot's sensing is on at trigger time (the world sets it every step)."""
+        self.watchers: list[set[int]] = [set() for _ in range(targets)]
+        self.changed: set[int] = set()
+        """Robots whose registration changed since the world last looked."""
+        self.robot_of: dict[pymunk.Shape, int] = {}
+        self.target_of: dict[pymunk.Shape, int] = {}
+        space.on_collision(TARGET_SENSOR, TARGET, begin=self._enter, separate=self._exit)
+
+    def _enter(self, arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+        eyes, target = arbiter.shapes
+        i, t = self.robot_of[eyes], self.target_of[target]
+        self.watchers[t].add(i)
+        self.tsr[i] = t if self.enabled[i] else -1
+        self.changed.add(i)
+
+    def _exit(self, arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+        eyes, target = arbiter.shapes
+        i, t = self.robot_of.get(eyes, -1), self.target_of.get(target, -1)
+        if i < 0 or t < 0 or i not in self.watchers[t]:  # the space is being torn down
+            return
+        self.watchers[t].discard(i)
+        self.tsr[i] = -1
+        self.changed.add(i)
+
+    def picked(self, t: int) -> None:
+        """Target ``t`` was taken away: an exit from every sensor it was in (pymunk does not
+        report a separation for a removed shape)."""
+        for i in self.watchers[t]:
+            self.tsr[i] = -1
+            self.changed.add(i)
+        self.watchers[t].clear()
+
+
+class WallSensor:
+    """The collision sensor's walls (§4.6): the segments each robot's 75-radius sphere overlaps,
+    each entering the avoidance sum through its centre."""
+
+    def __init__(self, space: pymunk.Space, robots: int) -> None:
+        self.contacts: list[dict[int, tuple[float, float]]] = [{} for _ in range(robots)]
+        self.count = np.zeros(robots, dtype=np.int64)
+        self.robot_of: dict[pymunk.Shape, int] = {}
+        self.segment_of: dict[pymunk.Shape, tuple[int, float, float]] = {}
+        self.changed: set[int] = set()
+        space.on_collision(WALL_SENSOR, WALL, begin=self._enter, separate=self._exit)
+
+    def _enter(self, arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+        bumper, wall = arbiter.shapes
+        i = self.robot_of[bumper]
+        k, x, y = self.segment_of[wall]
+        self.contacts[i][k] = (x, y)
+        self.count[i] = len(self.contacts[i])
+        self.changed.add(i)
+
+    def _exit(self, arbiter: pymunk.Arbiter, _space: pymunk.Space, _data: object) -> None:
+        bumper, wall = arbiter.shapes
+        i = self.robot_of.get(bumper, -1)
+        segment = self.segment_of.get(wall)
+        if i < 0 or segment is None:
+            return
+        self.contacts[i].pop(segment[0], None)
+        self.count[i] = len(self.contacts[i])
+        self.changed.add(i)
+
+    def away(self, i: int, x: float, y: float) -> tuple[float, float]:
+        """Σ(robot − segment centre) over the segments robot ``i``'s sensor overlaps."""
+        vx = vy = 0.0
+        for cx, cy in self.contacts[i].values():
+            vx += x - cx
+            vy += y - cy
+        return vx, vy
+
+
+class Proximity:
+    """Robot-to-robot sensing from one distance matrix a step.
+
+    - Collision sensor (§4.6): another robot counts once when the two 75-radius spheres touch
+      (centre distance below 150) and twice when its body is inside this robot's sphere (below
+      75 + the body's radius): the release lists the other's sphere and its body separately.
+    - Comms (§5.3): the neighbour list holds the robots whose body the comms sphere overlaps
+      (centre distance at most ``radius``), in order of entry; ``entered[i, j]`` is the
+      iteration at which ``j`` last came into range of ``i`` (simultaneous entries in index
+      order).
+    """
+
+    def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
+        self.n = n
+        self.touch2 = (2 * sensor) ** 2
+        self.body2 = (sensor + body) ** 2
+        self.radius2 = radius**2
+        self.comms = comms
+        self.weight = np.zeros((n, n))
+        self.count = np.zeros(n, dtype=np.int64)
+        self.in_range = np.zeros((n, n), dtype=bool)
+        self.entered = np.zeros((n, n), dtype=np.int64)
+        self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
+        """Pairs (i, j) that came into comms range in the last update."""
+        self._eye = np.eye(n, dtype=bool)
+
+    def update(self, pos: np.ndarray, iteration: int) -> None:
+        sq = np.einsum("ij,ij->i", pos, pos)
+        d2 = sq[:, None] + sq[None, :] - 2.0 * (pos @ pos.T)
+        near = d2 < self.touch2
+        near[self._eye] = False
+        inside = d2 < self.body2
+        inside &= near
+        weight = near.astype(np.float64)
+        weight += inside
+        self.weight = weight
+        self.count = near.sum(axis=1)
+        if self.comms:
+            now = d2 <= self.radius2
+            now[self._eye] = False
+            new = now & ~self.in_range
+            if new.any():
+                self.entered[new] = iteration
+                self.newly = np.argwhere(new)
+            else:
+                self.newly = np.zeros((0, 2), dtype=np.int64)
+            self.in_range = now
+
+    def away(self, pos: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Σ(self − other) over the robots each of ``rows`` senses, each counted once or twice."""
+        w = self.weight[rows]
+        return w.sum(axis=1)[:, None] * pos[rows] - w @ pos
+
+    def first(self, candidates: np.ndarray) -> np.ndarray:
+        """For each row, the earliest-entered column that ``candidates`` marks (−1: none)."""
+        big = np.iinfo(np.int64).max
+        keyed = np.where(candidates, self.entered, big)
+        pick = keyed.argmin(axis=1)
+        return np.where(candidates.any(axis=1), pick, -1)
+
+
+def zone_events(
+    pos: np.ndarray,
+    centres: np.ndarray,
+    goal: np.ndarray,
+    count_half: float,
+    place_half: float,
+    place_reach: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """For carriers at ``pos`` heading to zone ``goal`` (1..4): whether the carried cube is in
+    the zone's outer box (it counts there, §4.5) and whether the zone detector overlaps the
+    inner square (the robot may place)."""
+    c = centres[goal - 1]
+    counted = np.all(np.abs(pos - c) <= count_half, axis=1)
+    d = np.maximum(np.abs(pos - c) - place_half, 0.0)
+    inside = np.hypot(d[:, 0], d[:, 1]) <= place_reach
+    return counted, inside

@@ -1,0 +1,134 @@
+"""Knowledge transfer as the release does it (``release-behaviour.md`` §8), over real messages.
+
+Each iteration, after the behaviour trees and the actuators (§8.5):
+
+1. **Comms scan** (§8.2): every robot that is not querying and has neighbours takes as its
+   requester the first neighbour, in order of entry into range, that is querying and not yet
+   taught (none if there is none). A robot with no neighbours, or querying itself, keeps the
+   requester it had: a stale requester can still be answered.
+2. **Asking** (§8.1): a free robot (neither waiting nor cooling down) that has registered a
+   target, carries nothing and does not know the target's colour broadcasts a query
+   (``Agent.ask``) and starts a wait. A query stays answerable for the whole wait: when a robot
+   comes into range of an asker still untaught, the asker sends it the query
+   (``Agent.announce``), as if it had heard it all along.
+3. **Waits that ended** close their queries (``Agent.close_query``: a query never answered is
+   lost) and clear the querying and teaching flags (§7).
+4. **Teaching** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
+   requester answers it (``Agent.answer``) if it knows what the requester asked, the requester
+   is still untaught and knows fewer colours than the memory size. It answers nobody else, even
+   a later neighbour it could answer. The learner's agent checks and merges the answer
+   (``Agent.receive``); a taught learner is skipped by every later teacher, so there is exactly
+   one teacher per query. The teacher then waits and cools down; the learner keeps waiting for
+   the rest of its wait.
+
+The ``broadcast`` teaching rule differs only in step 1: a teacher's requester is the first
+untaught querying neighbour whose question it can answer.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import robot as rb
+from .scenario import Teaching
+
+if TYPE_CHECKING:
+    from .world import World
+
+
+def step(world: World, t: int) -> None:
+    _scan(world)
+    _ask(world, t)
+    _close(world, 2 * t + 1)
+    _teach(world, t)
+
+
+def _scan(world: World) -> None:
+    """Step 1, the comms scan: every teacher's ``requestingRobot``."""
+    prox = world.proximity
+    has_neighbours = prox.in_range.any(axis=1)
+    scans = has_neighbours & ~world.querying
+    open_ = world.querying & ~world.taught
+    if not open_.any():
+        world.requester[scans] = -1
+        return
+    candidates = prox.in_range & open_[None, :]
+    if world.scenario.teaching is Teaching.BROADCAST:
+        asked = np.where(open_, world.asked - 1, 0)
+        candidates &= world.known[:, asked]
+    first = prox.first(candidates)
+    world.requester[scans] = first[scans]
+
+
+def _ask(world: World, t: int) -> None:
+    """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
+    tsr = world.sensor.tsr
+    free = ~world.timers.busy(2 * t + 1)
+    ask = free & (tsr >= 0) & (world.carrying < 0) & ~world.teaching
+    if not ask.any():
+        return
+    colours = world.target_colour[np.where(tsr >= 0, tsr, 0)]
+    unknown = ~world.known[np.arange(world.n), colours - 1]
+    for i in np.flatnonzero(ask & unknown).tolist():
+        colour = int(colours[i])
+        world.agents[i].ask(rb.sequence(colour))
+        world.queries += 1
+        world.asked[i] = colour
+        world.querying[i] = True
+        world.taught[i] = False
+        world.walk_flag[i] = False
+        world.timers.start(i, 2 * t + 1)
+
+
+def _close(world: World, call: int) -> None:
+    """Step 3: waits that ended by counter call ``call`` clear their flags."""
+    ended = world.timers.wait_end <= call
+    done = world.querying & ended
+    if done.any():
+        for i in np.flatnonzero(done).tolist():
+            world.agents[i].close_query()
+        world.querying[done] = False
+    world.teaching &= ~ended
+
+
+def _teach(world: World, t: int) -> None:
+    """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
+    free = ~world.timers.busy(2 * t + 2)
+    can = free & ~world.querying & (world.requester >= 0) & (world.carrying < 0)
+    if not can.any():
+        return
+    memory = world.scenario.memory_size
+    for teacher in np.flatnonzero(can).tolist():
+        learner = int(world.requester[teacher])
+        if not world.querying[learner] or world.taught[learner]:
+            continue
+        colour = int(world.asked[learner])
+        if not world.known[teacher, colour - 1] or world.known[learner].sum() >= memory:
+            continue
+        world.agents[teacher].receive()
+        query = world.agents[teacher].heard(world.names[learner])
+        asked = world.agents[learner].open_query
+        if query is None or asked is None or query.id != asked.id:
+            continue  # never heard this question
+        if not world.agents[teacher].answer(query):
+            continue
+        world.responses += 1
+        world.teaching[teacher] = True
+        world.walk_flag[teacher] = False
+        world.timers.start(teacher, 2 * t + 2)
+        if world.agents[learner].receive():
+            world.learned += 1
+            world.taught[learner] = True
+            world.known[learner, colour - 1] = True
+
+
+def came_into_range(world: World, pairs: np.ndarray) -> None:
+    """Askers still untaught send their query to each robot that just came into range."""
+    open_ = world.querying & ~world.taught
+    if not open_.any():
+        return
+    for i, j in pairs.tolist():
+        if open_[i]:
+            world.agents[i].announce(world.names[j])

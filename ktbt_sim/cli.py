@@ -187,12 +187,13 @@ def list_command() -> None:
 def scenario_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")],
 ) -> None:
-    """Print a scenario as JSON (a starting point for a file of your own), then the physical
-    values its numbers stand for in the release (radius in units, seconds per iteration)."""
+    """Print a scenario as JSON (a starting point for a file of your own) and, on standard
+    error, the physical values its numbers stand for in the release (radius in units, seconds
+    per iteration), so that the output stays a file one can save."""
     for scenario in _scenarios(target, None, None, None):
         typer.echo(scenario.dump())
         for key, value in scenario.derived().items():
-            typer.echo(f"# {key}: {value:g}")
+            typer.echo(f"# {key}: {value:g}", err=True)
 
 
 @sim.command("view")

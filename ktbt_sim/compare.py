@@ -59,7 +59,7 @@ class Line:
     def holds(self) -> bool:
         a, b = self.ours[0], self.theirs[0]
         if math.isnan(a) or math.isnan(b):
-            return False
+            return math.isnan(a) and math.isnan(b)  # neither run got there
         if self.tolerance.endswith("%"):
             return abs(a - b) <= abs(b) * float(self.tolerance[:-1]) / 100.0
         return abs(a - b) <= float(self.tolerance)

@@ -40,6 +40,16 @@ STUDIES: dict[str, tuple[str, ...]] = {
 }
 """The paper's studies by name, each a list of presets (``range`` includes BL1 to compare)."""
 STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name in study))
+STUDIES["calibration"] = ("calibration-nl", "calibration-rl")
+"""The release's two published runs, at their size (100,000 iterations): ``ktbt sim compare``
+holds ours against its data."""
+STUDIES["teaching"] = (
+    "ktbt",
+    "ktbt-broadcast",
+    "heterogeneity-39i1m",
+    "heterogeneity-39i1m-broadcast",
+)
+"""Our finding, not the paper's: the release's first-requester rule against a broadcast rule."""
 
 Rows = dict[str, list[int]]
 

@@ -69,7 +69,7 @@ def _ask(world: World, t: int) -> None:
     ask = free & (tsr >= 0) & (world.carrying < 0) & ~world.teaching
     if not ask.any():
         return
-    colours = world.target_colour[np.where(tsr >= 0, tsr, 0)]
+    colours = world.colour_of[tsr]
     unknown = ~world.known[np.arange(world.n), colours - 1]
     for i in np.flatnonzero(ask & unknown).tolist():
         colour = int(colours[i])

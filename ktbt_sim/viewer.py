@@ -20,8 +20,8 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import numpy as np
 import pygame
 
-from . import robot as rb
-from .world import TARGET_RADIUS, World
+from . import geometry
+from .world import World
 
 RGB = tuple[int, int, int]
 
@@ -88,7 +88,7 @@ def light_colour(world: World, i: int) -> RGB | None:
         return LIGHT_TEACHING
     if world.querying[i]:
         return LIGHT_QUERYING
-    if world.mode[i] == rb.WALK and world.carrying[i] < 0:
+    if world.walk_flag[i] and world.carrying[i] < 0:
         return LIGHT_WALKING
     return None
 
@@ -118,7 +118,7 @@ class Viewer:
             raise ValueError(f"size must be at least 64 pixels, not {size}")
         self.world = world
         self.size = size
-        self.half = float(world.scenario.arena.half_size)
+        self.half = geometry.HALF
         self.margin = max(4, size // 80)
         self.scale = (size - 2 * self.margin) / (2 * self.half)
         """Pixels per world unit."""
@@ -175,15 +175,16 @@ class Viewer:
         pygame.draw.rect(surface, WALL, floor, width=max(2, round(10 * self.scale)))
 
     def _zones(self, surface: pygame.Surface) -> None:
-        arena = self.world.scenario.arena
-        for colour, (cx, cy) in zip(ZONE_RGB, self.world._zone_centre, strict=True):
+        outer, inner = geometry.ZONE_OUTER, geometry.ZONE_INNER
+        for colour, (cx, cy) in zip(ZONE_RGB, self.world.zone_centres, strict=True):
             x, y = float(cx), float(cy)
-            surface.fill(_blend(colour, FLOOR, ZONE_TINT), self._square(x, y, arena.zone_outer))
-            surface.fill(colour, self._square(x, y, arena.zone_inner))
+            surface.fill(_blend(colour, FLOOR, ZONE_TINT), self._square(x, y, outer))
+            surface.fill(colour, self._square(x, y, inner))
 
     def _obstacles(self, surface: pygame.Surface) -> None:
-        for x0, y0, x1, y1 in self.world.obstacles:
-            surface.fill(OBSTACLE, self._rect(x0, y0, x1, y1))
+        for corners in self.world.obstacles:
+            points = [self.to_screen(x, y) for x, y in corners]
+            pygame.draw.polygon(surface, OBSTACLE, points)
 
     def _targets(self, surface: pygame.Surface) -> None:
         world = self.world
@@ -197,7 +198,7 @@ class Viewer:
     def target_side(self) -> float:
         """Side of a target's square in world units, at least 3 pixels so a target stays visible
         in a small window."""
-        return max(3 / self.scale, 2 * TARGET_RADIUS)
+        return max(3 / self.scale, geometry.TARGET_SIZE)
 
     def carried_at(self, i: int) -> tuple[float, float]:
         """World point where robot ``i``'s carried target is drawn: just ahead of the body, as

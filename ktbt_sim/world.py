@@ -91,6 +91,8 @@ class World:
         half = geometry.SPAWN_HALF
         self.target_pos = self.rng.uniform(-half, half, (len(self.target_colour), 2))
         self.target_free = np.ones(len(self.target_colour), dtype=bool)
+        self.colour_of = np.append(self.target_colour, 0)
+        """Colour of target ``t``, and 0 at index −1 (no target registered)."""
         self.counted = np.zeros(len(self.target_colour), dtype=bool)
         self.sensor = TargetSensor(self.space, n, len(self.target_colour))
         self.wall_sensor = WallSensor(self.space, n)
@@ -260,8 +262,7 @@ class World:
         """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in
         its zone, the registered target's colour, the colours it knows."""
         waiting = self.timers.waiting(2 * self.iteration)
-        tsr = self.sensor.tsr
-        seen = np.where(tsr >= 0, self.target_colour[tsr], 0)
+        seen = self.colour_of[self.sensor.tsr]
         return (
             self.collision.astype(np.int64)
             | waiting << 1

@@ -126,6 +126,7 @@ def test_sim_list_and_scenario_print_what_a_user_can_run(tmp_path: Path) -> None
     path = tmp_path / "mine.json"
     path.write_text(shown.stdout)
     assert Scenario.load(path).comm_range == 500.0
+    assert "# comm_radius_units: 1536" in shown.stderr  # 3 x 500 + the body, in units
 
 
 def test_sim_view_records_frames_headless(tmp_path: Path) -> None:

@@ -26,9 +26,10 @@ def test_presets_follow_the_papers_tables() -> None:
         1000,
     ]
     assert preset("range-500").robots.label() == "39I-1M"
-    for scenario in PRESETS.values():
+    for name, scenario in PRESETS.items():
         assert scenario.robots.total == 40  # the paper keeps 40 robots in every study
-        assert (scenario.iterations, scenario.trials, scenario.timing.dt) == (50_000, 20, 0.01)
+        iterations = 100_000 if name.startswith("calibration") else 50_000
+        assert (scenario.iterations, scenario.trials, scenario.timing.dt) == (iterations, 20, 0.02)
     with pytest.raises(ValueError, match="no preset 'nope'"):
         preset("nope")
 
@@ -53,7 +54,18 @@ def test_files_round_trip_and_errors_name_the_field(tmp_path: Path) -> None:
         Scenario.load(bad)
     with pytest.raises(ValueError, match="at least one robot"):
         Scenario(robots=Robots())
-    with pytest.raises(ValueError, match="inside the walls"):
-        preset("ktbt").with_(arena={"half_size": 1000})
+    with pytest.raises(ValueError, match="half_size"):
+        preset("ktbt").with_(arena={"half_size": 1000})  # the release's arena is fixed
     with pytest.raises(ValueError):
         Scenario.load(tmp_path / "missing.toml")
+
+
+def test_a_scenario_names_the_physical_values_of_its_numbers() -> None:
+    """The paper's range 200 is a 636-unit radius in the release (3 x 200 to the other's
+    body); one iteration is 0.02 s; the counters give 501 and 500 iterations (§5.3, §1, §7)."""
+    derived = preset("range-200").derived()
+    assert derived["comm_radius_units"] == 3 * 200 + 36
+    assert derived["seconds_per_iteration"] == 0.02
+    assert derived["simulated_seconds"] == 1000.0
+    assert (derived["wait_iterations"], derived["cooldown_iterations"]) == (501, 500)
+    assert preset("calibration-nl").targets == Targets(red=45, green=18, yellow=19, blue=18)

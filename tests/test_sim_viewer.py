@@ -10,7 +10,7 @@ import pygame
 import pytest
 from PIL import Image
 
-from ktbt_sim import robot as rb
+from ktbt_sim import geometry
 from ktbt_sim.scenario import preset
 from ktbt_sim.viewer import (
     BACKGROUND,
@@ -68,22 +68,21 @@ def test_zones_floor_and_background_have_their_colours(world: World) -> None:
     viewer = Viewer(world, SIZE)
     surface = viewer.draw()
     assert surface.get_size() == (SIZE, SIZE)
-    for colour, (cx, cy) in zip(ZONE_RGB, world._zone_centre, strict=True):
+    for colour, (cx, cy) in zip(ZONE_RGB, world.zone_centres, strict=True):
         assert pixel(surface, viewer.to_screen(cx, cy)) == colour
-    h = world.scenario.arena.half_size
+    h = geometry.HALF
     assert pixel(surface, (SIZE - 1, SIZE - 1)) == BACKGROUND  # outside the walls
     assert pixel(surface, viewer.to_screen(0.0, h - 300)) == FLOOR  # between the top zones
     # The outer ring of a zone is tinted, lighter than the zone itself.
-    arena = world.scenario.arena
-    ring = (arena.zone_inner + arena.zone_outer) / 4
-    cx, cy = world._zone_centre[0]
+    ring = (geometry.ZONE_INNER + geometry.ZONE_OUTER) / 4
+    cx, cy = world.zone_centres[0]
     tinted = pixel(surface, viewer.to_screen(cx + ring, cy))
     assert tinted not in (FLOOR, ZONE_RGB[0]) and tinted[0] > tinted[1]
 
 
 def test_world_y_points_up_on_screen(world: World) -> None:
     viewer = Viewer(world, SIZE)
-    h = world.scenario.arena.half_size
+    h = geometry.HALF
     assert viewer.to_screen(-h, h)[1] < viewer.to_screen(-h, -h)[1]
     assert viewer.to_screen(-h, 0)[0] < viewer.to_screen(h, 0)[0]
     left, top = viewer.to_screen(-h, h)
@@ -115,42 +114,42 @@ def test_status_lights_follow_the_robots_state(world: World) -> None:
     viewer = Viewer(world, SIZE)
     i = lone_robot(world, viewer)
     at = viewer.to_screen(*world.pos[i])
-    saved = (world.mode[i], world.querying[i], world.teaching[i])
+    saved = (world.walk_flag[i], world.querying[i], world.teaching[i])
     try:
-        world.mode[i], world.querying[i], world.teaching[i] = rb.STOP, False, False
+        world.walk_flag[i], world.querying[i], world.teaching[i] = False, False, False
         assert pixel(viewer.draw(), at) == ROBOT  # no light
         world.querying[i] = True
         assert pixel(render(world, SIZE), at) == LIGHT_QUERYING
         world.teaching[i] = True
         assert pixel(viewer.draw(), at) == LIGHT_TEACHING
         world.querying[i] = world.teaching[i] = False
-        world.mode[i] = rb.WALK
+        world.walk_flag[i] = True
         assert pixel(viewer.draw(), at) == LIGHT_WALKING
     finally:
-        world.mode[i], world.querying[i], world.teaching[i] = saved
+        world.walk_flag[i], world.querying[i], world.teaching[i] = saved
 
 
 def test_a_carrying_robot_shows_its_target_and_no_walking_light(world: World) -> None:
     viewer = Viewer(world, SIZE)
     i = lone_robot(world, viewer)
     at = viewer.to_screen(*world.pos[i])
-    saved = (world.mode[i], world.carrying[i])
+    saved = (world.walk_flag[i], world.carrying[i])
     t = int(np.flatnonzero(world.target_colour == 4)[0])
     try:
-        world.mode[i], world.carrying[i] = rb.WALK, t
+        world.walk_flag[i], world.carrying[i] = True, t
         surface = viewer.draw()
         assert pixel(surface, at) == ROBOT  # walking, but not at random: no light
         assert pixel(surface, viewer.to_screen(*viewer.carried_at(i))) == ZONE_RGB[3]
     finally:
-        world.mode[i], world.carrying[i] = saved
+        world.walk_flag[i], world.carrying[i] = saved
 
 
 def test_obstacles_are_drawn() -> None:
     world = World(preset("ktbt-obstacles").with_(iterations=100), seed=1)
     viewer = Viewer(world, SIZE)
     surface = viewer.draw()
-    x0, y0, x1, y1 = world.obstacles[0]
-    assert pixel(surface, viewer.to_screen((x0 + x1) / 2, (y0 + y1) / 2)) == OBSTACLE
+    x, y, _angle = world.walls[160]  # the first obstacle segment, after the perimeter's
+    assert pixel(surface, viewer.to_screen(x, y)) == OBSTACLE
 
 
 def test_counters_report_progress_and_knowledge_levels(world: World) -> None:

@@ -28,27 +28,30 @@ class Actuator:
 
     def __call__(self, rv: np.ndarray, heading: np.ndarray, out: np.ndarray) -> None:
         """Write each robot's velocity into ``out`` (n, 2) and turn ``heading`` in place."""
-        norm = np.hypot(rv[:, 0], rv[:, 1])
-        safe = np.where(norm > 0.0, norm, 1.0)
-        ux = rv[:, 0] / safe
-        uy = rv[:, 1] / safe
-        want = np.arctan2(uy, ux + BIAS)
+        x, y = rv[:, 0], rv[:, 1]
+        norm = np.hypot(x, y)
+        want = np.arctan2(y, x + BIAS * norm)  # the angle of unit(rv) + (BIAS, 0)
         error = want - heading
         error += math.pi
         error %= 2 * math.pi
         error -= math.pi
         aligned = np.abs(error) < self.tolerance
-        np.multiply(ux, aligned * self.speed, out=out[:, 0])
-        np.multiply(uy, aligned * self.speed, out=out[:, 1])
-        turning = ~aligned
-        heading += np.clip(error, -self.turn, self.turn) * turning
+        gain = aligned * self.speed
+        gain /= np.where(norm > 0.0, norm, 1.0)
+        np.multiply(rv, gain[:, None], out=out)
+        aligned ^= True
+        heading += np.clip(error, -self.turn, self.turn) * aligned
+
+
+_TURNS = np.exp(1j * np.radians(np.arange(-360, 361)))
+"""The unit rotation of every whole degree from −360 to 360, as a complex number."""
 
 
 def rotate(v: np.ndarray, degrees: np.ndarray) -> np.ndarray:
-    """Rotate each row of ``v`` (k, 2) counter-clockwise by its angle in degrees."""
-    a = np.radians(degrees)
-    c, s = np.cos(a), np.sin(a)
-    return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]), axis=1)
+    """Rotate each row of ``v`` (k, 2) counter-clockwise by its whole number of degrees: a
+    vector as a complex number times a looked-up unit rotation."""
+    z = np.ascontiguousarray(v).view(np.complex128)[:, 0] * _TURNS[degrees + 360]
+    return z.view(np.float64).reshape(-1, 2)
 
 
 def random_goals(rng: np.random.Generator, k: int, span: int) -> np.ndarray:

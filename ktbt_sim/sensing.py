@@ -124,29 +124,31 @@ class Proximity:
         self.entered = np.zeros((n, n), dtype=np.int64)
         self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
         """Pairs (i, j) that came into comms range in the last update."""
-        self._eye = np.eye(n, dtype=bool)
+        self.has_neighbours = np.zeros(n, dtype=bool)
+        self._none = self.newly
 
     def update(self, pos: np.ndarray, iteration: int) -> None:
-        sq = np.einsum("ij,ij->i", pos, pos)
-        d2 = sq[:, None] + sq[None, :] - 2.0 * (pos @ pos.T)
+        x, y = pos[:, 0], pos[:, 1]
+        dx = x[:, None] - x
+        dy = y[:, None] - y
+        d2 = dx * dx
+        d2 += dy * dy
+        np.fill_diagonal(d2, np.inf)
         near = d2 < self.touch2
-        near[self._eye] = False
-        inside = d2 < self.body2
-        inside &= near
         weight = near.astype(np.float64)
-        weight += inside
+        weight += d2 < self.body2  # a body inside the sphere is inside the other sphere too
         self.weight = weight
         self.count = near.sum(axis=1)
         if self.comms:
             now = d2 <= self.radius2
-            now[self._eye] = False
-            new = now & ~self.in_range
+            new = now > self.in_range
             if new.any():
                 self.entered[new] = iteration
                 self.newly = np.argwhere(new)
             else:
-                self.newly = np.zeros((0, 2), dtype=np.int64)
+                self.newly = self._none
             self.in_range = now
+            self.has_neighbours = now.any(axis=1)
 
     def away(self, pos: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Σ(self − other) over the robots each of ``rows`` senses, each counted once or twice."""

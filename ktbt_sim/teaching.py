@@ -48,8 +48,7 @@ def step(world: World, t: int) -> None:
 def _scan(world: World) -> None:
     """Step 1, the comms scan: every teacher's ``requestingRobot``."""
     prox = world.proximity
-    has_neighbours = prox.in_range.any(axis=1)
-    scans = has_neighbours & ~world.querying
+    scans = prox.has_neighbours & ~world.querying
     open_ = world.querying & ~world.taught
     if not open_.any():
         world.requester[scans] = -1
@@ -65,8 +64,11 @@ def _scan(world: World) -> None:
 def _ask(world: World, t: int) -> None:
     """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
     tsr = world.sensor.tsr
-    free = ~world.timers.busy(2 * t + 1)
-    ask = free & (tsr >= 0) & (world.carrying < 0) & ~world.teaching
+    ask = tsr >= 0
+    if not ask.any():
+        return
+    ask &= ~world.timers.busy(2 * t + 1)
+    ask &= world.carrying < 0
     if not ask.any():
         return
     colours = world.colour_of[tsr]
@@ -84,6 +86,9 @@ def _ask(world: World, t: int) -> None:
 
 def _close(world: World, call: int) -> None:
     """Step 3: waits that ended by counter call ``call`` clear their flags."""
+    active = world.querying | world.teaching
+    if not active.any():
+        return
     ended = world.timers.wait_end <= call
     done = world.querying & ended
     if done.any():
@@ -95,8 +100,12 @@ def _close(world: World, call: int) -> None:
 
 def _teach(world: World, t: int) -> None:
     """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
-    free = ~world.timers.busy(2 * t + 2)
-    can = free & ~world.querying & (world.requester >= 0) & (world.carrying < 0)
+    can = world.requester >= 0
+    if not can.any():
+        return
+    can &= ~world.timers.busy(2 * t + 2)
+    can &= ~world.querying
+    can &= world.carrying < 0
     if not can.any():
         return
     memory = world.scenario.memory_size

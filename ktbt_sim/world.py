@@ -309,29 +309,30 @@ class World:
         """Every behaviour writes its robot's resultant velocity, then the actuators act."""
         mode, rv, rng = self.mode, self.rv, self.rng
         spec, timing = self.scenario.robot, self.scenario.timing
-        walking = mode == rb.WALK
-        if walking.any():
-            self.walk_flag |= walking
-            self.walk_time[walking] += self.dt
-            due = walking & (self.walk_time > self.walk_span)
-            if due.any():
-                k = int(due.sum())
+        present = np.bincount(mode, minlength=5)
+        if present[rb.WALK]:
+            rows = np.flatnonzero(mode == rb.WALK)
+            self.walk_flag[rows] = True
+            elapsed = self.walk_time[rows] + self.dt
+            over = elapsed > self.walk_span[rows]
+            if over.any():
+                due = rows[over]
+                k = len(due)
                 rv[due] = motion.random_goals(rng, k, timing.walk_goal_span) - self.pos[due]
-                self.walk_time[due] = 0.0
+                elapsed[over] = 0.0
                 self.walk_span[due] = rng.uniform(timing.walk_goal_min_s, timing.walk_goal_max_s, k)
-        still = mode == rb.STOP
-        if still.any():
-            rv[still] = 0.0
-            self.walk_flag[still] = False
-        carrying = mode == rb.TO_ZONE
-        if carrying.any():
-            self.walk_flag[carrying] = False
-            rows = np.flatnonzero(carrying)
+            self.walk_time[rows] = elapsed
+        if present[rb.STOP]:
+            rows = np.flatnonzero(mode == rb.STOP)
+            rv[rows] = 0.0
+            self.walk_flag[rows] = False
+        if present[rb.TO_ZONE]:
+            rows = np.flatnonzero(mode == rb.TO_ZONE)
+            self.walk_flag[rows] = False
             to_zone = self.zone_centres[self.goal[rows] - 1] - self.pos[rows]
             rv[rows] = motion.carry_aim(rng, to_zone, spec.carry_jitter_deg)
-        avoiding = mode == rb.AVOID
-        if avoiding.any():
-            rows = np.flatnonzero(avoiding)
+        if present[rb.AVOID]:
+            rows = np.flatnonzero(mode == rb.AVOID)
             away = self.proximity.away(self.pos, rows)
             walls = self.wall_sensor
             for k, i in enumerate(rows.tolist()):

@@ -37,13 +37,7 @@ def world(robots: int, seed: int = 0) -> World:
     (its authors kept 40 robots "to maintain sufficient space for movement")."""
     k = robots // 40
     side = math.sqrt(k)
-    arena = Arena(
-        half_size=4000 * side,
-        spawn_half=2000 * side,
-        zone_centre=2800 * side,
-        zone_outer=1000 * side,
-        zone_inner=800 * side,
-    )
+    arena = Arena(scale=side)
     scenario = preset("ktbt").with_(
         name=f"bench-{robots}",
         robots=Robots.of(0, 0, 10 * k, 10 * k, 10 * k, 10 * k),

@@ -86,9 +86,7 @@ def lines(ours: Results, theirs: Results) -> list[Line]:
         def t(r: Results, f: float = fraction) -> np.ndarray:
             return metrics.t_fraction(r["collected"], r.total_targets, r.iterations, f)
 
-        out.append(
-            Line(f"iterations to {fraction:.0%}", _stats(t(ours)), _stats(t(theirs)), "10%")
-        )
+        out.append(Line(f"iterations to {fraction:.0%}", _stats(t(ours)), _stats(t(theirs)), "10%"))
     if ours.scenario.mode.value != "no-transfer" or theirs.scenario.mode.value != "no-transfer":
         for column, label in (("queries", "queries"), ("responses", "answers")):
             out.append(
@@ -131,7 +129,9 @@ def table(rows: list[Line], ours: str = "ours", theirs: str = "release") -> str:
     for r in rows:
         diff = "" if math.isnan(r.difference) else f"{r.difference:+.1f} %"
         mark = "yes" if r.holds else "**no**"
-        out.append(f"| {r.name} | {cell(r.ours)} | {cell(r.theirs)} | {diff} | {r.tolerance}: {mark} |")
+        out.append(
+            f"| {r.name} | {cell(r.ours)} | {cell(r.theirs)} | {diff} | {r.tolerance}: {mark} |"
+        )
     return "\n".join(out)
 
 
@@ -146,7 +146,14 @@ def figure(ours: Results, theirs: Results, labels: tuple[str, str] = ("ours", "r
         ((ours, labels[0]), (theirs, labels[1])), styles, strict=True
     ):
         n = len(res.trials)
-        _band(axes[0], res.iterations, metrics.percent_collected(res), f"{label} (n={n})", colour, style)
+        _band(
+            axes[0],
+            res.iterations,
+            metrics.percent_collected(res),
+            f"{label} (n={n})",
+            colour,
+            style,
+        )
         if transfer:
             _band(axes[1], res.iterations, res["queries"], f"{label}: queries", colour, style)
             _band(axes[1], res.iterations, res["responses"], f"{label}: answers", colour, ":")
@@ -160,13 +167,15 @@ def figure(ours: Results, theirs: Results, labels: tuple[str, str] = ("ours", "r
         axes[1].legend(fontsize="small")
         axes[2].set(xlabel="iterations", ylabel="robots (dashed: release)")
         axes[2].legend(fontsize="small")
-    fig.suptitle(f"{ours.scenario.name} against {theirs.scenario.name} (mean ± 1 s.d.)",
-                 fontsize="medium")
+    fig.suptitle(
+        f"{ours.scenario.name} against {theirs.scenario.name} (mean ± 1 s.d.)", fontsize="medium"
+    )
     return fig
 
 
-def _band(ax: object, x: np.ndarray, y: np.ndarray, label: str | None, colour: str,
-          style: str) -> None:
+def _band(
+    ax: object, x: np.ndarray, y: np.ndarray, label: str | None, colour: str, style: str
+) -> None:
     from matplotlib.axes import Axes
 
     assert isinstance(ax, Axes)

@@ -14,9 +14,9 @@ HALF = 4000.0
 """Centre line of the perimeter walls: x, y = ±4000 (§2)."""
 SEGMENT_LENGTH = 200.0
 SEGMENT_THICKNESS = 40.0
-"""Every wall, perimeter or obstacle, is a chain of 200 × 40 box segments (§2)."""
+"""Every wall, perimeter or obstacle, is a chain of 200 x 40 box segments (§2)."""
 SPAWN_HALF = 2000.0
-"""Robots and targets are placed uniformly in [−2000, 2000]², without rejection (§3)."""
+"""Robots and targets are placed uniformly in [-2000, 2000]², without rejection (§3)."""
 TARGET_SIZE = 20.0
 """A target is a 20-unit cube (§2)."""
 
@@ -49,24 +49,37 @@ OBSTACLES: tuple[tuple[float, float, float], ...] = (
 """The 47 obstacle segments: centre (x, y) and the angle of the long axis in degrees (§2)."""
 
 
-def perimeter() -> list[tuple[float, float, float]]:
-    """The 160 perimeter segments: 40 per wall, centred at −3900, −3700, …, 3900 along it."""
-    along = [-3900.0 + 200.0 * k for k in range(40)]
-    out: list[tuple[float, float, float]] = []
-    for c in along:
-        out += [(c, HALF, 0.0), (c, -HALF, 0.0), (HALF, c, 90.0), (-HALF, c, 90.0)]
+Segment = tuple[float, float, float, float]
+"""A wall segment: centre x, y, the angle of its long axis in degrees, its length."""
+
+
+def perimeter(scale: float = 1.0) -> list[Segment]:
+    """The perimeter segments: at scale 1, 40 a wall centred at -3900, -3700, …, 3900 along it
+    (§2). A scaled arena keeps as many 200-long segments as fit, stretched to close the wall."""
+    half = HALF * scale
+    count = max(1, round(2 * half / SEGMENT_LENGTH))
+    length = 2 * half / count
+    out: list[Segment] = []
+    for k in range(count):
+        c = -half + length * (k + 0.5)
+        out += [(c, half, 0.0, length), (c, -half, 0.0, length)]
+        out += [(half, c, 90.0, length), (-half, c, 90.0, length)]
     return out
 
 
-def segments(obstacles: bool) -> list[tuple[float, float, float]]:
-    """Every wall segment of an arena, perimeter first."""
-    return perimeter() + (list(OBSTACLES) if obstacles else [])
+def segments(obstacles: bool, scale: float = 1.0) -> list[Segment]:
+    """Every wall segment of an arena, perimeter first; obstacle centres scale with the arena,
+    their size does not."""
+    blocks = [(x * scale, y * scale, a, SEGMENT_LENGTH) for x, y, a in OBSTACLES]
+    return perimeter(scale) + (blocks if obstacles else [])
 
 
-def corners(x: float, y: float, angle_deg: float) -> list[tuple[float, float]]:
+def corners(
+    x: float, y: float, angle_deg: float, length: float = SEGMENT_LENGTH
+) -> list[tuple[float, float]]:
     """The four corners of the segment centred at (x, y) with its long axis at ``angle_deg``."""
     a = math.radians(angle_deg)
-    ux, uy = math.cos(a) * SEGMENT_LENGTH / 2, math.sin(a) * SEGMENT_LENGTH / 2
+    ux, uy = math.cos(a) * length / 2, math.sin(a) * length / 2
     vx, vy = -math.sin(a) * SEGMENT_THICKNESS / 2, math.cos(a) * SEGMENT_THICKNESS / 2
     return [(x + sx * ux + tx * vx, y + sx * uy + tx * vy) for sx, tx in SQUARE]
 
@@ -74,5 +87,5 @@ def corners(x: float, y: float, angle_deg: float) -> list[tuple[float, float]]:
 SQUARE = ((-1, -1), (1, -1), (1, 1), (-1, 1))
 
 
-def zone_centres() -> np.ndarray:
-    return np.array(ZONE_CENTRES)
+def zone_centres(scale: float = 1.0) -> np.ndarray:
+    return np.array(ZONE_CENTRES) * scale

@@ -44,33 +44,32 @@ class Actuator:
 
 
 _TURNS = np.exp(1j * np.radians(np.arange(-360, 361)))
-"""The unit rotation of every whole degree from −360 to 360, as a complex number."""
+"""The unit rotation of every whole degree from -360 to 360, as a complex number."""
 
 
 def rotate(v: np.ndarray, degrees: np.ndarray) -> np.ndarray:
     """Rotate each row of ``v`` (k, 2) counter-clockwise by its whole number of degrees: a
     vector as a complex number times a looked-up unit rotation."""
     z = np.ascontiguousarray(v).view(np.complex128)[:, 0] * _TURNS[degrees + 360]
-    return z.view(np.float64).reshape(-1, 2)
+    out: np.ndarray = z.view(np.float64).reshape(-1, 2)
+    return out
 
 
 def random_goals(rng: np.random.Generator, k: int, span: int) -> np.ndarray:
     """``RandomWalk``'s new goals: integer points with each coordinate ``Range(-span, span)``,
-    i.e. uniform in [−span, span − 1], far outside the arena (§4.2)."""
+    i.e. uniform in [-span, span - 1], far outside the arena (§4.2)."""
     return rng.integers(-span, span, size=(k, 2)).astype(np.float64)
 
 
-def carry_aim(
-    rng: np.random.Generator, to_zone: np.ndarray, jitter: tuple[int, int]
-) -> np.ndarray:
+def carry_aim(rng: np.random.Generator, to_zone: np.ndarray, jitter: tuple[int, int]) -> np.ndarray:
     """``WalkToCollection`` (§4.4): aim at the zone's centre, turned by an integer angle drawn
-    every tick from ``jitter`` (the release's {−5, …, 4} degrees)."""
+    every tick from ``jitter`` (the release's {-5, …, 4} degrees)."""
     angles = rng.integers(jitter[0], jitter[1] + 1, size=len(to_zone))
     return rotate(to_zone, angles)
 
 
 def avoidance(rng: np.random.Generator, away: np.ndarray, turn: tuple[int, int]) -> np.ndarray:
-    """``CollisionAvoidance`` (§4.6): Σ(self − collider), turned counter-clockwise by an integer
+    """``CollisionAvoidance`` (§4.6): Σ(self - collider), turned counter-clockwise by an integer
     angle drawn every tick from ``turn`` (the release's {70, …, 79} degrees): mostly sideways,
     always the same way."""
     angles = rng.integers(turn[0], turn[1] + 1, size=len(away))

@@ -2,7 +2,7 @@
 
 Ours (``COLUMNS``), every ``record_every`` iterations: targets collected per colour; robots now
 querying, teaching, with the random-walk flag, carrying, avoiding, waiting, cooling down; the
-cumulative queries, responses, queries lost (queries − responses, the release's definition),
+cumulative queries, responses, queries lost (queries - responses, the release's definition),
 deliveries and learns (direct, buffered, passive); robots knowing exactly k colours, robots
 knowing each colour, and robots per exact set of colours (``set_RG``: exactly red and green).
 

@@ -91,9 +91,16 @@ class Targets(_Model):
 
 class Arena(_Model):
     """The release's arena (§2): walls at ±4000, zones at the corners (zone 4 at x = 2812),
-    robots and targets spawned in [−2000, 2000]². Only the obstacle flag is a choice."""
+    robots and targets spawned in [-2000, 2000]². Only the obstacle flag is a choice."""
 
     obstacles: bool = Field(default=False, description="the release's 47 wall segments")
+    scale: float = Field(
+        default=1.0,
+        ge=1.0,
+        description="every length of the arena (walls, zones, spawn square, obstacle centres)"
+        " times this; 1 is the release's arena. For groups larger than the paper's 40 robots"
+        " at the same density (benchmarks)",
+    )
 
 
 class RobotSpec(_Model):
@@ -113,7 +120,7 @@ class RobotSpec(_Model):
     collision_sensor: float = Field(default=75.0, gt=0, description="sphere radius (§4.6)")
     zone_sensor: float = Field(default=90.0, gt=0, description="sphere radius (§4.5)")
     avoid_turn_deg: tuple[int, int] = Field(
-        default=(70, 79), description="avoidance turns Σ(self − other) by U{a..b} degrees (§4.6)"
+        default=(70, 79), description="avoidance turns Σ(self - other) by U{a..b} degrees (§4.6)"
     )
     carry_jitter_deg: tuple[int, int] = Field(
         default=(-5, 4), description="a carrier's aim turns by U{a..b} degrees a tick (§4.4)"
@@ -132,7 +139,7 @@ class Timing(_Model):
     )
     walk_goal_max_s: float = Field(default=5.0, gt=0)
     walk_goal_span: int = Field(
-        default=10_000, gt=0, description="goals are integer points in [−span, span − 1]² (§4.2)"
+        default=10_000, gt=0, description="goals are integer points in [-span, span - 1]² (§4.2)"
     )
 
 

@@ -18,7 +18,7 @@ BODY, WALL, TARGET, TARGET_SENSOR, WALL_SENSOR = 1, 2, 4, 8, 16
 class TargetSensor:
     """The target sensor's event semantics (§5.1), for every robot.
 
-    ``tsr[i]`` is the target robot ``i`` has registered, or −1. On enter of a target still
+    ``tsr[i]`` is the target robot ``i`` has registered, or -1. On enter of a target still
     lying: if sensing is on, it is registered (the most recent enter wins); if sensing is off
     (carrying or cooling down), the registration is *cleared*. On exit of any target, the
     registration is cleared, even if other targets are still inside. Nothing is registered again
@@ -92,7 +92,7 @@ class WallSensor:
         self.changed.add(i)
 
     def away(self, i: int, x: float, y: float) -> tuple[float, float]:
-        """Σ(robot − segment centre) over the segments robot ``i``'s sensor overlaps."""
+        """Σ(robot - segment centre) over the segments robot ``i``'s sensor overlaps."""
         vx = vy = 0.0
         for cx, cy in self.contacts[i].values():
             vx += x - cx
@@ -151,12 +151,13 @@ class Proximity:
             self.has_neighbours = now.any(axis=1)
 
     def away(self, pos: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """Σ(self − other) over the robots each of ``rows`` senses, each counted once or twice."""
+        """Σ(self - other) over the robots each of ``rows`` senses, each counted once or twice."""
         w = self.weight[rows]
-        return w.sum(axis=1)[:, None] * pos[rows] - w @ pos
+        out: np.ndarray = w.sum(axis=1)[:, None] * pos[rows] - w @ pos
+        return out
 
     def first(self, candidates: np.ndarray) -> np.ndarray:
-        """For each row, the earliest-entered column that ``candidates`` marks (−1: none)."""
+        """For each row, the earliest-entered column that ``candidates`` marks (-1: none)."""
         big = np.iinfo(np.int64).max
         keyed = np.where(candidates, self.entered, big)
         pick = keyed.argmin(axis=1)

@@ -118,7 +118,7 @@ class Viewer:
             raise ValueError(f"size must be at least 64 pixels, not {size}")
         self.world = world
         self.size = size
-        self.half = geometry.HALF
+        self.half = geometry.HALF * world.scale
         self.margin = max(4, size // 80)
         self.scale = (size - 2 * self.margin) / (2 * self.half)
         """Pixels per world unit."""
@@ -175,7 +175,8 @@ class Viewer:
         pygame.draw.rect(surface, WALL, floor, width=max(2, round(10 * self.scale)))
 
     def _zones(self, surface: pygame.Surface) -> None:
-        outer, inner = geometry.ZONE_OUTER, geometry.ZONE_INNER
+        outer = geometry.ZONE_OUTER * self.world.scale
+        inner = geometry.ZONE_INNER * self.world.scale
         for colour, (cx, cy) in zip(ZONE_RGB, self.world.zone_centres, strict=True):
             x, y = float(cx), float(cy)
             surface.fill(_blend(colour, FLOOR, ZONE_TINT), self._square(x, y, outer))

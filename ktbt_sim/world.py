@@ -78,21 +78,23 @@ class World:
         n = self.n = len(self.kinds)
         self.radius = spec.contact_radius
         self.space = pymunk.Space()
-        self.walls = geometry.segments(scenario.arena.obstacles)
-        self.obstacles = [geometry.corners(*w) for w in self.walls[len(geometry.perimeter()) :]]
+        scale = self.scale = scenario.arena.scale
+        self.walls = geometry.segments(scenario.arena.obstacles, scale)
+        first = len(geometry.perimeter(scale))
+        self.obstacles = [geometry.corners(*w) for w in self.walls[first:]]
         """Each obstacle segment as its four corners (for drawing)."""
-        self.zone_centres = geometry.zone_centres()
+        self.zone_centres = geometry.zone_centres(scale)
 
         # Targets, then robots, each uniform in the spawn area without rejection (§3).
         counts = scenario.targets
         self.target_colour = np.repeat(
             np.arange(1, 5), (counts.red, counts.green, counts.yellow, counts.blue)
         ).astype(np.int64)
-        half = geometry.SPAWN_HALF
+        half = geometry.SPAWN_HALF * scale
         self.target_pos = self.rng.uniform(-half, half, (len(self.target_colour), 2))
         self.target_free = np.ones(len(self.target_colour), dtype=bool)
         self.colour_of = np.append(self.target_colour, 0)
-        """Colour of target ``t``, and 0 at index −1 (no target registered)."""
+        """Colour of target ``t``, and 0 at index -1 (no target registered)."""
         self.counted = np.zeros(len(self.target_colour), dtype=bool)
         self.sensor = TargetSensor(self.space, n, len(self.target_colour))
         self.wall_sensor = WallSensor(self.space, n)
@@ -134,7 +136,7 @@ class World:
         self.asked = np.zeros(n, dtype=np.int64)
         """The colour each robot last asked about."""
         self.requester = np.full(n, -1, dtype=np.int64)
-        """Each teacher's ``requestingRobot`` (§8.2), −1 for none."""
+        """Each teacher's ``requestingRobot`` (§8.2), -1 for none."""
         self.queries = self.responses = self.learned = 0
         self.proximity = Proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
@@ -175,15 +177,15 @@ class World:
             self.agents.append(agent)
         self._signature = np.full(n, -1, dtype=np.int64)
         self._keys = [rb.sequence_of(c) for c in range(1, 5)]
-        half_count = geometry.ZONE_OUTER / 2 + geometry.TARGET_SIZE / 2
-        self._zone = (half_count, geometry.ZONE_INNER / 2, spec.zone_sensor)
+        half_count = geometry.ZONE_OUTER * scale / 2 + geometry.TARGET_SIZE / 2
+        self._zone = (half_count, geometry.ZONE_INNER * scale / 2, spec.zone_sensor)
 
     # -- construction ---------------------------------------------------------------------
 
     def _build_walls(self) -> None:
         static = self.space.static_body
-        for k, (x, y, angle) in enumerate(self.walls):
-            shape = pymunk.Poly(static, geometry.corners(x, y, angle))
+        for k, (x, y, angle, length) in enumerate(self.walls):
+            shape = pymunk.Poly(static, geometry.corners(x, y, angle, length))
             shape.collision_type = WALL
             shape.filter = _filter(WALL, BODY | WALL_SENSOR)
             shape.friction = 0.0
@@ -263,7 +265,7 @@ class World:
         its zone, the registered target's colour, the colours it knows."""
         waiting = self.timers.waiting(2 * self.iteration)
         seen = self.colour_of[self.sensor.tsr]
-        return (
+        packed: np.ndarray = (
             self.collision.astype(np.int64)
             | waiting << 1
             | (self.carrying >= 0) << 2
@@ -271,6 +273,7 @@ class World:
             | seen << 4
             | (self.known @ np.array([1, 2, 4, 8])) << 7
         )
+        return packed
 
     def step(self) -> None:
         self.iteration += 1

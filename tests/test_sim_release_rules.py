@@ -57,9 +57,7 @@ def test_s7_a_delivery_during_a_cool_down_ends_its_wait_at_once_and_cools_again(
     assert count(timers, 800, 1) == 500
 
 
-def test_s7_sensing_is_off_only_between_the_end_of_the_wait_and_the_end_of_the_cool_down() -> (
-    None
-):
+def test_s7_sensing_is_off_only_between_the_end_of_the_wait_and_the_end_of_the_cool_down() -> None:
     timers = Timers(1)
     timers.start(0, 1)
     off = [bool(timers.sensing_off(c)[0]) for c in range(0, 3000)]
@@ -130,7 +128,9 @@ class SensorRig:
         self.shapes = []
         for t, (x, y) in enumerate(targets):
             box = pymunk.Poly.create_box(self.space.static_body, (20.0, 20.0))
-            box = pymunk.Poly(self.space.static_body, [(x + a, y + b) for a, b in box.get_vertices()])
+            box = pymunk.Poly(
+                self.space.static_body, [(x + a, y + b) for a, b in box.get_vertices()]
+            )
             box.sensor = True
             box.collision_type = sensing.TARGET
             self.sensor.target_of[box] = t

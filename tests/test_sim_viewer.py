@@ -148,7 +148,7 @@ def test_obstacles_are_drawn() -> None:
     world = World(preset("ktbt-obstacles").with_(iterations=100), seed=1)
     viewer = Viewer(world, SIZE)
     surface = viewer.draw()
-    x, y, _angle = world.walls[160]  # the first obstacle segment, after the perimeter's
+    x, y = world.walls[160][:2]  # the first obstacle segment, after the perimeter's
     assert pixel(surface, viewer.to_screen(x, y)) == OBSTACLE
 
 

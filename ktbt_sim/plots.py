@@ -39,6 +39,11 @@ OBSTACLES = tuple(f"{g}-obstacles" for g in GROUPS)
 OPPORTUNITIES = tuple(f"opportunities-{n}" for n in (10, 25, 50, 100))
 RANGES = tuple(f"range-{r}" for r in (100, 200, 500, 800, 1000))
 HETEROGENEITY = ("heterogeneity-39i1m", "heterogeneity-10rgyb")
+TEACHING = (
+    ("10R-10G-10Y-10B, 25 a colour", "ktbt", "ktbt-broadcast"),
+    ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
+)
+"""Our finding, not the paper's: each group under the release's rule and the broadcast rule."""
 COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
 
 STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -46,6 +51,7 @@ STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "opportunities": (("opportunities",), OPPORTUNITIES),
     "range": (("range", "queries_lost"), (*RANGES, "bl1")),
     "heterogeneity": (HETEROGENEITY, HETEROGENEITY),
+    "teaching": (("teaching",), tuple(n for _, *names in TEACHING for n in names)),
 }
 """Each study's figures and scenarios: ``plot(study=...)`` draws only those figures and tables
 only those scenarios (the range study compares against bl1, so it keeps that too)."""
@@ -301,34 +307,67 @@ def _ordered(results: Mapping[str, Results]) -> list[Results]:
 def summary_table(results: Mapping[str, Results]) -> str:
     """One Markdown row per scenario, the numbers of ``metrics.summary``."""
     head = (
-        "| scenario | robots | mode | targets | trials | collected % | t99 (iterations) "
-        "| queries | responses | lost | robots knowing 4 |"
+        "| scenario | robots | mode | targets | trials | collected % | t95 (iterations) "
+        "| t99 (iterations) | queries | responses | lost | robots knowing 4 |"
     )
     lines = [
         "# Summary",
         "",
         "Mean ± sample standard deviation over trials, at the last recorded iteration. t99 "
-        "averages only the trials that collected 99 % of targets; `reached/N` says how many.",
+        "and t95 average only the trials that collected 99 % (95 %) of targets; `reached/N` "
+        "says how many. Modes: no-transfer is the release's NL, kt-bt its RL.",
         "",
         head,
         "|" + " --- |" * (head.count("|") - 1),
     ]
     for res in _ordered(results):
         s, sc = metrics.summary(res), res.scenario
-        t99 = f"{_pm(s['t99_mean'], s['t99_std'])} ({s['t99_reached']}/{s['trials']})"
+        t95, t99 = (
+            f"{_pm(s[f'{k}_mean'], s[f'{k}_std'])} ({s[f'{k}_reached']}/{s['trials']})"
+            for k in ("t95", "t99")
+        )
         cells = [
             sc.name,
             sc.robots.label(),
-            sc.mode.value,
+            sc.mode.value + (" (broadcast)" if sc.teaching.value == "broadcast" else ""),
             str(sc.targets.total),
             str(s["trials"]),
             _pm(s["collected_pct_mean"], s["collected_pct_std"], 1),
+            t95,
             t99,
             *(_pm(s[f"{k}_mean"], s[f"{k}_std"]) for k in ("queries", "responses", "lost")),
             _pm(s["knows_4_mean"], s["knows_4_std"], 1),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def draw_teaching(results: Mapping[str, Results]) -> Figure | None:
+    """Who answers a query: the release's first-requester rule against a broadcast rule (any
+    free knower in range answers), on the KT-BT group and on 39I-1M."""
+    rows = [
+        (title, runs) for title, *names in TEACHING if len(runs := _present(results, names)) == 2
+    ]
+    if not rows:
+        return None
+    fig = _figure(width=13.0, height=3.6 * len(rows))
+    axes = fig.subplots(len(rows), 3, squeeze=False)
+    for row, (title, runs) in zip(axes, rows, strict=True):
+        for res, colour, rule in zip(
+            runs, ("C0", "C3"), ("release rule", "broadcast rule"), strict=True
+        ):
+            label = f"{rule} (n={len(res.trials)})"
+            _mean_band(row[0], res.iterations, metrics.percent_collected(res), label, colour)
+            _mean_band(row[1], res.iterations, res["responses"], label, colour)
+            _mean_band(row[2], res.iterations, res["knows_4"], label, colour)
+        row[0].set(ylabel=f"{title}\ntargets collected (%)", ylim=(0, 105))
+        row[1].set(ylabel="queries answered (cumulative)")
+        row[2].set(ylabel="robots knowing all 4 colours")
+        for ax in row:
+            ax.set_xlabel("iterations")
+            ax.legend(fontsize="small", loc="lower right")
+    fig.suptitle(f"Who answers a query: the release's rule and a broadcast rule ({SPREAD})")
+    return fig
 
 
 # -- entry point -----------------------------------------------------------------------------
@@ -341,6 +380,7 @@ def _drawers(base: float, exponent: float) -> list[tuple[str, Drawer]]:
         ("opportunities", draw_opportunities),
         ("range", draw_range),
         ("queries_lost", draw_queries_lost),
+        ("teaching", draw_teaching),
     ]
     for name in HETEROGENEITY:
         out.append((name, partial(_heterogeneity_of, name, base=base, exponent=exponent)))

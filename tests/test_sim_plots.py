@@ -21,6 +21,7 @@ FIGURES = (
     "opportunities",
     "range",
     "queries_lost",
+    "teaching",
     "heterogeneity-39i1m",
     "heterogeneity-10rgyb",
 )

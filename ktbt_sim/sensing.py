@@ -101,7 +101,7 @@ class WallSensor:
 
 
 class Proximity:
-    """Robot-to-robot sensing from one distance matrix a step.
+    """Robot-to-robot sensing from one distance matrix a step (small groups).
 
     - Collision sensor (§4.6): another robot counts once when the two 75-radius spheres touch
       (centre distance below 150) and twice when its body is inside this robot's sphere (below
@@ -110,6 +110,8 @@ class Proximity:
       (centre distance at most ``radius``), in order of entry; ``entered[i, j]`` is the
       iteration at which ``j`` last came into range of ``i`` (simultaneous entries in index
       order).
+
+    :class:`SparseProximity` gives the same answers from pairs in nearby cells, for large groups.
     """
 
     def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
@@ -156,12 +158,129 @@ class Proximity:
         out: np.ndarray = w.sum(axis=1)[:, None] * pos[rows] - w @ pos
         return out
 
-    def first(self, candidates: np.ndarray) -> np.ndarray:
-        """For each row, the earliest-entered column that ``candidates`` marks (-1: none)."""
+    def neighbours(self, i: int) -> np.ndarray:
+        """The robots in robot ``i``'s comms range."""
+        return np.flatnonzero(self.in_range[i])
+
+    def requesters(
+        self, open_: np.ndarray, knows: np.ndarray | None = None, asked: np.ndarray | None = None
+    ) -> np.ndarray:
+        """For each robot, its earliest-entered neighbour with an open query (-1: none); with
+        ``knows`` (n, 4) and ``asked`` (n,), only one whose colour it knows."""
+        candidates = self.in_range & open_[None, :]
+        if knows is not None and asked is not None:
+            candidates &= knows[:, np.where(open_, asked - 1, 0)]
         big = np.iinfo(np.int64).max
         keyed = np.where(candidates, self.entered, big)
         pick = keyed.argmin(axis=1)
-        return np.where(candidates.any(axis=1), pick, -1)
+        out: np.ndarray = np.where(candidates.any(axis=1), pick, -1)
+        return out
+
+
+class SparseProximity:
+    """:class:`Proximity` for large groups: pairs come only from the 3 x 3 cells around each
+    robot (cells as wide as the longest sensing distance), so a step costs in proportion to
+    the robots and their neighbours, not to the square of the group."""
+
+    def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
+        self.n = n
+        self.touch2 = (2 * sensor) ** 2
+        self.body2 = (sensor + body) ** 2
+        self.radius2 = radius**2
+        self.comms = comms
+        self.cell = max(2 * sensor, radius if comms else 0.0)
+        self.count = np.zeros(n, dtype=np.int64)
+        self.has_neighbours = np.zeros(n, dtype=bool)
+        empty = np.zeros(0, dtype=np.int64)
+        self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
+        self._near = (empty, empty, np.zeros(0))
+        self._keys = empty
+        """Sorted ``i * n + j`` of every ordered pair in comms range."""
+        self._entered = empty
+
+    def _pairs(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n, span = self.n, 1 << 21
+        cells = np.floor(pos / self.cell).astype(np.int64) + span // 2
+        keys = cells[:, 0] * span + cells[:, 1]
+        order = np.argsort(keys, kind="stable")
+        unique, first, counts = np.unique(keys[order], return_index=True, return_counts=True)
+        robots = np.arange(n)
+        found_i, found_j = [], []
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                wanted = keys + dx * span + dy
+                at = np.minimum(np.searchsorted(unique, wanted), len(unique) - 1)
+                many = np.where(unique[at] == wanted, counts[at], 0)
+                total = int(many.sum())
+                if not total:
+                    continue
+                starts = np.repeat(first[at] - (np.cumsum(many) - many), many)
+                found_i.append(np.repeat(robots, many))
+                found_j.append(order[starts + np.arange(total)])
+        i, j = np.concatenate(found_i), np.concatenate(found_j)
+        other = i != j
+        i, j = i[other], j[other]
+        d = pos[i] - pos[j]
+        return i, j, np.einsum("ij,ij->i", d, d)
+
+    def update(self, pos: np.ndarray, iteration: int) -> None:
+        i, j, d2 = self._pairs(pos)
+        near = d2 < self.touch2
+        ci, cj = i[near], j[near]
+        self._near = (ci, cj, 1.0 + (d2[near] < self.body2))
+        self.count = np.bincount(ci, minlength=self.n)
+        if not self.comms:
+            return
+        inside = d2 <= self.radius2
+        keys = np.sort(i[inside] * self.n + j[inside])
+        old, entered = self._keys, self._entered
+        at = np.minimum(np.searchsorted(old, keys), max(len(old) - 1, 0))
+        kept = (old[at] == keys) if len(old) else np.zeros(len(keys), dtype=bool)
+        self._entered = np.where(kept, entered[at] if len(old) else 0, iteration)
+        self._keys = keys
+        fresh = keys[~kept]
+        self.newly = np.stack((fresh // self.n, fresh % self.n), axis=1)
+        self.has_neighbours = np.bincount(keys // self.n, minlength=self.n) > 0
+
+    def away(self, pos: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        ci, cj, w = self._near
+        mask = np.isin(ci, rows)
+        total = np.zeros((self.n, 2))
+        np.add.at(total, ci[mask], w[mask, None] * (pos[ci[mask]] - pos[cj[mask]]))
+        out: np.ndarray = total[rows]
+        return out
+
+    def neighbours(self, i: int) -> np.ndarray:
+        lo, hi = np.searchsorted(self._keys, (i * self.n, (i + 1) * self.n))
+        out: np.ndarray = self._keys[lo:hi] % self.n
+        return out
+
+    def requesters(
+        self, open_: np.ndarray, knows: np.ndarray | None = None, asked: np.ndarray | None = None
+    ) -> np.ndarray:
+        keys, n = self._keys, self.n
+        i, j = keys // n, keys % n
+        mask = open_[j]
+        if knows is not None and asked is not None:
+            mask &= knows[i, np.where(open_[j], asked[j] - 1, 0)]
+        i, j, entered = i[mask], j[mask], self._entered[mask]
+        out = np.full(n, -1, dtype=np.int64)
+        if len(i):
+            order = np.lexsort((j, entered, i))
+            firsts = np.unique(i[order], return_index=True)[1]
+            out[i[order][firsts]] = j[order][firsts]
+        return out
+
+
+DENSE_UP_TO = 200
+"""Groups up to this size use the distance matrix, which is faster there."""
+
+
+def proximity(
+    n: int, sensor: float, body: float, radius: float, comms: bool
+) -> Proximity | SparseProximity:
+    kind = Proximity if n <= DENSE_UP_TO else SparseProximity
+    return kind(n, sensor, body, radius, comms)
 
 
 def zone_events(

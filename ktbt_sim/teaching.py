@@ -53,11 +53,10 @@ def _scan(world: World) -> None:
     if not open_.any():
         world.requester[scans] = -1
         return
-    candidates = prox.in_range & open_[None, :]
     if world.scenario.teaching is Teaching.BROADCAST:
-        asked = np.where(open_, world.asked - 1, 0)
-        candidates &= world.known[:, asked]
-    first = prox.first(candidates)
+        first = prox.requesters(open_, world.known, world.asked)
+    else:
+        first = prox.requesters(open_)
     world.requester[scans] = first[scans]
 
 

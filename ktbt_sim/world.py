@@ -34,9 +34,9 @@ from .sensing import (
     TARGET_SENSOR,
     WALL,
     WALL_SENSOR,
-    Proximity,
     TargetSensor,
     WallSensor,
+    proximity,
     zone_events,
 )
 from .timers import Timers
@@ -138,7 +138,7 @@ class World:
         self.requester = np.full(n, -1, dtype=np.int64)
         """Each teacher's ``requestingRobot`` (§8.2), -1 for none."""
         self.queries = self.responses = self.learned = 0
-        self.proximity = Proximity(
+        self.proximity = proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
         )
         self.bodies: list[pymunk.Body] = []
@@ -215,7 +215,7 @@ class World:
 
     def _audience(self, sender: str) -> list[str]:
         i = int(sender[1:])
-        return [self.names[j] for j in np.flatnonzero(self.proximity.in_range[i]).tolist()]
+        return [self.names[j] for j in self.proximity.neighbours(i).tolist()]
 
     # -- what the behaviours do (release-behaviour.md §4.3, §4.5) ---------------------------
 

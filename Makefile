@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench clean
+.PHONY: demo test lint typecheck pytest bench studies clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,22 @@ test: lint typecheck pytest
 
 bench: $(VENV)/.installed-dev
 	$(BIN)/python -m benchmarks
+
+# The paper's studies, our teaching-rule study and the calibration against the release's own
+# data, at full size; figures and tables land in docs/results/. RELEASE_DATA is the release's
+# SimData folder (its public repository) holding the two calibration runs.
+RELEASE_DATA ?= ../shared/reference/release-data
+RELEASE_NL := NL_0_0_10_10_10_10_N_45_18_19_18_200_-1
+RELEASE_RL := RL_0_0_10_10_10_10_N_100_100_100_100_200_-1
+studies: $(VENV)/.installed
+	$(BIN)/ktbt sim run all --out results/studies
+	$(BIN)/ktbt sim run teaching --out results/studies
+	$(BIN)/ktbt sim run calibration --out results/calibration --release-csv
+	$(BIN)/ktbt sim plot results/studies
+	mkdir -p docs/results
+	cp results/studies/*.png results/studies/summary.md docs/results/
+	$(BIN)/ktbt sim compare results/calibration/calibration-nl $(RELEASE_DATA)/$(RELEASE_NL) --out docs/results/calibration-nl
+	$(BIN)/ktbt sim compare results/calibration/calibration-rl $(RELEASE_DATA)/$(RELEASE_RL) --out docs/results/calibration-rl
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis

@@ -277,6 +277,13 @@ def export_release(folder: Path) -> Path:
 
     target = folder / "release"
     target.mkdir(exist_ok=True)
+    (target / "README.txt").write_text(
+        "One CSV per trial in the release's format (a row every 10 iterations, 35 columns).\n"
+        "As in the release's own files, the three columns headed 'Known St. RG', 'Known St.\n"
+        "RY' and 'Known St. RB' hold the robots knowing red and yellow, red and blue, and red\n"
+        "and green, in that order: the release writes them in that order under that header.\n",
+        encoding="utf-8",
+    )
     for trial in sorted(finished(folder)):
         rows = read_trial(trial_path(folder, trial))
         write_release_csv(target / f"{folder.name}_Tr_{trial + 1}.csv", rows)

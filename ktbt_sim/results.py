@@ -109,13 +109,19 @@ def load_folder(folder: Path) -> Results | None:
 
 
 def load(directory: str | Path) -> dict[str, Results]:
-    """Every scenario with at least one finished trial under ``directory``, by name."""
+    """Every scenario with at least one finished trial under ``directory``, by name: our
+    scenario folders, and the release's ``SimData`` scenario folders (``…_Tr_N.csv``), which
+    are named ``release <folder>``. ``directory`` may itself be a release scenario folder."""
+    from .records import read_release_folder
+
+    root = Path(directory)
     out: dict[str, Results] = {}
-    for folder in sorted(Path(directory).iterdir()):
-        if folder.is_dir():
-            results = load_folder(folder)
-            if results is not None:
-                out[results.scenario.name] = results
+    for folder in [root, *sorted(p for p in root.iterdir() if p.is_dir())]:
+        results = load_folder(folder)
+        if results is None and any(folder.glob("*_Tr_*.csv")):
+            results = read_release_folder(folder)
+        if results is not None:
+            out[results.scenario.name] = results
     return out
 
 

@@ -95,3 +95,21 @@ def test_compare_against_the_release_excerpt(tmp_path: Path) -> None:
         timeout=120,
     )
     assert bad.returncode == 2 and "neither" in bad.stderr
+
+
+def test_sim_plot_reads_a_release_folder(tmp_path: Path) -> None:
+    from ktbt_sim.results import load
+
+    import shutil
+
+    loaded = load(RL)
+    assert list(loaded) == [f"release {RL.name}"]
+    shutil.copytree(RL, tmp_path / RL.name)
+    result = subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", "sim", "plot", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert f"release {RL.name}" in (tmp_path / "summary.md").read_text(encoding="utf-8")

@@ -49,6 +49,9 @@ class Line:
     theirs: tuple[float, float, int]
     tolerance: str
     """How close counts as a match: ``10%`` of theirs, or ``2`` in absolute terms."""
+    trials: tuple[int, int] = (0, 0)
+    """Trials on each side; a mean over fewer (those that reached a fraction) holds only if
+    the same share of trials got there on both sides."""
 
     @property
     def difference(self) -> float:
@@ -60,6 +63,9 @@ class Line:
         a, b = self.ours[0], self.theirs[0]
         if math.isnan(a) or math.isnan(b):
             return math.isnan(a) and math.isnan(b)  # neither run got there
+        mine, theirs = self.trials
+        if mine and theirs and self.ours[2] * theirs != self.theirs[2] * mine:
+            return False
         if self.tolerance.endswith("%"):
             return abs(a - b) <= abs(b) * float(self.tolerance[:-1]) / 100.0
         return abs(a - b) <= float(self.tolerance)
@@ -113,7 +119,7 @@ def lines(ours: Results, theirs: Results) -> list[Line]:
 
 
 def table(rows: list[Line], ours: str = "ours", theirs: str = "release") -> str:
-    """Markdown: mean ± s.d. (trials) on each side, the difference, and whether it holds."""
+    """Markdown: mean ± sample s.d. (trials) on each side, the difference, whether it holds."""
 
     def cell(v: tuple[float, float, int]) -> str:
         mean, sd, n = v
@@ -123,7 +129,7 @@ def table(rows: list[Line], ours: str = "ours", theirs: str = "release") -> str:
         return f"{mean:,.1f}{spread} ({n})"
 
     out = [
-        f"| quantity | {ours} | {theirs} | difference | within |",
+        f"| quantity | {ours}: mean ± s.d. (trials) | {theirs} | difference | within |",
         "| --- | --- | --- | --- | --- |",
     ]
     for r in rows:

@@ -53,8 +53,8 @@ class TargetSensor:
         self.changed.add(i)
 
     def picked(self, t: int) -> None:
-        """Target ``t`` was taken away: an exit from every sensor it was in (pymunk does not
-        report a separation for a removed shape)."""
+        """Target ``t`` was taken away: an exit from every sensor it was in. pymunk reports the
+        separation when the shape is removed; this makes the rule independent of that."""
         for i in self.watchers[t]:
             self.tsr[i] = -1
             self.changed.add(i)

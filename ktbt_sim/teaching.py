@@ -16,7 +16,9 @@ Each iteration, after the behaviour trees and the actuators (§8.5):
 4. **Teaching** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
    requester answers it (``Agent.answer``) if it knows what the requester asked, the requester
    is still untaught and knows fewer colours than the memory size. It answers nobody else, even
-   a later neighbour it could answer. The learner's agent checks and merges the answer
+   a later neighbour it could answer. A requester a teacher still holds after it moved out of
+   range can be answered, and hears new questions from it too (the release's teacher reads
+   its requester's question wherever it is). The learner's agent checks and merges the answer
    (``Agent.receive``); a taught learner is skipped by every later teacher, so there is exactly
    one teacher per query. The teacher then waits and cools down; the learner keeps waiting for
    the rest of its wait.
@@ -74,7 +76,14 @@ def _ask(world: World, t: int) -> None:
     unknown = ~world.known[np.arange(world.n), colours - 1]
     for i in np.flatnonzero(ask & unknown).tolist():
         colour = int(colours[i])
-        world.agents[i].ask(rb.sequence(colour))
+        agent = world.agents[i]
+        agent.now = t
+        agent.ask(rb.sequence(colour))
+        # A teacher that still holds this robot as its (stale) requester reads its question in
+        # the release wherever it is: send it there too.
+        for teacher in np.flatnonzero(world.requester == i).tolist():
+            if not world.proximity_has(i, teacher):
+                agent.announce(world.names[teacher])
         world.queries += 1
         world.asked[i] = colour
         world.querying[i] = True
@@ -123,6 +132,7 @@ def _teach(world: World, t: int) -> None:
         if not world.agents[teacher].answer(query):
             continue
         world.responses += 1
+        world.agents[learner].now = t
         world.teaching[teacher] = True
         world.walk_flag[teacher] = False
         world.timers.start(teacher, 2 * t + 2)

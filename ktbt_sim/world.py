@@ -116,7 +116,7 @@ class World:
         self.rv = np.zeros((n, 2))
         """The resultant velocity each robot's behaviours last wrote (§4.1)."""
         self.mode = np.full(n, rb.IDLE, dtype=np.int64)
-        self.walk_flag = np.zeros(n, dtype=bool)
+        self.walk_flag = np.ones(n, dtype=bool)  # on at start (§3)
         """The release's random-walk flag (its CSV's ``Cur. RandomWalk States``, §10)."""
         self.walk_time = np.zeros(n)
         self.walk_span = self.rng.uniform(0.0, timing.walk_first_max_s, n)
@@ -155,8 +155,9 @@ class World:
         self._positions[: 2 * n] = start.ravel()
         self._out.set_float_buf(self._positions)
         self.pos = self._positions[: 2 * n].reshape(n, 2)
-        self.actuator = motion.Actuator(spec.max_speed, spec.max_turn_deg * self.dt, 0.0)
-        self.actuator.tolerance = math.radians(spec.heading_tolerance_deg)
+        self.actuator = motion.Actuator(
+            spec.max_speed, spec.max_turn_deg * self.dt, spec.heading_tolerance_deg
+        )
         self.collision = np.zeros(n, dtype=bool)
         self.proximity.update(self.pos, 0)
 
@@ -212,6 +213,10 @@ class World:
         self.wall_sensor.robot_of[bumper] = i
         self.space.add(body, hull, eyes, bumper)
         self.bodies.append(body)
+
+    def proximity_has(self, i: int, j: int) -> bool:
+        """Whether robot ``j`` is in robot ``i``'s comms range."""
+        return bool(np.isin(j, self.proximity.neighbours(i)))
 
     def _audience(self, sender: str) -> list[str]:
         i = int(sender[1:])

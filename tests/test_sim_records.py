@@ -98,9 +98,9 @@ def test_compare_against_the_release_excerpt(tmp_path: Path) -> None:
 
 
 def test_sim_plot_reads_a_release_folder(tmp_path: Path) -> None:
-    from ktbt_sim.results import load
-
     import shutil
+
+    from ktbt_sim.results import load
 
     loaded = load(RL)
     assert list(loaded) == [f"release {RL.name}"]

@@ -318,3 +318,114 @@ def test_s8_3_a_taught_learner_keeps_waiting_and_its_teacher_waits_too() -> None
     assert world.taught[0] and world.teaching[1]
     assert world.timers.waiting(2 * 400)[0] and world.timers.waiting(2 * 400)[1]
     assert world.timers.wait_end[0] == 2 * 1 + 1 + 1001  # not shortened by the answer
+
+
+def test_s8_2_the_first_requester_is_by_order_of_entry_not_by_index() -> None:
+    """L2 came into T's range before L1: T answers L2's question about red, although L1 (a
+    lower index, asking about green) is querying too."""
+    world = rig(Robots.of(2, 0, 1, 0, 0, 0), [(0.0, 0.0), (100.0, 300.0), (0.0, 300.0)])
+    enter_in_order(world, [1, 0], at=2)
+    see(world, 0, 2)
+    see(world, 1, 1)
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.requester[2] == 1
+    assert world.responses == 1 and world.taught.tolist() == [False, True, False]
+
+
+def test_s8_2_a_taught_querier_no_longer_holds_the_teachers_attention() -> None:
+    """The first-entered querying neighbour is already taught: the teacher answers the next."""
+    world = rig(Robots.of(2, 1, 0, 0, 0, 0), [(0.0, 0.0), (100.0, 300.0), (0.0, 300.0)])
+    enter_in_order(world, [0, 1], at=2)
+    see(world, 0, 1)
+    see(world, 1, 1)
+    teaching.step(world, 1)
+    world.taught[0] = True  # taught by somebody else meanwhile
+    teaching.step(world, 2)
+    assert world.requester[2] == 1 and world.taught[1]
+
+
+def test_s8_2_a_stale_requester_is_answered_out_of_range() -> None:
+    """T's neighbour list empties while L waits: T keeps L as its requester and, once free,
+    answers it wherever it is; a new question from L reaches T too."""
+    world = rig(Robots.of(1, 0, 1, 0, 0, 0), [(0.0, 0.0), (300.0, 0.0)])
+    see(world, 0, 2)  # green: T (red only) cannot answer, but L is its requester
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.requester[1] == 0 and world.responses == 0
+    world.sensor.tsr[0] = -1  # L loses sight of the green target
+    place(world, 0, 3000.0, 3000.0)
+    world.proximity.update(world.pos, 3)
+    for t in range(3, 1200):  # L's wait and cool-down pass; nobody is in T's range
+        teaching.step(world, t)
+    assert world.requester[1] == 0 and not world.proximity.has_neighbours[1]
+    see(world, 0, 1)  # now red, from out of range
+    teaching.step(world, 1200)
+    assert world.responses == 1 and world.known[0, 0]
+
+
+def test_s4_5_the_worlds_zone_counts_at_510_and_places_at_490() -> None:
+    world = World(small(), seed=0)
+    count_half, place_half, reach = world._zone
+    centres = world.zone_centres
+    xs = np.array([[2800.0 - d, 2800.0] for d in (511.0, 509.0, 491.0, 489.0)])
+    counted, inside = sensing.zone_events(
+        xs, centres, np.array([1] * 4), count_half, place_half, reach
+    )
+    assert counted.tolist() == [False, True, True, True]
+    assert inside.tolist() == [False, False, False, True]
+
+
+def test_s4_1_the_worlds_actuator_has_the_releases_constants() -> None:
+    world = World(small(), seed=0)
+    assert math.isclose(world.actuator.tolerance, math.radians(5.0))
+    assert math.isclose(world.actuator.turn, math.radians(4.0))
+    assert world.actuator.speed * world.dt == 6.0
+
+
+def test_s4_6_walls_enter_avoidance_through_their_segment_centres() -> None:
+    """A robot 60 from the top wall's inner face: its sensor overlaps the segments whose boxes
+    it reaches, and it steers 70 to 79 degrees counter-clockwise off the sum of (robot - centre)."""
+    world = World(small(robots=Robots.of(1, 0, 0, 0, 0, 0)), seed=0)
+    place(world, 0, 0.0, 3980.0 - 60.0)
+    world.space.reindex_shapes_for_body(world.bodies[0])
+    world.step()
+    contacts = world.wall_sensor.contacts[0]
+    assert {(x, y) for x, y in contacts.values()} == {(-100.0, 4000.0), (100.0, 4000.0)}
+    world.step()  # the tree sees the collision and avoids
+    x, y = world.pos[0]
+    away = np.array([(x + 100.0) + (x - 100.0), 2 * (y - 4000.0)])
+    angle = math.degrees(math.atan2(world.rv[0, 1], world.rv[0, 0]) - math.atan2(away[1], away[0]))
+    assert 69.9 <= angle % 360 <= 79.1
+
+
+def test_s4_2_the_walk_timer_runs_only_on_random_walk_ticks() -> None:
+    """A wait in the middle of a leg delays the next goal by the wait's length."""
+    free = World(small(robots=Robots.of(1, 0, 0, 0, 0, 0)), seed=5)
+    held = World(small(robots=Robots.of(1, 0, 0, 0, 0, 0)), seed=5)
+
+    def draws(world: World, wait_at: int | None) -> list[int]:
+        out, previous = [], world.rv.copy()
+        for _ in range(1500):
+            if world.iteration == wait_at:
+                world.timers.start(0, 2 * (world.iteration + 1))  # as a delivery would
+            world.step()
+            if not np.array_equal(world.rv, previous) and world.mode[0] == rb.WALK:
+                out.append(world.iteration)
+            previous = world.rv.copy()
+        return out
+
+    first = draws(free, None)[0]
+    held_draws = draws(held, first - 10)
+    assert first > 10 and held_draws[0] >= first + 499
+
+
+def test_s4_3_a_registered_target_of_a_known_colour_is_taken_the_next_tick() -> None:
+    world = World(small(robots=Robots.of(0, 1, 0, 0, 0, 0), targets=Targets(red=1)), seed=0)
+    x, y = world.target_pos[0]
+    place(world, 0, float(x) - 69.0, float(y))
+    world.space.reindex_shapes_for_body(world.bodies[0])
+    world.step()  # physics: the sensor registers the target
+    assert world.sensor.tsr[0] == 0 and world.carrying[0] == -1
+    world.step()  # the tree picks it, wherever it is in the sensor
+    assert world.carrying[0] == 0 and not world.target_free[0]

@@ -105,7 +105,9 @@ def load_knowledge(path: str | Path) -> KnowledgeBase:
         if len(format_tree(item.subtree, "compact")) > 60_000:
             raise ValueError(f"{path}: the subtree for {item.key} is too large to send")
     if not len(kb):
-        raise ValueError(f"{path}: no knowledge items (Sequence(conditions, subtree) in <k>)")
+        raise ValueError(
+            f"{path}: no knowledge items (inside a <k>(...): <sq>, the conditions, the actions)"
+        )
     return kb
 
 

@@ -213,8 +213,8 @@ def check_command(
     ] = None,
 ) -> None:
     """Report every problem as file:line:col: CODE message; exit 1 if there are any.
-    Warnings (SBT5xx: a placeholder child that is not a knowledge item) are reported too, but do
-    not change the exit status."""
+
+    Warnings (SBT5xx) are reported too, but do not change the exit status."""
     from .knowledge import stray_nodes
 
     vocabulary = None

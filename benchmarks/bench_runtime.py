@@ -501,12 +501,8 @@ def run_merge(rounds: int, warmup: int = 20) -> dict[str, Any]:
         return bt, new, bb
 
     def prepare(colour: int) -> _MergeRound:
-        text, when = learned_text(colour), [f"TargetSeen, colour={colour}"]
-        parsed_when = []
-        for w in when:
-            cond = kp.parse(f"<c>({w})").root
-            assert isinstance(cond, kp.Condition)
-            parsed_when.append(replace(cond, pos=None))
+        text, when = learned_text(colour), [f"TargetSeen(colour={colour})"]
+        parsed_when = [kp.Condition("TargetSeen", args=(("colour", colour),))]
         bt_build, new_build, bb_build = py_trees_running(colour)
         bt_pre, new_pre, bb_pre = py_trees_running(colour)
         return _MergeRound(

@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from . import __version__
-from .errors import ErrorCode, StringBTError
+from .errors import StringBTError
 from .format import Style
 from .format import format as format_tree
 from .limits import DEFAULT_LIMITS
-from .merge import MergeError, conditions, merge, split_conditions
+from .merge import merge
 from .render import render
 from .syntax import parse
-from .tree import Tree
+from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
 if TYPE_CHECKING:
@@ -100,6 +100,21 @@ def _write_atomically(path: str, text: str) -> None:
         raise
 
 
+def _has_comments(tree: Tree) -> bool:
+    if tree.footer:
+        return True
+    return any(
+        node.comments is not None
+        and (
+            node.comments.leading
+            or node.comments.trailing is not None
+            or node.comments.end
+            or node.comments.end_trailing is not None
+        )
+        for node, _ in tree.walk()
+    )
+
+
 def _location(path: str) -> str:
     return "<stdin>" if path == STDIN else path
 
@@ -133,6 +148,14 @@ def fmt_command(
             new = format_tree(tree, style) + ("\n" if compact else "")
         except StringBTError as err:
             _say(f"error: cannot format {name}:{err.line}:{err.column}: {err.code} {err.message}")
+            failed += 1
+            continue
+        if compact and path != STDIN and not (check_only or diff) and _has_comments(tree):
+            # The compact form has no comments: rewriting the file would lose them.
+            _say(
+                f"error: cannot format {name} compact in place: it has comments, which the "
+                f"compact form drops (print it instead: ktbt fmt --compact - < {name})"
+            )
             failed += 1
             continue
         old = data.decode("utf-8")
@@ -185,10 +208,15 @@ def check_command(
         typer.Option(
             "--registry",
             help="TOML file: conditions = [...], actions = [...]; unknown names are problems.",
+            readable=False,  # checked when read, with one clear line
         ),
     ] = None,
 ) -> None:
-    """Report every problem as file:line:col: CODE message; exit 1 if there are any."""
+    """Report every problem as file:line:col: CODE message; exit 1 if there are any.
+
+    Warnings (SBT5xx) are reported too, but do not change the exit status."""
+    from .knowledge import stray_nodes
+
     vocabulary = None
     if registry is not None:
         try:
@@ -196,22 +224,32 @@ def check_command(
         except ValueError as exc:
             _say(f"error: {exc}")
             raise typer.Exit(2) from None
-    problems = 0
+    problems = checked = 0
     for path in _expand(files):
         name = _location(path)
+        checked += 1
         try:
             data = _read(path)
         except OSError as exc:
             typer.echo(f"{name}: error: cannot read: {_io_reason(exc)}")
             problems += 1
             continue
+        warnings: list[StringBTError] = []
         try:
-            found: list[StringBTError] = check(parse(data), vocabulary)
+            tree = parse(data)
+            found: list[StringBTError] = check(tree, vocabulary)
+            warnings = stray_nodes(tree)
         except StringBTError as exc:
             found = [exc]
-        for problem in found:
-            typer.echo(f"{name}:{problem.line}:{problem.column}: {problem.code} {problem.message}")
+        for problem in sorted([*found, *warnings], key=lambda p: (p.line, p.column)):
+            kind = " warning:" if problem in warnings else ""
+            typer.echo(
+                f"{name}:{problem.line}:{problem.column}: {problem.code}{kind} {problem.message}"
+            )
         problems += len(found)
+    if not checked:
+        _say(f"error: no .sbt file in {' '.join(files)}")
+        raise typer.Exit(2)
     if problems:
         raise typer.Exit(1)
 
@@ -238,12 +276,10 @@ def merge_command(
     if control == STDIN and subtree == STDIN:
         _say("error: only one of CONTROL and SUBTREE can be '-'")
         raise typer.Exit(2)
+    conds = None if when is None else _sequence_or_exit("--when", when)
     base = _load_or_exit(control)
     knowledge = _load_or_exit(subtree)
     try:
-        conds = None if when is None else conditions(split_conditions(when))
-        if conds == ():
-            raise MergeError(ErrorCode.UNEXPECTED_TOKEN, "--when names no condition")
         merged = merge(base, knowledge, slot, conds)
         problems = check(merged)
         if problems:  # never write a tree the toolkit itself would refuse
@@ -277,9 +313,13 @@ def convert_command(
     except StringBTError as err:
         _say(f"error: cannot convert {source}:{err.line}:{err.column}: {err.code} {err.message}")
         raise typer.Exit(1) from None
-    except (OSError, ValueError) as exc:
-        reason = _io_reason(exc) if isinstance(exc, OSError) else str(exc)
-        _say(f"error: cannot convert {source}: {reason}")
+    except OSError as exc:  # name the file that failed: the target is often the culprit
+        failed = os.fsdecode(exc.filename) if exc.filename is not None else source
+        verb = "write" if os.path.abspath(failed) == os.path.abspath(target) else "read"
+        _say(f"error: cannot convert {source}: cannot {verb} {failed}: {_io_reason(exc)}")
+        raise typer.Exit(1) from None
+    except ValueError as exc:
+        _say(f"error: cannot convert {source}: {exc}")
         raise typer.Exit(1) from None
 
 
@@ -301,6 +341,20 @@ def show_command(
     sys.stdout.write(render(tree, fmt.value))
 
 
+def _sequence_or_exit(option: str, text: str) -> tuple[Condition, ...]:
+    """A condition sequence as typed (``TargetSeen(colour=2), !_inZoneF``); a mistake is one
+    line naming the option, and a caret under the character in what the user typed."""
+    from .knowledge import read_sequence
+
+    try:
+        return read_sequence(text)
+    except StringBTError as err:
+        _say(f"error: {option} {text!r}: {err.code} {err.message}")
+        if err.excerpt:
+            _say(err.excerpt)
+        raise typer.Exit(2) from None
+
+
 def _load_or_exit(path: str) -> Tree:
     name = _location(path)
     try:
@@ -314,14 +368,18 @@ def _load_or_exit(path: str) -> Tree:
 
 @app.command("tour")
 def tour_command(
-    examples: Annotated[Path, typer.Option(help="Folder of .sbt files to show.")] = Path(
-        "examples"
-    ),
+    examples: Annotated[
+        Path | None,
+        typer.Option(
+            help="Folder of .sbt files to show (default: the examples shipped here).",
+            readable=False,
+        ),
+    ] = None,
 ) -> None:
     """A short tour of stringBT on the example trees: format, check, render."""
-    from .demo import run_demo
+    from .demo import examples_folder, run_demo
 
-    raise typer.Exit(run_demo(examples))
+    raise typer.Exit(run_demo(examples or examples_folder()))
 
 
 peer_app = typer.Typer(
@@ -336,7 +394,8 @@ Connect = Annotated[
     list[str] | None, typer.Option("--connect", help="Endpoint of a peer or router to connect to.")
 ]
 Config = Annotated[
-    Path | None, typer.Option("--config", help="A zenoh JSON5 config file (TLS, auth...).")
+    Path | None,
+    typer.Option("--config", help="A zenoh JSON5 config file (TLS, auth...).", readable=False),
 ]
 Multicast = Annotated[
     bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
@@ -356,6 +415,12 @@ def _settings(
     if config is not None and not config.is_file():
         _say(f"error: config file {config} not found")
         raise typer.Exit(2)
+    if config is not None:
+        try:
+            config.open("rb").close()
+        except OSError as exc:
+            _say(f"error: cannot read --config {config}: {_io_reason(exc)}")
+            raise typer.Exit(2) from None
     if mode not in ("peer", "client"):
         _say(f"error: --mode must be peer or client, not {mode!r}")
         raise typer.Exit(2)
@@ -392,7 +457,9 @@ def _peer_call(action: Callable[[], int]) -> None:
 
 @peer_app.command("serve")
 def peer_serve(
-    knowledge: Annotated[Path, typer.Option("--knowledge", help="A .sbt knowledge file.")],
+    knowledge: Annotated[
+        Path, typer.Option("--knowledge", help="A .sbt knowledge file.", readable=False)
+    ],
     name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "server",
     listen: Listen = None,
     connect: Connect = None,
@@ -405,12 +472,30 @@ def peer_serve(
 
     _check_peer(name)
     settings = _settings(listen, connect, config, multicast, mode)
-    _peer_call(lambda: peer.serve(name, peer.load_knowledge(knowledge), settings, typer.echo))
+    try:
+        served = peer.load_knowledge(knowledge)
+    except OSError as exc:
+        _say(f"error: cannot read --knowledge {knowledge}: {_io_reason(exc)}")
+        raise typer.Exit(2) from None
+    except StringBTError as err:
+        _say(f"{knowledge}:{err}")
+        raise typer.Exit(2) from None
+    except ValueError as exc:
+        _say(f"error: {exc}")
+        raise typer.Exit(2) from None
+    _peer_call(lambda: peer.serve(name, served, settings, typer.echo))
 
 
 @peer_app.command("ask")
 def peer_ask(
-    sequence: Annotated[str, typer.Option("--sequence", help="COND[,COND...] to ask about.")],
+    sequence: Annotated[
+        str,
+        typer.Option(
+            "--sequence",
+            help="The conditions to ask about, as `peer list` prints them: "
+            "'TargetSeen(colour=2), !_inZoneF'.",
+        ),
+    ],
     timeout: Annotated[float, typer.Option(help="Seconds to wait for answers.")] = 2.0,
     name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "asker",
     listen: Listen = None,
@@ -419,27 +504,33 @@ def peer_ask(
     multicast: Multicast = False,
     mode: Mode = "peer",
 ) -> None:
-    """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time."""
+    """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time, saying
+    on stderr whether no peer was reachable or no peer knew."""
     from . import peer
 
     _check_peer(name, timeout)
+    conds = _sequence_or_exit("--sequence", sequence)
     settings = _settings(listen, connect, config, multicast, mode)
-    conds = split_conditions(sequence)
-    _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo)[0])
+    _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo, note=_say)[0])
 
 
 @peer_app.command("run")
 def peer_run(
     name: Annotated[str, typer.Option("--id", help="This agent's name.")] = "robot",
     sequence: Annotated[
-        list[str] | None, typer.Option("--sequence", help="A sequence to meet (repeatable).")
+        list[str] | None,
+        typer.Option(
+            "--sequence",
+            help="A sequence to meet, e.g. 'TargetSeen(colour=2)' (repeatable).",
+        ),
     ] = None,
     duration: Annotated[float, typer.Option(help="Seconds to run.")] = 30.0,
     exit_when_done: Annotated[
         bool, typer.Option(help="Stop once every sequence is known.")
     ] = False,
     knowledge_file: Annotated[
-        Path | None, typer.Option("--save", help="Persist learned knowledge here.")
+        Path | None,
+        typer.Option("--save", help="Persist learned knowledge here.", readable=False),
     ] = None,
     listen: Listen = None,
     connect: Connect = None,
@@ -451,6 +542,8 @@ def peer_run(
     from . import peer
 
     _check_peer(name, duration, most=365 * 86400)  # an agent may run for days
+    for text in sequence or ():
+        _sequence_or_exit("--sequence", text)
     settings = _settings(listen, connect, config, multicast, mode)
     sequences = sequence or peer.COLOURS
     _peer_call(

@@ -33,15 +33,22 @@ def _section(title: str) -> None:
     typer.secho(f"== {title}", bold=True)
 
 
+def examples_folder() -> Path:
+    """The examples: inside the installed package (a wheel ships them), else the source tree's
+    ``examples/`` (an editable install)."""
+    packaged = Path(__file__).with_name("examples")
+    if packaged.is_dir():
+        return packaged
+    return Path(__file__).resolve().parent.parent / "examples"
+
+
 def run_demo(examples: Path) -> int:
     paper = examples / "paper_control.sbt"
     control = examples / "sar_control.sbt"
     registry = examples / "sar_registry.toml"
     for path in (paper, control, registry):
         if not path.is_file():
-            typer.echo(
-                f"error: {path} not found (run from the repository, or pass --examples)", err=True
-            )
+            typer.echo(f"error: {path} not found (pass --examples FOLDER)", err=True)
             return 1
 
     _section(f"The paper's control tree, as printed in the paper ({paper})")
@@ -91,10 +98,8 @@ def _transfer_showcase() -> None:
     from .peer import DEMO_CONTROL, demo_registry
     from .transport.memory import MemoryNetwork
 
-    skill = (
-        "<sq><c>(TargetSeen, colour=2)"
-        "<sq><a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e><e>"
-    )
+    # Written flat, as the paper does: the conditions, then the actions (spec section 4).
+    skill = "<sq><c>(TargetSeen, colour=2)<a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>"
     net = MemoryNetwork()
     knower = DEMO_CONTROL.replace("<k>(prior)<e>", f"<k>(prior){skill}<e>")
     r1 = Agent("r1", knower, demo_registry(), net.join("r1"), wait_ticks=20, cooldown_ticks=20)

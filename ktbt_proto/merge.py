@@ -7,13 +7,10 @@ is proportional to the depth of the placeholder, not to the size of the tree.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable
-from dataclasses import replace
-from functools import lru_cache
 
 from .errors import ErrorCode, StringBTError
-from .syntax import parse
+from .knowledge import read_sequence, split_item
 from .tree import (
     Condition,
     Container,
@@ -30,15 +27,12 @@ class MergeError(StringBTError):
     """The knowledge cannot go where it was asked to go; the tree is unchanged."""
 
 
-_CALL = re.compile(r"\s*(!?\s*[A-Za-z0-9_.]+)\s*\((.*)\)\s*", re.S)
-
-
 def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
     """Condition nodes from what a user types: ``"_inZoneF"``, ``"!_inZoneF"``, or with
     arguments ``"TargetSeen(colour=2)"``; the text is read by the stringBT parser."""
     if isinstance(spec, str):
         spec = [spec]  # one condition, not its characters
-    out = []
+    out: list[Condition] = []
     for item in spec:
         if not isinstance(item, Condition | str):
             raise MergeError(
@@ -47,44 +41,8 @@ def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
         if isinstance(item, Condition):
             out.append(item)
             continue
-        out.append(_condition_from_text(item))
+        out.extend(read_sequence(item))  # cached: robots meet the same few sequences
     return tuple(out)
-
-
-@lru_cache(maxsize=1024)
-def _condition_from_text(text: str) -> Condition:
-    # Cached: robots ask about the same few condition sequences again and again.
-    call = _CALL.fullmatch(text)
-    inner = f"{call.group(1)}, {call.group(2)}" if call else text
-    node = parse(f"<c>({inner})").root
-    if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
-        raise TypeError(text)
-    return replace(node, pos=None)
-
-
-def split_conditions(text: str) -> list[str]:
-    """Split ``"A,!B,C(x=1, y=\"a,b\")"`` at the commas outside parentheses and strings."""
-    parts: list[str] = []
-    depth, quoted, escaped, start = 0, False, False, 0
-    for i, char in enumerate(text):
-        if quoted:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                quoted = False
-        elif char == '"':
-            quoted = True
-        elif char == "(":
-            depth += 1
-        elif char == ")":
-            depth -= 1
-        elif char == "," and depth == 0:
-            parts.append(text[start:i])
-            start = i + 1
-    parts.append(text[start:])
-    return [p.strip() for p in parts if p.strip()]
 
 
 def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:
@@ -108,15 +66,6 @@ def find_placeholder(tree: Tree | Node, slot: str) -> tuple[int, ...] | None:
             child = children[i]
             if isinstance(child, Container):
                 stack.append((child, (*path, i)))
-    return None
-
-
-def _key(item: Node) -> tuple[Node, ...] | None:
-    """The condition sequence a knowledge item answers, or None if it is not of that shape."""
-    if isinstance(item, Sequence) and not item.memory and len(item.children) >= 2:
-        conds = item.children[:-1]
-        if all(isinstance(c, Condition) for c in conds):
-            return conds
     return None
 
 
@@ -158,11 +107,14 @@ def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | 
         chain.append(node)
         node = node.children[index]
     assert isinstance(node, Placeholder)
-    key = _key(item)
+    split = split_item(item)
     for existing in node.children:
         if existing == item:
             return None
-        if key is not None and _key(existing) == key:
+        known = None if split is None else split_item(existing)
+        if known is not None and split is not None and known[0] == split[0]:
+            if known[1] == split[1]:  # the same item, written flat or nested (spec section 4)
+                return None
             line, column = existing.pos if existing.pos else (0, 0)
             raise MergeError(
                 ErrorCode.KNOWLEDGE_CONFLICT,

@@ -17,15 +17,26 @@ from .agent import RECEIVE_LIMITS, Agent
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
-from .knowledge import KnowledgeBase, sequence_key
+from .knowledge import KnowledgeBase, sequence_key, show_sequence
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
 from .registry import Registry
 from .status import RUNNING, SUCCESS, Status
 from .syntax import parse
 from .transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
+from .tree import Condition
 
 Say = Callable[[str], None]
+
+
+def shown(key: str) -> str:
+    """A sequence key as people read and type it (``TargetSeen(colour=2)``); a key that does
+    not parse (a hostile peer's catalog) is shown quoted, as it came."""
+    try:
+        return show_sequence(key)
+    except StringBTError:
+        return repr(key)
+
 
 DEMO_CONTROL = """<sl>
     <sq>
@@ -94,7 +105,9 @@ def load_knowledge(path: str | Path) -> KnowledgeBase:
         if len(format_tree(item.subtree, "compact")) > 60_000:
             raise ValueError(f"{path}: the subtree for {item.key} is too large to send")
     if not len(kb):
-        raise ValueError(f"{path}: no knowledge items (Sequence(conditions, subtree) in <k>)")
+        raise ValueError(
+            f"{path}: no knowledge items (inside a <k>(...): <sq>, the conditions, the actions)"
+        )
     return kb
 
 
@@ -123,19 +136,26 @@ def serve(name: str, knowledge: KnowledgeBase, settings: ZenohSettings, say: Say
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
         for item in knowledge:
-            say(f"  {item.key}")
+            say(f"  {show_sequence(item.conditions)}")
         stop.wait()
     say(f"{name}: stopped")
     return 0
 
 
 def ask(
-    name: str, sequence: Sequence[str], settings: ZenohSettings, timeout: float, say: Say
+    name: str,
+    sequence: Sequence[str | Condition],
+    settings: ZenohSettings,
+    timeout: float,
+    say: Say,
+    note: Say | None = None,
 ) -> tuple[int, list[Response]]:
+    """Ask once; ``say`` the answers. ``note`` is told, when no answer came, whether nobody was
+    reachable or nobody knew: two different problems that look alike otherwise."""
     key = sequence_key(parse_conditions(sequence))
     query = Query(id=Query.new_id(), sender=name, sequence=key)
     with ZenohTransport(name, settings, query_timeout=timeout, serving=False) as transport:
-        wait_for_peers(transport, timeout)
+        reachable = wait_for_peers(transport, timeout)
         answers = transport.ask(query, timeout)
     responses = []
     for answer in answers:
@@ -149,6 +169,14 @@ def ask(
         say(f"# from {answer.sender}")
         say(format_tree(tree).rstrip())
         responses.append(answer)
+    if not responses and note is not None:
+        if not reachable:
+            note(f"no answer: no peer reachable within {timeout:g} s")
+        else:
+            note(
+                f"no answer: {len(reachable)} peer{'s' * (len(reachable) != 1)} reachable, "
+                f"none knows {show_sequence(parse_conditions(sequence))}"
+            )
     return (0 if responses else 1), responses
 
 
@@ -197,7 +225,7 @@ def run_agent(
             robot.tick()
             for key in robot.metrics.learned.keys() - announced:
                 tick, source = robot.metrics.learned[key]
-                say(f"{name}: learned {key} from {source} at tick {tick}")
+                say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
                 announced.add(key)
             stop.wait(period)
         m = robot.metrics
@@ -206,7 +234,7 @@ def run_agent(
             f"lost {m.queries_lost}, refused {len(m.refusals)}, taught {m.responses_sent}"
         )
         for item in robot.knowledge:
-            say(f"  knows {item.key}")
+            say(f"  knows {show_sequence(item.conditions)}")
         return 0 if all(robot.knows([s]) for s in sequences) else 1
 
 
@@ -234,7 +262,7 @@ def list_peers(name: str, settings: ZenohSettings, timeout: float, say: Say) -> 
     for peer, known in sorted(found.items()):
         say(f"{peer}: {len(known)} skills")
         for key in known:
-            say(f"  {key}")
+            say(f"  {shown(key)}")
     if not found:
         say("no peers found")
     return 0 if found else 1

@@ -498,6 +498,11 @@ class LiveTree:
             self._apply()
         self.ticks += 1
         status = self._tick()
+        if status.__class__ is not Status:  # one check a tick, for the whole tree
+            raise TypeError(
+                f"the tree's tick returned {status!r}, not a Status: a behaviour annotated "
+                "'-> Status' is trusted and must return SUCCESS, FAILURE or RUNNING"
+            )
         self._running = status is RUNNING
         return status
 

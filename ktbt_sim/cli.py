@@ -4,6 +4,7 @@ simulator. Heavy modules are imported inside the commands: ``ktbt fmt`` stays qu
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import time
 from pathlib import Path
@@ -24,6 +25,26 @@ sim = typer.Typer(
 def _fail(message: str) -> typer.Exit:
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(2)
+
+
+SIM_MODULES = ("numpy", "pymunk", "pyarrow", "matplotlib", "pygame")
+"""What the ``sim`` extra installs; the core distribution has none of them."""
+
+
+def missing_extra() -> list[str]:
+    """The simulator's dependencies that are not installed (none after ``ktbt[sim]``)."""
+    return [name for name in SIM_MODULES if importlib.util.find_spec(name) is None]
+
+
+@sim.callback()
+def _need_sim() -> None:
+    """Before any ``ktbt sim`` command: without the extra, say in one line how to get it."""
+    missing = missing_extra()
+    if missing:
+        raise _fail(
+            f"the simulator needs the sim extra ({', '.join(missing)} missing): "
+            "pip install 'ktbt[sim]'"
+        )
 
 
 def _scenarios(
@@ -51,8 +72,10 @@ def sweep(
     workers: int,
     executor: str = "local",
     address: str | None = None,
-) -> float:
-    """Run with a progress bar (trials done, ETA); returns the wall time in seconds."""
+) -> tuple[int, int, float]:
+    """Run with a progress bar (trials done, ETA); returns the trials run now, the trials that
+    were already there, and the wall time in seconds. Ctrl-C stops at once, says how many
+    trials are saved and how to resume, and exits 130."""
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -80,22 +103,40 @@ def sweep(
         TimeRemainingColumn(),
     )
     started = time.perf_counter()
+    ran = 0
     with Progress(*columns, transient=False) as bar:
         task = bar.add_task(f"{len(scenarios)} scenario(s)", total=total, completed=total - todo)
 
         def done(job: Job, seconds: float) -> None:
+            nonlocal ran
+            ran += 1
             bar.update(task, advance=1, description=f"{job.scenario.name} #{job.trial}")
 
         try:
             run(scenarios, out, workers=workers, executor=executor, address=address, progress=done)
         except (ValueError, OSError) as exc:
             raise _fail(str(exc)) from None
-    return time.perf_counter() - started
+        except KeyboardInterrupt:
+            bar.stop()
+            saved = total - todo + ran
+            typer.echo(
+                f"interrupted: {saved} of {total} trials are saved in {out}; "
+                f"run the same command again to resume with the {total - saved} missing",
+                err=True,
+            )
+            raise typer.Exit(130) from None
+    return ran, total - todo, time.perf_counter() - started
 
 
 Workers = Annotated[
-    int, typer.Option("--workers", "-j", help="Parallel processes (default: all cores).")
+    int, typer.Option("--workers", "-j", help="Parallel processes (default 0: all cores).")
 ]
+
+
+def _workers(workers: int) -> int:
+    if workers < 0:
+        raise _fail(f"--workers {workers}: use a number of processes, or 0 for all cores")
+    return workers or os.cpu_count() or 1
 
 
 @sim.command("run")
@@ -105,7 +146,9 @@ def run_command(
     iterations: Annotated[int | None, typer.Option(help="Iterations per trial.")] = None,
     seed: Annotated[int | None, typer.Option(help="Root seed of the trials.")] = None,
     workers: Workers = 0,
-    out: Annotated[Path, typer.Option(help="Output folder (resumable).")] = Path("results"),
+    out: Annotated[Path, typer.Option(help="Output folder (resumable).", readable=False)] = Path(
+        "results"
+    ),
     executor: Annotated[str, typer.Option(help="local (process pool) or ray.")] = "local",
     address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray).")
@@ -117,14 +160,17 @@ def run_command(
 ) -> None:
     """Run a study; an interrupted run restarted with the same --out runs only what is
     missing."""
+    if executor not in ("local", "ray"):
+        raise _fail(f"--executor {executor!r}: use local or ray")
     scenarios = _scenarios(target, trials, iterations, seed)
-    seconds = sweep(scenarios, out, workers or os.cpu_count() or 1, executor, address)
+    ran, before, seconds = sweep(scenarios, out, _workers(workers), executor, address)
     if release_csv:
         from .records import export_release
 
         for scenario in scenarios:
             typer.echo(str(export_release(out / scenario.name)))
-    typer.echo(f"{sum(s.trials for s in scenarios)} trials in {out} ({seconds:.1f} s)")
+    kept = f" ({before} {'was' if before == 1 else 'were'} already there)" if before else ""
+    typer.echo(f"ran {ran} trial{'s' * (ran != 1)} in {seconds:.1f} s{kept}; results in {out}")
 
 
 @sim.command("compare")
@@ -146,7 +192,9 @@ def compare_command(
 
 @sim.command("plot")
 def plot_command(
-    directory: Annotated[Path, typer.Argument(help="An output folder of `ktbt sim run`.")],
+    directory: Annotated[
+        Path, typer.Argument(help="An output folder of `ktbt sim run`.", readable=False)
+    ],
 ) -> None:
     """Draw every figure the folder has data for (PNG and SVG) and a summary table."""
     from .plots import plot
@@ -199,38 +247,66 @@ def scenario_command(
 @sim.command("view")
 def view_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")] = "ktbt",
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the run.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
     record: Annotated[
-        Path | None, typer.Option(help="Write frames headless: out.gif or a folder of PNGs.")
+        Path | None,
+        typer.Option(
+            help="Write frames headless: out.gif, or a folder (no suffix) of PNGs.",
+            readable=False,
+        ),
     ] = None,
-    frames: Annotated[int, typer.Option(min=1, help="Frames to record.")] = 100,
-    every: Annotated[int, typer.Option(min=1, help="Iterations between recorded frames.")] = 50,
+    frames: Annotated[int, typer.Option(help="Frames to record.")] = 150,
+    every: Annotated[
+        int, typer.Option(help="Iterations between recorded frames (default: 30,000 in all).")
+    ] = 200,
+    iterations: Annotated[
+        int, typer.Option(help="Watching: close the window after this many (0: when you quit).")
+    ] = 0,
 ) -> None:
     """Watch a run: space pauses, right arrow steps, +/- change speed, q quits."""
+    for option, value, least in (
+        ("--seed", seed, 0),
+        ("--frames", frames, 1),
+        ("--every", every, 1),
+        ("--iterations", iterations, 0),
+    ):
+        if value < least:
+            raise _fail(f"{option} {value}: use a whole number of at least {least}")
+    if record is not None and record.suffix and record.suffix.lower() != ".gif":
+        raise _fail(
+            f"--record {record}: write an animated .gif, or a folder of PNG frames "
+            f"(a name without a suffix), not {record.suffix}"
+        )
     scenarios = _scenarios(target, None, None, None)
     if len(scenarios) != 1:
         raise _fail("view takes one scenario, not a study")
     from . import viewer
+
+    if record is None:
+        reason = viewer.no_display()
+        if reason:
+            raise _fail(f"{reason}; record the run instead: --record run.gif")
     from .world import World
 
     world = World(scenarios[0], seed=seed)
     try:
         if record is not None:
             viewer.record(world, record, frames=frames, every=every)
-            typer.echo(str(record))
+            typer.echo(f"{record}: {frames} frames, iterations 0 to {(frames - 1) * every:,}")
         else:
-            viewer.run(world)
+            viewer.run(world, max_iterations=iterations or None)
     except (ValueError, OSError, RuntimeError) as exc:  # pygame.error is a RuntimeError
         raise _fail(str(exc)) from None
 
 
 def demo_command(
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("ktbt-demo"),
+    out: Annotated[Path, typer.Option(help="Output folder.", readable=False)] = Path("ktbt-demo"),
     trials: Annotated[int, typer.Option(help="Trials per group.")] = 4,
     iterations: Annotated[int, typer.Option(help="Iterations per trial.")] = 30_000,
     workers: Workers = 0,
 ) -> None:
     """The paper's main result in about a minute: KT-BT against both no-transfer baselines."""
+    _need_sim()
     from .experiment import STUDIES
     from .plots import plot
     from .scenario import PRESETS
@@ -245,7 +321,7 @@ def demo_command(
         f"BL1 (40 robots that know every colour), BL2 (10 per colour, no transfer) and KT-BT "
         f"(10 per colour, sharing knowledge): {trials} trials of {iterations:,} iterations each."
     )
-    seconds = sweep(scenarios, out, workers or os.cpu_count() or 1)
+    *_, seconds = sweep(scenarios, out, _workers(workers))
     try:
         plot(out)
     except (ValueError, OSError) as exc:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import signal
 import time
+import tomllib
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -19,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from .results import (
     Results,
@@ -91,9 +94,28 @@ def scenarios_for(target: str) -> list[Scenario]:
         return [PRESETS[target]]
     path = Path(target)
     if path.exists():
-        return [Scenario.load(path)]
+        return [load_scenario(path)]
     known = ", ".join([*STUDIES, *sorted(PRESETS)])
     raise ValueError(f"{target!r} is neither a study, a preset nor a file; known: {known}")
+
+
+def load_scenario(path: Path) -> Scenario:
+    """A TOML or JSON scenario file; a ValueError names every problem in it, on one line, so
+    that one run of the command is enough to fix the file."""
+    try:
+        text = path.read_text(encoding="utf-8")
+        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ValueError(f"{path}: {reason}") from None
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        problems = [
+            f"{'.'.join(str(p) for p in e['loc']) or 'scenario'}: {e['msg']}" for e in exc.errors()
+        ]
+        count = f"{len(problems)} problems: " if len(problems) > 1 else ""
+        raise ValueError(f"{path}: {count}{'; '.join(problems)}") from None
 
 
 @dataclass(frozen=True)
@@ -212,7 +234,10 @@ def _run_local(jobs: list[Job], workers: int, progress: Progress | None) -> None
             _finish(job, run_trial(job.scenario.dump(), job.trial), started, progress)
         return
     context = multiprocessing.get_context("spawn")  # never fork near pymunk or zenoh
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=context, initializer=_ignore_interrupts
+    )
+    try:
         pending: dict[Future[Rows], tuple[Job, float]] = {}
         queue = list(reversed(jobs))
         while queue or pending:
@@ -224,6 +249,28 @@ def _run_local(jobs: list[Job], workers: int, progress: Progress | None) -> None
             for future in done:
                 job, started = pending.pop(future)
                 _finish(job, future.result(), started, progress)
+    except BaseException:
+        # Ctrl-C (or an error): finished trials are already on disk; the running ones are
+        # abandoned at once rather than waited for, and resume with the next run.
+        _stop_now(pool)
+        raise
+    pool.shutdown()
+
+
+def _ignore_interrupts() -> None:
+    """Workers leave Ctrl-C to the driver, which stops them: a trial is never half-written."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_now(pool: ProcessPoolExecutor) -> None:
+    """Shut the pool down without waiting for the trials still running: terminate its workers
+    (the executor keeps them in ``_processes``; it has no public way to stop them)."""
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for worker in workers:
+        worker.terminate()
+    for worker in workers:
+        worker.join(timeout=5)
 
 
 def _run_ray(jobs: list[Job], workers: int, address: str | None, progress: Progress | None) -> None:

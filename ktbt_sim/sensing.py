@@ -193,7 +193,7 @@ class SparseProximity:
         self.has_neighbours = np.zeros(n, dtype=bool)
         empty = np.zeros(0, dtype=np.int64)
         self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
-        self._near = (empty, empty, np.zeros(0))
+        self._near: tuple[np.ndarray, np.ndarray, np.ndarray] = (empty, empty, np.zeros(0))
         self._keys = empty
         """Sorted ``i * n + j`` of every ordered pair in comms range."""
         self._entered = empty

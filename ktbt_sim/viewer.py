@@ -2,16 +2,18 @@
 window (``run``) or headless into an animated GIF or numbered PNG files (``record``).
 
 The picture follows the paper's figures: four coloured collection zones in the corners, targets
-as small squares, robots as discs with a status light on top (red while teaching, blue while
-querying, cyan while walking at random), so knowledge spreading through the swarm can be seen
-as it happens. Drawing reads the world's arrays and never changes them, so watching a trial
-does not change its outcome: the same seed replays the same run with or without a viewer.
+as small squares, robots as discs with a status light on top (magenta while teaching, white
+while querying, cyan while walking at random: colours no target or zone has), so knowledge
+spreading through the swarm can be seen as it happens. A legend under the counters names them.
+Drawing reads the world's arrays and never changes them, so watching a trial does not change
+its outcome: the same seed replays the same run with or without a viewer.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,10 +44,18 @@ ROBOT: RGB = (45, 45, 55)
 TICK: RGB = (0, 0, 0)
 TEXT: RGB = (20, 20, 24)
 
-LIGHT_TEACHING: RGB = (255, 0, 0)
-LIGHT_QUERYING: RGB = (0, 0, 255)
-LIGHT_WALKING: RGB = (0, 255, 255)
-"""The paper's status lights; pure colours so they stand out from the zone colours."""
+LIGHT_TEACHING: RGB = (235, 0, 235)
+LIGHT_QUERYING: RGB = (255, 255, 255)
+LIGHT_WALKING: RGB = (0, 225, 225)
+"""The paper's status lights, in colours no zone or target has (the paper's red and blue lights
+read as red and blue targets), each bright on the dark robot body."""
+
+LEGEND: tuple[tuple[RGB, str], ...] = (
+    (LIGHT_TEACHING, "teaching"),
+    (LIGHT_QUERYING, "asking"),
+    (LIGHT_WALKING, "searching"),
+)
+"""The status lights, named under the counters."""
 
 ZONE_TINT = 0.25
 """How much of the zone's colour the outer square takes: enough to show where a zone begins
@@ -148,8 +158,9 @@ class Viewer:
 
     @property
     def robot_radius(self) -> int:
-        """Body radius in pixels, at least 3 so a robot stays a visible disc in a small window."""
-        return max(3, round(self.world.scenario.robot.body / 2 * self.scale))
+        """Body radius in pixels. Drawn to scale a robot is 3 pixels wide in an 800-pixel
+        window, too small to read its light or heading; so at least 1/100 of the window."""
+        return max(3, self.size // 100, round(self.world.scenario.robot.body / 2 * self.scale))
 
     @property
     def light_radius(self) -> int:
@@ -239,19 +250,46 @@ class Viewer:
                 pygame.draw.circle(surface, light, centre, lr)
 
     def _hud(self, surface: pygame.Surface, status: str) -> None:
-        """Counters on a translucent panel in the top-left corner, so robots passing under it
-        stay visible."""
+        """Counters, then a one-line legend of the status lights, on a translucent panel in the
+        top-left corner (above the red zone's centre), so robots passing under it stay
+        visible."""
         lines = [self.font.render(text, True, TEXT) for text in hud_lines(self.world, status)]
-        pad = max(2, self.size // 200)
         step = self.font.get_linesize()
-        width = max(line.get_width() for line in lines) + 2 * pad
-        height = step * len(lines) + 2 * pad
-        panel = pygame.Surface((width, height), pygame.SRCALPHA)
+        swatch = max(3, step // 2 - 1)
+        gap = max(3, step // 3)
+        legend = [self.font.render(text, True, TEXT) for _, text in LEGEND]
+        row = sum(2 * swatch + gap + label.get_width() + 2 * gap for label in legend)
+        pad = max(2, self.size // 200)
+        width = max(row, *(line.get_width() for line in lines))
+        panel = pygame.Surface(
+            (width + 2 * pad, step * (len(lines) + 1) + 2 * pad), pygame.SRCALPHA
+        )
         panel.fill((255, 255, 255, 190))
         for k, line in enumerate(lines):
             panel.blit(line, (pad, pad + k * step))
+        x, top = pad, pad + len(lines) * step
+        for (colour, _), label in zip(LEGEND, legend, strict=True):
+            centre = (x + swatch, top + step // 2)
+            pygame.draw.circle(panel, ROBOT, centre, swatch)
+            pygame.draw.circle(panel, colour, centre, max(2, swatch * 2 // 3))
+            x += 2 * swatch + gap
+            panel.blit(label, (x, top))
+            x += label.get_width() + 2 * gap
         corner = self.margin + pad
         surface.blit(panel, (corner, corner))
+
+
+def no_display() -> str | None:
+    """Why no window can be shown here, or None. A driver the user chose (``SDL_VIDEODRIVER``)
+    is respected; otherwise a Linux or BSD machine without X11 or Wayland has no display, and
+    SDL would quietly draw into nothing."""
+    if os.environ.get("SDL_VIDEODRIVER") and not _headless_env["set"]:
+        return None
+    if sys.platform in ("darwin", "win32", "cygwin"):
+        return None
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    return "no display to open a window on (DISPLAY and WAYLAND_DISPLAY are not set)"
 
 
 def render(world: World, size: int = DEFAULT_SIZE) -> pygame.Surface:
@@ -317,9 +355,16 @@ def run(
     if steps_per_frame < 1:
         raise ValueError(f"steps_per_frame must be at least 1, not {steps_per_frame}")
     _windowed()
+    chosen = os.environ.get("SDL_VIDEODRIVER")
     pygame.display.init()
     try:
         screen = pygame.display.set_mode((size, size))
+        driver = pygame.display.get_driver()
+        if driver in ("dummy", "offscreen") and not chosen:
+            raise RuntimeError(
+                f"no window can be shown here (SDL fell back to its {driver} driver); "
+                "record the run instead: --record run.gif"
+            )
         pygame.display.set_caption(f"KT-BT {world.scenario.name}: {KEYS_HELP}")
         viewer = Viewer(world, size)
         controls = Controls(steps_per_frame=steps_per_frame)

@@ -148,7 +148,9 @@ def test_tour_runs() -> None:
     assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
     assert "SBT306 unknown action 'Teleport'" in out
     assert "r2 asked, r1 answered" in out and "heads for zone 2" in out
-    code, _, err = ktbt("tour", cwd=Path(os.sep))
+    code, out, _ = ktbt("tour", cwd=Path(os.sep))  # the examples come with the package
+    assert code == 0 and "r2 asked, r1 answered" in out
+    code, _, err = ktbt("tour", "--examples", str(Path(os.sep) / "nonexistent"))
     assert code == 1 and "not found" in err
 
 
@@ -212,4 +214,6 @@ def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:
     code, out, err = ktbt("merge", str(control), "-", stdin=b"<sq><k>(new)<e><a>(Z)<e>")
     assert (code, out) == (1, "") and "SBT304" in err
     code, _, err = ktbt("merge", str(control), "-", "--when", ",,", stdin=b"<a>(Z)")
-    assert code == 1 and "names no condition" in err
+    assert code == 2 and "expected a condition before ','" in err  # usage: exit 2
+    code, _, err = ktbt("merge", str(control), "-", "--when", " ", stdin=b"<a>(Z)")
+    assert code == 2 and "names no condition" in err

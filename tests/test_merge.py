@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.merge import conditions, find_placeholder, split_conditions
+from ktbt_proto.merge import conditions, find_placeholder
 from ktbt_proto.tree import walk
 
 from .strategies import names, trees
@@ -77,7 +77,7 @@ def test_without_when_the_subtree_is_the_item() -> None:
 
 
 def test_conditions_from_text() -> None:
-    assert conditions(split_conditions('A, !B,C(x=1, s="a,b"), D( y = true )')) == (
+    assert conditions('A, !B,C(x=1, s="a,b"), D( y = true )') == (
         kp.Condition("A"),
         kp.Condition("B", negated=True),
         kp.Condition("C", args=(("x", 1), ("s", "a,b"))),
@@ -144,7 +144,13 @@ def test_cli_merge(tmp_path: Path) -> None:
     code, _, err = ktbt("merge", str(EXAMPLES / "sar_control.sbt"), str(skill), "--slot", "nope")
     assert code == 1 and "SBT401" in err
     code, _, err = ktbt("merge", str(EXAMPLES / "sar_control.sbt"), str(skill), "--when", "A B")
-    assert code == 1 and "SBT103" in err and "Traceback" not in err
+    # A mistake in --when is a usage error (exit 2), shown in what the user typed.
+    assert code == 2 and "Traceback" not in err
+    assert err.splitlines() == [
+        "error: --when 'A B': SBT103 expected '(' or ',' after the condition name",
+        "    A B",
+        "      ^",
+    ]
 
 
 def test_when_as_one_string_is_one_condition() -> None:

@@ -214,6 +214,7 @@ def rig(kinds: Robots, positions: list[tuple[float, float]], **changes: object) 
     world = World(small(robots=kinds, targets=Targets(red=1, green=1), **changes), seed=0)
     for i, (x, y) in enumerate(positions):
         place(world, i, x, y)
+    assert isinstance(world.proximity, sensing.Proximity)  # a small group: the dense search
     world.proximity.update(world.pos, 0)
     world.proximity.entered[:] = 0
     return world
@@ -225,6 +226,7 @@ def see(world: World, i: int, colour: int) -> None:
 
 
 def enter_in_order(world: World, order: list[int], at: int) -> None:
+    assert isinstance(world.proximity, sensing.Proximity)
     for k, j in enumerate(order):
         world.proximity.entered[at, j] = world.proximity.entered[j, at] = k + 1
 

@@ -75,9 +75,11 @@ def test_validation_vectors(case: dict[str, Any]) -> None:
 
 
 def test_vectors_cover_every_parse_error_code() -> None:
-    seen = {c["code"] for c in vectors("invalid")} | {
-        p[0] for c in vectors("validation") for p in c["problems"]
-    }
+    seen = (
+        {c["code"] for c in vectors("invalid")}
+        | {p[0] for c in vectors("validation") for p in c["problems"]}
+        | {w[0] for c in vectors("knowledge") for w in c["warnings"]}
+    )
     # Bytes, huge inputs and programmatic trees: covered by the unit tests, not by text vectors.
     not_in_vectors = {
         "SBT100",

@@ -113,7 +113,7 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
             "TargetSeen(colour=2)",
             "--duration",
             "60",
-            ready="learned <c>(TargetSeen,colour=2) from teacher",
+            ready="learned TargetSeen(colour=2) from teacher",
         ) as r1,
     ):
         teacher.send_signal(signal.SIGTERM)
@@ -134,7 +134,7 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
             "30",
         )
         assert r2.returncode == 0, r2.stdout + r2.stderr
-        assert "r2: learned <c>(TargetSeen,colour=2) from r1" in r2.stdout
+        assert "r2: learned TargetSeen(colour=2) from r1" in r2.stdout
         assert r1.poll() is None  # still running, still teaching
 
 

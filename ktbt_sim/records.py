@@ -270,13 +270,30 @@ def read_release_folder(folder: str | Path) -> Results:
     return Results(scenario, numbers, iterations, data)
 
 
+def release_name(scenario: Scenario) -> str:
+    """The release's folder name for a scenario:
+    ``MODE_I_M_R_G_Y_B_Obstacles_nR_nG_nY_nB_range_memoryDuration``."""
+    r, t = scenario.robots, scenario.targets
+    mode = "NL" if scenario.mode is Mode.NO_TRANSFER else "RL"
+    robots = (r.ignorant, r.multi, r.red, r.green, r.yellow, r.blue)
+    targets = (t.red, t.green, t.yellow, t.blue)
+    parts = [mode, *map(str, robots), "Y" if scenario.arena.obstacles else "N"]
+    parts += [*map(str, targets), f"{scenario.comm_range:g}", "-1"]
+    return "_".join(parts)
+
+
 def export_release(folder: Path) -> Path:
-    """Every finished trial of a ``ktbt sim run`` scenario folder in the release's format, as
-    ``<folder>/release/<name>_Tr_<trial + 1>.csv`` (the release numbers trials from 1)."""
+    """Every finished trial of a ``ktbt sim run`` scenario folder in the release's format: a
+    release ``SimData`` scenario folder ``<folder>/release/<release name>/`` holding
+    ``<release name>_Tr_<trial + 1>.csv`` (the release numbers trials from 1)."""
+    import json
+
     from .results import finished, read_trial, trial_path
 
-    target = folder / "release"
-    target.mkdir(exist_ok=True)
+    scenario = Scenario.model_validate(json.loads((folder / "scenario.json").read_text("utf-8")))
+    name = release_name(scenario)
+    target = folder / "release" / name
+    target.mkdir(parents=True, exist_ok=True)
     (target / "README.txt").write_text(
         "One CSV per trial in the release's format (a row every 10 iterations, 35 columns).\n"
         "As in the release's own files, the three columns headed 'Known St. RG', 'Known St.\n"
@@ -286,5 +303,5 @@ def export_release(folder: Path) -> Path:
     )
     for trial in sorted(finished(folder)):
         rows = read_trial(trial_path(folder, trial))
-        write_release_csv(target / f"{folder.name}_Tr_{trial + 1}.csv", rows)
+        write_release_csv(target / f"{name}_Tr_{trial + 1}.csv", rows)
     return target

@@ -113,3 +113,25 @@ def test_sim_plot_reads_a_release_folder(tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr
     assert f"release {RL.name}" in (tmp_path / "summary.md").read_text(encoding="utf-8")
+
+
+def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Path) -> None:
+    def ktbt(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "ktbt_proto", *args],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            cwd=tmp_path,
+        )
+
+    run = ktbt("sim", "run", "calibration-rl", "--trials", "2", "--iterations", "300",
+               "--release-csv", "-j", "1")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    name = "RL_0_0_10_10_10_10_N_100_100_100_100_200_-1"
+    theirs = tmp_path / "results" / "calibration-rl" / "release" / name
+    assert sorted(p.name for p in theirs.glob("*.csv")) == [f"{name}_Tr_{k}.csv" for k in (1, 2)]
+    assert "RY" in (theirs / "README.txt").read_text(encoding="utf-8")
+    shown = ktbt("sim", "compare", "results/calibration-rl", str(theirs))
+    assert shown.returncode == 0, shown.stderr
+    assert "**no**" not in shown.stdout  # our rows, read back through the release's format

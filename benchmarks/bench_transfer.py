@@ -45,6 +45,7 @@ from ktbt_proto.agent import RECEIVE_LIMITS
 from ktbt_proto.knowledge import KnowledgeBase, parse_sequence
 from ktbt_proto.messages import Query, Response, decode, encode
 from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry, load_knowledge
+from ktbt_proto.signing import SignedItem
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
@@ -88,19 +89,19 @@ def sequence_of(colour: int) -> str:
     return f"<c>(TargetSeen,colour={colour})"
 
 
-def serve_lookup(kb: KnowledgeBase) -> Callable[[str], str | None]:
+def serve_lookup(kb: KnowledgeBase) -> Callable[[str], SignedItem | None]:
     """The lookup ``ktbt peer serve`` uses."""
     return answers(kb)
 
 
-def wire_messages(lookup: Callable[[str], str | None]) -> tuple[Query, Response]:
+def wire_messages(lookup: Callable[[str], SignedItem | None]) -> tuple[Query, Response]:
     """A query of ours and the teacher's response to it, as they travel."""
     key = sequence_of(COLOURS[0])
-    subtree = lookup(key)
-    if subtree is None:
+    item = lookup(key)
+    if item is None:
         raise AssertionError(f"{KNOWLEDGE_PATH.name} does not know {key}")
     query = Query(id=Query.new_id(), sender=LEARNER, sequence=key)
-    return query, Response(id=query.id, sender=TEACHER, sequence=key, subtree=subtree)
+    return query, Response(id=query.id, sender=TEACHER, sequence=key, subtree=item.subtree)
 
 
 def _wait(until: Callable[[], bool], what: str) -> float:
@@ -265,10 +266,10 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
         # ZenohTransport._on_query with a lookup, less the zenoh calls.
         asked = decode(query_bytes)
         assert isinstance(asked, Query)
-        subtree = lookup(asked.sequence)
-        assert subtree is not None
+        item = lookup(asked.sequence)
+        assert item is not None
         return encode(
-            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=subtree)
+            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=item.subtree)
         )
 
     def check_parse() -> object:

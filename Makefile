@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench clean
+.PHONY: demo test lint typecheck pytest bench fuzz clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -35,5 +35,12 @@ test: lint typecheck pytest
 bench: $(VENV)/.installed-dev
 	$(BIN)/python -m benchmarks
 
+# Mutation fuzzing of the parsers, the formatter round trip, the validator and the message
+# decoder (not part of `make test`): FUZZ_INPUTS=... FUZZ_SEED=... make fuzz
+FUZZ_INPUTS ?= 1000000
+FUZZ_SEED ?=
+fuzz: $(VENV)/.installed-dev
+	$(BIN)/python -m ktbt_proto.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+
 clean:
-	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
@@ -303,16 +305,21 @@ class Agent:
         if author is None and self.identity is not None:  # its own knowledge: it is the author
             signed = self.identity.sign_item(query.sequence, subtree)
             author, signature = signed.author, signed.signature
-        response = Response(
-            id=query.id,
-            sender=self.name,
-            sequence=query.sequence,
-            subtree=subtree,
-            author=author,
-            signature=signature,
-        )
-        if self.identity is not None:
-            response = self.identity.sign_reply(response)
+        try:
+            response = Response(
+                id=query.id,
+                sender=self.name,
+                sequence=query.sequence,
+                subtree=subtree,
+                author=author,
+                signature=signature,
+            )
+            if self.identity is not None:
+                response = self.identity.sign_reply(response)
+        except ValidationError as exc:  # too large to send: no peer could accept it
+            reason = exc.errors()[0].get("msg", "invalid")
+            self.refuse(f"cannot answer {query.sequence[:80]} to {query.sender}: {reason}")
+            return FAILURE
         self.transport.send(query.sender, response)
         self.metrics.responses_sent += 1
         self._record(
@@ -416,6 +423,8 @@ class Agent:
                 f"{path.name}.damaged-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}"
             )
             try:
+                if not path.is_file() or path.is_symlink():
+                    raise OSError(0, "not a regular file")
                 path.rename(aside)
                 where = f"moved to {aside.name}"
             except OSError as err:

@@ -165,6 +165,7 @@ class Identity:
         """Write the private key (PKCS#8 PEM, mode 0600, never over an existing file) and,
         next to it, ``<path>.pub``: the public key on one line. Returns the public key's path."""
         path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
         pem = self._private.private_bytes(
             serialization.Encoding.PEM,
             serialization.PrivateFormat.PKCS8,

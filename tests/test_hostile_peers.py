@@ -264,3 +264,25 @@ def test_run_reports_refusals_and_keeps_a_damaged_save_file(tmp_path: Path) -> N
     assert "refused knowledge: cannot resume" in result.stderr  # logging is configured
     logged = [json.loads(line) for line in (tmp_path / "r.log").read_text().splitlines()]
     assert [e["event"] for e in logged if e["event"] == "refused"] == ["refused"]
+
+
+def test_outgoing_queries_are_bounded_and_catalogs_carry_provenance() -> None:
+    pa, pb = free_port(), free_port()
+    author = Identity.generate()
+    kb = KnowledgeBase(
+        item.__class__(item.conditions, item.subtree, item.segment, "k", author=author.public)
+        for item in teacher_kb()
+    )
+    from ktbt_proto.peer import catalog
+    from ktbt_proto.transport.zenoh import catalogs
+
+    with (
+        ZenohTransport("t", settings(pa), lookup=answers(kb), catalog=catalog(kb)),
+        ZenohTransport("me", settings(pb, pa), serving=False, max_asking=2) as me,
+    ):
+        see(me, "t")
+        entries = catalogs(me)["t"]
+        assert entries[0]["author"] == author.public and entries[0]["teacher"] == "k"
+        for n in range(50):  # far more than the workers can send at once
+            me.broadcast(Query(id=f"q{n}", sender="me", sequence=GREEN))
+        assert me.refused >= 1  # refused and counted, not queued without end

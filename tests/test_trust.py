@@ -327,3 +327,21 @@ def test_keygen_writes_a_key_pair_and_a_trust_line(tmp_path: Path) -> None:
     assert TrustStore.parse(line).names["r1"] == Identity.load(tmp_path / "r1.key").public
     again = CliRunner().invoke(app, ["peer", "keygen", str(tmp_path / "r1.key")])
     assert again.exit_code == 2
+
+
+def test_a_teacher_refuses_to_send_an_answer_no_peer_could_accept() -> None:
+    huge = "<sq>" + "<a>(Pick,colour=2)" * 3_500 + "<e>"  # 63,000 characters, within its limits
+    tree = f"<sl><k>(prior)<sq>{SEQ}{huge}<e><e><k>(new)<e><a>(Walk)<e>"
+    net = MemoryNetwork()
+    teacher = agent(net, "t", tree, identity=Identity.generate())
+    learner = agent(net, "i")
+    learner.encounter(SEQUENCE)
+    run(net, [learner, teacher], 3)
+    assert not learner.knows(SEQUENCE)
+    assert any("cannot answer" in why for _, why in teacher.metrics.refusals)
+
+
+def test_a_save_path_that_is_not_a_file_is_never_written(tmp_path: Path) -> None:
+    net = MemoryNetwork()
+    robot = agent(net, "i", knowledge_path="/dev/zero")
+    assert robot.knowledge_path is None and "nothing will be saved" in robot.metrics.refusals[0][1]

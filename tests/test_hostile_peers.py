@@ -173,9 +173,15 @@ def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_l
     transfer_log = TransferLog(tmp_path / "learner.log")
     with ExitStack() as stack:
         stack.enter_context(transfer_log)
+        server_log = stack.enter_context(TransferLog(tmp_path / "t.log"))
         teacher = stack.enter_context(
             ZenohTransport(
-                "t", settings(pt), lookup=answers(kb, honest), catalog=kb.keys, identity=honest
+                "t",
+                settings(pt),
+                lookup=answers(kb, honest),
+                catalog=kb.keys,
+                identity=honest,
+                log=server_log,
             )
         )
         silent, held = stack.enter_context(hostile("silent", ps, pt))
@@ -225,6 +231,8 @@ def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_l
     assert sum(e["event"] == "refused" for e in events) == total
     merged = [e for e in events if e["event"] == "merged"]
     assert merged[0]["author"] == honest.public
+    served = [e["event"] for e in read(tmp_path / "t.log") if isinstance(e, dict)]
+    assert served[:2] == ["query-received", "answer-sent"]
 
 
 def test_serve_refuses_a_knowledge_file_without_end(tmp_path: Path) -> None:

@@ -325,6 +325,14 @@ class ZenohTransport:
             query.drop()
             return
         if self.lookup is not None:
+            if self.log is not None:
+                self.log.record(
+                    "query-received",
+                    peer=self.name,
+                    sender=message.sender,
+                    id=message.id,
+                    sequence=message.sequence,
+                )
             try:
                 self._answer_at_once(query, message, self.lookup)
             finally:

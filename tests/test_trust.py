@@ -9,6 +9,8 @@ from typing import Annotated, Any
 
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import Field
 from typer.testing import CliRunner
 
@@ -345,3 +347,31 @@ def test_a_save_path_that_is_not_a_file_is_never_written(tmp_path: Path) -> None
     net = MemoryNetwork()
     robot = agent(net, "i", knowledge_path="/dev/zero")
     assert robot.knowledge_path is None and "nothing will be saved" in robot.metrics.refusals[0][1]
+
+
+AUTHOR, HOP = Identity.generate(), Identity.generate()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    sequence=st.text(min_size=1, max_size=40).filter(lambda t: "\x00" not in t),
+    subtree=st.text(min_size=1, max_size=200).filter(lambda t: "\x00" not in t),
+    field=st.sampled_from(["id", "sender", "sequence", "subtree"]),
+)
+def test_any_change_to_a_signed_answer_is_refused(sequence: str, subtree: str, field: str) -> None:
+    item = AUTHOR.sign_item(sequence, subtree)
+    answer = HOP.sign_reply(
+        Response(
+            id="q",
+            sender="t",
+            sequence=sequence,
+            subtree=subtree,
+            author=item.author,
+            signature=item.signature,
+        )
+    )
+    store = TrustStore.parse(AUTHOR.public)
+    assert refusal(answer, Policy.TRUSTED, store) is None
+    assert decode(encode(answer)) == answer
+    changed = answer.model_copy(update={field: getattr(answer, field) + "x"})
+    assert refusal(changed, Policy.ANY, store) is not None

@@ -167,15 +167,19 @@ def answers(
     return table.get
 
 
-def catalog(knowledge: KnowledgeBase) -> Callable[[], list[str | dict[str, Any]]]:
-    """What the catalog queryable answers: each sequence with its provenance."""
+def catalog(
+    knowledge: KnowledgeBase, identity: Identity | None = None
+) -> Callable[[], list[str | dict[str, Any]]]:
+    """What the catalog queryable answers: each sequence with its provenance (a peer with a key
+    pair is the author of the items it holds unsigned: it signs them when it answers)."""
+    own = identity.public if identity is not None else None
 
     def entries() -> list[str | dict[str, Any]]:
         out: list[str | dict[str, Any]] = []
         for item in knowledge:
             entry = {
                 "sequence": item.key,
-                "author": item.author,
+                "author": item.author or own,
                 "teacher": item.source,
                 "received_at": item.received_at,
             }
@@ -200,7 +204,7 @@ def serve(
             name,
             settings,
             lookup=lookup,
-            catalog=catalog(knowledge),
+            catalog=catalog(knowledge, security.identity),
             identity=security.identity,
             log=security.log,
         ) as transport,
@@ -303,7 +307,7 @@ def run_agent(
             trust=security.trust,
             log=security.log,
         )
-        transport.catalog = catalog(robot.knowledge)
+        transport.catalog = catalog(robot.knowledge, security.identity)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)

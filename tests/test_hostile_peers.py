@@ -294,3 +294,27 @@ def test_outgoing_queries_are_bounded_and_catalogs_carry_provenance() -> None:
         for n in range(50):  # far more than the workers can send at once
             me.broadcast(Query(id=f"q{n}", sender="me", sequence=GREEN))
         assert me.refused >= 1  # refused and counted, not queued without end
+
+
+def test_peer_list_shows_who_authored_what_a_signed_server_serves(tmp_path: Path) -> None:
+    from .zenoh_helpers import ktbt_process
+
+    key = tmp_path / "t.key"
+    public = Identity.generate().save(key).read_text().strip()
+    port = free_port()
+    with ktbt_process(
+        "peer",
+        "serve",
+        "--id",
+        "t",
+        "--key",
+        str(key),
+        "--knowledge",
+        str(KNOWLEDGE),
+        "--listen",
+        endpoint(port),
+        ready="serving",
+    ):
+        listed = ktbt_run("peer", "list", "--connect", endpoint(port), "--timeout", "5")
+    assert listed.returncode == 0, listed.stdout + listed.stderr
+    assert f"  {GREEN}  (author {public})" in listed.stdout

@@ -251,7 +251,13 @@ def ask(
         responses.append(answer)
 
     with ZenohTransport(
-        name, settings, query_timeout=timeout, serving=False, log=security.log
+        name,
+        settings,
+        query_timeout=timeout,
+        serving=False,
+        log=security.log,
+        # Checked before a reply takes its key's place: a forgery cannot shut the genuine out.
+        screen=lambda r: refusal(r, security.policy, security.trust),
     ) as transport:
         wait_for_peers(transport, timeout)
         transport.ask(query, timeout, on_answer=show)

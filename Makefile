@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench studies clean
+.PHONY: demo test lint typecheck pytest bench studies fuzz clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -52,5 +52,12 @@ studies: $(VENV)/.installed
 	$(BIN)/ktbt sim compare results/calibration/calibration-nl $(RELEASE_DATA)/$(RELEASE_NL) --out docs/results/calibration-nl
 	$(BIN)/ktbt sim compare results/calibration/calibration-rl $(RELEASE_DATA)/$(RELEASE_RL) --out docs/results/calibration-rl
 
+# Mutation fuzzing of the parsers, the formatter round trip, the validator and the message
+# decoder (not part of `make test`): FUZZ_INPUTS=... FUZZ_SEED=... make fuzz
+FUZZ_INPUTS ?= 1000000
+FUZZ_SEED ?=
+fuzz: $(VENV)/.installed-dev
+	$(BIN)/python -m ktbt_proto.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+
 clean:
-	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures

@@ -45,7 +45,9 @@ from ktbt_proto.agent import RECEIVE_LIMITS
 from ktbt_proto.knowledge import KnowledgeBase, parse_sequence
 from ktbt_proto.messages import Query, Response, decode, encode
 from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry, load_knowledge
+from ktbt_proto.signing import Identity, SignedItem
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
+from ktbt_proto.trust import Policy, TrustStore, refusal
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
 
@@ -88,19 +90,19 @@ def sequence_of(colour: int) -> str:
     return f"<c>(TargetSeen,colour={colour})"
 
 
-def serve_lookup(kb: KnowledgeBase) -> Callable[[str], str | None]:
+def serve_lookup(kb: KnowledgeBase) -> Callable[[str], SignedItem | None]:
     """The lookup ``ktbt peer serve`` uses."""
     return answers(kb)
 
 
-def wire_messages(lookup: Callable[[str], str | None]) -> tuple[Query, Response]:
+def wire_messages(lookup: Callable[[str], SignedItem | None]) -> tuple[Query, Response]:
     """A query of ours and the teacher's response to it, as they travel."""
     key = sequence_of(COLOURS[0])
-    subtree = lookup(key)
-    if subtree is None:
+    item = lookup(key)
+    if item is None:
         raise AssertionError(f"{KNOWLEDGE_PATH.name} does not know {key}")
     query = Query(id=Query.new_id(), sender=LEARNER, sequence=key)
-    return query, Response(id=query.id, sender=TEACHER, sequence=key, subtree=subtree)
+    return query, Response(id=query.id, sender=TEACHER, sequence=key, subtree=item.subtree)
 
 
 def _wait(until: Callable[[], bool], what: str) -> float:
@@ -265,15 +267,29 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
         # ZenohTransport._on_query with a lookup, less the zenoh calls.
         asked = decode(query_bytes)
         assert isinstance(asked, Query)
-        subtree = lookup(asked.sequence)
-        assert subtree is not None
+        item = lookup(asked.sequence)
+        assert item is not None
         return encode(
-            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=subtree)
+            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=item.subtree)
         )
 
     def check_parse() -> object:
         conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
         return conds, kp.parse(response.subtree, limits=RECEIVE_LIMITS)
+
+    identity = Identity.generate()
+    store = TrustStore.parse(f"{TEACHER} {identity.public}")
+
+    def sign_answer() -> Response:
+        item = identity.sign_item(response.sequence, response.subtree)
+        return identity.sign_reply(
+            response.model_copy(update={"author": item.author, "signature": item.signature})
+        )
+
+    signed = sign_answer()
+
+    def verify_trusted() -> object:
+        return refusal(signed, Policy.TRUSTED, store)
 
     stats = interleaved(
         {
@@ -284,6 +300,8 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
             "teacher_answer": teacher_answers,
             "decode_response": lambda: decode(response_bytes),
             "check_parse": check_parse,
+            "sign_answer": sign_answer,
+            "verify_trusted": verify_trusted,
         },
         rounds=rounds,
     )
@@ -361,6 +379,10 @@ def report(result: Mapping[str, Any]) -> str:
         "check_parse": "learner: `parse_sequence` + `kp.parse` subtree (`RECEIVE_LIMITS`)",
     }
     python_sum = sum(c[name]["median"] for name in labels)
+    signing = {
+        "sign_answer": "with `--key`, teacher: sign the item and the reply (Ed25519)",
+        "verify_trusted": "with `--policy trusted`, learner: verify both signatures",
+    }
     component_table = markdown_table(
         ["Python-side work of one transfer, timed alone", "median µs", "p90 µs"],
         [
@@ -369,6 +391,11 @@ def report(result: Mapping[str, Any]) -> str:
                 for name in labels
             ),
             ["sum of the medians", f"{python_sum:,.1f}", ""],
+            *(
+                [label, f"{c[name]['median']:,.1f}", f"{c[name]['p90']:,.1f}"]
+                for name, label in signing.items()
+                if name in c
+            ),
         ],
     )
     note = (

@@ -7,9 +7,11 @@ under a TT1 timer; the learner asks once about an unknown sequence and waits und
 (Algorithm 2), merging the first acceptable answer. Teach and learn share one cool-down flag, as
 in the paper, so a robot that has just asked or answered does neither for a while.
 
-Whatever a peer sends is checked before it can touch the control tree: size and depth limits,
-parsing, validation against the robot's own registry, and that it answers the sequence asked.
-A refusal is counted and logged with its reason, and the control tree stays as it was.
+Whatever a peer sends is checked before it can touch the control tree: its signatures under
+the agent's trust policy, size, depth and number limits, parsing, validation against the robot's
+own registry (names, argument types and ranges), and that it answers the sequence asked. A
+refusal is counted and logged with its reason, and the control tree stays as it was. Every
+exchange is written to the transfer log when one is given (``spec/protocol.md`` section 8).
 """
 
 from __future__ import annotations
@@ -18,26 +20,46 @@ import logging
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
+
+from pydantic import ValidationError
 
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
-from .knowledge import Knowledge, KnowledgeBase, parse_sequence, sequence_key
+from .knowledge import (
+    MAX_FILE,
+    Knowledge,
+    KnowledgeBase,
+    parse_sequence,
+    remove_stale_temporaries,
+    salvage,
+    sequence_key,
+)
 from .limits import Limits
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
 from .registry import Registry
 from .runtime import LiveTree
+from .signing import Identity
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse
+from .transferlog import TransferLog
 from .transport.base import Transport
 from .tree import Condition, Node, Tree
+from .trust import Policy, TrustStore, refusal
+from .validate import validate
 
 log = logging.getLogger("ktbt.agent")
 
-RECEIVE_LIMITS = Limits(max_size=60_000, max_depth=32, max_nodes=2_000, max_literal=256)
+RECEIVE_LIMITS = Limits(
+    max_size=60_000, max_depth=32, max_nodes=2_000, max_literal=256, max_number=1_000_000
+)
 """What a learner accepts from a peer: far tighter than a file on disk."""
+MAX_WAITING = 256
+"""Queries, and answers to the open query, held between ticks; a newcomer beyond is refused
+(the first answer wins, so what came first is what is kept)."""
 
 ENCOUNTERED = "ktbt.encountered"
 COOLING_DOWN = "ktbt.coolingDown"
@@ -109,8 +131,22 @@ class Agent:
         receive_limits: Limits = RECEIVE_LIMITS,
         teach_if: Callable[[Query], bool] | None = None,
         repeat_every: int = 0,
+        identity: Identity | None = None,
+        policy: Policy = Policy.ANY,
+        trust: TrustStore | None = None,
+        log: TransferLog | None = None,
     ) -> None:
         self.name = name
+        self.identity = identity
+        """This robot's key pair: it signs the items it authors and every answer it sends."""
+        self.policy = policy
+        self.trust = trust
+        """Which answers are accepted, by their signatures (``ktbt_proto.trust``)."""
+        self.log = log
+        if hasattr(transport, "screen"):
+            # A transport that keeps one answer per peer (zenoh) checks signatures first, so a
+            # forgery on a peer's key does not take that peer's place.
+            transport.screen = lambda r: refusal(r, self.policy, self.trust)
         self.repeat_every = repeat_every
         """While waiting, broadcast the open query again every this many ticks (0: once), so
         that peers who come into range during the wait hear it, as a radio beacon would."""
@@ -131,8 +167,8 @@ class Agent:
         self.cooldown_ticks = cooldown_ticks
         self._cooling_since: int | None = None
         self._asking: _QueryAndWait | None = None
-        self._queries: deque[Query] = deque(maxlen=64)
-        self._responses: deque[Response] = deque(maxlen=256)
+        self._queries: deque[Query] = deque()
+        self._responses: deque[Response] = deque()
         self._open: Query | None = None
         self._answered = False
         self._heard: dict[str, Query] = {}
@@ -208,12 +244,24 @@ class Agent:
         for message in self.transport.receive():
             if isinstance(message, Query):
                 self.metrics.queries_received += 1
-                if not self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
+                self._record(
+                    "query-received",
+                    sender=message.sender,
+                    id=message.id,
+                    sequence=message.sequence,
+                )
+                if self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
+                    continue
+                if len(self._queries) >= MAX_WAITING:
+                    self.refuse(f"query {message.id} from {message.sender}: too many waiting")
+                else:
                     self._queries.append(message)
             elif isinstance(message, Response):
                 asking = self._asking
                 if asking is None or asking.query is None or asking.query.id != message.id:
                     self.refuse(f"from {message.sender}: an answer to no open question")
+                elif len(self._responses) >= MAX_WAITING:
+                    self.refuse(f"from {message.sender}: too many answers waiting")
                 else:
                     self._responses.append(message)
         status = self.control.tick() if control else None
@@ -262,20 +310,36 @@ class Agent:
         return self._heard.get(sender)
 
     def answer(self, query: Query) -> bool:
-        """Answer ``query`` (one this agent heard) if its sequence is known; True if sent."""
+        """Answer ``query`` (one this agent heard) if its sequence is known, signed as the tree's
+        answers are; True if sent. Whom to answer and when is the caller's rule."""
         item = self.knowledge.lookup(query.sequence)
         if item is None:
             return False
-        self.transport.send(
-            query.sender,
-            Response(
+        subtree = format_tree(item.subtree, "compact")
+        author, signature = item.author, item.signature
+        if author is None and self.identity is not None:  # its own knowledge: it is the author
+            signed = self.identity.sign_item(query.sequence, subtree)
+            author, signature = signed.author, signed.signature
+        try:
+            response = Response(
                 id=query.id,
                 sender=self.name,
                 sequence=query.sequence,
-                subtree=format_tree(item.subtree, "compact"),
-            ),
-        )
+                subtree=subtree,
+                author=author,
+                signature=signature,
+            )
+            if self.identity is not None:
+                response = self.identity.sign_reply(response)
+        except ValidationError as exc:  # too large to send: no peer could accept it
+            reason = exc.errors()[0].get("msg", "invalid")
+            self.refuse(f"cannot answer {query.sequence[:80]} to {query.sender}: {reason}")
+            return False
+        self.transport.send(query.sender, response)
         self.metrics.responses_sent += 1
+        self._record(
+            "answer-sent", to=query.sender, id=query.id, sequence=query.sequence, author=author
+        )
         return True
 
     def receive(self) -> int:
@@ -287,6 +351,12 @@ class Agent:
         for message in self.transport.receive():
             if isinstance(message, Query):
                 self.metrics.queries_received += 1
+                self._record(
+                    "query-received",
+                    sender=message.sender,
+                    id=message.id,
+                    sequence=message.sequence,
+                )
                 heard.pop(message.sender, None)
                 heard[message.sender] = message
                 if len(heard) > self.HEARD_LIMIT:
@@ -333,49 +403,75 @@ class Agent:
     def _respond(self, bb: Blackboard) -> Status:
         """Algorithm 1: take one query; answer it if the sequence is known."""
         query = self._queries.popleft()
-        item = self.knowledge.lookup(query.sequence)
-        if item is None or (self.teach_if is not None and not self.teach_if(query)):
+        known = self.knowledge.lookup(query.sequence) is not None
+        if known and self.teach_if is not None and not self.teach_if(query):
             return FAILURE
-        self.transport.send(
-            query.sender,
-            Response(
-                id=query.id,
-                sender=self.name,
-                sequence=query.sequence,
-                subtree=format_tree(item.subtree, "compact"),
-            ),
-        )
-        self.metrics.responses_sent += 1
+        if not self.answer(query):
+            return FAILURE
         self._cool_down(bb)  # one query per cool-down: the others' askers will time out
         bb[TEACHING] = True
         return SUCCESS
 
     # -- learning -------------------------------------------------------------------------------
 
+    def _record(self, event: str, **fields: object) -> None:
+        if self.log is not None:
+            self.log.record(event, peer=self.name, tick=self.now, **fields)
+
     def refuse(self, reason: str) -> None:
         self.metrics.refused += 1
         self.metrics.refusals.append((self.now, reason))
         log.info("%s refused knowledge: %s", self.name, reason)
+        self._record("refused", reason=reason)
 
     def accept(self, response: Response, asked: Query) -> bool:
         """Check a response against every rule; merge it if it passes. True if learned."""
+        self._record(
+            "answer-received",
+            sender=response.sender,
+            id=response.id,
+            sequence=response.sequence,
+            author=response.author,
+        )
         if response.sequence != asked.sequence:
             self.refuse(f"from {response.sender}: answers {response.sequence}, not the question")
+            return False
+        why = refusal(response, self.policy, self.trust)
+        if why is not None:
+            self.refuse(f"from {response.sender}: {why}")
             return False
         try:
             conds = parse_sequence(asked.sequence, self.receive_limits)
             subtree = parse(response.subtree, limits=self.receive_limits).root
+            # Receive limits (numbers included) and the registry's types, before the merge.
+            validate(subtree, self.registry, limits=self.receive_limits)
             changed = self.control.merge(subtree, self.slot, when=conds)
         except StringBTError as err:
             self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
             return False
+        except Exception as exc:  # an application behaviour failed to build: not merged
+            self.refuse(f"from {response.sender}: a behaviour failed to build: {exc!r}"[:300])
+            return False
         if changed:
-            self._learned(Knowledge(conds, subtree, self.slot, response.sender, self.now))
+            received = datetime.now(UTC).isoformat(timespec="seconds")
+            self._learned(
+                Knowledge(
+                    conds,
+                    subtree,
+                    self.slot,
+                    response.sender,
+                    self.now,
+                    author=response.author,
+                    signature=response.signature,
+                    received_at=received,
+                )
+            )
         return True
 
     def _learned(self, item: Knowledge) -> None:
         self.knowledge.add(item)
         self.metrics.learned[item.key] = (self.now, item.source or "")
+        self._record("merged", sequence=item.key, teacher=item.source, author=item.author)
         if self.knowledge_path is not None:
             try:
                 self._persisted().save(self.knowledge_path)
@@ -386,12 +482,41 @@ class Agent:
         return KnowledgeBase(k for k in self.knowledge if k.source is not None)
 
     def _resume(self, path: Path) -> None:
-        """Merge what a previous run learned (a corrupt file is refused, not fatal)."""
+        """Merge what a previous run learned. A damaged file is refused with its reason, the
+        items it still holds whole are kept, and it is moved aside (``FILE.damaged-TIME``)
+        before anything is saved, so it is never overwritten; a file that cannot be read at
+        all is left alone and nothing is saved over it. Temporary files a killed save left
+        behind are removed."""
+        for tmp in remove_stale_temporaries(path):
+            log.info("%s removed %s, left by an interrupted save", self.name, tmp)
         try:
-            saved = KnowledgeBase.load(path, self.receive_limits)
-        except (OSError, ValueError, StringBTError) as exc:
-            self.refuse(f"cannot resume from {path}: {exc}")
+            saved = list(KnowledgeBase.load(path, self.receive_limits))
+        except OSError as exc:
+            self.refuse(f"cannot resume from {path}: {exc}; nothing will be saved over it")
+            self.knowledge_path = None
             return
+        except (ValueError, StringBTError) as exc:
+            try:
+                with open(path, "rb") as f:
+                    text = f.read(MAX_FILE).decode("utf-8", "replace")
+            except OSError:
+                text = ""
+            saved = salvage(text, self.receive_limits)
+            aside = path.with_name(
+                f"{path.name}.damaged-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}"
+            )
+            try:
+                if not path.is_file() or path.is_symlink():
+                    raise OSError(0, "not a regular file")
+                path.rename(aside)
+                where = f"moved to {aside.name}"
+            except OSError as err:
+                self.knowledge_path = None
+                where = f"cannot be moved aside ({err.strerror}); nothing will be saved over it"
+            self.refuse(
+                f"cannot resume from {path}: {str(exc).splitlines()[0]}; "
+                f"kept {len(saved)} whole items, the file {where}"
+            )
         for item in saved:
             try:
                 self.control.merge(item.subtree, item.segment, when=item.conditions)
@@ -423,6 +548,7 @@ class _QueryAndWait:
             self.query = Query(id=Query.new_id(), sender=agent.name, sequence=key)
             agent.transport.broadcast(self.query)
             agent.metrics.queries_sent += 1
+            agent._record("query-sent", id=self.query.id, sequence=key)
             self.bb[QUERYING] = True
             self.asked_at = agent.now
             return RUNNING

@@ -31,6 +31,7 @@ from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
 if TYPE_CHECKING:
+    from .peer import Security
     from .transport.zenoh import ZenohSettings
 
 app = typer.Typer(
@@ -401,6 +402,42 @@ Multicast = Annotated[
     bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
 ]
 Mode = Annotated[str, typer.Option("--mode", help="peer, or client (through a router).")]
+KeyFile = Annotated[
+    Path | None, typer.Option("--key", help="This peer's private key (ktbt peer keygen).")
+]
+PolicyName = Annotated[
+    str, typer.Option("--policy", help="Accept answers: any, signed, or trusted (--trust).")
+]
+TrustFile = Annotated[
+    Path | None, typer.Option("--trust", help="Trusted keys: 'KEY' or 'NAME KEY' a line.")
+]
+LogFile = Annotated[
+    Path | None, typer.Option("--log", help="Append every exchange event here (JSON lines).")
+]
+
+
+def _security(key: Path | None, policy: str, trust: Path | None, log: Path | None) -> Security:
+    """Key pair, trust policy and transfer log from the options; a bad one is one line, exit 2."""
+    from .peer import Security, configure_logging
+    from .signing import Identity, KeyFileError
+    from .transferlog import TransferLog
+    from .trust import Policy, TrustStore
+
+    configure_logging()
+    if policy not in {p.value for p in Policy}:
+        _say(f"error: --policy must be any, signed or trusted, not {policy!r}")
+        raise typer.Exit(2)
+    if policy == Policy.TRUSTED and trust is None:
+        _say("error: --policy trusted needs --trust FILE")
+        raise typer.Exit(2)
+    try:
+        identity = Identity.load(key) if key is not None else None
+        store = TrustStore.load(trust) if trust is not None else None
+        transfer_log = TransferLog(log) if log is not None else None
+    except (KeyFileError, OSError) as exc:
+        _say(f"error: {exc}")
+        raise typer.Exit(2) from None
+    return Security(identity, Policy(policy), store, transfer_log)
 
 
 def _settings(
@@ -466,8 +503,10 @@ def peer_serve(
     config: Config = None,
     multicast: Multicast = False,
     mode: Mode = "peer",
+    key: KeyFile = None,
+    log: LogFile = None,
 ) -> None:
-    """Answer queries for the knowledge in a file until stopped."""
+    """Answer queries for the knowledge in a file until stopped (signed, with --key)."""
     from . import peer
 
     _check_peer(name)
@@ -483,7 +522,8 @@ def peer_serve(
     except ValueError as exc:
         _say(f"error: {exc}")
         raise typer.Exit(2) from None
-    _peer_call(lambda: peer.serve(name, served, settings, typer.echo))
+    security = _security(key, "any", None, log)
+    _peer_call(lambda: peer.serve(name, served, settings, typer.echo, security))
 
 
 @peer_app.command("ask")
@@ -503,15 +543,24 @@ def peer_ask(
     config: Config = None,
     multicast: Multicast = False,
     mode: Mode = "peer",
+    policy: PolicyName = "any",
+    trust: TrustFile = None,
+    log: LogFile = None,
 ) -> None:
-    """Ask the fleet; print each answer (pretty stringBT); exit 1 if none came in time, saying
-    on stderr whether no peer was reachable or no peer knew."""
+    """Ask the fleet; print each answer (pretty stringBT) with its provenance as it arrives;
+    exit 1 if no acceptable one came in time, saying on stderr whether no peer was reachable or
+    no peer knew."""
     from . import peer
 
     _check_peer(name, timeout)
     conds = _sequence_or_exit("--sequence", sequence)
     settings = _settings(listen, connect, config, multicast, mode)
-    _peer_call(lambda: peer.ask(name, conds, settings, timeout, typer.echo, note=_say)[0])
+    security = _security(None, policy, trust, log)
+    _peer_call(
+        lambda: peer.ask(name, conds, settings, timeout, typer.echo, note=_say, security=security)[
+            0
+        ]
+    )
 
 
 @peer_app.command("run")
@@ -537,6 +586,10 @@ def peer_run(
     config: Config = None,
     multicast: Multicast = False,
     mode: Mode = "peer",
+    key: KeyFile = None,
+    policy: PolicyName = "any",
+    trust: TrustFile = None,
+    log: LogFile = None,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -545,6 +598,7 @@ def peer_run(
     for text in sequence or ():
         _sequence_or_exit("--sequence", text)
     settings = _settings(listen, connect, config, multicast, mode)
+    security = _security(key, policy, trust, log)
     sequences = sequence or peer.COLOURS
     _peer_call(
         lambda: peer.run_agent(
@@ -555,6 +609,7 @@ def peer_run(
             duration=duration,
             exit_when_done=exit_when_done,
             knowledge_path=str(knowledge_file) if knowledge_file else None,
+            security=security,
         )
     )
 
@@ -588,6 +643,82 @@ def peer_list(
     _check_peer(name, timeout)
     settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.list_peers(name, settings, timeout, typer.echo))
+
+
+@peer_app.command("keygen")
+def peer_keygen(
+    path: Annotated[Path, typer.Argument(help="Where to write the private key.")],
+    name: Annotated[
+        str, typer.Option("--id", help="The peer's name, for the trust line.")
+    ] = "peer",
+) -> None:
+    """Make an Ed25519 key pair: PATH (private) and PATH.pub; print its trust-store line."""
+    from . import peer
+
+    _check_peer(name)
+    if path.exists():
+        _say(f"error: {path} exists; a key is never overwritten")
+        raise typer.Exit(2)
+    _peer_call(lambda: peer.keygen(path, name, typer.echo))
+
+
+kb_app = typer.Typer(help="Inspect knowledge files.", no_args_is_help=True)
+app.add_typer(kb_app, name="kb")
+
+
+@kb_app.command("show")
+def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save).")]) -> None:
+    """Each item a learner saved, with its teacher, time, author and signature check."""
+    from .knowledge import KnowledgeBase
+    from .signing import item_bytes, verify
+
+    try:
+        kb = KnowledgeBase.load(path)
+    except (OSError, ValueError, StringBTError) as exc:
+        _say(f"error: {path}: {str(exc).splitlines()[0]}")
+        raise typer.Exit(1) from None
+    for item in kb:
+        typer.echo(item.key)
+        typer.echo(f"  subtree   {format_tree(item.subtree, 'compact')}")
+        typer.echo(f"  segment   {item.segment}")
+        typer.echo(f"  teacher   {item.source or '-'}")
+        typer.echo(f"  learned   tick {item.learned_at}, {item.received_at or 'time unknown'}")
+        if item.author is None or item.signature is None:
+            typer.echo("  author    - (unsigned)")
+            continue
+        ok = verify(
+            item.author, item.signature, item_bytes(item.key, format_tree(item.subtree, "compact"))
+        )
+        typer.echo(f"  author    {item.author}")
+        typer.echo(f"  signature {item.signature} ({'valid' if ok else 'INVALID'})")
+    typer.echo(f"{len(kb)} items")
+
+
+@app.command("log")
+def log_command(
+    path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
+    event: Annotated[
+        list[str] | None, typer.Option("--event", help="Show only this event (repeatable).")
+    ] = None,
+) -> None:
+    """Read a transfer log: one line an event, then the count of each kind."""
+    from collections import Counter
+
+    from .transferlog import describe, read
+
+    counts: Counter[str] = Counter()
+    try:
+        for entry in read(path):
+            if isinstance(entry, str):
+                _say(f"warning: {path}: {entry}")
+                continue
+            counts[entry["event"]] += 1
+            if not event or entry["event"] in event:
+                typer.echo(describe(entry))
+    except OSError as exc:
+        _say(f"error: {path}: {_io_reason(exc)}")
+        raise typer.Exit(1) from None
+    typer.echo(", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "no events")
 
 
 def _version(value: bool) -> None:

@@ -184,6 +184,11 @@ class Knowledge:
     segment: str = "new"
     source: str | None = None
     learned_at: float | None = None
+    author: str | None = None
+    """Provenance (``spec/protocol.md`` section 7): the author's public key and signature of
+    the item, and when (UTC, ISO 8601) it was received from its teacher ``source``."""
+    signature: str | None = None
+    received_at: str | None = None
 
     @property
     def key(self) -> str:
@@ -287,6 +292,15 @@ class KnowledgeBase:
                 "segment": k.segment,
                 "source": k.source,
                 "learned_at": k.learned_at,
+                **{
+                    name: value
+                    for name, value in (
+                        ("author", k.author),
+                        ("signature", k.signature),
+                        ("received_at", k.received_at),
+                    )
+                    if value is not None
+                },
             }
             for k in self
         ]
@@ -304,16 +318,7 @@ class KnowledgeBase:
                 raise ValueError("'knowledge' must be a list of objects")
             kb = cls()
             for entry in entries:
-                source, learned_at = entry.get("source"), entry.get("learned_at")
-                kb.add(
-                    Knowledge(
-                        parse_sequence(str(entry["sequence"]), limits),
-                        parse(str(entry["subtree"]), limits=limits).root,
-                        str(entry.get("segment", "new")),
-                        None if source is None else str(source),
-                        learned_at if isinstance(learned_at, int | float) else None,
-                    )
-                )
+                kb.add(_entry(entry, limits))
         except (KeyError, TypeError, RecursionError) as exc:
             raise ValueError(f"malformed knowledge file: {exc!r}") from None
         return kb
@@ -342,4 +347,71 @@ class KnowledgeBase:
 
     @classmethod
     def load(cls, path: str | Path, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
-        return cls.from_json(Path(path).read_text(encoding="utf-8"), limits)
+        """Read a saved base, at most ``MAX_FILE`` bytes of it (a path such as /dev/zero is
+        refused, not read until memory runs out); raises ValueError or StringBTError."""
+        with open(path, "rb") as f:
+            data = f.read(MAX_FILE + 1)
+        if len(data) > MAX_FILE:
+            raise ValueError(f"{path} is larger than a knowledge file may be ({MAX_FILE} bytes)")
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError(f"{path} is not UTF-8") from None
+        return cls.from_json(text, limits)
+
+
+MAX_FILE = 64_000_000
+"""The largest knowledge file read (a thousand items at the wire's largest size)."""
+
+
+def _entry(entry: dict[str, object], limits: Limits) -> Knowledge:
+    def text(name: str) -> str | None:
+        value = entry.get(name)
+        return None if value is None else str(value)
+
+    learned_at = entry.get("learned_at")
+    return Knowledge(
+        parse_sequence(str(entry["sequence"]), limits),
+        parse(str(entry["subtree"]), limits=limits).root,
+        str(entry.get("segment", "new")),
+        text("source"),
+        learned_at if isinstance(learned_at, int | float) else None,
+        author=text("author"),
+        signature=text("signature"),
+        received_at=text("received_at"),
+    )
+
+
+def salvage(text: str, limits: Limits = DEFAULT_LIMITS) -> list[Knowledge]:
+    """The items a damaged knowledge file still holds whole (a truncated one, say): each entry
+    of its ``knowledge`` list is read in turn until one cannot be. Nothing here raises."""
+    start = text.find("[", text.find('"knowledge"'))
+    if start < 0:
+        return []
+    decoder = json.JSONDecoder()
+    items: list[Knowledge] = []
+    pos = start + 1
+    while True:
+        while pos < len(text) and text[pos] in " \t\r\n,":
+            pos += 1
+        try:
+            entry, pos = decoder.raw_decode(text, pos)
+            if not isinstance(entry, dict):
+                break
+            items.append(_entry(entry, limits))
+        except (ValueError, KeyError, TypeError, RecursionError, StringBTError):
+            break
+    return items
+
+
+def remove_stale_temporaries(path: str | Path) -> list[Path]:
+    """Delete the temporary files a save killed midway left next to ``path``; returns them."""
+    path = Path(path)
+    removed = []
+    for tmp in path.parent.glob(f".{path.name}.*.tmp"):
+        try:
+            tmp.unlink()
+        except OSError:
+            continue
+        removed.append(tmp)
+    return removed

@@ -22,11 +22,17 @@ class Limits:
     """Nodes in the whole tree."""
     max_literal: int = 1024
     """Characters in one name, number or string literal (as written)."""
+    max_number: float | None = None
+    """Largest magnitude of any number in the tree (tick counts, seconds, thresholds, argument
+    values), checked by validation; None: any finite number. A literal of 256 digits is short,
+    yet a wait of 10^200 ticks never ends: knowledge from a peer needs this bound too."""
 
     def __post_init__(self) -> None:
         for name in ("max_size", "max_depth", "max_nodes", "max_literal"):
             if getattr(self, name) < 1:
                 raise ValueError(f"Limits.{name} must be at least 1")
+        if self.max_number is not None and not self.max_number >= 0:
+            raise ValueError("Limits.max_number must be a number >= 0, or None")
         if self.max_literal > 4000:
             # Python refuses int() of longer digit strings; keep literals convertible.
             raise ValueError("Limits.max_literal must be at most 4000")

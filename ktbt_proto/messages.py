@@ -7,23 +7,57 @@ message or raises :class:`MessageRefused` with a reason a receiver can log; noth
 from __future__ import annotations
 
 import uuid
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 
 PROTOCOL_VERSION = 1
 MAX_MESSAGE_BYTES = 65_536
 """Default size limit of one encoded message; a larger one is refused before decoding."""
 
+MAX_REASON = 200
+"""A refusal reason is clipped to this many characters, so that it always fits an error reply."""
+
 _ID = r"^[A-Za-z0-9_.-]{1,64}$"
+_KEY = r"^[A-Za-z0-9_-]{43}$"
+_SIGNATURE = r"^[A-Za-z0-9_-]{86}$"
+_WIRE = {"wire": True}
+
+
+def _require_version_and_type(schema: dict[str, Any]) -> None:
+    """On the wire ``v`` and ``type`` are required (spec section 1); in code they default."""
+    required = schema.setdefault("required", [])
+    for name in ("type", "v"):
+        if name not in required:
+            required.insert(0, name)
 
 
 class _Message(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, json_schema_extra=_require_version_and_type
+    )
 
-    v: Literal[1] = 1
+    v: Literal[1] = Field(default=1, description="Protocol version (the integer 1).")
     id: str = Field(pattern=_ID, description="Query id; a response or error echoes it.")
     sender: str = Field(pattern=_ID, description="The sending agent's name.")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _wire_fields(cls, data: Any, info: ValidationInfo) -> Any:
+        if isinstance(data, dict):
+            if info.context == _WIRE and "v" not in data:
+                raise ValueError("a message names its protocol version 'v'")
+            if not isinstance(data.get("v", 1), int) or isinstance(data.get("v"), bool):
+                raise ValueError("'v' must be the integer 1")  # true == 1 in Python, not here
+        return data
 
 
 class Query(_Message):
@@ -42,13 +76,44 @@ class Query(_Message):
 
 
 class Response(_Message):
-    """The answer: the action subtree T_ka for the sequence asked."""
+    """The answer: the action subtree T_ka for the sequence asked.
+
+    The optional fields carry signed provenance (spec section 7): ``author`` and ``signature``
+    sign the knowledge item itself and travel with it when a learner teaches it onward;
+    ``key`` and ``hop`` sign this one message, binding ``sender`` and ``id`` to the sending
+    peer's key. A response never encodes to more than :data:`MAX_MESSAGE_BYTES`, so that no
+    peer builds an answer every receiver would refuse."""
 
     type: Literal["response"] = "response"
     sequence: str = Field(min_length=1, max_length=4096, description="The sequence answered.")
     subtree: str = Field(
         min_length=1, max_length=60_000, description="The subtree, canonical compact stringBT."
     )
+    author: str | None = Field(
+        default=None, pattern=_KEY, description="The item's author: an Ed25519 public key."
+    )
+    signature: str | None = Field(
+        default=None, pattern=_SIGNATURE, description="The author's signature of the item."
+    )
+    key: str | None = Field(
+        default=None, pattern=_KEY, description="The sending peer's Ed25519 public key."
+    )
+    hop: str | None = Field(
+        default=None, pattern=_SIGNATURE, description="The sending peer's signature of this reply."
+    )
+
+    @model_validator(mode="after")
+    def _fits_a_message(self) -> Response:
+        if (self.author is None) != (self.signature is None):
+            raise ValueError("author and signature come together")
+        if (self.key is None) != (self.hop is None):
+            raise ValueError("key and hop come together")
+        size = len(self.model_dump_json(exclude_none=True).encode("utf-8"))
+        if size > MAX_MESSAGE_BYTES:
+            raise ValueError(
+                f"encodes to {size} bytes, more than a message may ({MAX_MESSAGE_BYTES})"
+            )
+        return self
 
 
 class ErrorReply(_Message):
@@ -64,15 +129,20 @@ _ADAPTER: TypeAdapter[Query | Response | ErrorReply] = TypeAdapter(Message)
 
 
 class MessageRefused(ValueError):
-    """A received message was not accepted; ``reason`` says why, in one line."""
+    """A received message was not accepted; ``reason`` says why, in one line of at most
+    :data:`MAX_REASON` characters (a peer's junk is not echoed at length)."""
 
     def __init__(self, reason: str) -> None:
+        reason = " ".join(reason.split())
+        if len(reason) > MAX_REASON:
+            reason = reason[: MAX_REASON - 3] + "..."
         super().__init__(reason)
         self.reason = reason
 
 
 def encode(message: Query | Response | ErrorReply) -> bytes:
-    return message.model_dump_json().encode("utf-8")
+    """The message as UTF-8 JSON; optional fields left out when absent."""
+    return message.model_dump_json(exclude_none=True).encode("utf-8")
 
 
 def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response | ErrorReply:
@@ -80,7 +150,7 @@ def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response 
     if len(data) > max_bytes:
         raise MessageRefused(f"message of {len(data)} bytes exceeds the limit of {max_bytes}")
     try:
-        return _ADAPTER.validate_json(data)
+        return _ADAPTER.validate_json(data, context=_WIRE)
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first.get("loc", ())) or "message"

@@ -6,25 +6,50 @@ on exit, including on SIGINT and SIGTERM.
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field
+from pydantic import ValidationError as PydanticError
 
 from .agent import RECEIVE_LIMITS, Agent
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
 from .knowledge import KnowledgeBase, sequence_key, show_sequence
+from .limits import DEFAULT_LIMITS
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
 from .registry import Registry
+from .signing import Identity, SignedItem
 from .status import RUNNING, SUCCESS, Status
 from .syntax import parse
-from .transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
+from .transferlog import TransferLog
+from .transport.zenoh import ZenohSettings, ZenohTransport, catalogs, open_session, peers
 from .tree import Condition
+from .trust import Policy, TrustStore, refusal
+from .validate import validate
+
+Colour = Annotated[int, Field(ge=1, le=4)]
+"""The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
+
+
+@dataclass(frozen=True)
+class Security:
+    """A peer's key pair, what it accepts (policy and trust store) and where it logs."""
+
+    identity: Identity | None = None
+    policy: Policy = Policy.ANY
+    trust: TrustStore | None = None
+    log: TransferLog | None = None
+
 
 Say = Callable[[str], None]
 
@@ -57,7 +82,7 @@ def demo_registry() -> Registry:
     reg.flags("Carrying")
 
     @reg.condition("TargetSeen")
-    def target_seen(bb: Blackboard, colour: int) -> bool:
+    def target_seen(bb: Blackboard, colour: Colour) -> bool:
         return bool(bb.get("target") == colour)
 
     @reg.action("PickTreasure")
@@ -66,7 +91,7 @@ def demo_registry() -> Registry:
         return SUCCESS
 
     @reg.action("AssignCollectionPoint")
-    def assign(bb: Blackboard, colour: int) -> Status:
+    def assign(bb: Blackboard, colour: Colour) -> Status:
         bb["zone"] = colour
         return SUCCESS
 
@@ -99,11 +124,27 @@ def until_signalled() -> Iterator[threading.Event]:
 
 def load_knowledge(path: str | Path) -> KnowledgeBase:
     """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve.
-    Items too large to send are refused here, not at every query."""
-    kb = KnowledgeBase.from_tree(parse(Path(path).read_bytes()))
+    At most one byte past the size limit is read (``/dev/zero`` is refused, not read until
+    memory runs out). Items too large to send, signed and all, are refused here, not at every
+    query."""
+    with open(path, "rb") as f:
+        data = f.read(DEFAULT_LIMITS.max_size + 1)
+    kb = KnowledgeBase.from_tree(parse(data))
     for item in kb:
-        if len(format_tree(item.subtree, "compact")) > 60_000:
-            raise ValueError(f"{path}: the subtree for {item.key} is too large to send")
+        subtree = format_tree(item.subtree, "compact")
+        try:  # the largest a reply can be: longest id and name, both signatures
+            Response(
+                id="i" * 64,
+                sender="s" * 64,
+                sequence=item.key,
+                subtree=subtree,
+                author="A" * 43,
+                signature="A" * 86,
+                key="A" * 43,
+                hop="A" * 86,
+            )
+        except PydanticError:
+            raise ValueError(f"{path}: the subtree for {item.key} is too large to send") from None
     if not len(kb):
         raise ValueError(
             f"{path}: no knowledge items (inside a <k>(...): <sq>, the conditions, the actions)"
@@ -122,23 +163,72 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
-def answers(knowledge: KnowledgeBase) -> Callable[[str], str | None]:
-    """A server's lookup: every answer formatted once, so a query costs one dict lookup."""
-    table = {item.key: format_tree(item.subtree, "compact") for item in knowledge}
+def answers(
+    knowledge: KnowledgeBase, identity: Identity | None = None
+) -> Callable[[str], SignedItem | None]:
+    """A server's lookup: every answer formatted (and, with a key pair, signed by this server
+    as its author) once, so a query costs one dict lookup."""
+    table = {}
+    for item in knowledge:
+        subtree = format_tree(item.subtree, "compact")
+        if item.author is not None:
+            table[item.key] = SignedItem(subtree, item.author, item.signature)
+        elif identity is not None:
+            table[item.key] = identity.sign_item(item.key, subtree)
+        else:
+            table[item.key] = SignedItem(subtree)
     return table.get
 
 
-def serve(name: str, knowledge: KnowledgeBase, settings: ZenohSettings, say: Say) -> int:
-    lookup = answers(knowledge)
+def catalog(
+    knowledge: KnowledgeBase, identity: Identity | None = None
+) -> Callable[[], list[str | dict[str, Any]]]:
+    """What the catalog queryable answers: each sequence with its provenance (a peer with a key
+    pair is the author of the items it holds unsigned: it signs them when it answers)."""
+    own = identity.public if identity is not None else None
+
+    def entries() -> list[str | dict[str, Any]]:
+        out: list[str | dict[str, Any]] = []
+        for item in knowledge:
+            entry = {
+                "sequence": item.key,
+                "author": item.author or own,
+                "teacher": item.source,
+                "received_at": item.received_at,
+            }
+            out.append({k: v for k, v in entry.items() if v is not None})
+        return out
+
+    return entries
+
+
+def serve(
+    name: str,
+    knowledge: KnowledgeBase,
+    settings: ZenohSettings,
+    say: Say,
+    security: Security | None = None,
+) -> int:
+    security = security or Security()
+    lookup = answers(knowledge, security.identity)
     with (
         until_signalled() as stop,
-        ZenohTransport(name, settings, lookup=lookup, catalog=knowledge.keys),
+        ZenohTransport(
+            name,
+            settings,
+            lookup=lookup,
+            catalog=catalog(knowledge, security.identity),
+            identity=security.identity,
+            log=security.log,
+        ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        if security.identity is not None:
+            say(f"  signed as {security.identity.public}")
         for item in knowledge:
             say(f"  {show_sequence(item.conditions)}")
         stop.wait()
-    say(f"{name}: stopped")
+    say(f"{name}: stopped; refused {transport.refused} messages")
     return 0
 
 
@@ -149,26 +239,44 @@ def ask(
     timeout: float,
     say: Say,
     note: Say | None = None,
+    security: Security | None = None,
 ) -> tuple[int, list[Response]]:
-    """Ask once; ``say`` the answers. ``note`` is told, when no answer came, whether nobody was
-    reachable or nobody knew: two different problems that look alike otherwise."""
+    """Ask the fleet and print each acceptable answer the moment it arrives, with its
+    provenance; an answer the policy or the receive limits refuse is shown as refused.
+    ``note`` is told, when no answer came, whether nobody was reachable or nobody knew: two
+    different problems that look alike otherwise."""
+    security = security or Security()
     key = sequence_key(parse_conditions(sequence))
     query = Query(id=Query.new_id(), sender=name, sequence=key)
-    with ZenohTransport(name, settings, query_timeout=timeout, serving=False) as transport:
-        reachable = wait_for_peers(transport, timeout)
-        answers = transport.ask(query, timeout)
-    responses = []
-    for answer in answers:
-        if not isinstance(answer, Response) or answer.id != query.id or answer.sequence != key:
-            continue
-        try:  # an answer is shown only if it is stringBT a robot would accept
+    responses: list[Response] = []
+
+    def show(answer: Response) -> None:
+        if answer.id != query.id or answer.sequence != key:
+            return
+        why = refusal(answer, security.policy, security.trust)
+        try:  # shown only if it is stringBT within a robot's receive limits (numbers too)
             tree = parse(answer.subtree, limits=RECEIVE_LIMITS)
+            validate(tree, limits=RECEIVE_LIMITS)
         except StringBTError as err:
-            say(f"# from {answer.sender}: refused, {err.code.value} {err.message}")
-            continue
-        say(f"# from {answer.sender}")
+            why = why or f"{err.code.value} {err.message}"
+        if why is not None:
+            say(f"# from {answer.sender}: refused, {why}")
+            return
+        say(f"# from {answer.sender}{provenance(answer)}")
         say(format_tree(tree).rstrip())
         responses.append(answer)
+
+    with ZenohTransport(
+        name,
+        settings,
+        query_timeout=timeout,
+        serving=False,
+        log=security.log,
+        # Checked before a reply takes its key's place: a forgery cannot shut the genuine out.
+        screen=lambda r: refusal(r, security.policy, security.trust),
+    ) as transport:
+        reachable = wait_for_peers(transport, timeout)
+        transport.ask(query, timeout, on_answer=show)
     if not responses and note is not None:
         if not reachable:
             note(f"no answer: no peer reachable within {timeout:g} s")
@@ -178,6 +286,16 @@ def ask(
                 f"none knows {show_sequence(parse_conditions(sequence))}"
             )
     return (0 if responses else 1), responses
+
+
+def provenance(answer: Response) -> str:
+    """`` (author KEY, sent with key KEY)`` for what an answer says of its origin."""
+    words = []
+    if answer.author is not None:
+        words.append(f"author {answer.author}")
+    if answer.key is not None:
+        words.append(f"sent with key {answer.key}")
+    return f" ({', '.join(words)})" if words else ""
 
 
 def run_agent(
@@ -193,12 +311,17 @@ def run_agent(
     duration: float = 30.0,
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
+    security: Security | None = None,
 ) -> int:
     """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
-    what it knows to whoever asks, and prints what it learned."""
+    what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
+    and, with a transfer log, there) and the summary counts all of them, transport ones too."""
+    security = security or Security()
     with (
         until_signalled() as stop,
-        ZenohTransport(name, settings, query_timeout=wait_ticks / tick_rate) as transport,
+        ZenohTransport(
+            name, settings, query_timeout=wait_ticks / tick_rate, log=security.log
+        ) as transport,
     ):
         robot = Agent(
             name,
@@ -208,8 +331,14 @@ def run_agent(
             wait_ticks=wait_ticks,
             cooldown_ticks=cooldown_ticks,
             knowledge_path=knowledge_path,
+            identity=security.identity,
+            policy=security.policy,
+            trust=security.trust,
+            log=security.log,
         )
-        transport.catalog = robot.knowledge.keys
+        transport.catalog = catalog(robot.knowledge, security.identity)
+        for _, reason in robot.metrics.refusals:  # a damaged --save file, say
+            say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
         deadline = time.monotonic() + duration
         todo = list(sequences)
@@ -231,7 +360,8 @@ def run_agent(
         m = robot.metrics
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
-            f"lost {m.queries_lost}, refused {len(m.refusals)}, taught {m.responses_sent}"
+            f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
+            f"taught {m.responses_sent}"
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")
@@ -257,12 +387,31 @@ def router(settings: ZenohSettings, say: Say) -> int:
 
 
 def list_peers(name: str, settings: ZenohSettings, timeout: float, say: Say) -> int:
+    """Who is present and what each knows, with each item's author and teacher."""
     with ZenohTransport(name, settings, serving=False) as transport:
         found = wait_for_peers(transport, timeout)
+        detail = catalogs(transport, timeout=min(timeout, 1.0)) if found else {}
     for peer, known in sorted(found.items()):
         say(f"{peer}: {len(known)} skills")
-        for key in known:
-            say(f"  {shown(key)}")
+        entries = detail.get(peer) or [{"sequence": key} for key in known]
+        for entry in entries:
+            origin = [f"{k} {entry[k]}" for k in ("author", "teacher", "received_at") if k in entry]
+            say(f"  {shown(entry['sequence'])}" + (f"  ({', '.join(origin)})" if origin else ""))
     if not found:
         say("no peers found")
     return 0 if found else 1
+
+
+def keygen(path: Path, name: str, say: Say) -> int:
+    """Write a new key pair (``PATH`` private, ``PATH.pub`` public) and print the trust-store
+    line for it."""
+    identity = Identity.generate()
+    public = identity.save(path)
+    say(f"wrote {path} (private, keep it) and {public}")
+    say(f"{name} {identity.public}")
+    return 0
+
+
+def configure_logging() -> None:
+    """Refusals and other exchange events to stderr, so an operator sees them."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s", force=False)

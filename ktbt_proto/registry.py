@@ -8,10 +8,13 @@ touches the running tree.
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, Literal, Protocol, TypeVar, runtime_checkable
+
+from pydantic import TypeAdapter
+from pydantic import ValidationError as PydanticError
 
 from .status import Status
 from .tree import Args
@@ -40,6 +43,52 @@ class _Entry:
     flag: str | None = None
     trusted: bool = False
     doc: str = field(default="", compare=False)
+    types: Mapping[str, Any] = field(default_factory=dict, compare=False)
+    """Parameter name -> its annotation, for the parameters that have one."""
+
+
+def _parameters(fn: Any) -> inspect.Signature:
+    """The signature with string annotations resolved where they can be (a name that does
+    not resolve leaves every annotation as written, and string ones are then not checked)."""
+    try:
+        return inspect.signature(fn, eval_str=True)
+    except (NameError, SyntaxError, TypeError, AttributeError):
+        return inspect.signature(fn)
+
+
+def _types(target: Any, is_class: bool) -> dict[str, Any]:
+    """The annotations of the keyword parameters, for checking argument values."""
+    try:
+        sig = _parameters(target.__init__ if is_class else target)
+    except (TypeError, ValueError):
+        return {}
+    return {
+        p.name: p.annotation
+        for p in sig.parameters.values()
+        if p.annotation is not inspect.Parameter.empty
+        and not isinstance(p.annotation, str)
+        and p.annotation is not Any
+    }
+
+
+@lru_cache(maxsize=1024)
+def _adapter(annotation: Any) -> TypeAdapter[Any]:
+    return TypeAdapter(annotation)
+
+
+def _value_problem(annotation: Any, value: Any) -> str | None:
+    """Why ``value`` does not fit ``annotation`` in pydantic's strict mode (an ``int`` takes no
+    bool or float; ``Annotated[int, Field(ge=1, le=4)]`` takes 1 to 4), or None if it does."""
+    try:
+        adapter = _adapter(annotation)
+    except TypeError:  # an unhashable annotation: build it afresh
+        adapter = TypeAdapter(annotation)
+    try:
+        adapter.validate_python(value, strict=True)
+    except PydanticError as exc:
+        first = exc.errors()[0]
+        return str(first.get("msg", "invalid value"))
+    return None
 
 
 def _signature(target: Any, is_class: bool) -> tuple[frozenset[str], frozenset[str], bool]:
@@ -116,7 +165,9 @@ class Registry:
 
     def add_condition(self, name: str, fn: Callable[..., Any]) -> None:
         params, required, var_kw = _signature(fn, False)
-        self._conditions[name] = _Entry(fn, params, required, var_kw, doc=fn.__doc__ or "")
+        self._conditions[name] = _Entry(
+            fn, params, required, var_kw, doc=fn.__doc__ or "", types=_types(fn, False)
+        )
 
     def add_action(
         self, name: str, target: Any, *, halt: Callable[..., None] | None = None
@@ -135,6 +186,7 @@ class Registry:
             halt,
             trusted=trusted,
             doc=target.__doc__ or "",
+            types=_types(target, is_class),
         )
 
     def flags(self, *names: str) -> None:
@@ -171,6 +223,24 @@ class Registry:
             return f"{kind} {name!r} takes no argument {', '.join(map(repr, unknown))}"
         if missing:
             return f"{kind} {name!r} needs argument {', '.join(map(repr, missing))}"
+        return None
+
+    def values_problem(self, kind: Kind, name: str, args: Args) -> str | None:
+        """Why an argument's value does not fit its parameter's annotation (type and range,
+        checked by pydantic in strict mode), or None. Checked at validation, so that a
+        wrong-typed or out-of-range argument is refused before a merge, never met at a tick."""
+        table = self._conditions if kind == "condition" else self._actions
+        entry = table.get(name)
+        if entry is None or not entry.types:
+            return None
+        for key, value in args:
+            annotation = entry.types.get(key)
+            if annotation is None:
+                continue
+            why = _value_problem(annotation, value)
+            if why is not None:
+                shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+                return f"{kind} {name!r}: argument {key}={shown}: {why}"
         return None
 
     # -- what compilation asks -------------------------------------------------------------

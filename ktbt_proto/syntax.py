@@ -22,6 +22,7 @@ property-generated input.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass, field, replace
 from functools import cache
@@ -135,6 +136,8 @@ def _decode(data: str | bytes, limits: Limits) -> str:
                 ErrorCode.TOO_LARGE,
                 f"input is {len(data)} characters, the limit is {limits.max_size}",
             )
+        if not data.isascii():
+            _refuse_surrogates(data)
         return data
     if len(data) > limits.max_size:
         raise LimitError(
@@ -151,6 +154,22 @@ def _decode(data: str | bytes, limits: Limits) -> str:
             line,
             column,
             source=good,
+        ) from None
+
+
+def _refuse_surrogates(text: str) -> None:
+    """A str holding a lone surrogate is not text UTF-8 can carry: refuse it as the bytes it
+    would be (``SBT100``), rather than let a ``"\\uD800"`` escape pair up with it."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        line, column = _position_of_end(text[: exc.start])
+        raise ParseError(
+            ErrorCode.INVALID_UTF8,
+            f"character U+{ord(text[exc.start]):04X} is a lone surrogate, which UTF-8 cannot carry",
+            line,
+            column,
+            source=text[: exc.start],
         ) from None
 
 
@@ -178,6 +197,21 @@ def _number(text: str) -> int | float:
     if "." in text or "e" in text or "E" in text:
         return float(text)
     return int(text)
+
+
+def _finite(value: Value) -> bool:
+    """Whether a literal's value is one the language has (``1e400`` reads as infinity)."""
+    return not isinstance(value, float) or math.isfinite(value)
+
+
+def _infinite_error(raw: str, line: int, column: int, text: str) -> ParseError:
+    return ParseError(
+        ErrorCode.INVALID_VALUE,
+        f"number {raw[:40]} is beyond the range of a double",
+        line,
+        column,
+        source=text,
+    )
 
 
 def _value(text: str) -> Value:
@@ -365,6 +399,8 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
                     if len(raw) > max_lit:
                         return None
                     arg = raw if kg else _number(raw)
+                    if not _finite(arg):
+                        return None
                 frame = [tag, [], here, arg, pending, None]
                 pending = moved
                 stack.append(frame)
@@ -397,7 +433,10 @@ def _leaf(tag: str, t: re.Match[str], pos: tuple[int, int], max_lit: int) -> Nod
         raw = t.group("num") or t.group("num2")
         if len(raw) > max_lit:
             return None
-        return Wait(_number(raw), "ticks" if tag == "<w>" else "seconds", pos=pos)
+        duration = _number(raw)
+        if not _finite(duration):
+            return None
+        return Wait(duration, "ticks" if tag == "<w>" else "seconds", pos=pos)
     name = t.group("name") or t.group("name2")
     if len(name) > max_lit:
         return None
@@ -409,7 +448,10 @@ def _leaf(tag: str, t: re.Match[str], pos: tuple[int, int], max_lit: int) -> Nod
             key, value = a.group("key"), a.group("value")
             if len(key) > max_lit or len(value) > max_lit:
                 return None
-            pairs.append((key, _value(value)))
+            parsed = _value(value)
+            if not _finite(parsed):
+                return None
+            pairs.append((key, parsed))
         args = tuple(pairs)
     if tag == "<c>":
         negated = bool(t.group("neg") or t.group("neg2"))
@@ -498,7 +540,7 @@ def _parse_reference(text: str, limits: Limits) -> Tree:
         tree = parser.parse(text)
     except UnexpectedInput as exc:
         raise _reference_syntax_error(text, _Summary.of(toks), exc) from None
-    return Tree(_ReferenceBuilder().transform(tree))
+    return Tree(_ReferenceBuilder(text).transform(tree))
 
 
 def _reference_limits(toks: list[Any], limits: Limits, text: str) -> None:
@@ -583,6 +625,7 @@ _EXPLAIN_RE = re.compile(
     rf"|(?P<lit>(?:true|false)(?![A-Za-z0-9_.])|{NAME_PATTERN}|{_NUMBER}|{_STRING})"
 )
 _PUNCT_RE = re.compile(r"[(),=!]")
+_COMMENT_RE = re.compile(r"#[^\n]*")
 
 
 def _explain(text: str, limits: Limits) -> Tree:
@@ -615,7 +658,8 @@ def _explain(text: str, limits: Limits) -> Tree:
             )
         kind, start, pos = m.lastgroup, pos, m.end()
         if kind == "run":
-            if not summary.tokens and _PUNCT_RE.search(text, start, pos):
+            # Punctuation counts as a token; a '(' inside a comment does not.
+            if not summary.tokens and _PUNCT_RE.search(_COMMENT_RE.sub("", text[start:pos])):
                 summary.tokens = True
             continue
         summary.tokens = True
@@ -654,7 +698,7 @@ def _explain(text: str, limits: Limits) -> Tree:
         tree = _lark().parse(text)
     except UnexpectedInput as exc:
         raise _reference_syntax_error(text, summary, exc) from None
-    return Tree(_ReferenceBuilder().transform(tree))
+    return Tree(_ReferenceBuilder(text).transform(tree))
 
 
 def _line_col(text: str, offset: int) -> tuple[int, int]:
@@ -662,7 +706,19 @@ def _line_col(text: str, offset: int) -> tuple[int, int]:
 
 
 class _ReferenceBuilder:
-    """lark parse tree to nodes, bottom-up with an explicit stack (no recursion)."""
+    """lark parse tree to nodes, bottom-up with an explicit stack (no recursion).
+
+    A number literal beyond a double's range (``1e400``) is refused here, at the literal: the
+    language has no infinite numbers, and formatting one could not read back (``SBT310``)."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def _num(self, tok: Any) -> int | float:
+        value = _number(str(tok))
+        if not _finite(value):
+            raise _infinite_error(str(tok), tok.line, tok.column, self.text)
+        return value
 
     def transform(self, tree: Any) -> Node:
         import lark
@@ -707,7 +763,7 @@ class _ReferenceBuilder:
 
     def parallel(self, items: list[Any]) -> Node:
         tag, children = self._container(items)
-        threshold = _number(items[1]) if getattr(items[1], "type", "") == "NUMBER" else None
+        threshold = self._num(items[1]) if getattr(items[1], "type", "") == "NUMBER" else None
         return Parallel(children, threshold=threshold, pos=self._pos(tag))  # type: ignore[arg-type]
 
     def inverter(self, items: list[Any]) -> Node:
@@ -716,11 +772,11 @@ class _ReferenceBuilder:
 
     def wait_timer(self, items: list[Any]) -> Node:
         tag, children = self._container(items)
-        return WaitTimer(children, ticks=_number(items[1]), pos=self._pos(tag))  # type: ignore[arg-type]
+        return WaitTimer(children, ticks=self._num(items[1]), pos=self._pos(tag))  # type: ignore[arg-type]
 
     def run_timer(self, items: list[Any]) -> Node:
         tag, children = self._container(items)
-        return RunTimer(children, ticks=_number(items[1]), pos=self._pos(tag))  # type: ignore[arg-type]
+        return RunTimer(children, ticks=self._num(items[1]), pos=self._pos(tag))  # type: ignore[arg-type]
 
     def knowledge(self, items: list[Any]) -> Node:
         tag, children = self._container(items)
@@ -728,7 +784,10 @@ class _ReferenceBuilder:
 
     def arg(self, items: list[Any]) -> tuple[str, Value]:
         key, value = items
-        return (str(key), _value(str(value)))
+        parsed = _value(str(value))
+        if not _finite(parsed):
+            raise _infinite_error(str(value), value.line, value.column, self.text)
+        return (str(key), parsed)
 
     def condition(self, items: list[Any]) -> Node:
         negated = any(getattr(x, "type", "") == "BANG" for x in items)
@@ -743,5 +802,5 @@ class _ReferenceBuilder:
     def wait(self, items: list[Any]) -> Node:
         pos = self._pos(items[0])
         if items[0].type == "WAIT":
-            return Wait(_number(items[1]), "ticks", pos=pos)
-        return Wait(_number(items[1]), "seconds", pos=pos)
+            return Wait(self._num(items[1]), "ticks", pos=pos)
+        return Wait(self._num(items[1]), "seconds", pos=pos)

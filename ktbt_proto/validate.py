@@ -108,6 +108,17 @@ def _well_formed(name: str, max_literal: int) -> bool:
     )
 
 
+def _too_big(value: object, limits: Limits) -> bool:
+    """Whether a number is beyond ``limits.max_number`` (never for a bool or a string)."""
+    bound = limits.max_number
+    return (
+        bound is not None
+        and isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and abs(value) > bound
+    )
+
+
 def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]) -> None:
     seen: set[str] = set()
     for key, value in args:
@@ -128,6 +139,8 @@ def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]
                 bad = f"argument {key!r} holds a lone surrogate, which UTF-8 cannot carry"
         elif not isinstance(value, bool | int | float):
             bad = f"argument {key!r} is a {type(value).__name__}; use a number, string or bool"
+        elif _too_big(value, limits):
+            bad = f"argument {key!r} is beyond the limit of {limits.max_number:g} in magnitude"
         if bad:
             out.append(_problem(ErrorCode.INVALID_VALUE, bad, node))
 
@@ -161,6 +174,9 @@ def _check_container(
                     node,
                 )
             )
+        elif isinstance(node, WaitTimer | RunTimer) and _too_big(node.ticks, limits):
+            message = f"{tag} ticks beyond the limit of {limits.max_number:g}"
+            add(_problem(ErrorCode.INVALID_DURATION, message, node))
     elif isinstance(node, Placeholder):
         if not _name_ok(node.name, limits.max_literal):
             add(_problem(ErrorCode.INVALID_NAME, f"invalid placeholder name {node.name!r}", node))
@@ -189,7 +205,7 @@ def _check_container(
                 )
 
 
-def _check_wait(node: Wait, add: Callable[[StringBTError], None]) -> None:
+def _check_wait(node: Wait, limits: Limits, add: Callable[[StringBTError], None]) -> None:
     d = node.duration
     if node.unit == "ticks":
         ok = _is_int(d) and d >= 0
@@ -199,8 +215,11 @@ def _check_wait(node: Wait, add: Callable[[StringBTError], None]) -> None:
         # isinstance first: math.isfinite cannot take an integer too large for a float.
         ok = ok and (isinstance(d, int) or math.isfinite(d)) and d >= 0
         want = "a non-negative, finite number of seconds"
+    if ok and _too_big(d, limits):
+        ok, want = False, f"at most {limits.max_number:g}"
     if not ok:
-        add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {d!r}", node))
+        shown = repr(d) if len(repr(d)) <= 40 else f"{repr(d)[:20]}...({len(repr(d))} digits)"
+        add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {shown}", node))
 
 
 def check(
@@ -219,6 +238,7 @@ def check(
     max_depth, max_nodes, max_lit = limits.max_depth, limits.max_nodes, limits.max_literal
     # A runtime registry also knows the arguments each behaviour takes.
     fits = getattr(registry, "arguments_problem", None)
+    values = getattr(registry, "values_problem", None)
     count = 0
     stack: list[tuple[Node, int]] = [(as_node(tree), 1)]
     pop, push = stack.pop, stack.append
@@ -255,13 +275,19 @@ def check(
                 why = fits("condition" if kind is Condition else "action", leaf.name, leaf.args)
                 if why is not None:
                     add(_problem(ErrorCode.INVALID_ARGUMENTS, why, node))
+                elif values is not None and leaf.args:
+                    why = values(
+                        "condition" if kind is Condition else "action", leaf.name, leaf.args
+                    )
+                    if why is not None:
+                        add(_problem(ErrorCode.INVALID_VALUE, why, node))
         elif isinstance(node, Container):
             _check_container(node, limits, placeholders, add)
             children = node.children
             for i in range(len(children) - 1, -1, -1):
                 push((children[i], depth + 1))
         elif kind is Wait:
-            _check_wait(node, add)  # type: ignore[arg-type]
+            _check_wait(node, limits, add)  # type: ignore[arg-type]
         else:
             add(_problem(ErrorCode.INVALID_VALUE, f"not a stringBT node: {node!r}", node))
             break

@@ -84,6 +84,11 @@ class MemoryNetwork:
         for _, _, receiver, message in sorted(due, key=lambda m: (m[0], m[1])):
             member = self._members.get(receiver)
             if member is not None and not member.closed:
+                if len(member._inbox) >= self.inbox_limit:
+                    # Full: the newcomer is refused and counted; what came first (the first
+                    # answer, which wins) stays.
+                    member.refused += 1
+                    continue
                 member._inbox.append(message)
                 self.delivered += 1
                 if self.on_deliver is not None:
@@ -95,10 +100,12 @@ class MemoryTransport:
     name: str
     network: MemoryNetwork
     closed: bool = False
+    refused: int = 0
+    """Messages refused because the inbox was full."""
     _inbox: deque[Message] = field(init=False)
 
     def __post_init__(self) -> None:
-        self._inbox = deque(maxlen=self.network.inbox_limit)
+        self._inbox = deque()
 
     def broadcast(self, message: Message) -> None:
         if self.closed:

@@ -11,6 +11,13 @@ Key expressions (``spec/protocol.md``):
 Queries are issued from a worker thread, never from a zenoh callback; every query a peer
 receives is finished (answered, refused, or dropped once its answer window passes); sessions are
 closed by :meth:`ZenohTransport.close` (use the transport as a context manager).
+
+What a hostile peer can do is bounded here (spec section 3): replies are not consolidated, so a
+silent peer delays no one and an impostor cannot replace another peer's answer; a reply counts
+only on its sender's own key, once per get; queries arrive only through the queryable, and a
+query already open under the same sender and id is not replaced; inboxes and the queue of
+outgoing queries are bounded, and what does not fit is refused, counted and logged, never
+silently dropped.
 """
 
 from __future__ import annotations
@@ -37,13 +44,16 @@ from ..messages import (
     decode,
     encode,
 )
+from ..signing import Identity, SignedItem
+from ..transferlog import TransferLog
 from .base import Message
 
 log = logging.getLogger("ktbt.zenoh")
 
 PREFIX = "ktbt/v1"
-Lookup = Callable[[str], str | None]
-"""Sequence key -> compact subtree, or None: answers queries straight from the callback."""
+Lookup = Callable[[str], str | SignedItem | None]
+"""Sequence key -> compact subtree (signed by its author, or not), or None: answers queries
+straight from the callback."""
 
 
 @dataclass(frozen=True)
@@ -84,7 +94,8 @@ class ZenohTransport:
     name: str
     settings: ZenohSettings = field(default_factory=ZenohSettings)
     lookup: Lookup | None = None
-    catalog: Callable[[], list[str]] | None = None
+    catalog: Callable[[], Sequence[str | dict[str, Any]]] | None = None
+    """What this peer knows: sequences, or objects with ``sequence`` and provenance."""
     query_timeout: float = 2.0
     answer_window: float = 1.0
     serving: bool = True
@@ -92,12 +103,23 @@ class ZenohTransport:
     finished at once, unanswered."""
     max_pending: int = 256
     inbox_limit: int = 1024
+    max_asking: int = 8
+    """Queries waiting for the worker threads at most; a broadcast beyond is refused."""
     max_bytes: int = MAX_MESSAGE_BYTES
+    identity: Identity | None = None
+    """With a key pair, the replies this peer's ``lookup`` gives are hop-signed."""
+    log: TransferLog | None = None
+    screen: Callable[[Response], str | None] | None = None
+    """The asker's check of a reply's signatures (its trust policy), run before the reply takes
+    its sender's one place in a get, so that a forgery on a peer's key cannot keep that peer's
+    genuine answer out. An agent sets it (``Agent`` gives its policy)."""
     refused: int = 0
+    """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
-        self._inbox: deque[Message] = deque(maxlen=self.inbox_limit)
+        self._inbox: deque[Message] = deque()
+        self._asking = 0
         self._lock = threading.Lock()
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
         self._workers = ThreadPoolExecutor(max_workers=2, thread_name_prefix=f"ktbt-{self.name}")
@@ -120,7 +142,42 @@ class ZenohTransport:
         """Ask every reachable peer (a get from a worker thread); answers arrive in the inbox."""
         if self.closed:
             return
-        self._workers.submit(self._ask, message)
+        with self._lock:
+            full = self._asking >= self.max_asking
+            if not full:
+                self._asking += 1
+        if full:
+            self._refuse(f"query {message.id} not sent: {self.max_asking} queries already waiting")
+            return
+        self._workers.submit(self._ask_queued, message)
+
+    def _ask_queued(self, message: Message) -> None:
+        try:
+            self._ask(message)
+        finally:
+            with self._lock:
+                self._asking -= 1
+
+    def _refuse(self, reason: str, **fields: Any) -> None:
+        """Count, log and record one refusal (spec section 2: every refusal is counted)."""
+        with self._lock:
+            self.refused += 1
+        log.info("%s refused: %s", self.name, reason)
+        if self.log is not None:
+            self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
+
+    def _deliver(self, message: Message) -> None:
+        """Into the inbox, unless it is full: then the newcomer is refused, and what arrived
+        first (the first answer, which wins) is kept."""
+        with self._lock:
+            full = len(self._inbox) >= self.inbox_limit
+            if not full:
+                self._inbox.append(message)
+        if full:
+            self._refuse(
+                f"inbox full ({self.inbox_limit} messages): a {message.type} from "
+                f"{message.sender} is dropped"
+            )
 
     def send(self, to: str, message: Message) -> None:
         """Answer a query this peer received, or put the message in ``to``'s inbox."""
@@ -169,36 +226,84 @@ class ZenohTransport:
 
     # -- asking -----------------------------------------------------------------------------------
 
-    def ask(self, query: Query, timeout: float | None = None) -> list[Message]:
-        """Broadcast ``query`` and wait for the answers (blocking; for tools and tests)."""
-        return self._ask(query, timeout, keep=False)
+    def ask(
+        self,
+        query: Query,
+        timeout: float | None = None,
+        on_answer: Callable[[Response], None] | None = None,
+    ) -> list[Response]:
+        """Broadcast ``query`` and wait for the answers (blocking; for tools and tests).
+        ``on_answer`` sees each answer the moment it arrives."""
+        return self._ask(query, timeout, keep=False, on_answer=on_answer)
 
     def _ask(
-        self, message: Message, timeout: float | None = None, keep: bool = True
-    ) -> list[Message]:
-        answers: list[Message] = []
+        self,
+        message: Message,
+        timeout: float | None = None,
+        keep: bool = True,
+        on_answer: Callable[[Response], None] | None = None,
+    ) -> list[Response]:
+        """One get. Replies are not consolidated: each is handled as it arrives. A reply is an
+        answer only if it is a response to this query, on its sender's own key, and the first
+        from that key."""
+        answers: list[Response] = []
+        heard: set[str] = set()
         try:
             replies = self._session.get(
                 f"{PREFIX}/knowledge/*",
                 payload=encode(message),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=self.query_timeout if timeout is None else timeout,
                 allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
             )
             for reply in replies:
-                sample = reply.ok if reply.ok is not None else reply.err
-                try:
-                    answer = decode(sample.payload.to_bytes(), self.max_bytes)
-                except MessageRefused as exc:
-                    self.refused += 1
-                    log.info("%s refused a reply: %s", self.name, exc.reason)
+                answer = self._reply(reply, message, heard)
+                if answer is None:
                     continue
                 answers.append(answer)
+                if on_answer is not None:
+                    on_answer(answer)
                 if keep:
-                    with self._lock:
-                        self._inbox.append(answer)
+                    self._deliver(answer)
         except Exception:  # a closing session; the query is simply lost
             log.debug("%s: query failed", self.name, exc_info=True)
         return answers
+
+    def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
+        """The answer a reply carries, or None (refused and counted, or a peer's error)."""
+        sample = reply.ok if reply.ok is not None else reply.err
+        key = str(getattr(sample, "key_expr", "")) if reply.ok is not None else ""
+        try:
+            answer = decode(sample.payload.to_bytes(), self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"a reply to {asked.id}: {exc.reason}", key=key)
+            return None
+        if isinstance(answer, ErrorReply):
+            log.info("%s: %s refused query %s: %s", self.name, answer.sender, asked.id, answer)
+            if self.log is not None:
+                self.log.record(
+                    "error-received", peer=self.name, sender=answer.sender, reason=answer.message
+                )
+            return None
+        if not isinstance(answer, Response):
+            self._refuse(f"a {answer.type} from {answer.sender} sent as a reply", key=key)
+            return None
+        if key != f"{PREFIX}/knowledge/{answer.sender}":
+            self._refuse(f"a reply naming {answer.sender} came on {key[:80]}", key=key)
+            return None
+        if answer.id != asked.id or answer.sequence != getattr(asked, "sequence", None):
+            self._refuse(f"a reply from {answer.sender} answers another question", key=key)
+            return None
+        why = self.screen(answer) if self.screen is not None else None
+        if why is not None:
+            self._refuse(f"from {answer.sender}: {why}", key=key)
+            return None
+        if key in heard:
+            self._refuse(f"another reply from {answer.sender} to the same query", key=key)
+            return None
+        heard.add(key)
+        return answer
 
     # -- being asked ------------------------------------------------------------------------------
 
@@ -209,35 +314,73 @@ class ZenohTransport:
             if not isinstance(message, Query):
                 raise MessageRefused(f"expected a query, got a {message.type}")
         except MessageRefused as exc:
-            self.refused += 1
+            self._refuse(f"a query: {exc.reason}")
             error = ErrorReply(id="0", sender=self.name, code="refused", message=exc.reason)
-            query.reply_err(encode(error))
-            query.drop()
+            try:
+                query.reply_err(encode(error))
+            finally:
+                query.drop()
             return
         if message.sender == self.name or not self.serving:
             query.drop()
             return
         if self.lookup is not None:
-            subtree = self.lookup(message.sequence)
-            if subtree is not None:
-                response = Response(
-                    id=message.id, sender=self.name, sequence=message.sequence, subtree=subtree
+            if self.log is not None:
+                self.log.record(
+                    "query-received",
+                    peer=self.name,
+                    sender=message.sender,
+                    id=message.id,
+                    sequence=message.sequence,
                 )
-                query.reply(f"{PREFIX}/knowledge/{self.name}", encode(response))
-            query.drop()
+            try:
+                self._answer_at_once(query, message, self.lookup)
+            finally:
+                query.drop()
             return
         self._expire()
+        key = (message.sender, message.id)
         with self._lock:
             if len(self._pending) >= self.max_pending:
                 # Full: this one is finished unanswered, as a teacher in cool-down would.
-                query.drop()
-                return
-            key = (message.sender, message.id)
-            stale = self._pending.pop(key, None)
-            self._pending[key] = (query, time.monotonic() + self.answer_window)
-            self._inbox.append(message)
-        if stale is not None:
-            stale[0].drop()
+                full, taken = True, False
+            else:
+                full, taken = False, key in self._pending
+                if not taken:
+                    self._pending[key] = (query, time.monotonic() + self.answer_window)
+        if full or taken:
+            query.drop()
+            if taken:  # a replay: the query already open keeps its place
+                self._refuse(f"query {message.id} from {message.sender} is already open")
+            return
+        self._deliver(message)
+
+    def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
+        """A knowledge server's answer, given inside the callback."""
+        found = lookup(message.sequence)
+        if found is None:
+            return
+        item = found if isinstance(found, SignedItem) else SignedItem(found)
+        response = Response(
+            id=message.id,
+            sender=self.name,
+            sequence=message.sequence,
+            subtree=item.subtree,
+            author=item.author,
+            signature=item.signature,
+        )
+        if self.identity is not None:
+            response = self.identity.sign_reply(response)
+        query.reply(f"{PREFIX}/knowledge/{self.name}", encode(response))
+        if self.log is not None:
+            self.log.record(
+                "answer-sent",
+                peer=self.name,
+                to=message.sender,
+                id=message.id,
+                sequence=message.sequence,
+                author=item.author,
+            )
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
@@ -245,14 +388,17 @@ class ZenohTransport:
         query.drop()
 
     def _on_inbox(self, sample: Any) -> None:
+        """A late answer. Only a response is taken: a query arrives only through the
+        queryable, where zenoh knows it came from a get."""
         try:
             message = decode(sample.payload.to_bytes(), self.max_bytes)
         except MessageRefused as exc:
-            self.refused += 1
-            log.info("%s refused a message: %s", self.name, exc.reason)
+            self._refuse(f"a message in the inbox: {exc.reason}")
             return
-        with self._lock:
-            self._inbox.append(message)
+        if not isinstance(message, Response):
+            self._refuse(f"a {message.type} from {message.sender} put in the inbox")
+            return
+        self._deliver(message)
 
     def _expire(self) -> None:
         now = time.monotonic()
@@ -261,6 +407,39 @@ class ZenohTransport:
             queries = [self._pending.pop(k)[0] for k in expired]
         for query in queries:
             query.drop()
+
+
+def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
+    """Each peer's catalog entries as ``{"sequence": ..., "author": ..., ...}``; a reply on a
+    key that is not a catalog, too large, or not a JSON array is ignored."""
+    out: dict[str, list[dict[str, str]]] = {}
+    for reply in owner._session.get(f"{PREFIX}/catalog/*", timeout=timeout):
+        if reply.ok is None:
+            continue
+        name = str(reply.ok.key_expr).rsplit("/", 1)[-1]
+        payload = reply.ok.payload.to_bytes()
+        if len(payload) > MAX_MESSAGE_BYTES:
+            continue
+        try:
+            value = json.loads(payload)
+        except (ValueError, RecursionError):  # a peer's garbage is its own problem
+            continue
+        if not isinstance(value, list):
+            continue
+        entries = []
+        for v in value:
+            if isinstance(v, dict) and isinstance(v.get("sequence"), str):
+                entries.append({str(k): str(x)[:200] for k, x in v.items()})
+            elif not isinstance(v, dict | list):
+                entries.append({"sequence": str(v)})
+        out[name] = entries
+    out.pop(owner.name, None)
+    return out
+
+
+def catalogs(owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list[dict[str, str]]]:
+    """What each peer knows, with the provenance it reports (author, teacher, time)."""
+    return _catalog_replies(owner, timeout)
 
 
 def peers(session_owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list[str]]:
@@ -272,18 +451,7 @@ def peers(session_owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list
         if r.ok is not None
     )
     known: dict[str, list[str]] = {name: [] for name in present}
-    for reply in session.get(f"{PREFIX}/catalog/*", timeout=timeout):
-        if reply.ok is None:
-            continue
-        name = str(reply.ok.key_expr).rsplit("/", 1)[-1]
-        payload = reply.ok.payload.to_bytes()
-        if len(payload) > MAX_MESSAGE_BYTES:
-            continue
-        try:
-            value = json.loads(payload)
-        except (ValueError, RecursionError):  # a peer's garbage is its own problem
-            continue
-        if isinstance(value, list):
-            known[name] = [str(v) for v in value]
+    for name, entries in _catalog_replies(session_owner, timeout).items():
+        known[name] = [e["sequence"] for e in entries]
     known.pop(session_owner.name, None)
     return known

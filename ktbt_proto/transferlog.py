@@ -1,0 +1,97 @@
+"""The transfer log: one JSON object a line for every knowledge exchange event
+(``spec/protocol.md`` section 8), so an operator can see every query, answer and refusal.
+
+Events: ``query-sent``, ``query-received``, ``answer-sent``, ``answer-received``, ``refused``
+(with its ``reason``), ``merged``, ``forgotten`` and ``error-received``. Every line has ``t``
+(UTC, ISO 8601), ``event`` and ``peer`` (whose log it is); the other fields depend on the event.
+The log is append-only and written from several threads (zenoh callbacks, the agent's loop), so
+each line is written whole under a lock and flushed.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import Counter
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TextIO
+
+EVENTS = (
+    "query-sent",
+    "query-received",
+    "answer-sent",
+    "answer-received",
+    "refused",
+    "merged",
+    "forgotten",
+    "error-received",
+)
+MAX_LINE = 1_000_000
+"""A line longer than this is not read (a log is ours, but a file may be anything)."""
+
+
+class TransferLog:
+    """Append events to a JSON-lines file (or any text stream)."""
+
+    def __init__(self, target: str | Path | TextIO) -> None:
+        self._lock = threading.Lock()
+        if isinstance(target, str | Path):
+            self._file: TextIO = open(target, "a", encoding="utf-8")  # noqa: SIM115
+            self._owned = True
+        else:
+            self._file, self._owned = target, False
+        self.counts: Counter[str] = Counter()
+        """Events recorded, by kind."""
+
+    def record(self, event: str, **fields: Any) -> None:
+        entry = {"t": datetime.now(UTC).isoformat(timespec="milliseconds"), "event": event}
+        entry.update({k: v for k, v in fields.items() if v is not None})
+        line = json.dumps(entry, ensure_ascii=False, default=str)
+        with self._lock:
+            self.counts[event] += 1
+            if self._file.closed:
+                return
+            self._file.write(line + "\n")
+            self._file.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            if self._owned and not self._file.closed:
+                self._file.close()
+
+    def __enter__(self) -> TransferLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read(path: str | Path) -> Iterator[dict[str, Any] | str]:
+    """The events of a log file, in order; a line that is not an event comes back as the
+    reason it is not (a torn last line after a crash, say), so nothing stops the reading."""
+    with open(path, "rb") as f:
+        for number, raw in enumerate(f, 1):
+            if len(raw) > MAX_LINE:
+                yield f"line {number}: longer than {MAX_LINE} bytes"
+                continue
+            try:
+                entry = json.loads(raw)
+            except (ValueError, RecursionError):
+                yield f"line {number}: not a JSON object"
+                continue
+            if not isinstance(entry, dict) or not isinstance(entry.get("event"), str):
+                yield f"line {number}: not an event"
+                continue
+            yield entry
+
+
+def describe(entry: dict[str, Any]) -> str:
+    """One event as one readable line."""
+    head = f"{entry.get('t', '?')} {entry.get('peer', '?')} {entry['event']}"
+    rest = {k: v for k, v in entry.items() if k not in ("t", "peer", "event", "reason")}
+    words = [f"{k}={v}" for k, v in rest.items()]
+    if "reason" in entry:
+        words.append(f"reason: {entry['reason']}")
+    return " ".join([head, *words])

@@ -1,0 +1,142 @@
+"""The shipped access-control profile (examples/zenoh/acl-router.json5) over mutual TLS on
+loopback: a robot answers under its own name, and a robot whose certificate names another peer
+cannot declare that peer's queryable (spec/protocol.md section 9)."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import NameOID
+
+import ktbt_proto as kp
+from ktbt_proto.knowledge import KnowledgeBase
+from ktbt_proto.messages import Query, Response, decode, encode
+from ktbt_proto.peer import answers
+from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
+
+from .zenoh_helpers import ROOT, free_port
+
+PROFILE = ROOT / "examples" / "zenoh" / "acl-router.json5"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
+GREEN = "<c>(TargetSeen,colour=2)"
+
+
+def _pem(path: Path, key: ec.EllipticCurvePrivateKey, cert: x509.Certificate) -> None:
+    path.with_suffix(".pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    path.with_suffix(".key").write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        )
+    )
+
+
+def make_fleet_pki(folder: Path, *robots: str) -> None:
+    """A CA, the router's certificate for localhost, and one client certificate per robot
+    whose common name is the robot's peer name."""
+    now = datetime.datetime.now(datetime.UTC)
+
+    def build(cn: str, key: Any, issuer: x509.Name, signer: Any, ca: bool) -> x509.Certificate:
+        builder = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)]))
+            .issuer_name(issuer)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=1))
+            .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True)
+        )
+        if not ca:
+            builder = builder.add_extension(
+                x509.SubjectAlternativeName([x509.DNSName("localhost")]), critical=False
+            )
+        return builder.sign(signer, hashes.SHA256())
+
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "ktbt fleet CA")])
+    ca = build("ktbt fleet CA", ca_key, ca_name, ca_key, True)
+    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    for cn in ("router", *robots):
+        key = ec.generate_private_key(ec.SECP256R1())
+        _pem(
+            folder / cn,
+            key,
+            build("localhost" if cn == "router" else cn, key, ca_name, ca_key, False),
+        )
+
+
+def robot_settings(folder: Path, name: str, port: int) -> ZenohSettings:
+    config = folder / f"{name}.json5"
+    tls = {
+        "root_ca_certificate": str(folder / "ca.pem"),
+        "connect_certificate": str(folder / f"{name}.pem"),
+        "connect_private_key": str(folder / f"{name}.key"),
+        "enable_mtls": True,
+    }
+    config.write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
+    return ZenohSettings(connect=[f"tls/localhost:{port}"], config=config, mode="client")
+
+
+def router(folder: Path, port: int, acl: bool) -> Any:
+    conf = zenoh.Config.from_file(str(PROFILE))
+    for key, value in {
+        "listen/endpoints": [f"tls/localhost:{port}"],
+        "transport/link/tls/root_ca_certificate": str(folder / "ca.pem"),
+        "transport/link/tls/listen_certificate": str(folder / "router.pem"),
+        "transport/link/tls/listen_private_key": str(folder / "router.key"),
+        "access_control/enabled": acl,
+    }.items():
+        conf.insert_json5(key, json.dumps(value))
+    return zenoh.open(conf)
+
+
+@pytest.mark.parametrize("acl", [True, False], ids=["profile", "without-access-control"])
+def test_only_the_named_robot_serves_its_name(tmp_path: Path, acl: bool) -> None:
+    make_fleet_pki(tmp_path, "t", "m", "r1")
+    port = free_port()
+    kb = KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
+    reached: list[str] = []
+    session = router(tmp_path, port, acl)
+    try:
+        with (
+            ZenohTransport("t", robot_settings(tmp_path, "t", port), lookup=answers(kb)),
+            ZenohTransport("m", robot_settings(tmp_path, "m", port), serving=False) as impostor,
+            ZenohTransport("r1", robot_settings(tmp_path, "r1", port), serving=False) as asker,
+        ):
+
+            def forge(q: Any) -> None:
+                asked = decode(q.payload.to_bytes())
+                reached.append(asked.id)
+                forged = Response(id=asked.id, sender="t", sequence=GREEN, subtree="<a>(X)")
+                q.reply("ktbt/v1/knowledge/t", encode(forged))
+                q.drop()
+
+            impostor._declared.append(
+                impostor._session.declare_queryable("ktbt/v1/knowledge/t", forge)
+            )
+            deadline = time.monotonic() + 15
+            while "t" not in peers(asker, 0.3) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.5)  # let the impostor's declaration reach the router, or be denied
+            got = asker.ask(Query(id="q1", sender="r1", sequence=GREEN), 3)
+    finally:
+        session.close()
+    if acl:
+        # The robot with t's certificate answers; no query reached the impostor's queryable.
+        assert [(a.sender, a.subtree != "<a>(X)") for a in got] == [("t", True)]
+        assert reached == [] and asker.refused == 0
+    else:
+        # Without the profile, the impostor hears the query and answers in t's name (on the
+        # `any` policy, whichever of the two comes first takes t's place).
+        assert reached == ["q1"] and [a.sender for a in got] == ["t"]

@@ -9,8 +9,10 @@ Two signatures travel with an answer (``spec/protocol.md`` section 7):
   and item (with its author signature), binding the name ``sender`` to a key for this query.
 
 Keys and signatures are written as unpadded base64url (RFC 4648 section 5): 43 characters for a
-32-byte public key, 86 for a 64-byte signature. The primitives are ``cryptography``'s Ed25519
-(RFC 8032), which is deterministic: equal bytes and key give equal signatures.
+32-byte public key, 86 for a 64-byte signature. The primitives are libsodium's Ed25519 (RFC 8032)
+through PyNaCl, which is deterministic: equal bytes and key give equal signatures. A private key
+file is the one PKCS#8 form of an Ed25519 key (RFC 8410): a fixed 16-byte DER prefix and the
+32-byte seed, in a PEM ``PRIVATE KEY`` block (RFC 7468), as OpenSSL writes it.
 """
 
 from __future__ import annotations
@@ -22,9 +24,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import serialization
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from nacl.exceptions import CryptoError
+from nacl.signing import SigningKey, VerifyKey
 
 from .messages import Response
 
@@ -34,6 +35,11 @@ HOP_DOMAIN = b"ktbt/v1/reply\x00"
 """Prefix of the bytes a sending peer signs."""
 _SEP = b"\x00"  # canonical compact stringBT never holds a NUL (it is escaped in strings)
 MAX_KEY_FILE = 4096
+PKCS8_PREFIX = bytes.fromhex("302e020100300506032b657004220420")
+"""DER of PKCS#8 ``PrivateKeyInfo`` (version 0, algorithm id-Ed25519 1.3.101.112, no parameters)
+up to the 32-byte seed it ends with (RFC 8410 section 7)."""
+_PEM_BEGIN = b"-----BEGIN PRIVATE KEY-----"
+_PEM_END = b"-----END PRIVATE KEY-----"
 
 
 class KeyFileError(ValueError):
@@ -110,9 +116,8 @@ def verify(key: str, signature: str, data: bytes) -> bool:
         raw = unb64(key)
         if len(raw) != 32 or small_order(raw):
             return False
-        public = Ed25519PublicKey.from_public_bytes(raw)
-        public.verify(unb64(signature), data)
-    except (InvalidSignature, ValueError, binascii.Error):
+        VerifyKey(raw).verify(data, unb64(signature))
+    except (CryptoError, ValueError, binascii.Error):
         return False
     return True
 
@@ -129,20 +134,24 @@ class SignedItem:
 class Identity:
     """A peer's Ed25519 key pair (``ktbt peer keygen``)."""
 
-    def __init__(self, private: Ed25519PrivateKey) -> None:
+    def __init__(self, private: SigningKey) -> None:
         self._private = private
-        raw = private.public_key().public_bytes(
-            serialization.Encoding.Raw, serialization.PublicFormat.Raw
-        )
-        self.public = b64(raw)
+        self.public = b64(bytes(private.verify_key))
         """The public key, base64url: what others put in their trust store."""
 
     @classmethod
     def generate(cls) -> Identity:
-        return cls(Ed25519PrivateKey.generate())
+        return cls(SigningKey.generate())
+
+    @classmethod
+    def from_seed(cls, seed: bytes) -> Identity:
+        """The key pair of a 32-byte seed (RFC 8032's private key), as the vectors give them."""
+        if len(seed) != 32:
+            raise ValueError(f"an Ed25519 seed is 32 bytes, not {len(seed)}")
+        return cls(SigningKey(seed))
 
     def sign(self, data: bytes) -> str:
-        return b64(self._private.sign(data))
+        return b64(self._private.sign(data).signature)
 
     def sign_item(self, sequence: str, subtree: str) -> SignedItem:
         """Author an item: sign its canonical form."""
@@ -166,11 +175,8 @@ class Identity:
         next to it, ``<path>.pub``: the public key on one line. Returns the public key's path."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        pem = self._private.private_bytes(
-            serialization.Encoding.PEM,
-            serialization.PrivateFormat.PKCS8,
-            serialization.NoEncryption(),
-        )
+        der = base64.b64encode(PKCS8_PREFIX + bytes(self._private)).decode("ascii")
+        pem = _PEM_BEGIN + b"\n" + der.encode("ascii") + b"\n" + _PEM_END + b"\n"
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "wb") as f:
             f.write(pem)
@@ -188,13 +194,22 @@ class Identity:
             raise KeyFileError(f"cannot read key {path}: {exc.strerror or exc}") from None
         if len(data) > MAX_KEY_FILE:
             raise KeyFileError(f"{path} is not a key file (larger than {MAX_KEY_FILE} bytes)")
-        try:
-            private = serialization.load_pem_private_key(data, password=None)
-        except (ValueError, TypeError) as exc:
-            raise KeyFileError(f"{path} is not an unencrypted PEM private key: {exc}") from None
-        if not isinstance(private, Ed25519PrivateKey):
-            raise KeyFileError(f"{path} holds a {type(private).__name__}, not an Ed25519 key")
-        return cls(private)
+        return cls.from_seed(_pkcs8_seed(data, path))
+
+
+def _pkcs8_seed(data: bytes, path: str | Path) -> bytes:
+    """The seed of an unencrypted PKCS#8 Ed25519 key in one PEM block; anything else (another
+    algorithm, an encrypted key, text around the block, a second block) is refused."""
+    lines = data.strip().splitlines()
+    if len(lines) < 3 or lines[0].strip() != _PEM_BEGIN or lines[-1].strip() != _PEM_END:
+        raise KeyFileError(f"{path} is not a PEM private key (-----BEGIN PRIVATE KEY-----)")
+    try:
+        der = base64.b64decode(b"".join(line.strip() for line in lines[1:-1]), validate=True)
+    except (ValueError, binascii.Error):
+        raise KeyFileError(f"{path} is not a PEM private key: its body is not base64") from None
+    if len(der) != len(PKCS8_PREFIX) + 32 or not der.startswith(PKCS8_PREFIX):
+        raise KeyFileError(f"{path} is not an unencrypted PKCS#8 Ed25519 private key")
+    return der[len(PKCS8_PREFIX) :]
 
 
 def public_key(text: str) -> str:
@@ -202,9 +217,8 @@ def public_key(text: str) -> str:
     text = text.strip()
     try:
         raw = unb64(text)
-        Ed25519PublicKey.from_public_bytes(raw)
     except (ValueError, binascii.Error):
         raise KeyFileError(f"{text[:60]!r} is not an Ed25519 public key in base64url") from None
-    if b64(raw) != text or small_order(raw):
+    if len(raw) != 32 or b64(raw) != text or small_order(raw):
         raise KeyFileError(f"{text[:60]!r} is not an Ed25519 public key in base64url")
     return text

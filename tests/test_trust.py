@@ -4,11 +4,15 @@ in-memory transport and on files (spec/protocol.md sections 2, 5, 7 and 8)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
 import pytest
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import Field
@@ -19,7 +23,15 @@ from ktbt_proto.agent import Agent
 from ktbt_proto.cli import app
 from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.messages import MessageRefused, Query, Response, decode, encode, schema_text
-from ktbt_proto.signing import Identity, KeyFileError, hop_bytes, item_bytes, verify
+from ktbt_proto.signing import (
+    Identity,
+    KeyFileError,
+    b64,
+    hop_bytes,
+    item_bytes,
+    unb64,
+    verify,
+)
 from ktbt_proto.transferlog import TransferLog, read
 from ktbt_proto.transport import MemoryNetwork
 from ktbt_proto.trust import Policy, TrustStore, refusal
@@ -84,8 +96,8 @@ def run(net: MemoryNetwork, agents: list[Agent], ticks: int) -> None:
 
 def test_signing_vector_verifies_as_specified() -> None:
     vector = json.loads((ROOT / "spec" / "vectors" / "signing.json").read_text())
-    author = Identity(Ed25519PrivateKey.from_private_bytes(bytes.fromhex(vector["author_seed"])))
-    hop = Identity(Ed25519PrivateKey.from_private_bytes(bytes.fromhex(vector["hop_seed"])))
+    author = Identity.from_seed(bytes.fromhex(vector["author_seed"]))
+    hop = Identity.from_seed(bytes.fromhex(vector["hop_seed"]))
     assert (author.public, hop.public) == (vector["author"], vector["hop_key"])
     response = decode(json.dumps(vector["response"]).encode())
     assert isinstance(response, Response)
@@ -96,6 +108,63 @@ def test_signing_vector_verifies_as_specified() -> None:
     assert author.sign(bytes.fromhex(vector["item_bytes_hex"])) == response.signature
     assert hop.sign(bytes.fromhex(vector["hop_bytes_hex"])) == response.hop
     assert refusal(response, Policy.TRUSTED, TrustStore.parse(vector["author"])) is None
+    # A second, independent implementation gives the same keys and signatures.
+    theirs = Ed25519PrivateKey.from_private_bytes(bytes.fromhex(vector["author_seed"]))
+    assert b64(theirs.public_key().public_bytes_raw()) == vector["author"]
+    assert b64(theirs.sign(bytes.fromhex(vector["item_bytes_hex"]))) == response.signature
+
+
+def test_signatures_and_key_files_agree_with_a_second_implementation(tmp_path: Path) -> None:
+    """OpenSSL's Ed25519 (through ``cryptography``) and ours accept each other's signatures and
+    key files: a key written by either loads in the other and signs the same bytes alike."""
+    data = item_bytes(SEQ, SUB)
+    theirs = Ed25519PrivateKey.generate()
+    their_public = b64(theirs.public_key().public_bytes_raw())
+    assert verify(their_public, b64(theirs.sign(data)), data)
+    assert not verify(their_public, b64(theirs.sign(data)), data + b" ")
+    ours = Identity.generate()
+    ours_in_theirs = Ed25519PublicKey.from_public_bytes(unb64(ours.public))
+    ours_in_theirs.verify(unb64(ours.sign(data)), data)  # raises when it does not verify
+    with pytest.raises(InvalidSignature):
+        ours_in_theirs.verify(unb64(ours.sign(data)), data + b" ")
+    # Their PEM loads here, and ours there: the same key, the same signatures.
+    pem = theirs.private_bytes(
+        serialization.Encoding.PEM,
+        serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption(),
+    )
+    (tmp_path / "theirs.key").write_bytes(pem)
+    loaded = Identity.load(tmp_path / "theirs.key")
+    assert loaded.public == their_public
+    assert loaded.sign(data) == b64(theirs.sign(data))
+    ours.save(tmp_path / "ours.key")
+    back = serialization.load_pem_private_key((tmp_path / "ours.key").read_bytes(), None)
+    assert isinstance(back, Ed25519PrivateKey)
+    assert b64(back.public_key().public_bytes_raw()) == ours.public
+    assert b64(back.sign(data)) == ours.sign(data)
+    # Other private keys they write are refused, naming the file: encrypted, another curve.
+    others = {
+        "encrypted.key": theirs.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.BestAvailableEncryption(b"secret"),
+        ),
+        "p256.key": ec.generate_private_key(ec.SECP256R1()).private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        ),
+        "openssh.key": theirs.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.OpenSSH,
+            serialization.NoEncryption(),
+        ),
+        "trailing.key": pem + pem,
+    }
+    for name, text in others.items():
+        (tmp_path / name).write_bytes(text)
+        with pytest.raises(KeyFileError, match=re.escape(str(tmp_path / name))):
+            Identity.load(tmp_path / name)
 
 
 def signed(author: Identity, hop: Identity, sender: str = "t", **change: str) -> Response:

@@ -94,7 +94,7 @@ def test_the_wheel_carries_types_licence_urls_and_examples(wheel: Path) -> None:
     unconditional = {
         line.split()[1].split(">")[0].split("<")[0] for line in core if ";" not in line
     }
-    assert unconditional == {"lark", "pydantic", "eclipse-zenoh", "typer"}
+    assert unconditional == {"lark", "pydantic", "eclipse-zenoh", "typer", "pynacl"}
 
 
 def test_the_core_install_is_light(core: Env) -> None:

@@ -243,13 +243,7 @@ class Agent:
         self.now = self.now + 1 if now is None else now
         for message in self.transport.receive():
             if isinstance(message, Query):
-                self.metrics.queries_received += 1
-                self._record(
-                    "query-received",
-                    sender=message.sender,
-                    id=message.id,
-                    sequence=message.sequence,
-                )
+                self._received(message)
                 if self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
                     continue
                 if len(self._queries) >= MAX_WAITING:
@@ -268,6 +262,10 @@ class Agent:
         self.teach.tick()
         self.learn.tick()
         return status
+
+    def _received(self, query: Query) -> None:
+        self.metrics.queries_received += 1
+        self._record("query-received", sender=query.sender, id=query.id, sequence=query.sequence)
 
     # -- application-timed teaching and learning (spec/protocol.md section 4.1) ---------------
 
@@ -345,18 +343,12 @@ class Agent:
     def receive(self) -> int:
         """Read the transport without ticking any tree: queries are remembered by asker (for
         :meth:`heard`); an answer to the open query is checked and merged (section 2), any
-        other answer refused. Returns how many items were learned."""
+        other answer refused. Returns how many answers it accepted."""
         learned = 0
         heard = self._heard
         for message in self.transport.receive():
             if isinstance(message, Query):
-                self.metrics.queries_received += 1
-                self._record(
-                    "query-received",
-                    sender=message.sender,
-                    id=message.id,
-                    sequence=message.sequence,
-                )
+                self._received(message)
                 heard.pop(message.sender, None)
                 heard[message.sender] = message
                 if len(heard) > self.HEARD_LIMIT:

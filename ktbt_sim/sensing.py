@@ -100,7 +100,23 @@ class WallSensor:
         return vx, vy
 
 
-class Proximity:
+class _Ranges:
+    """The squared distances at which robots sense each other (§4.6, §5.3)."""
+
+    def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
+        self.n = n
+        self.touch2 = (2 * sensor) ** 2
+        self.body2 = (sensor + body) ** 2
+        self.radius2 = radius**2
+        self.comms = comms
+        self.count = np.zeros(n, dtype=np.int64)
+        """How many robots each robot's collision sensor holds (a robot counted once)."""
+        self.has_neighbours = np.zeros(n, dtype=bool)
+        self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
+        """Pairs (i, j) that came into comms range in the last update."""
+
+
+class Proximity(_Ranges):
     """Robot-to-robot sensing from one distance matrix a step (small groups).
 
     - Collision sensor (§4.6): another robot counts once when the two 75-radius spheres touch
@@ -115,18 +131,10 @@ class Proximity:
     """
 
     def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
-        self.n = n
-        self.touch2 = (2 * sensor) ** 2
-        self.body2 = (sensor + body) ** 2
-        self.radius2 = radius**2
-        self.comms = comms
+        super().__init__(n, sensor, body, radius, comms)
         self.weight = np.zeros((n, n))
-        self.count = np.zeros(n, dtype=np.int64)
         self.in_range = np.zeros((n, n), dtype=bool)
         self.entered = np.zeros((n, n), dtype=np.int64)
-        self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
-        """Pairs (i, j) that came into comms range in the last update."""
-        self.has_neighbours = np.zeros(n, dtype=bool)
         self._none = self.newly
 
     def update(self, pos: np.ndarray, iteration: int) -> None:
@@ -177,22 +185,15 @@ class Proximity:
         return out
 
 
-class SparseProximity:
+class SparseProximity(_Ranges):
     """:class:`Proximity` for large groups: pairs come only from the 3 x 3 cells around each
     robot (cells as wide as the longest sensing distance), so a step costs in proportion to
     the robots and their neighbours, not to the square of the group."""
 
     def __init__(self, n: int, sensor: float, body: float, radius: float, comms: bool) -> None:
-        self.n = n
-        self.touch2 = (2 * sensor) ** 2
-        self.body2 = (sensor + body) ** 2
-        self.radius2 = radius**2
-        self.comms = comms
+        super().__init__(n, sensor, body, radius, comms)
         self.cell = max(2 * sensor, radius if comms else 0.0)
-        self.count = np.zeros(n, dtype=np.int64)
-        self.has_neighbours = np.zeros(n, dtype=bool)
         empty = np.zeros(0, dtype=np.int64)
-        self.newly: np.ndarray = np.zeros((0, 2), dtype=np.int64)
         self._near: tuple[np.ndarray, np.ndarray, np.ndarray] = (empty, empty, np.zeros(0))
         self._keys = empty
         """Sorted ``i * n + j`` of every ordered pair in comms range."""

@@ -8,29 +8,7 @@ from ktbt_proto.agent import Agent
 from ktbt_proto.messages import Query, Response
 from ktbt_proto.transport import MemoryNetwork
 
-CONTROL = "<sl><k>(prior)<e><k>(new)<e><a>(Walk)<e>"
-SKILL = "<sq><c>(TargetSeen, colour=2)<a>(Pick, colour=2)<e>"
-KNOWER = f"<sl><k>(prior){SKILL}<e><k>(new)<e><a>(Walk)<e>"
-SEQUENCE = ["TargetSeen(colour=2)"]
-
-
-def registry() -> kp.Registry:
-    reg = kp.Registry()
-
-    @reg.condition("TargetSeen")
-    def target_seen(bb: kp.Blackboard, colour: int) -> bool:
-        return bool(bb.get("target") == colour)
-
-    @reg.action("Pick")
-    def pick(bb: kp.Blackboard, colour: int = 0) -> kp.Status:
-        bb["picked"] = bb.get("picked", 0) + 1
-        return kp.SUCCESS
-
-    @reg.action("Walk")
-    def walk(bb: kp.Blackboard) -> kp.Status:
-        return kp.RUNNING
-
-    return reg
+from .test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
 
 def trio(audience: dict[str, list[str]] | None = None) -> tuple[Agent, Agent, Agent]:

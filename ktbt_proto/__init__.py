@@ -7,7 +7,7 @@ from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, ParseError, StringBTError, ValidationError
 from .format import format
 from .limits import DEFAULT_LIMITS, Limits
-from .merge import MergeError, merge
+from .merge import MergeError, merge, remove
 from .registry import Registry, StatefulAction
 from .render import render
 from .runtime import LiveTree
@@ -69,6 +69,7 @@ __all__ = [
     "merge",
     "parse",
     "parse_reference",
+    "remove",
     "render",
     "validate",
 ]

@@ -127,3 +127,42 @@ def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | 
         children = parent.children
         new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
     return Tree(new, footer=control.footer if isinstance(control, Tree) else ())
+
+
+def remove(control: Tree | Node, slot: str = "new", when: Iterable[Condition | str] = ()) -> Tree:
+    """Remove the knowledge item answering the condition sequence ``when`` from placeholder
+    ``slot`` and return the new tree (the same tree if the placeholder holds no such item);
+    a missing placeholder raises :class:`MergeError` (``SBT401``). Forgetting, the inverse of
+    :func:`merge`."""
+    path = find_placeholder(control, slot)
+    if path is None:
+        raise MergeError(ErrorCode.UNKNOWN_SLOT, f"the tree has no placeholder <k>({slot})")
+    found = remove_at(control, conditions(when), path)
+    if found is None:
+        return control if isinstance(control, Tree) else Tree(control)
+    return found[0]
+
+
+def remove_at(
+    control: Tree | Node, key: tuple[Condition, ...], path: tuple[int, ...]
+) -> tuple[Tree, Node] | None:
+    """Remove the item keyed ``key`` from the placeholder at ``path``: the new tree and the
+    removed item, or None if the placeholder holds no item with that condition sequence."""
+    root = as_node(control)
+    chain: list[Container] = []
+    node = root
+    for index in path:
+        assert isinstance(node, Container)
+        chain.append(node)
+        node = node.children[index]
+    assert isinstance(node, Placeholder)
+    for k, existing in enumerate(node.children):
+        split = split_item(existing)
+        if split is not None and split[0] == key:
+            new: Node = with_children(node, (*node.children[:k], *node.children[k + 1 :]))
+            for parent, index in zip(reversed(chain), reversed(path), strict=True):
+                children = parent.children
+                new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
+            footer = control.footer if isinstance(control, Tree) else ()
+            return Tree(new, footer=footer), existing
+    return None

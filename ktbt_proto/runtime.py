@@ -19,7 +19,7 @@ from typing import Any
 from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, StringBTError, ValidationError
 from .limits import DEFAULT_LIMITS, Limits
-from .merge import MergeError, find_placeholder, knowledge, merge_at
+from .merge import MergeError, conditions, find_placeholder, knowledge, merge_at, remove_at
 from .registry import Registry
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse
@@ -38,6 +38,7 @@ from .tree import (
     Wait,
     WaitTimer,
     as_node,
+    walk,
 )
 from .validate import validate
 
@@ -265,6 +266,8 @@ class _Slot:
     ticks: list[Tick] = field(default_factory=list)
     halts: list[Halt] = field(default_factory=list)
     running: int = -1
+    items: list[Node] = field(default_factory=list)
+    """The placeholder's children, in the order of ``ticks`` (what ``forget`` looks up)."""
 
     def compiled(self) -> Compiled:
         ticks, halts = self.ticks, self.halts
@@ -427,7 +430,7 @@ def _compile_container(
     if isinstance(node, RunTimer):
         return _run_timer(kids[0], node.ticks, ticks)
     if isinstance(node, Placeholder):
-        slot = _Slot(node.name, [k[0] for k in kids], [k[1] for k in kids])
+        slot = _Slot(node.name, [k[0] for k in kids], [k[1] for k in kids], items=[*node.children])
         slots[node.name] = slot
         return slot.compiled()
     raise TypeError(f"not a stringBT node: {node!r}")
@@ -480,7 +483,8 @@ class LiveTree:
             self._tree.root, registry, self.blackboard, clock, self._tick_clock
         )
         self._lock = threading.Lock()
-        self._pending: list[tuple[_Slot, Compiled]] = []
+        self._pending: list[tuple[_Slot, Compiled, Node]] = []
+        self._forgotten: list[tuple[_Slot, Node]] = []
         self._paths: dict[str, tuple[int, ...]] = {}
         self._running = False
 
@@ -493,8 +497,8 @@ class LiveTree:
         return self._tree
 
     def tick(self) -> Status:
-        """Tick the root once; merges made since the last tick take effect first."""
-        if self._pending:
+        """Tick the root once; merges and forgetting since the last tick take effect first."""
+        if self._pending or self._forgotten:
             self._apply()
         self.ticks += 1
         status = self._tick()
@@ -516,9 +520,50 @@ class LiveTree:
     def _apply(self) -> None:
         with self._lock:
             pending, self._pending = self._pending, []
-        for slot, (tick, halt) in pending:
+            forgotten, self._forgotten = self._forgotten, []
+        for slot, (tick, halt), item in pending:
             slot.ticks.append(tick)
             slot.halts.append(halt)
+            slot.items.append(item)
+        later = []
+        for slot, item in forgotten:
+            index = next(i for i, known in enumerate(slot.items) if known is item)
+            if slot.running == index:  # it is running: leave it alone until it stops
+                later.append((slot, item))
+                continue
+            del slot.ticks[index], slot.halts[index], slot.items[index]
+            if slot.running > index:
+                slot.running -= 1
+        if later:
+            with self._lock:
+                self._forgotten[:0] = later
+
+    def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
+        """Remove the knowledge item answering the condition sequence ``when`` from placeholder
+        ``slot``; True if the tree held one. It leaves the running tree at the first tick
+        boundary at which it is not running: a running action is never cut short by forgetting
+        (spec/stringbt.md section 4)."""
+        key = conditions(when)
+        with self._lock:
+            path = self._paths.get(slot) or find_placeholder(self._tree, slot)
+            if path is None:
+                raise MergeError(ErrorCode.UNKNOWN_SLOT, f"the tree has no placeholder <k>({slot})")
+            self._paths[slot] = path
+            found = remove_at(self._tree, key, path)
+            if found is None:
+                return False
+            self._tree, item = found
+            compiled = self._slots[slot]
+            pending = [entry for entry in self._pending if entry[2] is item]
+            if pending:  # merged and forgotten before any tick: never compiled in
+                self._pending.remove(pending[0])
+            else:
+                self._forgotten.append((compiled, item))
+            inner = [n for n, _ in walk(item) if isinstance(n, Placeholder)]
+            for placeholder in inner:
+                self._slots.pop(placeholder.name, None)
+            self._nodes -= sum(1 for _ in walk(item))
+        return True
 
     def merge(
         self,
@@ -560,7 +605,7 @@ class LiveTree:
                         ErrorCode.DUPLICATE_PLACEHOLDER, f"placeholder {name!r} appears twice"
                     )
             self._slots.update(slots)
-            self._pending.append((self._slots[slot], compiled))
+            self._pending.append((self._slots[slot], compiled, item))
             self._tree = merged
             self._nodes += item_nodes
         return True

@@ -38,6 +38,7 @@ from .knowledge import (
     sequence_key,
 )
 from .limits import Limits
+from .memory import MemoryPolicy
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
 from .registry import Registry
@@ -105,7 +106,9 @@ class Metrics:
     refusals: deque[tuple[int, str]] = field(default_factory=lambda: deque(maxlen=256))
     """The latest refusals (tick, reason); ``refused`` counts them all."""
     learned: dict[str, tuple[int, str]] = field(default_factory=dict)
-    """Sequence key -> (tick it was learned, who taught it)."""
+    """Sequence key -> (tick it was learned, who taught it), for what it holds now."""
+    forgotten: int = 0
+    """Learned items forgotten: idle, expired, evicted or on request (section 4.2)."""
 
 
 class Agent:
@@ -135,8 +138,13 @@ class Agent:
         policy: Policy = Policy.ANY,
         trust: TrustStore | None = None,
         log: TransferLog | None = None,
+        memory: MemoryPolicy | None = None,
     ) -> None:
         self.name = name
+        self.memory = memory or MemoryPolicy()
+        """How much this robot may hold and for how long (section 4.2)."""
+        self._active = 0
+        """The last tick at which something was learned (the idle rule's clock)."""
         self.identity = identity
         """This robot's key pair: it signs the items it authors and every answer it sends."""
         self.policy = policy
@@ -261,6 +269,7 @@ class Agent:
         status = self.control.tick() if control else None
         self.teach.tick()
         self.learn.tick()
+        self.tend_memory()
         return status
 
     def _received(self, query: Query) -> None:
@@ -364,6 +373,85 @@ class Agent:
                     learned += 1
         return learned
 
+    # -- memory (spec/protocol.md section 4.2) ------------------------------------------------
+
+    def _held(self) -> int:
+        if self.memory.count_innate:
+            return len(self.knowledge)
+        return sum(1 for item in self.knowledge if item.source is not None)
+
+    def _learned_items(self) -> list[Knowledge]:
+        return [item for item in self.knowledge if item.source is not None]
+
+    def _last_use(self, item: Knowledge) -> int:
+        """The last tick the item was used, or learned if it has not been used since."""
+        used = self.control.last_used(item.segment, item.conditions)
+        learned = self.metrics.learned.get(item.key, (0, ""))[0]
+        return max(learned, used if used is not None else -1)
+
+    def _make_room(self) -> bool:
+        """Whether one more item fits, evicting the least recently used learned item if the
+        policy says so."""
+        capacity = self.memory.capacity
+        if capacity is None or self._held() < capacity:
+            return True
+        if self.memory.when_full != "evict":
+            return False
+        learned = self._learned_items()
+        if not learned:
+            return False
+        oldest = min(learned, key=self._last_use)
+        self.forget(oldest.key, reason="evicted")
+        return self._held() < capacity
+
+    def tend_memory(self) -> int:
+        """Apply the policy's forgetting at tick ``now``: everything learned after
+        ``forget_after`` idle ticks, each item after ``expire_after`` ticks unused. ``tick``
+        calls it; an application-timed owner calls it itself. Returns how many were forgotten."""
+        policy = self.memory
+        if policy.forget_after is None and policy.expire_after is None:
+            return 0
+        learned = self._learned_items()
+        if not learned:
+            return 0
+        now = self.now
+        uses = {item.key: self._last_use(item) for item in learned}
+        if policy.forget_after is not None:
+            active = max(self._active, *uses.values())
+            if now - active >= policy.forget_after:
+                return self.forget_learned(reason="idle")
+        forgotten = 0
+        if policy.expire_after is not None:
+            for item in learned:
+                if now - uses[item.key] >= policy.expire_after:
+                    forgotten += self.forget(item.key, reason="expired")
+        return forgotten
+
+    def forget(self, sequence: Iterable[Condition | str] | str, *, reason: str = "asked") -> bool:
+        """Forget a learned item: from the running tree at the next tick boundary at which it is
+        not running (``LiveTree.forget``), from the knowledge base and from the saved file.
+        Innate knowledge is never forgotten. True if the item was learned and is now gone."""
+        key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
+        item = self.knowledge.lookup(key)
+        if item is None or item.source is None:
+            return False
+        self.control.forget(item.segment, item.conditions)
+        self.knowledge.remove(key)
+        self.metrics.learned.pop(key, None)
+        self.metrics.forgotten += 1
+        self._record("forgotten", sequence=key, reason=reason)
+        if self.knowledge_path is not None:
+            try:
+                self._persisted().save(self.knowledge_path)
+            except OSError as exc:
+                self.refuse(f"cannot save knowledge to {self.knowledge_path}: {exc}")
+        return True
+
+    def forget_learned(self, *, reason: str = "asked") -> int:
+        """Forget everything learned at once (the release's ephemeral rule); innate knowledge
+        stays. Returns how many items were forgotten."""
+        return sum(self.forget(item.key, reason=reason) for item in self._learned_items())
+
     # -- the library behaviours of the teach and learn trees ----------------------------------
 
     def _library(self) -> Registry:
@@ -437,6 +525,9 @@ class Agent:
             subtree = parse(response.subtree, limits=self.receive_limits).root
             # Receive limits (numbers included) and the registry's types, before the merge.
             validate(subtree, self.registry, limits=self.receive_limits)
+            if asked.sequence not in self.knowledge and not self._make_room():
+                self.refuse(f"from {response.sender}: memory full ({self.memory.capacity} items)")
+                return False
             changed = self.control.merge(subtree, self.slot, when=conds)
         except StringBTError as err:
             self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
@@ -461,6 +552,7 @@ class Agent:
         return True
 
     def _learned(self, item: Knowledge) -> None:
+        self._active = self.now
         self.knowledge.add(item)
         self.metrics.learned[item.key] = (self.now, item.source or "")
         self._record("merged", sequence=item.key, teacher=item.source, author=item.author)

@@ -270,6 +270,11 @@ class KnowledgeBase:
         key = sequence if isinstance(sequence, str) else sequence_key(sequence)
         return self._items.get(key)
 
+    def remove(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
+        """Forget the item answering ``sequence``; the item, or None if it was not known."""
+        key = sequence if isinstance(sequence, str) else sequence_key(sequence)
+        return self._items.pop(key, None)
+
     def __contains__(self, key: object) -> bool:
         return key in self._items
 

@@ -18,6 +18,7 @@ from typing import Any
 
 from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, StringBTError, ValidationError
+from .knowledge import split_item
 from .limits import DEFAULT_LIMITS, Limits
 from .merge import MergeError, conditions, find_placeholder, knowledge, merge_at, remove_at
 from .registry import Registry
@@ -268,15 +269,19 @@ class _Slot:
     running: int = -1
     items: list[Node] = field(default_factory=list)
     """The placeholder's children, in the order of ``ticks`` (what ``forget`` looks up)."""
+    used: list[int] = field(default_factory=list)
+    """The tick each child last did not fail (its conditions held: it was used), -1 never."""
+    now: TickClock = lambda: 0
 
     def compiled(self) -> Compiled:
-        ticks, halts = self.ticks, self.halts
+        ticks, halts, used, now = self.ticks, self.halts, self.used, self.now
         slot = self
 
         def tick() -> Status:
             for i, child in enumerate(ticks):
                 status = child()
                 if status is not FAILURE:
+                    used[i] = now()
                     if slot.running > i:
                         halts[slot.running]()
                     slot.running = i if status is RUNNING else -1
@@ -430,7 +435,14 @@ def _compile_container(
     if isinstance(node, RunTimer):
         return _run_timer(kids[0], node.ticks, ticks)
     if isinstance(node, Placeholder):
-        slot = _Slot(node.name, [k[0] for k in kids], [k[1] for k in kids], items=[*node.children])
+        slot = _Slot(
+            node.name,
+            [k[0] for k in kids],
+            [k[1] for k in kids],
+            items=[*node.children],
+            used=[-1] * len(kids),
+            now=ticks,
+        )
         slots[node.name] = slot
         return slot.compiled()
     raise TypeError(f"not a stringBT node: {node!r}")
@@ -525,18 +537,33 @@ class LiveTree:
             slot.ticks.append(tick)
             slot.halts.append(halt)
             slot.items.append(item)
+            slot.used.append(-1)
         later = []
         for slot, item in forgotten:
             index = next(i for i, known in enumerate(slot.items) if known is item)
             if slot.running == index:  # it is running: leave it alone until it stops
                 later.append((slot, item))
                 continue
-            del slot.ticks[index], slot.halts[index], slot.items[index]
+            del slot.ticks[index], slot.halts[index], slot.items[index], slot.used[index]
             if slot.running > index:
                 slot.running -= 1
         if later:
             with self._lock:
                 self._forgotten[:0] = later
+
+    def last_used(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> int | None:
+        """The tick at which the item answering ``when`` in placeholder ``slot`` last did not
+        fail (its conditions held and its subtree ran), -1 if never since it took effect;
+        None if the placeholder holds no such item in force."""
+        compiled = self._slots.get(slot)
+        if compiled is None:
+            return None
+        key = conditions(when)
+        for index, item in enumerate(compiled.items):
+            split = split_item(item)
+            if split is not None and split[0] == key:
+                return compiled.used[index]
+        return None
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder

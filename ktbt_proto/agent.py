@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Literal
 
 from pydantic import ValidationError
 
@@ -53,6 +54,9 @@ from .trust import Policy, TrustStore, refusal
 from .validate import validate
 
 log = logging.getLogger("ktbt.agent")
+
+Overhear = Literal["off", "update", "buffer"]
+"""What an agent does with answers to others' queries (spec/protocol.md section 4.3)."""
 
 RECEIVE_LIMITS = Limits(
     max_size=60_000, max_depth=32, max_nodes=2_000, max_literal=256, max_number=1_000_000
@@ -109,6 +113,14 @@ class Metrics:
     """Sequence key -> (tick it was learned, who taught it), for what it holds now."""
     forgotten: int = 0
     """Learned items forgotten: idle, expired, evicted or on request (section 4.2)."""
+    learned_direct: int = 0
+    """Items learned from an answer to this agent's own query."""
+    learned_buffered: int = 0
+    """Items learned from an overheard answer kept in the buffer, when needed (section 4.3)."""
+    learned_passive: int = 0
+    """Items learned from an overheard answer as soon as it was heard (section 4.3)."""
+    overheard: int = 0
+    """Answers to others' queries received (section 4.3)."""
 
 
 class Agent:
@@ -139,8 +151,16 @@ class Agent:
         trust: TrustStore | None = None,
         log: TransferLog | None = None,
         memory: MemoryPolicy | None = None,
+        overhear: Overhear = "off",
+        buffer_size: int = 16,
     ) -> None:
         self.name = name
+        if overhear not in ("off", "update", "buffer"):
+            raise ValueError(f"overhear must be 'off', 'update' or 'buffer', not {overhear!r}")
+        self.overhear: Overhear = overhear
+        """What to do with answers addressed to others (section 4.3)."""
+        self.buffer_size = buffer_size
+        self._buffer: dict[str, Response] = {}
         self.memory = memory or MemoryPolicy()
         """How much this robot may hold and for how long (section 4.2)."""
         self._active = 0
@@ -261,7 +281,7 @@ class Agent:
             elif isinstance(message, Response):
                 asking = self._asking
                 if asking is None or asking.query is None or asking.query.id != message.id:
-                    self.refuse(f"from {message.sender}: an answer to no open question")
+                    self._not_mine(message)
                 elif len(self._responses) >= MAX_WAITING:
                     self.refuse(f"from {message.sender}: too many answers waiting")
                 else:
@@ -365,13 +385,61 @@ class Agent:
             elif isinstance(message, Response):
                 asked = self._open
                 if asked is None or self._answered or asked.id != message.id:
-                    self.refuse(f"from {message.sender}: an answer to no open question")
+                    learned += self._not_mine(message)
                     continue
                 self.metrics.responses_received += 1
                 if self.accept(message, asked):
                     self._answered = True
+                    self.metrics.learned_direct += 1
                     learned += 1
         return learned
+
+    # -- overhearing (spec/protocol.md section 4.3) -------------------------------------------
+
+    def _not_mine(self, response: Response) -> int:
+        """An answer to somebody else's query (or to none): refused unless this agent
+        overhears; then learned at once (``update``) or kept for later (``buffer``), after the
+        same checks as a direct answer. Returns how many items were learned."""
+        if self.overhear == "off":
+            self.refuse(f"from {response.sender}: an answer to no open question")
+            return 0
+        self.metrics.overheard += 1
+        if response.sequence in self.knowledge:
+            self._buffer.pop(response.sequence, None)
+            return 0
+        if self.overhear == "update":
+            if self._accept_overheard(response):
+                self.metrics.learned_passive += 1
+                return 1
+            return 0
+        if response.sequence in self._buffer:  # the first answer heard is kept
+            return 0
+        if len(self._buffer) >= self.buffer_size:
+            self.refuse(f"from {response.sender}: overheard answer, buffer full")
+            return 0
+        self._buffer[response.sequence] = response
+        return 0
+
+    def _accept_overheard(self, response: Response) -> bool:
+        asked = Query(id=response.id, sender=self.name, sequence=response.sequence)
+        return self.accept(response, asked)
+
+    @property
+    def buffered(self) -> list[str]:
+        """The sequences of the overheard answers kept for later, in the order heard."""
+        return list(self._buffer)
+
+    def learn_buffered(self, sequence: Iterable[Condition | str] | str) -> bool:
+        """Learn ``sequence`` from an overheard answer kept in the buffer, without asking; True
+        if it was there and passed the checks (the entry is used up either way)."""
+        key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
+        response = self._buffer.pop(key, None)
+        if response is None or key in self.knowledge:
+            return False
+        if self._accept_overheard(response):
+            self.metrics.learned_buffered += 1
+            return True
+        return False
 
     # -- memory (spec/protocol.md section 4.2) ------------------------------------------------
 
@@ -629,6 +697,8 @@ class _QueryAndWait:
             key = self.bb.get(ENCOUNTERED)
             if not key:
                 return FAILURE
+            if agent.learn_buffered(key):  # overheard earlier: no query, no wait
+                return SUCCESS
             self.query = Query(id=Query.new_id(), sender=agent.name, sequence=key)
             agent.transport.broadcast(self.query)
             agent.metrics.queries_sent += 1
@@ -640,6 +710,7 @@ class _QueryAndWait:
             response = agent._responses.popleft()
             agent.metrics.responses_received += 1
             if agent.accept(response, self.query):
+                agent.metrics.learned_direct += 1
                 self._finish()
                 return SUCCESS
         waited = agent.now - self.asked_at

@@ -11,6 +11,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+from ..messages import Response
 from .base import Message
 
 InRange = Callable[[str, str], bool]
@@ -33,6 +34,9 @@ class MemoryNetwork:
     latency: int = 0
     seed: int = 0
     inbox_limit: int = 1024
+    overhear: bool = False
+    """Answers sent to one member are also heard by the sender's other listeners (those
+    ``audience`` names, or everyone), as on a shared radio channel (spec/protocol.md 4.3)."""
     now: int = 0
     _rng: random.Random = field(init=False)
     _members: dict[str, MemoryTransport] = field(default_factory=dict, init=False)
@@ -116,8 +120,15 @@ class MemoryTransport:
             network._post(self.name, receiver, message)
 
     def send(self, to: str, message: Message) -> None:
-        if not self.closed:
-            self.network._post(self.name, to, message)
+        if self.closed:
+            return
+        network = self.network
+        network._post(self.name, to, message)
+        if network.overhear and isinstance(message, Response):
+            audience = network._members if network.audience is None else network.audience(self.name)
+            for other in list(audience):
+                if other != to:
+                    network._post(self.name, other, message)
 
     def receive(self) -> list[Message]:
         messages = list(self._inbox)

@@ -29,7 +29,7 @@ def exchange(learner: Agent, teacher: Agent) -> None:
 
 
 def test_update_learns_an_overheard_answer_at_once() -> None:
-    learner, teacher, ear, net = trio("update")
+    learner, teacher, ear, _net = trio("update")
     exchange(learner, teacher)
     assert ear.receive() == 1
     assert ear.knows(SEQUENCE)
@@ -55,7 +55,7 @@ def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
 
 
 def test_off_refuses_an_answer_addressed_to_another() -> None:
-    learner, teacher, ear, net = trio("off")
+    learner, teacher, ear, _net = trio("off")
     exchange(learner, teacher)
     assert ear.receive() == 0
     assert not ear.knows(SEQUENCE) and ear.metrics.refused == 1
@@ -66,7 +66,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
     learner = Agent("l", CONTROL, registry(), net.join("l"))
     teacher = Agent("t", KNOWER, registry(), net.join("t"))
     reg = kp.Registry()
-    reg.add_condition("TargetSeen", lambda bb, colour: False)  # type: ignore[misc]
+    reg.add_condition("TargetSeen", lambda bb, colour: False)
     reg.add_action("Walk", lambda bb: kp.SUCCESS)
     ear = Agent("e", CONTROL, reg, net.join("e"), overhear="update")  # it cannot Pick
     before = kp.format(ear.control.tree, "compact")
@@ -77,7 +77,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
 
 
 def test_an_overheard_answer_is_trusted_no_more_than_a_direct_one() -> None:
-    learner, teacher, ear, net = trio("update", policy=Policy.SIGNED)
+    learner, teacher, ear, _net = trio("update", policy=Policy.SIGNED)
     exchange(learner, teacher)  # the teacher signs nothing
     assert ear.receive() == 0 and not ear.knows(SEQUENCE)
     assert ear.metrics.refused == 1

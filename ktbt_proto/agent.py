@@ -161,6 +161,8 @@ class Agent:
         """What to do with answers addressed to others (section 4.3)."""
         self.buffer_size = buffer_size
         self._buffer: dict[str, Response] = {}
+        self.last_answer: Response | None = None
+        """The last answer this agent sent (what a listener nearby may overhear)."""
         self.memory = memory or MemoryPolicy()
         """How much this robot may hold and for how long (section 4.2)."""
         self._active = 0
@@ -363,6 +365,7 @@ class Agent:
             self.refuse(f"cannot answer {query.sequence[:80]} to {query.sender}: {reason}")
             return False
         self.transport.send(query.sender, response)
+        self.last_answer = response
         self.metrics.responses_sent += 1
         self._record(
             "answer-sent", to=query.sender, id=query.id, sequence=query.sequence, author=author

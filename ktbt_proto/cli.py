@@ -15,7 +15,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, cast
 
 import typer
 
@@ -31,6 +31,7 @@ from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
 if TYPE_CHECKING:
+    from .agent import Overhear
     from .peer import Security
     from .transport.zenoh import ZenohSettings
 
@@ -414,6 +415,28 @@ TrustFile = Annotated[
 LogFile = Annotated[
     Path | None, typer.Option("--log", help="Append every exchange event here (JSON lines).")
 ]
+PublishAnswers = Annotated[
+    bool,
+    typer.Option(
+        "--publish-answers",
+        help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
+    ),
+]
+OverhearMode = Annotated[
+    str,
+    typer.Option(
+        "--overhear",
+        help="Answers others publish: off (ignore), update (check and learn at once), or buffer "
+        "(keep, check and learn when needed).",
+    ),
+]
+
+
+def _overhear(mode: str) -> Overhear:
+    if mode not in ("off", "update", "buffer"):
+        _say(f"error: --overhear must be off, update or buffer, not {mode!r}")
+        raise typer.Exit(2)
+    return cast("Overhear", mode)
 
 
 def _security(key: Path | None, policy: str, trust: Path | None, log: Path | None) -> Security:
@@ -505,11 +528,15 @@ def peer_serve(
     mode: Mode = "peer",
     key: KeyFile = None,
     log: LogFile = None,
+    publish_answers: PublishAnswers = False,
+    overhear: OverhearMode = "off",
 ) -> None:
-    """Answer queries for the knowledge in a file until stopped (signed, with --key)."""
+    """Answer queries for the knowledge in a file until stopped (signed, with --key); with
+    --overhear, also serve what it overhears."""
     from . import peer
 
     _check_peer(name)
+    heard = _overhear(overhear)
     settings = _settings(listen, connect, config, multicast, mode)
     try:
         served = peer.load_knowledge(knowledge)
@@ -523,7 +550,9 @@ def peer_serve(
         _say(f"error: {exc}")
         raise typer.Exit(2) from None
     security = _security(key, "any", None, log)
-    _peer_call(lambda: peer.serve(name, served, settings, typer.echo, security))
+    _peer_call(
+        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+    )
 
 
 @peer_app.command("ask")
@@ -590,11 +619,14 @@ def peer_run(
     policy: PolicyName = "any",
     trust: TrustFile = None,
     log: LogFile = None,
+    publish_answers: PublishAnswers = False,
+    overhear: OverhearMode = "off",
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
 
     _check_peer(name, duration, most=365 * 86400)  # an agent may run for days
+    heard = _overhear(overhear)
     for text in sequence or ():
         _sequence_or_exit("--sequence", text)
     settings = _settings(listen, connect, config, multicast, mode)
@@ -610,6 +642,8 @@ def peer_run(
             exit_when_done=exit_when_done,
             knowledge_path=str(knowledge_file) if knowledge_file else None,
             security=security,
+            publish_answers=publish_answers,
+            overhear=heard,
         )
     )
 

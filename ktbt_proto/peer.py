@@ -13,17 +13,18 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
 from pydantic import Field
 from pydantic import ValidationError as PydanticError
 
-from .agent import RECEIVE_LIMITS, Agent
+from .agent import RECEIVE_LIMITS, Agent, Overhear
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
-from .knowledge import KnowledgeBase, sequence_key, show_sequence
+from .knowledge import Knowledge, KnowledgeBase, parse_sequence, sequence_key, show_sequence
 from .limits import DEFAULT_LIMITS
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
@@ -202,24 +203,113 @@ def catalog(
     return entries
 
 
+class Overhearing:
+    """A server that overhears (spec/protocol.md section 4.3): an answer another peer published
+    is checked as a robot checks a direct answer (the trust policy, in the transport; the
+    receive limits and the structure, here) and added to what the server serves, at once
+    (``update``) or, kept in a buffer of ``buffer_size``, when a query first asks for it
+    (``buffer``). The subtree is served as received, so its author's signature still holds.
+    Lookups run in zenoh callbacks while the main thread hears: one lock guards the tables."""
+
+    def __init__(
+        self,
+        name: str,
+        knowledge: KnowledgeBase,
+        served: Callable[[str], SignedItem | None],
+        mode: Overhear,
+        say: Say,
+        buffer_size: int = 16,
+    ) -> None:
+        self.name, self.knowledge, self.served, self.mode, self.say = (
+            name,
+            knowledge,
+            served,
+            mode,
+            say,
+        )
+        self.buffer_size = buffer_size
+        self.learned: dict[str, SignedItem] = {}
+        self.buffer: dict[str, Response] = {}
+        self.refused = 0
+        self.lock = threading.Lock()
+
+    def heard(self, message: object) -> None:
+        if not isinstance(message, Response) or self.mode == "off":
+            return
+        with self.lock:
+            if message.sequence in self.knowledge or message.sequence in self.buffer:
+                return  # known, or the first answer heard is kept
+            if self.mode == "update":
+                self._learn(message)
+            elif len(self.buffer) >= self.buffer_size:
+                self._refuse(f"from {message.sender}: overheard answer, buffer full")
+            else:
+                self.buffer[message.sequence] = message
+
+    def lookup(self, key: str) -> SignedItem | None:
+        found = self.served(key)
+        if found is not None:
+            return found
+        with self.lock:
+            found = self.learned.get(key)
+            kept = self.buffer.pop(key, None) if found is None else None
+            return self._learn(kept) if kept is not None else found
+
+    def catalog(self, entries: Callable[[], list[str | dict[str, Any]]]) -> Callable[[], Any]:
+        def locked() -> list[str | dict[str, Any]]:
+            with self.lock:
+                return entries()
+
+        return locked
+
+    def _learn(self, answer: Response) -> SignedItem | None:
+        try:
+            conds = parse_sequence(answer.sequence, RECEIVE_LIMITS)
+            subtree = parse(answer.subtree, limits=RECEIVE_LIMITS).root
+            validate(subtree, limits=RECEIVE_LIMITS)
+        except StringBTError as err:
+            self._refuse(f"from {answer.sender}: {err.code.value} {err.message}")
+            return None
+        received = datetime.now(UTC).isoformat(timespec="seconds")
+        self.knowledge.add(
+            Knowledge(conds, subtree, "new", answer.sender, None, answer.author,
+                      answer.signature, received)
+        )  # fmt: skip
+        item = SignedItem(answer.subtree, answer.author, answer.signature)
+        self.learned[answer.sequence] = item
+        self.say(f"{self.name}: learned {shown(answer.sequence)} from {answer.sender} (overheard)")
+        return item
+
+    def _refuse(self, reason: str) -> None:
+        self.refused += 1
+        logging.getLogger("ktbt.peer").info("%s refused: %s", self.name, reason)
+
+
 def serve(
     name: str,
     knowledge: KnowledgeBase,
     settings: ZenohSettings,
     say: Say,
     security: Security | None = None,
+    publish_answers: bool = False,
+    overhear: Overhear = "off",
 ) -> int:
+    """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3."""
     security = security or Security()
-    lookup = answers(knowledge, security.identity)
+    ear = Overhearing(name, knowledge, answers(knowledge, security.identity), overhear, say)
+    policy = security.policy
     with (
         until_signalled() as stop,
         ZenohTransport(
             name,
             settings,
-            lookup=lookup,
-            catalog=catalog(knowledge, security.identity),
+            lookup=ear.lookup,
+            catalog=ear.catalog(catalog(knowledge, security.identity)),
             identity=security.identity,
             log=security.log,
+            publish_answers=publish_answers,
+            overhear=overhear != "off",
+            screen=lambda r: refusal(r, policy, security.trust),
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
@@ -227,8 +317,12 @@ def serve(
             say(f"  signed as {security.identity.public}")
         for item in knowledge:
             say(f"  {show_sequence(item.conditions)}")
-        stop.wait()
-    say(f"{name}: stopped; refused {transport.refused} messages")
+        if overhear == "off":
+            stop.wait()
+        while not stop.wait(0.05):
+            for message in transport.receive():
+                ear.heard(message)
+    say(f"{name}: stopped; refused {transport.refused + ear.refused} messages")
     return 0
 
 
@@ -312,15 +406,23 @@ def run_agent(
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
     security: Security | None = None,
+    publish_answers: bool = False,
+    overhear: Overhear = "off",
 ) -> int:
     """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
     what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
-    and, with a transfer log, there) and the summary counts all of them, transport ones too."""
+    and, with a transfer log, there) and the summary counts all of them, transport ones too.
+    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3."""
     security = security or Security()
     with (
         until_signalled() as stop,
         ZenohTransport(
-            name, settings, query_timeout=wait_ticks / tick_rate, log=security.log
+            name,
+            settings,
+            query_timeout=wait_ticks / tick_rate,
+            log=security.log,
+            publish_answers=publish_answers,
+            overhear=overhear != "off",
         ) as transport,
     ):
         robot = Agent(
@@ -335,6 +437,7 @@ def run_agent(
             policy=security.policy,
             trust=security.trust,
             log=security.log,
+            overhear=overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say

@@ -46,6 +46,12 @@ STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name
 STUDIES["calibration"] = ("calibration-nl", "calibration-rl")
 """The release's two published runs, at their size (100,000 iterations): ``ktbt sim compare``
 holds ours against its data."""
+STUDIES["modes"] = tuple(
+    f"modes-{group}-{variant}"
+    for group in ("10rgyb", "39i1m")
+    for variant in ("nl", "rl", "el", "el-evict", "plb", "pl")
+)
+"""The release's five modes and our eviction variant, on 10RGYB and 39I-1M."""
 STUDIES["teaching"] = (
     "ktbt",
     "ktbt-broadcast",

@@ -48,6 +48,8 @@ COLUMNS = (
     "learned_direct",
     "learned_buffered",
     "learned_passive",
+    "forgotten",
+    "messages",
     *(f"knows_{k}" for k in range(5)),
     *(f"knows_{c}" for c in COLOURS),
     *(set_name(b) for b in range(16)),
@@ -82,8 +84,10 @@ def row(world: World) -> dict[str, int]:
     out["lost"] = world.queries - world.responses
     out["delivered"] = world.delivered
     out["learned_direct"] = world.learned
-    out["learned_buffered"] = 0
-    out["learned_passive"] = 0
+    out["learned_buffered"] = world.learned_buffered
+    out["learned_passive"] = world.learned_passive
+    out["forgotten"] = world.forgotten
+    out["messages"] = world.network.delivered
     for level in range(5):
         out[f"knows_{level}"] = int(levels[level])
     for c, name in enumerate(COLOURS):

@@ -27,6 +27,15 @@ class Mode(StrEnum):
     """The release's NL: no queries, no teaching (§9.2)."""
     KT_BT = "kt-bt"
     """The release's RL: query, answer, merge (§8)."""
+    EPHEMERAL = "el"
+    """The release's EL: RL whose learned knowledge is forgotten after ``memory_duration``
+    random-walk ticks without a pick-up or a lesson, and whose ``memory_size`` caps lessons
+    (§9.3)."""
+    PASSIVE_BUFFER = "plb"
+    """The release's PLB: RL that also keeps the answers it overhears and uses one, without
+    asking, when it meets its condition (§9.4, §9.5)."""
+    PASSIVE = "pl"
+    """The release's PL: RL that also learns every answer it overhears at once (§9.4, §9.6)."""
 
 
 class Teaching(StrEnum):
@@ -157,6 +166,18 @@ class Scenario(_Model):
         " comm_radius (§5.3)",
     )
     teaching: Teaching = Field(default=Teaching.RELEASE, description="who answers (§8.2)")
+    memory_duration: int | None = Field(
+        default=None,
+        ge=1,
+        description="EL: random-walk ticks without a pick-up or a lesson after which"
+        " everything learned is forgotten (§9.3); None: never",
+    )
+    memory_when_full: str = Field(
+        default="refuse",
+        pattern="^(refuse|evict)$",
+        description="a learner at memory_size: refuse the lesson (the release) or evict its"
+        " least recently used learned colour (our library's alternative)",
+    )
     memory_size: int = Field(
         default=4, ge=0, description="a learner with this many known colours is not taught (§8.2)"
     )
@@ -315,6 +336,53 @@ def _teaching() -> dict[str, Scenario]:
     }
 
 
+MODE_GROUPS = {"10rgyb": Robots.of(0, 0, 10, 10, 10, 10), "39i1m": Robots.of(39, 1, 0, 0, 0, 0)}
+"""The two groups the modes study compares, 25 targets a colour each."""
+MODE_VARIANTS: dict[str, dict[str, Any]] = {
+    "nl": {"mode": Mode.NO_TRANSFER},
+    "rl": {"mode": Mode.KT_BT},
+    "el": {"mode": Mode.EPHEMERAL, "memory_duration": 5_000, "memory_size": 3},
+    "el-evict": {
+        "mode": Mode.EPHEMERAL,
+        "memory_duration": 5_000,
+        "memory_size": 3,
+        "memory_when_full": "evict",
+    },
+    "plb": {"mode": Mode.PASSIVE_BUFFER},
+    "pl": {"mode": Mode.PASSIVE},
+}
+"""The release's five modes (EL with a memory of 3 colours forgotten after 5,000 idle
+random-walk ticks) and our eviction variant of EL."""
+
+
+def _modes() -> dict[str, Scenario]:
+    """The release's hidden modes (§9) and the release's own EL configurations."""
+    out = {
+        f"modes-{group}-{variant}": Scenario(
+            name=f"modes-{group}-{variant}", robots=robots, **changes
+        )
+        for group, robots in MODE_GROUPS.items()
+        for variant, changes in MODE_VARIANTS.items()
+    }
+    out["el-25i-25m"] = Scenario(
+        name="el-25i-25m",
+        mode=Mode.EPHEMERAL,
+        robots=Robots.of(25, 25, 0, 0, 0, 0),
+        memory_duration=20_000,
+        memory_size=2,
+        iterations=20_000,
+    )
+    out["el-1i-1m-12rgyb"] = Scenario(
+        name="el-1i-1m-12rgyb",
+        mode=Mode.EPHEMERAL,
+        robots=Robots.of(1, 1, 12, 12, 12, 12),
+        memory_duration=20_000,
+        memory_size=3,
+        iterations=20_000,
+    )
+    return out
+
+
 PRESETS: dict[str, Scenario] = {
     **_study_1(),
     **_study_2(),
@@ -322,6 +390,7 @@ PRESETS: dict[str, Scenario] = {
     **_heterogeneity(),
     **_calibration(),
     **_teaching(),
+    **_modes(),
 }
 """Every configuration of the paper's tables, by name."""
 

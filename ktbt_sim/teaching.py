@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import robot as rb
-from .scenario import Teaching
+from .scenario import Mode, Teaching
 
 if TYPE_CHECKING:
     from .world import World
@@ -45,6 +45,11 @@ def step(world: World, t: int) -> None:
     _ask(world, t)
     _close(world, 2 * t + 1)
     _teach(world, t)
+    mode = world.scenario.mode
+    if mode is Mode.PASSIVE_BUFFER or mode is Mode.PASSIVE:
+        _overhear(world, t)
+        if mode is Mode.PASSIVE_BUFFER:
+            _use_buffer(world, t)
 
 
 def _scan(world: World) -> None:
@@ -74,8 +79,11 @@ def _ask(world: World, t: int) -> None:
         return
     colours = world.colour_of[tsr]
     unknown = ~world.known[np.arange(world.n), colours - 1]
+    buffered = world.scenario.mode is Mode.PASSIVE_BUFFER
     for i in np.flatnonzero(ask & unknown).tolist():
         colour = int(colours[i])
+        if buffered and rb.sequence_of(colour) in world.agents[i].buffered:
+            continue  # PLB does not ask about what it overheard: it learns it (§9.5)
         agent = world.agents[i]
         agent.now = t
         agent.ask(rb.sequence(colour))
@@ -122,7 +130,9 @@ def _teach(world: World, t: int) -> None:
         if not world.querying[learner] or world.taught[learner]:
             continue
         colour = int(world.asked[learner])
-        if not world.known[teacher, colour - 1] or world.known[learner].sum() >= memory:
+        if not world.known[teacher, colour - 1]:
+            continue
+        if world.scenario.memory_when_full == "refuse" and world.known[learner].sum() >= memory:
             continue
         world.agents[teacher].receive()
         query = world.agents[teacher].heard(world.names[learner])
@@ -136,10 +146,12 @@ def _teach(world: World, t: int) -> None:
         world.teaching[teacher] = True
         world.walk_flag[teacher] = False
         world.timers.start(teacher, 2 * t + 2)
+        world.heard_from[teacher] = set()
         if world.agents[learner].receive():
             world.learned += 1
             world.taught[learner] = True
-            world.known[learner, colour - 1] = True
+            world.memory_iter[learner] = 0
+            world.sync_known(learner)
 
 
 def came_into_range(world: World, pairs: np.ndarray) -> None:
@@ -150,3 +162,50 @@ def came_into_range(world: World, pairs: np.ndarray) -> None:
     for i, j in pairs.tolist():
         if open_[i]:
             world.agents[i].announce(world.names[j])
+
+
+def _overhear(world: World, t: int) -> None:
+    """§9.4: every robot that is not querying hears the answer of each teaching neighbour, for
+    the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6)."""
+    teachers = np.flatnonzero(world.teaching)
+    if not len(teachers):
+        return
+    for teacher in teachers.tolist():
+        answer = world.agents[teacher].last_answer
+        if answer is None:
+            continue
+        heard = world.heard_from.setdefault(teacher, set())
+        for listener in world.proximity.neighbours(teacher).tolist():
+            if listener in heard or world.querying[listener] or answer.sender == listener:
+                continue
+            heard.add(listener)
+            agent = world.agents[listener]
+            world.agents[teacher].transport.send(world.names[listener], answer)
+            agent.now = t
+            before = agent.metrics.learned_passive
+            if agent.receive():
+                world.learned_passive += agent.metrics.learned_passive - before
+                world.memory_iter[listener] = 0
+                world.sync_known(listener)
+
+
+def _use_buffer(world: World, t: int) -> None:
+    """§9.5: a robot that has registered a target of a colour it does not know, and carries
+    nothing, learns that colour from its buffer at once, without a query or a wait."""
+    tsr = world.sensor.tsr
+    ready = (tsr >= 0) & (world.carrying < 0) & world.sensor.enabled
+    if not ready.any():
+        return
+    colours = world.colour_of[tsr]
+    for i in np.flatnonzero(ready).tolist():
+        colour = int(colours[i])
+        if world.known[i, colour - 1]:
+            continue
+        agent = world.agents[i]
+        if rb.sequence_of(colour) not in agent.buffered:
+            continue
+        agent.now = t
+        if agent.learn_buffered(rb.sequence(colour)):
+            world.learned_buffered += 1
+            world.memory_iter[i] = 0
+            world.sync_known(i)

@@ -23,6 +23,7 @@ import pymunk
 import pymunk.batch
 
 from ktbt_proto.agent import Agent
+from ktbt_proto.memory import MemoryPolicy
 from ktbt_proto.transport.memory import MemoryNetwork
 
 from . import geometry, motion, records, teaching
@@ -68,7 +69,8 @@ class World:
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
         )
         self.iteration = 0
-        self.kt_bt = scenario.mode is Mode.KT_BT
+        self.kt_bt = scenario.mode is not Mode.NO_TRANSFER
+        """Whether robots ask and teach: every mode but the release's NL (§9.1)."""
         spec, timing = scenario.robot, scenario.timing
         self.dt = timing.dt
         r = scenario.robots
@@ -138,6 +140,11 @@ class World:
         self.requester = np.full(n, -1, dtype=np.int64)
         """Each teacher's ``requestingRobot`` (§8.2), -1 for none."""
         self.queries = self.responses = self.learned = 0
+        self.learned_buffered = self.learned_passive = self.forgotten = 0
+        self.memory_iter = np.zeros(n, dtype=np.int64)
+        """EL's memory timer: random-walk ticks since the last pick-up or lesson (§9.3)."""
+        self.heard_from: dict[int, set[int]] = {}
+        """Who has overheard each teacher's current answer (§9.4)."""
         self.proximity = proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
         )
@@ -167,12 +174,21 @@ class World:
         self.names = [f"r{i}" for i in range(n)]
         self.registry = rb.registry(self)
         self.agents: list[Agent] = []
+        overhear = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}.get(scenario.mode, "off")
+        memory = (
+            MemoryPolicy(capacity=scenario.memory_size, when_full="evict")
+            if scenario.memory_when_full == "evict"
+            else None
+        )
         for i, kind in enumerate(self.kinds):
             agent = Agent(
                 self.names[i],
                 rb.control_tree(rb.KINDS[kind]),
                 self.registry,
                 self.network.join(self.names[i]),
+                overhear=overhear,  # type: ignore[arg-type]
+                buffer_size=4,  # at most one answer a colour (§9.4)
+                memory=memory,
             )
             agent.blackboard[rb.INDEX] = i
             self.agents.append(agent)
@@ -241,8 +257,22 @@ class World:
         self.sensor.picked(t)
         self.walk_flag[i] = False
         self.requester[i] = -1
+        self.memory_iter[i] = 0
         self.mode[i] = rb.IDLE
         return True
+
+    def forget_learned(self, i: int) -> None:
+        """EL: robot ``i`` forgets everything it learned at once; its tree reverts to what it
+        was built with (§9.3)."""
+        self.forgotten += self.agents[i].forget_learned(reason="idle")
+        self.sync_known(i)
+        self.memory_iter[i] = 0
+
+    def sync_known(self, i: int) -> None:
+        """Robot ``i``'s colours, read back from its agent's knowledge base."""
+        knowledge = self.agents[i].knowledge
+        for c, key in enumerate(self._keys):
+            self.known[i, c] = key in knowledge
 
     def set_goal(self, i: int, colour: int) -> None:
         """``AssignCPk``: the zone the carried target goes to."""
@@ -330,6 +360,11 @@ class World:
                 elapsed[over] = 0.0
                 self.walk_span[due] = rng.uniform(timing.walk_goal_min_s, timing.walk_goal_max_s, k)
             self.walk_time[rows] = elapsed
+            if self.scenario.memory_duration is not None:
+                self.memory_iter[rows] += 1
+                spent = rows[self.memory_iter[rows] >= self.scenario.memory_duration]
+                for i in spent.tolist():
+                    self.forget_learned(i)
         if present[rb.STOP]:
             rows = np.flatnonzero(mode == rb.STOP)
             rv[rows] = 0.0

@@ -27,6 +27,9 @@ def test_presets_follow_the_papers_tables() -> None:
     ]
     assert preset("range-500").robots.label() == "39I-1M"
     for name, scenario in PRESETS.items():
+        if name.startswith("el-"):  # the release's own EL runs: 50 robots, 20,000 iterations
+            assert (scenario.robots.total, scenario.iterations) == (50, 20_000)
+            continue
         assert scenario.robots.total == 40  # the paper keeps 40 robots in every study
         iterations = 100_000 if name.startswith("calibration") else 50_000
         assert (scenario.iterations, scenario.trials, scenario.timing.dt) == (iterations, 20, 0.02)

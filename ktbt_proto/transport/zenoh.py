@@ -7,6 +7,8 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/catalog/<peer>``: answers with the sequences the peer knows (``ktbt peer list``).
 - ``ktbt/v1/inbox/<peer>``: where a late answer is put when the asker's query has closed.
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
+- ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
+  for the peers that overhear (``overhear``; spec section 4.3).
 
 Queries are issued from a worker thread, never from a zenoh callback; every query a peer
 receives is finished (answered, refused, or dropped once its answer window passes); sessions are
@@ -113,12 +115,26 @@ class ZenohTransport:
     """The asker's check of a reply's signatures (its trust policy), run before the reply takes
     its sender's one place in a get, so that a forgery on a peer's key cannot keep that peer's
     genuine answer out. An agent sets it (``Agent`` gives its policy)."""
+    publish_answers: bool = False
+    """Publish a copy of every answer this peer sends on ``ktbt/v1/answers/<name>`` (section
+    4.3), so that peers that overhear can learn it; off, nothing extra is sent."""
+    overhear: bool = False
+    """Subscribe to ``ktbt/v1/answers/*`` and hand the answers others publish to the agent,
+    whose ``overhear`` setting decides what to do with them (section 4.3)."""
+    overheard_limit: int = 64
+    """Overheard answers waiting for the agent at most; a newcomer beyond is refused, so a
+    flood of published answers never takes a direct answer's place in the inbox."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         self._inbox: deque[Message] = deque()
+        self._overheard: deque[Response] = deque()
+        self._asked: deque[str] = deque(maxlen=256)
+        """The ids of this peer's latest queries: a published copy of an answer to one of them
+        is not overheard (the answer itself comes as a reply)."""
+        self._publisher: Any = None
         self._asking = 0
         self._lock = threading.Lock()
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
@@ -131,6 +147,17 @@ class ZenohTransport:
                 self._session.declare_subscriber(f"{PREFIX}/inbox/{self.name}", self._on_inbox),
                 self._session.liveliness().declare_token(f"{PREFIX}/peers/{self.name}"),
             ]
+            if self.publish_answers:
+                self._publisher = self._session.declare_publisher(f"{PREFIX}/answers/{self.name}")
+                self._declared.append(self._publisher)
+            if self.overhear:
+                self._declared.append(
+                    self._session.declare_subscriber(
+                        f"{PREFIX}/answers/*",
+                        self._on_answer,
+                        allowed_origin=zenoh.Locality.REMOTE,  # not our own answers
+                    )
+                )
         except BaseException:
             self._session.close()
             raise
@@ -195,14 +222,23 @@ class ZenohTransport:
                     query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
             finally:
                 query.drop()
-            return
-        self._session.put(f"{PREFIX}/inbox/{to}", payload)
+        else:
+            self._session.put(f"{PREFIX}/inbox/{to}", payload)
+        if isinstance(message, Response):
+            self._publish(payload)
+
+    def _publish(self, payload: bytes) -> None:
+        """The same encoded answer, once more, on this peer's answers key (section 4.3)."""
+        if self._publisher is not None:
+            self._publisher.put(payload)
 
     def receive(self) -> list[Message]:
         self._expire()
         with self._lock:
             messages = list(self._inbox)
+            messages.extend(self._overheard)
             self._inbox.clear()
+            self._overheard.clear()
         return messages
 
     def close(self) -> None:
@@ -248,6 +284,8 @@ class ZenohTransport:
         from that key."""
         answers: list[Response] = []
         heard: set[str] = set()
+        with self._lock:
+            self._asked.append(message.id)
         try:
             replies = self._session.get(
                 f"{PREFIX}/knowledge/*",
@@ -371,7 +409,9 @@ class ZenohTransport:
         )
         if self.identity is not None:
             response = self.identity.sign_reply(response)
-        query.reply(f"{PREFIX}/knowledge/{self.name}", encode(response))
+        payload = encode(response)
+        query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
+        self._publish(payload)
         if self.log is not None:
             self.log.record(
                 "answer-sent",
@@ -399,6 +439,42 @@ class ZenohTransport:
             self._refuse(f"a {message.type} from {message.sender} put in the inbox")
             return
         self._deliver(message)
+
+    def _on_answer(self, sample: Any) -> None:
+        """An answer another peer published (section 4.3), checked as a reply is: within the
+        message limits, a response, believed only as coming from the key it arrived on, and
+        passing the trust policy; then queued for the agent, a newcomer to a full queue refused.
+        A copy of an answer to this peer's own query is left to the reply."""
+        key = str(sample.key_expr)
+        try:
+            answer = decode(sample.payload.to_bytes(), self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"an overheard answer: {exc.reason}", key=key[:80])
+            return
+        if not isinstance(answer, Response):
+            self._refuse(f"a {answer.type} from {answer.sender} published as an answer", key=key)
+            return
+        if key != f"{PREFIX}/answers/{answer.sender}" or answer.sender == self.name:
+            self._refuse(f"an answer naming {answer.sender} came on {key[:80]}", key=key[:80])
+            return
+        with self._lock:
+            mine = answer.id in self._asked
+        if mine:
+            return
+        why = self.screen(answer) if self.screen is not None else None
+        if why is not None:
+            self._refuse(f"overheard from {answer.sender}: {why}", key=key)
+            return
+        with self._lock:
+            full = len(self._overheard) >= self.overheard_limit
+            if not full:
+                self._overheard.append(answer)
+        if full:
+            self._refuse(
+                f"{self.overheard_limit} overheard answers waiting: one from {answer.sender} "
+                "is dropped",
+                key=key,
+            )
 
     def _expire(self) -> None:
         now = time.monotonic()

@@ -175,11 +175,6 @@ class World:
         self.registry = rb.registry(self)
         self.agents: list[Agent] = []
         overhear = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}.get(scenario.mode, "off")
-        memory = (
-            MemoryPolicy(capacity=scenario.memory_size, when_full="evict")
-            if scenario.memory_when_full == "evict"
-            else None
-        )
         for i, kind in enumerate(self.kinds):
             agent = Agent(
                 self.names[i],
@@ -188,8 +183,14 @@ class World:
                 self.network.join(self.names[i]),
                 overhear=overhear,  # type: ignore[arg-type]
                 buffer_size=4,  # at most one answer a colour (§9.4)
-                memory=memory,
             )
+            if scenario.memory_when_full == "evict":
+                # The release counts known colours; the tree's common item (carry to the zone)
+                # is knowledge too, but not a colour: it does not take a colour's place.
+                others = len(agent.knowledge) - len(rb.KINDS[kind])
+                agent.memory = MemoryPolicy(
+                    capacity=scenario.memory_size + others, when_full="evict"
+                )
             agent.blackboard[rb.INDEX] = i
             self.agents.append(agent)
         self._signature = np.full(n, -1, dtype=np.int64)

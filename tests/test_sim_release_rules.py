@@ -431,3 +431,128 @@ def test_s4_3_a_registered_target_of_a_known_colour_is_taken_the_next_tick() -> 
     assert world.sensor.tsr[0] == 0 and world.carrying[0] == -1
     world.step()  # the tree picks it, wherever it is in the sensor
     assert world.carrying[0] == 0 and not world.target_free[0]
+
+
+# -- §9: the release's hidden modes --------------------------------------------------------
+
+
+def test_s9_3_el_forgets_everything_learned_after_its_random_walk_ticks() -> None:
+    world = rig(
+        Robots.of(1, 1, 0, 0, 0, 0),
+        [(0.0, 0.0), (200.0, 0.0)],
+        mode=Mode.EPHEMERAL,
+        memory_duration=50,
+        memory_size=4,
+    )
+    see(world, 0, 1)
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.known[0, 0] and world.memory_iter[0] == 0
+    world.mode[0] = rb.STOP  # waiting: the timer does not run
+    for _ in range(100):
+        world._move()
+    assert world.memory_iter[0] == 0 and world.known[0, 0]
+    world.mode[0] = rb.WALK
+    for _ in range(49):
+        world._move()
+    assert world.known[0, 0] and world.memory_iter[0] == 49
+    world._move()  # the 50th random-walk tick
+    assert not world.known[0].any() and world.forgotten == 1
+    assert rb.sequence_of(1) not in world.agents[0].knowledge
+    assert world.known[1].all()  # innate knowledge is never forgotten
+
+
+def test_s9_3_a_pick_up_resets_els_timer() -> None:
+    world = rig(Robots.of(0, 1, 0, 0, 0, 0), [(0.0, 0.0)], mode=Mode.EPHEMERAL, memory_duration=50)
+    world.memory_iter[0] = 30
+    see(world, 0, 1)
+    assert world.pick(0, 1) and world.memory_iter[0] == 0
+
+
+def learn_two(when_full: str) -> World:
+    """An ignorant robot with room for one colour learns red, then asks about green."""
+    world = rig(
+        Robots.of(1, 1, 0, 0, 0, 0),
+        [(0.0, 0.0), (200.0, 0.0)],
+        mode=Mode.EPHEMERAL,
+        memory_size=1,
+        memory_when_full=when_full,
+    )
+    see(world, 0, 1)
+    for t in range(1, 1103):  # red is taught; both wait and cool down
+        teaching.step(world, t)
+    world.sensor.tsr[0] = -1
+    assert world.known[0].tolist() == [True, False, False, False]
+    see(world, 0, 2)
+    for t in range(1103, 1106):
+        teaching.step(world, t)
+    return world
+
+
+def test_el_evict_variant_teaches_a_full_learner_who_drops_its_least_used_colour() -> None:
+    assert learn_two("evict").known[0].tolist() == [False, True, False, False]
+    assert learn_two("refuse").known[0].tolist() == [True, False, False, False]  # the release
+
+
+def overhear_rig(mode: Mode) -> World:
+    """L (0) asks T (3, knows all) about red; O (1) listens nearby; F (2) is far away."""
+    world = rig(
+        Robots.of(3, 1, 0, 0, 0, 0),
+        [(0.0, 0.0), (0.0, 200.0), (3000.0, 3000.0), (200.0, 0.0)],
+        mode=mode,
+    )
+    see(world, 0, 1)
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.teaching.tolist() == [False, False, False, True]
+    return world
+
+
+def test_s9_4_a_teacher_is_overheard_by_robots_not_asking_for_its_whole_teaching_wait() -> None:
+    world = overhear_rig(Mode.PASSIVE_BUFFER)
+    key = rb.sequence_of(1)
+    assert world.agents[1].buffered == [key] and not world.known[1, 0]
+    assert world.agents[2].buffered == []
+    place(world, 2, 100.0, 200.0)  # F comes into range while T still teaches
+    world.proximity.update(world.pos, 300)
+    teaching.step(world, 300)
+    assert world.agents[2].buffered == [key]
+    for t in range(301, 700):  # the teaching wait ends
+        teaching.step(world, t)
+    assert not world.teaching.any()
+
+
+def test_s9_4_a_robot_asking_does_not_overhear() -> None:
+    world = rig(
+        Robots.of(2, 1, 0, 0, 0, 0),
+        [(0.0, 0.0), (0.0, 200.0), (200.0, 0.0)],
+        mode=Mode.PASSIVE_BUFFER,
+    )
+    see(world, 0, 1)
+    see(world, 1, 2)  # robot 1 asks about green at the same time
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.teaching[2] and world.querying[1]
+    assert world.agents[1].buffered == []  # it was asking while robot 2 taught
+
+
+def test_s9_5_plb_uses_a_buffered_answer_without_a_query_or_a_wait() -> None:
+    world = overhear_rig(Mode.PASSIVE_BUFFER)
+    queries = world.queries
+    see(world, 1, 1)  # the listener now registers a red target
+    teaching.step(world, 3)
+    assert world.known[1, 0] and world.learned_buffered == 1
+    assert world.queries == queries and not world.querying[1]
+    assert world.agents[1].buffered == []
+
+
+def test_s9_6_pl_learns_what_it_overhears_at_once() -> None:
+    world = overhear_rig(Mode.PASSIVE)
+    assert world.known[1, 0] and world.learned_passive == 1
+    assert world.agents[1].metrics.learned_passive == 1
+    assert world.agents[1].metrics.queries_sent == 0
+
+
+def test_s9_1_el_robots_do_not_overhear() -> None:
+    world = overhear_rig(Mode.EPHEMERAL)
+    assert not world.known[1, 0] and world.agents[1].buffered == []

@@ -44,6 +44,15 @@ TEACHING = (
     ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
 )
 """Our finding, not the paper's: each group under the release's rule and the broadcast rule."""
+MODES = ("nl", "rl", "el", "el-evict", "plb", "pl")
+MODE_LABELS = {
+    "nl": "NL: no transfer",
+    "rl": "RL: KT-BT",
+    "el": "EL: ephemeral (3 colours, 5,000 idle ticks)",
+    "el-evict": "EL, evicting the least used",
+    "plb": "PLB: overheard, buffered",
+    "pl": "PL: overheard, learned at once",
+}
 COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
 
 STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -52,6 +61,7 @@ STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "range": (("range", "queries_lost"), (*RANGES, "bl1")),
     "heterogeneity": (HETEROGENEITY, HETEROGENEITY),
     "teaching": (("teaching",), tuple(n for _, *names in TEACHING for n in names)),
+    "modes": (("modes",), tuple(f"modes-{g}-{m}" for g in ("10rgyb", "39i1m") for m in MODES)),
 }
 """Each study's figures and scenarios: ``plot(study=...)`` draws only those figures and tables
 only those scenarios (the range study compares against bl1, so it keeps that too)."""
@@ -370,6 +380,42 @@ def draw_teaching(results: Mapping[str, Results]) -> Figure | None:
     return fig
 
 
+def draw_modes(results: Mapping[str, Results]) -> Figure | None:
+    """The release's hidden modes (and our eviction variant) on two groups: collection, the
+    messages it took, and how far knowledge spread."""
+    groups = [
+        (group, runs)
+        for group in ("10rgyb", "39i1m")
+        if (
+            runs := [
+                (m, results[f"modes-{group}-{m}"]) for m in MODES if f"modes-{group}-{m}" in results
+            ]
+        )
+    ]
+    if not groups:
+        return None
+    fig = _figure(width=15.0, height=3.8 * len(groups))
+    axes = fig.subplots(len(groups), 3, squeeze=False)
+    for row, (group, runs) in zip(axes, groups, strict=True):
+        for k, (mode, res) in enumerate(runs):
+            label = f"{MODE_LABELS[mode]} (n={len(res.trials)})"
+            colour = f"C{k}"
+            _mean_band(row[0], res.iterations, metrics.percent_collected(res), label, colour)
+            if "messages" in res.data:
+                _mean_band(row[1], res.iterations, res["messages"] / 1000.0, label, colour)
+            spread = res["knows_3"] + res["knows_4"]
+            _mean_band(row[2], res.iterations, spread, label, colour)
+        title = "10R-10G-10Y-10B" if group == "10rgyb" else "39I-1M"
+        row[0].set(ylabel=f"{title}, 25 a colour\ntargets collected (%)", ylim=(0, 105))
+        row[1].set(ylabel="messages delivered (thousands)")
+        row[2].set(ylabel="robots knowing 3 or 4 colours")
+        for ax in row:
+            ax.set_xlabel("iterations")
+        row[0].legend(fontsize="x-small", loc="lower right")
+    fig.suptitle(f"The release's hidden modes and our eviction variant ({SPREAD})")
+    return fig
+
+
 # -- entry point -----------------------------------------------------------------------------
 
 
@@ -381,6 +427,7 @@ def _drawers(base: float, exponent: float) -> list[tuple[str, Drawer]]:
         ("range", draw_range),
         ("queries_lost", draw_queries_lost),
         ("teaching", draw_teaching),
+        ("modes", draw_modes),
     ]
     for name in HETEROGENEITY:
         out.append((name, partial(_heterogeneity_of, name, base=base, exponent=exponent)))

@@ -22,6 +22,7 @@ FIGURES = (
     "range",
     "queries_lost",
     "teaching",
+    "modes",
     "heterogeneity-39i1m",
     "heterogeneity-10rgyb",
 )

@@ -121,6 +121,8 @@ class Metrics:
     """Items learned from an overheard answer as soon as it was heard (section 4.3)."""
     overheard: int = 0
     """Answers to others' queries received (section 4.3)."""
+    overheard_refused: int = 0
+    """Of those, refused: a check failed, or the buffer was full (also counted in ``refused``)."""
 
 
 class Agent:
@@ -418,6 +420,7 @@ class Agent:
         if response.sequence in self._buffer:  # the first answer heard is kept
             return 0
         if len(self._buffer) >= self.buffer_size:
+            self.metrics.overheard_refused += 1
             self.refuse(f"from {response.sender}: overheard answer, buffer full")
             return 0
         self._buffer[response.sequence] = response
@@ -425,7 +428,10 @@ class Agent:
 
     def _accept_overheard(self, response: Response) -> bool:
         asked = Query(id=response.id, sender=self.name, sequence=response.sequence)
-        return self.accept(response, asked)
+        if self.accept(response, asked):
+            return True
+        self.metrics.overheard_refused += 1
+        return False
 
     @property
     def buffered(self) -> list[str]:

@@ -73,6 +73,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
     exchange(learner, teacher)
     assert ear.receive() == 0
     assert ear.metrics.refused == 1 and "Pick" in ear.metrics.refusals[-1][1]
+    assert ear.metrics.overheard_refused == 1
     assert kp.format(ear.control.tree, "compact") == before
 
 
@@ -101,3 +102,4 @@ def test_a_full_buffer_refuses_the_newcomer() -> None:
     ear.receive()
     assert ear.buffered == ["<c>(TargetSeen,colour=2)"]
     assert ear.metrics.refused == 1 and "buffer full" in ear.metrics.refusals[-1][1]
+    assert ear.metrics.overheard_refused == 1

@@ -49,7 +49,7 @@ holds ours against its data."""
 STUDIES["modes"] = tuple(
     f"modes-{group}-{variant}"
     for group in ("10rgyb", "39i1m")
-    for variant in ("nl", "rl", "el", "el-evict", "plb", "pl")
+    for variant in ("nl", "rl", "el", "el-evict", "plb", "pl", "pl-answer")
 )
 """The release's five modes and our eviction variant, on 10RGYB and 39I-1M."""
 STUDIES["teaching"] = (

@@ -44,7 +44,7 @@ TEACHING = (
     ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
 )
 """Our finding, not the paper's: each group under the release's rule and the broadcast rule."""
-MODES = ("nl", "rl", "el", "el-evict", "plb", "pl")
+MODES = ("nl", "rl", "el", "el-evict", "plb", "pl", "pl-answer")
 MODE_LABELS = {
     "nl": "NL: no transfer",
     "rl": "RL: KT-BT",
@@ -52,6 +52,7 @@ MODE_LABELS = {
     "el-evict": "EL, evicting the least used",
     "plb": "PLB: overheard, buffered",
     "pl": "PL: overheard, learned at once",
+    "pl-answer": "PL, heard only at the answer",
 }
 COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
 

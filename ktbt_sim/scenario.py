@@ -178,6 +178,12 @@ class Scenario(_Model):
         description="a learner at memory_size: refuse the lesson (the release) or evict its"
         " least recently used learned colour (our library's alternative)",
     )
+    overhear_window: str = Field(
+        default="wait",
+        pattern="^(wait|answer)$",
+        description="PLB and PL: a teacher is overheard for its whole teaching wait (the"
+        " release) or only by the robots in range when it answers (our variant, a radio's)",
+    )
     memory_size: int = Field(
         default=4, ge=0, description="a learner with this many known colours is not taught (§8.2)"
     )
@@ -350,9 +356,11 @@ MODE_VARIANTS: dict[str, dict[str, Any]] = {
     },
     "plb": {"mode": Mode.PASSIVE_BUFFER},
     "pl": {"mode": Mode.PASSIVE},
+    "pl-answer": {"mode": Mode.PASSIVE, "overhear_window": "answer"},
 }
 """The release's five modes (EL with a memory of 3 colours forgotten after 5,000 idle
-random-walk ticks) and our eviction variant of EL."""
+random-walk ticks), our eviction variant of EL, and our eavesdropping variant of PL (only the
+robots in range at the moment of an answer hear it)."""
 
 
 def _modes() -> dict[str, Scenario]:

@@ -147,6 +147,7 @@ def _teach(world: World, t: int) -> None:
         world.walk_flag[teacher] = False
         world.timers.start(teacher, 2 * t + 2)
         world.heard_from[teacher] = set()
+        world.answered_at[teacher] = t
         if world.agents[learner].receive():
             world.learned += 1
             world.taught[learner] = True
@@ -166,17 +167,20 @@ def came_into_range(world: World, pairs: np.ndarray) -> None:
 
 def _overhear(world: World, t: int) -> None:
     """§9.4: every robot that is not querying hears the answer of each teaching neighbour, for
-    the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6)."""
+    the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6). With
+    ``overhear_window = "answer"`` (our variant, a radio's) only the robots in range at the
+    moment of the answer hear it."""
     teachers = np.flatnonzero(world.teaching)
     if not len(teachers):
         return
+    moment = world.scenario.overhear_window == "answer"
     for teacher in teachers.tolist():
         answer = world.agents[teacher].last_answer
-        if answer is None:
+        if answer is None or (moment and world.answered_at.get(teacher) != t):
             continue
         heard = world.heard_from.setdefault(teacher, set())
         for listener in world.proximity.neighbours(teacher).tolist():
-            if listener in heard or world.querying[listener] or answer.sender == listener:
+            if listener in heard or world.querying[listener]:
                 continue
             heard.add(listener)
             agent = world.agents[listener]

@@ -144,6 +144,7 @@ class World:
         self.memory_iter = np.zeros(n, dtype=np.int64)
         """EL's memory timer: random-walk ticks since the last pick-up or lesson (§9.3)."""
         self.heard_from: dict[int, set[int]] = {}
+        self.answered_at: dict[int, int] = {}
         """Who has overheard each teacher's current answer (§9.4)."""
         self.proximity = proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt

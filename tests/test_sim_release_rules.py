@@ -556,3 +556,20 @@ def test_s9_6_pl_learns_what_it_overhears_at_once() -> None:
 def test_s9_1_el_robots_do_not_overhear() -> None:
     world = overhear_rig(Mode.EPHEMERAL)
     assert not world.known[1, 0] and world.agents[1].buffered == []
+
+
+def test_our_eavesdrop_variant_is_heard_only_at_the_moment_of_the_answer() -> None:
+    world = rig(
+        Robots.of(3, 1, 0, 0, 0, 0),
+        [(0.0, 0.0), (0.0, 200.0), (3000.0, 3000.0), (200.0, 0.0)],
+        mode=Mode.PASSIVE,
+        overhear_window="answer",
+    )
+    see(world, 0, 1)
+    teaching.step(world, 1)
+    teaching.step(world, 2)
+    assert world.known[1, 0]  # in range at the answer
+    place(world, 2, 100.0, 200.0)  # comes into range during the teaching wait
+    world.proximity.update(world.pos, 300)
+    teaching.step(world, 300)
+    assert not world.known[2, 0]  # the release's rule would have let it hear

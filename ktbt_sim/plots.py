@@ -413,7 +413,7 @@ def draw_modes(results: Mapping[str, Results]) -> Figure | None:
         for ax in row:
             ax.set_xlabel("iterations")
         row[0].legend(fontsize="x-small", loc="lower right")
-    fig.suptitle(f"The release's hidden modes and our eviction variant ({SPREAD})")
+    fig.suptitle(f"The release's hidden modes and our two variants ({SPREAD})")
     return fig
 
 

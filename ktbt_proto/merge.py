@@ -95,18 +95,34 @@ def merge(
     )
 
 
-def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | None:
-    """Append ``item`` to the placeholder at ``path`` (from :func:`find_placeholder`); None if
-    the placeholder already holds it. The path of a placeholder never changes, since merges only
-    ever append inside placeholders, so a caller may keep it."""
-    root = as_node(control)
+def _descend(control: Tree | Node, path: tuple[int, ...]) -> tuple[list[Container], Placeholder]:
+    """The containers from the root down to the placeholder at ``path``, and the placeholder."""
     chain: list[Container] = []
-    node = root
+    node = as_node(control)
     for index in path:
         assert isinstance(node, Container)
         chain.append(node)
         node = node.children[index]
     assert isinstance(node, Placeholder)
+    return chain, node
+
+
+def _rebuild(
+    control: Tree | Node, chain: list[Container], path: tuple[int, ...], new: Node
+) -> Tree:
+    """The tree with the placeholder at ``path`` replaced by ``new`` (nodes are values: every
+    container on the way is rebuilt, everything else is shared)."""
+    for parent, index in zip(reversed(chain), reversed(path), strict=True):
+        children = parent.children
+        new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
+    return Tree(new, footer=control.footer if isinstance(control, Tree) else ())
+
+
+def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | None:
+    """Append ``item`` to the placeholder at ``path`` (from :func:`find_placeholder`); None if
+    the placeholder already holds it. The path of a placeholder never changes, since merges only
+    ever append inside placeholders, so a caller may keep it."""
+    chain, node = _descend(control, path)
     split = split_item(item)
     for existing in node.children:
         if existing == item:
@@ -122,11 +138,7 @@ def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | 
                 line,
                 column,
             )
-    new: Node = with_children(node, (*node.children, item))
-    for parent, index in zip(reversed(chain), reversed(path), strict=True):
-        children = parent.children
-        new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
-    return Tree(new, footer=control.footer if isinstance(control, Tree) else ())
+    return _rebuild(control, chain, path, with_children(node, (*node.children, item)))
 
 
 def remove(control: Tree | Node, slot: str = "new", when: Iterable[Condition | str] = ()) -> Tree:
@@ -148,21 +160,10 @@ def remove_at(
 ) -> tuple[Tree, Node] | None:
     """Remove the item keyed ``key`` from the placeholder at ``path``: the new tree and the
     removed item, or None if the placeholder holds no item with that condition sequence."""
-    root = as_node(control)
-    chain: list[Container] = []
-    node = root
-    for index in path:
-        assert isinstance(node, Container)
-        chain.append(node)
-        node = node.children[index]
-    assert isinstance(node, Placeholder)
+    chain, node = _descend(control, path)
     for k, existing in enumerate(node.children):
         split = split_item(existing)
         if split is not None and split[0] == key:
-            new: Node = with_children(node, (*node.children[:k], *node.children[k + 1 :]))
-            for parent, index in zip(reversed(chain), reversed(path), strict=True):
-                children = parent.children
-                new = with_children(parent, (*children[:index], new, *children[index + 1 :]))
-            footer = control.footer if isinstance(control, Tree) else ()
-            return Tree(new, footer=footer), existing
+            kept = with_children(node, (*node.children[:k], *node.children[k + 1 :]))
+            return _rebuild(control, chain, path, kept), existing
     return None

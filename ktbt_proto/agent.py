@@ -393,9 +393,10 @@ class Agent:
                     learned += self._not_mine(message)
                     continue
                 self.metrics.responses_received += 1
+                new = asked.sequence not in self.knowledge
                 if self.accept(message, asked):
                     self._answered = True
-                    self.metrics.learned_direct += 1
+                    self.metrics.learned_direct += new
                     learned += 1
         return learned
 
@@ -597,12 +598,14 @@ class Agent:
         if why is not None:
             self.refuse(f"from {response.sender}: {why}")
             return False
+        if asked.sequence in self.knowledge:  # known already (perhaps innate): nothing to merge
+            return True
         try:
             conds = parse_sequence(asked.sequence, self.receive_limits)
             subtree = parse(response.subtree, limits=self.receive_limits).root
             # Receive limits (numbers included) and the registry's types, before the merge.
             validate(subtree, self.registry, limits=self.receive_limits)
-            if asked.sequence not in self.knowledge and not self._make_room():
+            if not self._make_room():
                 self.refuse(f"from {response.sender}: memory full ({self.memory.capacity} items)")
                 return False
             changed = self.control.merge(subtree, self.slot, when=conds)
@@ -718,8 +721,9 @@ class _QueryAndWait:
         while agent._responses:  # only answers to this query are let in (``Agent.tick``)
             response = agent._responses.popleft()
             agent.metrics.responses_received += 1
+            new = self.query.sequence not in agent.knowledge
             if agent.accept(response, self.query):
-                agent.metrics.learned_direct += 1
+                agent.metrics.learned_direct += new
                 self._finish()
                 return SUCCESS
         waited = agent.now - self.asked_at

@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
@@ -160,3 +162,26 @@ def test_innate_knowledge_is_never_forgotten() -> None:
 def test_a_policy_that_makes_no_sense_is_refused(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         MemoryPolicy(**bad)  # type: ignore[arg-type]
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    capacity=st.integers(1, 3),
+    count_innate=st.booleans(),
+    when_full=st.sampled_from(["refuse", "evict"]),
+    lessons=st.lists(st.sampled_from(COLOURS), min_size=1, max_size=8),
+)
+def test_capacity_is_never_exceeded(
+    capacity: int, count_innate: bool, when_full: str, lessons: list[int]
+) -> None:
+    learner, teacher = pair(
+        KNOWS_RED, capacity=capacity, count_innate=count_innate, when_full=when_full
+    )
+    innate = 1
+    for colour in lessons:
+        teach(learner, teacher, colour)
+        learned = len(learner.metrics.learned)
+        held = learned + (innate if count_innate else 0)
+        assert held <= max(capacity, innate if count_innate else 0)
+        assert learner.knows(["TargetSeen(colour=1)"])  # innate knowledge is never evicted
+        see(learner, colour)

@@ -18,32 +18,15 @@ from ktbt_proto.messages import ErrorReply, Query, Response, decode, encode
 from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry
 from ktbt_proto.signing import Identity
 from ktbt_proto.transferlog import TransferLog, read
-from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
+from ktbt_proto.transport.zenoh import ZenohTransport
 from ktbt_proto.trust import Policy, TrustStore
 
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_run
+from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 HONEST = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
 FORGED = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>"
-
-
-def settings(port: int, *connect: int) -> ZenohSettings:
-    return ZenohSettings(listen=[endpoint(port)], connect=[endpoint(p) for p in connect])
-
-
-def wait_until(done: Callable[[], bool], seconds: float = 10) -> bool:
-    deadline = time.monotonic() + seconds
-    while not done():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
-
-
-def see(transport: ZenohTransport, *names: str) -> None:
-    assert wait_until(lambda: set(names) <= set(peers(transport, 0.3)), 15)
 
 
 @contextmanager

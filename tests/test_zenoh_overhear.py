@@ -7,7 +7,6 @@ from __future__ import annotations
 import multiprocessing
 import signal
 import time
-from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -17,31 +16,24 @@ from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.messages import Query, Response, encode
 from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry
 from ktbt_proto.syntax import parse
-from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
+from ktbt_proto.transport.zenoh import ZenohTransport
 from ktbt_proto.trust import Policy
 
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, serving
+from .zenoh_helpers import (
+    ROOT,
+    endpoint,
+    free_port,
+    ktbt_process,
+    ktbt_run,
+    see,
+    serving,
+    settings,
+    wait_until,
+)
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 HONEST = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
-
-
-def settings(port: int, *connect: int) -> ZenohSettings:
-    return ZenohSettings(listen=[endpoint(port)], connect=[endpoint(p) for p in connect])
-
-
-def wait_until(done: Callable[[], bool], seconds: float = 15) -> bool:
-    deadline = time.monotonic() + seconds
-    while not done():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
-
-
-def see(transport: ZenohTransport, *names: str) -> None:
-    assert wait_until(lambda: set(names) <= set(peers(transport, 0.3)))
 
 
 def ear(port: int, teacher: int, save: str, conn: Connection) -> None:

@@ -9,7 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -134,3 +134,26 @@ def serving(port: int, *extra: str, name: str = "teacher") -> Any:
         "peer", "serve", "--id", name, "--knowledge", str(knowledge),
         "--listen", endpoint(port), *extra, ready="serving",
     )  # fmt: skip
+
+
+def settings(port: int, *connect: int) -> Any:
+    """Zenoh settings listening on ``port`` of loopback and connecting to ``connect``."""
+    from ktbt_proto.transport.zenoh import ZenohSettings
+
+    return ZenohSettings(listen=[endpoint(port)], connect=[endpoint(p) for p in connect])
+
+
+def wait_until(done: Callable[[], bool], seconds: float = 15) -> bool:
+    deadline = time.monotonic() + seconds
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def see(transport: Any, *names: str) -> None:
+    """Wait until ``transport`` sees the peers ``names``."""
+    from ktbt_proto.transport.zenoh import peers
+
+    assert wait_until(lambda: set(names) <= set(peers(transport, 0.3)), 15)

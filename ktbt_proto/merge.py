@@ -120,8 +120,9 @@ def _rebuild(
 
 def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | None:
     """Append ``item`` to the placeholder at ``path`` (from :func:`find_placeholder`); None if
-    the placeholder already holds it. The path of a placeholder never changes, since merges only
-    ever append inside placeholders, so a caller may keep it."""
+    the placeholder already holds it. A merge never moves a placeholder, since it only appends
+    inside one; :func:`remove_at` does move those nested in later siblings of the removed item,
+    so a caller that keeps paths must drop those below the placeholder after a removal."""
     chain, node = _descend(control, path)
     split = split_item(item)
     for existing in node.children:

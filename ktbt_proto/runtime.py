@@ -259,6 +259,15 @@ def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
     return tick, halt
 
 
+def _index_of(items: list[Node], key: tuple[Condition, ...]) -> int | None:
+    """Where the knowledge item answering ``key`` sits among a placeholder's items."""
+    for index, item in enumerate(items):
+        split = split_item(item)
+        if split is not None and split[0] == key:
+            return index
+    return None
+
+
 @dataclass(eq=False)
 class _Slot:
     """A compiled placeholder: a reactive selector over a child list that merges extend."""
@@ -496,7 +505,9 @@ class LiveTree:
         )
         self._lock = threading.Lock()
         self._pending: list[tuple[_Slot, Compiled, Node]] = []
-        self._forgotten: list[tuple[_Slot, Node]] = []
+        # Forgotten items are named by their condition sequence, not by node identity: a merge
+        # into a placeholder nested in an item rebuilds that item's node in the tree.
+        self._forgotten: list[tuple[_Slot, tuple[Condition, ...]]] = []
         self._paths: dict[str, tuple[int, ...]] = {}
         self._running = False
 
@@ -539,10 +550,12 @@ class LiveTree:
             slot.items.append(item)
             slot.used.append(-1)
         later = []
-        for slot, item in forgotten:
-            index = next(i for i, known in enumerate(slot.items) if known is item)
+        for slot, key in forgotten:
+            index = _index_of(slot.items, key)
+            if index is None:  # its parent item was forgotten too, and went first
+                continue
             if slot.running == index:  # it is running: leave it alone until it stops
-                later.append((slot, item))
+                later.append((slot, key))
                 continue
             del slot.ticks[index], slot.halts[index], slot.items[index], slot.used[index]
             if slot.running > index:
@@ -558,12 +571,8 @@ class LiveTree:
         compiled = self._slots.get(slot)
         if compiled is None:
             return None
-        key = conditions(when)
-        for index, item in enumerate(compiled.items):
-            split = split_item(item)
-            if split is not None and split[0] == key:
-                return compiled.used[index]
-        return None
+        index = _index_of(compiled.items, conditions(when))
+        return None if index is None else compiled.used[index]
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder
@@ -580,12 +589,24 @@ class LiveTree:
             if found is None:
                 return False
             self._tree, item = found
+            # Removing a child shifts its later siblings: every cached path that runs through
+            # this placeholder's children is stale now (only the placeholder's own stays).
+            depth = len(path)
+            self._paths = {
+                name: known
+                for name, known in self._paths.items()
+                if len(known) <= depth or known[:depth] != path
+            }
             compiled = self._slots[slot]
-            pending = [entry for entry in self._pending if entry[2] is item]
+            pending = [
+                entry
+                for entry in self._pending
+                if entry[0] is compiled and _index_of([entry[2]], key) is not None
+            ]
             if pending:  # merged and forgotten before any tick: never compiled in
                 self._pending.remove(pending[0])
             else:
-                self._forgotten.append((compiled, item))
+                self._forgotten.append((compiled, key))
             inner = [n for n, _ in walk(item) if isinstance(n, Placeholder)]
             for placeholder in inner:
                 self._slots.pop(placeholder.name, None)

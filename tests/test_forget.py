@@ -154,3 +154,127 @@ def test_a_live_tree_that_forgot_behaves_as_one_that_never_learned(
         live.blackboard[f"Sees{seen}"] = True
         live.tick()
     assert log_a == log_b
+
+
+NESTED_CONTROL = "<sl><k>(new)<e><a>(Go)<e>"
+FLAGS = ("A", "B", "C")
+
+
+def nested_registry(log: list[str]) -> kp.Registry:
+    reg = kp.Registry()
+    reg.flags(*FLAGS)
+
+    @reg.action("Go")
+    def go(bb: kp.Blackboard) -> kp.Status:
+        log.append("Go")
+        return kp.SUCCESS
+
+    return reg
+
+
+def item_body(slot: str, flag: str, nested: bool) -> str:
+    """A leaf skill, or one holding a placeholder of its own named for where it sits."""
+    return f"<sl><k>({slot}_{flag})<e><a>(Go)<e>" if nested else "<a>(Go)"
+
+
+Model = dict[str, list[tuple[str, bool]]]  # placeholder -> its items in order: (flag, nested)
+
+
+def rebuild(model: Model, log: list[str]) -> kp.LiveTree:
+    """A tree that learned, from scratch, exactly what ``model`` holds (parents first)."""
+    live = kp.LiveTree(NESTED_CONTROL, nested_registry(log))
+    todo = ["new"]
+    while todo:
+        slot = todo.pop(0)
+        for flag, nested in model.get(slot, []):
+            live.merge(item_body(slot, flag, nested), slot, when=[flag])
+            if nested:
+                todo.append(f"{slot}_{flag}")
+    return live
+
+
+def drop(model: Model, slot: str) -> None:
+    """Remove ``slot`` and every placeholder nested in its items from the model."""
+    for flag, nested in model.pop(slot, []):
+        if nested:
+            drop(model, f"{slot}_{flag}")
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    ops=st.lists(
+        st.tuples(
+            st.booleans(),  # merge (True) or forget
+            st.integers(0, 5),  # which placeholder, among those the model names
+            st.sampled_from(FLAGS),
+            st.booleans(),  # the item holds a placeholder of its own
+            st.booleans(),  # tick after the operation
+        ),
+        max_size=16,
+    )
+)
+def test_merges_and_forgets_into_nested_placeholders_match_a_tree_built_from_scratch(
+    ops: list[tuple[bool, int, str, bool, bool]],
+) -> None:
+    """Any sequence of merges and forgets, into placeholders nested inside learned items, leaves
+    the live tree equal to one that learned only what remains; every refusal is a
+    StringBTError (a forget once made a later merge into a shifted placeholder crash)."""
+    log: list[str] = []
+    live = kp.LiveTree(NESTED_CONTROL, nested_registry(log))
+    model: Model = {"new": []}
+    for merge, which, flag, nested, tick in ops:
+        names = [*sorted(model), "gone"]
+        slot = names[which % len(names)]
+        held = dict(model.get(slot, []))
+        if merge:
+            if slot not in model:
+                with pytest.raises(kp.MergeError):
+                    live.merge(item_body(slot, flag, nested), slot, when=[flag])
+            elif flag in held and (held[flag] != nested or model.get(f"{slot}_{flag}")):
+                # Another subtree for the same sequence (a nested item that has learned inside
+                # is no longer the item that was taught) is a conflict.
+                with pytest.raises(kp.MergeError):
+                    live.merge(item_body(slot, flag, nested), slot, when=[flag])
+            else:
+                changed = live.merge(item_body(slot, flag, nested), slot, when=[flag])
+                assert changed is (flag not in held)
+                if changed:
+                    model[slot].append((flag, nested))
+                    if nested:
+                        model[f"{slot}_{flag}"] = []
+        elif slot not in model:
+            with pytest.raises(kp.MergeError):
+                live.forget(slot, [flag])
+        else:
+            assert live.forget(slot, [flag]) is (flag in held)
+            if flag in held:
+                model[slot] = [entry for entry in model[slot] if entry[0] != flag]
+                if held[flag]:
+                    drop(model, f"{slot}_{flag}")
+        if tick:
+            live.tick()
+    fresh_log: list[str] = []
+    fresh = rebuild(model, fresh_log)
+    assert kp.format(live.tree, "compact") == kp.format(fresh.tree, "compact")
+    for tree in (live, fresh):
+        for name in FLAGS:
+            tree.blackboard[name] = True
+    log.clear()
+    live.tick()
+    fresh.tick()
+    assert log == fresh_log
+
+
+def test_a_forget_does_not_leave_a_stale_path_to_a_later_nested_placeholder() -> None:
+    """The reproduction: a merge into a placeholder nested in an item after a forgotten one."""
+    log: list[str] = []
+    live = kp.LiveTree(NESTED_CONTROL, nested_registry(log))
+    live.merge("<a>(Go)", "new", when=["A"])
+    live.merge("<sl><k>(inner)<e><a>(Go)<e>", "new", when=["B"])
+    live.merge("<a>(Go)", "inner", when=["A"])
+    live.forget("new", when=["A"])
+    assert live.merge("<a>(Go)", "inner", when=["B"]) is True
+    assert kp.format(live.tree, "compact") == (
+        "<sl><k>(new)<sq><c>(B)<sl><k>(inner)<sq><c>(A)<a>(Go)<e><sq><c>(B)<a>(Go)<e><e>"
+        "<a>(Go)<e><e><e><a>(Go)<e>"
+    )

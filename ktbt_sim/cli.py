@@ -168,7 +168,10 @@ def run_command(
         from .records import export_release
 
         for scenario in scenarios:
-            typer.echo(str(export_release(out / scenario.name)))
+            try:
+                typer.echo(str(export_release(out / scenario.name)))
+            except ValueError as exc:  # one of our variants: the release has no name for it
+                typer.echo(f"not exported in the release's format: {exc}", err=True)
     kept = f" ({before} {'was' if before == 1 else 'were'} already there)" if before else ""
     typer.echo(f"ran {ran} trial{'s' * (ran != 1)} in {seconds:.1f} s{kept}; results in {out}")
 

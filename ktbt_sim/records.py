@@ -25,7 +25,7 @@ import numpy as np
 
 from .metrics import set_name
 from .results import Results
-from .scenario import COLOURS, Mode, Robots, Scenario, Targets
+from .scenario import COLOURS, Mode, Robots, Scenario, Targets, Teaching
 
 if TYPE_CHECKING:
     from .world import World
@@ -225,19 +225,21 @@ _FOLDER = re.compile(
 
 def release_scenario(folder: Path, iterations: int) -> Scenario:
     """The scenario a release folder's name encodes
-    (``MODE_I_M_R_G_Y_B_Obstacles_nR_nG_nY_nB_range_memoryDuration``)."""
+    (``MODE_I_M_R_G_Y_B_Obstacles_nR_nG_nY_nB_range_memoryDuration``); the name does not
+    carry the memory size, which keeps its default."""
     match = _FOLDER.match(folder.name)
     if match is None:
         raise ValueError(f"{folder}: not a release scenario folder name")
-    if match["mode"] not in ("NL", "RL"):
-        raise ValueError(f"{folder}: mode {match['mode']} is not simulated yet")
+    mode = next(m for m, name in RELEASE_MODES.items() if name == match["mode"])
+    memory = int(match["memory"])
     i, m, r, g, y, b = (int(v) for v in match["robots"].split("_"))
     tr, tg, ty, tb = (int(v) for v in match["targets"].split("_"))
     from .scenario import Arena
 
     return Scenario(
         name=f"release {folder.name}",
-        mode=Mode.NO_TRANSFER if match["mode"] == "NL" else Mode.KT_BT,
+        mode=mode,
+        memory_duration=None if memory < 0 else memory,
         robots=Robots.of(i, m, r, g, y, b),
         targets=Targets(red=tr, green=tg, yellow=ty, blue=tb),
         comm_range=float(match["range"]),
@@ -274,15 +276,39 @@ def read_release_folder(folder: str | Path) -> Results:
     return Results(scenario, numbers, iterations, data)
 
 
+RELEASE_MODES: dict[Mode, str] = {
+    Mode.NO_TRANSFER: "NL",
+    Mode.KT_BT: "RL",
+    Mode.EPHEMERAL: "EL",
+    Mode.PASSIVE_BUFFER: "PLB",
+    Mode.PASSIVE: "PL",
+}
+"""Each mode's name in the release's folder names (spec/simulator.md, the release's records)."""
+
+
 def release_name(scenario: Scenario) -> str:
     """The release's folder name for a scenario:
-    ``MODE_I_M_R_G_Y_B_Obstacles_nR_nG_nY_nB_range_memoryDuration``."""
+    ``MODE_I_M_R_G_Y_B_Obstacles_nR_nG_nY_nB_range_memoryDuration`` (-1: no memory duration).
+    A ValueError for our own variants, which the release has no name for: a folder named as
+    the release's mode would pass our variant's data off as the release's."""
+    variants = []
+    if scenario.teaching is not Teaching.RELEASE:
+        variants.append(f"teaching {scenario.teaching.value}")
+    if scenario.memory_when_full != "refuse":
+        variants.append(f"memory_when_full {scenario.memory_when_full}")
+    if scenario.overhear_window != "wait":
+        variants.append(f"overhear_window {scenario.overhear_window}")
+    if variants:
+        raise ValueError(
+            f"{scenario.name}: the release has no such variant ({', '.join(variants)})"
+        )
     r, t = scenario.robots, scenario.targets
-    mode = "NL" if scenario.mode is Mode.NO_TRANSFER else "RL"
     robots = (r.ignorant, r.multi, r.red, r.green, r.yellow, r.blue)
     targets = (t.red, t.green, t.yellow, t.blue)
-    parts = [mode, *map(str, robots), "Y" if scenario.arena.obstacles else "N"]
-    parts += [*map(str, targets), f"{scenario.comm_range:g}", "-1"]
+    memory = -1 if scenario.memory_duration is None else scenario.memory_duration
+    parts = [RELEASE_MODES[scenario.mode], *map(str, robots)]
+    parts += ["Y" if scenario.arena.obstacles else "N", *map(str, targets)]
+    parts += [f"{scenario.comm_range:g}", str(memory)]
     return "_".join(parts)
 
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ktbt_sim import compare, records
 from ktbt_sim.metrics import set_name
@@ -135,3 +136,59 @@ def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Pa
     shown = ktbt("sim", "compare", "results/calibration-rl", str(theirs))
     assert shown.returncode == 0, shown.stderr
     assert "**no**" not in shown.stdout  # our rows, read back through the release's format
+
+
+def test_every_preset_is_named_as_the_release_names_it_and_reads_back() -> None:
+    """Each of the release's modes keeps its own name and memory duration through the folder
+    name; our variants, which the release has not, get no release name at all."""
+    from ktbt_sim.scenario import PRESETS, Teaching
+
+    named = set()
+    for scenario in PRESETS.values():
+        variant = (
+            scenario.teaching is not Teaching.RELEASE
+            or scenario.memory_when_full != "refuse"
+            or scenario.overhear_window != "wait"
+        )
+        if variant:
+            with pytest.raises(ValueError, match="no such variant"):
+                records.release_name(scenario)
+            continue
+        name = records.release_name(scenario)
+        back = records.release_scenario(Path(name), scenario.iterations)
+        assert name.split("_")[0] == records.RELEASE_MODES[scenario.mode]
+        assert (back.mode, back.memory_duration) == (scenario.mode, scenario.memory_duration)
+        assert (back.robots, back.targets) == (scenario.robots, scenario.targets)
+        assert (back.comm_range, back.arena.obstacles) == (
+            scenario.comm_range,
+            scenario.arena.obstacles,
+        )
+        named.add(scenario.mode)
+    assert named == set(Mode)
+
+
+def test_sim_run_modes_exports_each_mode_under_its_own_name_and_compare_reads_it(
+    tmp_path: Path,
+) -> None:
+    def ktbt(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "ktbt_proto", *args],
+            capture_output=True,
+            text=True,
+            timeout=600,
+            cwd=tmp_path,
+        )
+
+    run = ktbt("sim", "run", "modes", "--trials", "1", "--iterations", "100",
+               "--release-csv", "-j", "2")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    exported = sorted(p for p in (tmp_path / "results").glob("*/release/*") if p.is_dir())
+    prefixes = {p.name.split("_")[0] for p in exported}
+    assert prefixes == {"NL", "RL", "EL", "PLB", "PL"}
+    assert "EL_0_0_10_10_10_10_N_25_25_25_25_200_5000" in {p.name for p in exported}
+    assert run.stderr.count("no such variant") == 4  # el-evict and pl-answer, in both groups
+    for folder in exported:
+        ours = folder.parent.parent
+        shown = ktbt("sim", "compare", str(ours.relative_to(tmp_path)), str(folder))
+        assert shown.returncode == 0, shown.stderr
+        assert "**no**" not in shown.stdout

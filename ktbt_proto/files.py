@@ -1,0 +1,68 @@
+"""Durable file replacement: the one way the project writes a file that must survive a crash.
+
+A knowledge base, a formatted source file, a trial's results and a fleet's records are all
+replaced the same way (spec/protocol.md section 5, persistence): the new contents go to a
+temporary file in the same folder, which is flushed to disk and renamed over the old one, and the
+folder itself is flushed so that the rename survives a power loss. A crash at any point leaves
+either the old file or the new one, never a mixture; a temporary file left by a crash is named
+``.<name>.<pid>.<random>.tmp`` beside its target, so its owner can find and remove it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterator
+from pathlib import Path
+
+
+def temporary_name(final: Path) -> Path:
+    """A fresh temporary name beside ``final`` (the pattern ``.<name>.*.tmp``)."""
+    return final.with_name(f".{final.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
+def fsync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a rename in it) to disk."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def replacing(path: str | Path, *, keep_mode: bool = False) -> Iterator[Path]:
+    """Yield a temporary path to write the new contents to; on a clean exit it is flushed and
+    renamed over ``path``, on an exception it is removed and ``path`` is untouched.
+
+    A symlink is written through (its target changes, the link stays). ``keep_mode`` keeps the
+    permissions of the file being replaced; otherwise a new file gets the mode ``open`` gives.
+    """
+    final = Path(os.path.realpath(path))
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_name(final)
+    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        if keep_mode:
+            with contextlib.suppress(OSError):
+                os.chmod(tmp, os.stat(final).st_mode & 0o7777)
+        os.replace(tmp, final)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_folder(final.parent)
+
+
+def write_atomic(path: str | Path, data: str | bytes, *, keep_mode: bool = False) -> None:
+    """Replace ``path``'s contents with ``data`` (text is written as UTF-8 with ``\\n`` line
+    ends) so that a crash leaves either the old or the new file."""
+    with replacing(path, keep_mode=keep_mode) as tmp:
+        if isinstance(data, str):
+            with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+                fh.write(data)
+        else:
+            tmp.write_bytes(data)

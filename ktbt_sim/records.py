@@ -60,7 +60,7 @@ SET_BITS = np.array([1, 2, 4, 8])
 
 def row(world: World) -> dict[str, int]:
     """One row of ``COLUMNS`` from a world's state."""
-    from . import robot as rb
+    from .motion import AVOID
 
     call = 2 * world.iteration + 2
     known = world.known
@@ -76,7 +76,7 @@ def row(world: World) -> dict[str, int]:
     out["teaching"] = int(world.teaching.sum())
     out["walking"] = int(world.walk_flag.sum())
     out["carrying"] = int((world.carrying >= 0).sum())
-    out["avoiding"] = int((world.mode == rb.AVOID).sum())
+    out["avoiding"] = int((world.mode == AVOID).sum())
     out["waiting"] = int(waiting.sum())
     out["cooling"] = int((world.timers.busy(call) & ~waiting).sum())
     out["queries"] = world.queries

@@ -14,8 +14,12 @@ from functools import cache
 from importlib.resources import files
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 import ktbt_proto as kp
 from ktbt_proto.knowledge import sequence_key
+
+from .kernel import jit
 
 if TYPE_CHECKING:
     from .world import World
@@ -28,8 +32,7 @@ KINDS = {"I": (), "M": (1, 2, 3, 4), "R": (1,), "G": (2,), "Y": (3,), "B": (4,)}
 
 # Motion modes an action selects; the world writes every robot's resultant velocity by its
 # mode each iteration, as the release's actions do each tick (release-behaviour.md §4).
-STOP, WALK, TO_ZONE, AVOID, IDLE = 0, 1, 2, 3, 4
-"""IDLE: the last tick ran a pick or a place, which leave the velocity as it was."""
+from .motion import AVOID, STOP, TO_ZONE, WALK  # noqa: E402
 
 # Blackboard keys written by sensing.
 COLLISION = "_collisionDetectedF"
@@ -131,3 +134,34 @@ def registry(world: World) -> kp.Registry:
 def kinds(counts: Iterable[tuple[str, int]]) -> list[str]:
     """One type letter per robot, in the order of the paper's (I, M, R, G, Y, B) tuple."""
     return [kind for kind, n in counts for _ in range(n)]
+
+
+@jit
+def signature(
+    collision: np.ndarray,
+    wait_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    in_zone: np.ndarray,
+    colour_of: np.ndarray,
+    tsr: np.ndarray,
+    known: np.ndarray,
+) -> np.ndarray:
+    """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in its
+    zone, the registered target's colour, the colours it knows."""
+    n = collision.shape[0]
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        bits = np.int64(0)
+        for c in range(4):
+            if known[i, c]:
+                bits |= np.int64(1) << c
+        out[i] = (
+            np.int64(collision[i])
+            | np.int64(wait_end[i] >= call) << 1
+            | np.int64(carrying[i] >= 0) << 2
+            | np.int64(in_zone[i]) << 3
+            | colour_of[tsr[i]] << 4
+            | bits << 7
+        )
+    return out

@@ -35,10 +35,10 @@ from .sensing import (
     TARGET_SENSOR,
     WALL,
     WALL_SENSOR,
+    Proximity,
     TargetSensor,
     WallSensor,
-    proximity,
-    zone_events,
+    zones,
 )
 from .timers import Timers
 
@@ -117,7 +117,7 @@ class World:
         self.heading = np.full(n, math.pi / 2)  # spawned facing Unity's +z (§3)
         self.rv = np.zeros((n, 2))
         """The resultant velocity each robot's behaviours last wrote (§4.1)."""
-        self.mode = np.full(n, rb.IDLE, dtype=np.int64)
+        self.mode = np.full(n, motion.IDLE, dtype=np.int64)
         self.walk_flag = np.ones(n, dtype=bool)  # on at start (§3)
         """The release's random-walk flag (its CSV's ``Cur. RandomWalk States``, §10)."""
         self.walk_time = np.zeros(n)
@@ -146,7 +146,7 @@ class World:
         self.heard_from: dict[int, set[int]] = {}
         self.answered_at: dict[int, int] = {}
         """Who has overheard each teacher's current answer (§9.4)."""
-        self.proximity = proximity(
+        self.proximity = Proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
         )
         self.bodies: list[pymunk.Body] = []
@@ -164,8 +164,15 @@ class World:
         self._out.set_float_buf(self._positions)
         self.pos = self._positions[: 2 * n].reshape(n, 2)
         self.actuator = motion.Actuator(
-            spec.max_speed, spec.max_turn_deg * self.dt, spec.heading_tolerance_deg
+            spec.max_speed,
+            math.radians(spec.max_turn_deg * self.dt),
+            math.radians(spec.heading_tolerance_deg),
         )
+        self.walk = motion.Walk(
+            self.dt, timing.walk_goal_span, timing.walk_goal_min_s, timing.walk_goal_max_s,
+            spec.carry_jitter_deg, spec.avoid_turn_deg,
+        )  # fmt: skip
+        self._memory_duration = scenario.memory_duration or 0
         self.collision = np.zeros(n, dtype=bool)
         self.proximity.update(self.pos, 0)
 
@@ -234,7 +241,7 @@ class World:
 
     def proximity_has(self, i: int, j: int) -> bool:
         """Whether robot ``j`` is in robot ``i``'s comms range."""
-        return bool(np.isin(j, self.proximity.neighbours(i)))
+        return self.proximity.in_range(i, j)
 
     def _audience(self, sender: str) -> list[str]:
         i = int(sender[1:])
@@ -260,7 +267,7 @@ class World:
         self.walk_flag[i] = False
         self.requester[i] = -1
         self.memory_iter[i] = 0
-        self.mode[i] = rb.IDLE
+        self.mode[i] = motion.IDLE
         return True
 
     def forget_learned(self, i: int) -> None:
@@ -290,7 +297,7 @@ class World:
         self.in_zone[i] = False
         self.sensor.tsr[i] = -1
         self.walk_flag[i] = False
-        self.mode[i] = rb.IDLE
+        self.mode[i] = motion.IDLE
         self.delivered += 1
         self.timers.start(i, 2 * self.iteration)
         return True
@@ -300,16 +307,10 @@ class World:
     def signature(self) -> np.ndarray:
         """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in
         its zone, the registered target's colour, the colours it knows."""
-        waiting = self.timers.waiting(2 * self.iteration)
-        seen = self.colour_of[self.sensor.tsr]
-        packed: np.ndarray = (
-            self.collision.astype(np.int64)
-            | waiting << 1
-            | (self.carrying >= 0) << 2
-            | self.in_zone << 3
-            | seen << 4
-            | (self.known @ np.array([1, 2, 4, 8])) << 7
-        )
+        packed: np.ndarray = rb.signature(
+            self.collision, self.timers.wait_end, 2 * self.iteration, self.carrying,
+            self.in_zone, self.colour_of, self.sensor.tsr, self.known,
+        )  # fmt: skip
         return packed
 
     def step(self) -> None:
@@ -343,50 +344,21 @@ class World:
             bb[rb.SEEN] = s >> 4 & 7
             agent.control.tick()
         # A pick or a place changed this robot's inputs: it ticks again next iteration.
-        self._signature[self.mode == rb.IDLE] = -1
+        self._signature[self.mode == motion.IDLE] = -1
 
     def _move(self) -> None:
         """Every behaviour writes its robot's resultant velocity, then the actuators act."""
-        mode, rv, rng = self.mode, self.rv, self.rng
-        spec, timing = self.scenario.robot, self.scenario.timing
-        present = np.bincount(mode, minlength=5)
-        if present[rb.WALK]:
-            rows = np.flatnonzero(mode == rb.WALK)
-            self.walk_flag[rows] = True
-            elapsed = self.walk_time[rows] + self.dt
-            over = elapsed > self.walk_span[rows]
-            if over.any():
-                due = rows[over]
-                k = len(due)
-                rv[due] = motion.random_goals(rng, k, timing.walk_goal_span) - self.pos[due]
-                elapsed[over] = 0.0
-                self.walk_span[due] = rng.uniform(timing.walk_goal_min_s, timing.walk_goal_max_s, k)
-            self.walk_time[rows] = elapsed
-            if self.scenario.memory_duration is not None:
-                self.memory_iter[rows] += 1
-                spent = rows[self.memory_iter[rows] >= self.scenario.memory_duration]
-                for i in spent.tolist():
-                    self.forget_learned(i)
-        if present[rb.STOP]:
-            rows = np.flatnonzero(mode == rb.STOP)
-            rv[rows] = 0.0
-            self.walk_flag[rows] = False
-        if present[rb.TO_ZONE]:
-            rows = np.flatnonzero(mode == rb.TO_ZONE)
-            self.walk_flag[rows] = False
-            to_zone = self.zone_centres[self.goal[rows] - 1] - self.pos[rows]
-            rv[rows] = motion.carry_aim(rng, to_zone, spec.carry_jitter_deg)
-        if present[rb.AVOID]:
-            rows = np.flatnonzero(mode == rb.AVOID)
-            away = self.proximity.away(self.pos, rows)
-            walls = self.wall_sensor
-            for k, i in enumerate(rows.tolist()):
-                if walls.count[i]:
-                    wx, wy = walls.away(i, float(self.pos[i, 0]), float(self.pos[i, 1]))
-                    away[k, 0] += wx
-                    away[k, 1] += wy
-            rv[rows] = motion.avoidance(rng, away, spec.avoid_turn_deg)
-        self.actuator(rv, self.heading, self._vel)
+        prox, walls, walk = self.proximity, self.wall_sensor, self.walk
+        spent = motion.behave(
+            self.mode, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
+            self.memory_iter, self._memory_duration, self.goal, self.zone_centres,
+            prox.start, prox.others, prox.weights, walls.count, walls.centres, self.rng,
+            walk.dt, walk.goal_span, walk.leg_min_s, walk.leg_max_s, *walk.carry_jitter_deg,
+            *walk.avoid_turn_deg,
+        )  # fmt: skip
+        for i in spent.tolist():
+            self.forget_learned(i)
+        motion.actuate(self.rv, self.heading, self._vel, *self.actuator)
 
     def _sense(self, t: int) -> None:
         """The trigger callbacks have run inside the physics step; now the robot-to-robot
@@ -396,20 +368,11 @@ class World:
         self.collision = (prox.count > 0) | (self.wall_sensor.count > 0)
         if self.kt_bt and len(prox.newly):
             teaching.came_into_range(self, prox.newly)
-        carriers = np.flatnonzero(self.carrying >= 0)
-        if len(carriers):
-            count_half, place_half, reach = self._zone
-            counted, inside = zone_events(
-                self.pos[carriers], self.zone_centres, self.goal[carriers], count_half,
-                place_half, reach,
-            )  # fmt: skip
-            for k, i in enumerate(carriers.tolist()):
-                target = int(self.carrying[i])
-                if counted[k] and not self.counted[target]:
-                    self.counted[target] = True
-                    self.collected[self.target_colour[target] - 1] += 1
-                if inside[k]:
-                    self.in_zone[i] = True
+        count_half, place_half, reach = self._zone
+        zones(
+            self.pos, self.carrying, self.goal, self.zone_centres, self.counted, self.collected,
+            self.in_zone, self.target_colour, count_half, place_half, reach,
+        )  # fmt: skip
 
     # -- what an experiment reads -----------------------------------------------------------
 

@@ -69,11 +69,11 @@ def test_s7_sensing_is_off_only_between_the_end_of_the_wait_and_the_end_of_the_c
 
 
 def test_s4_1_drives_only_within_5_degrees_and_turns_4_degrees_an_iteration() -> None:
-    act = motion.Actuator(300.0, 200.0 * 0.02, 5.0)
+    act = motion.Actuator(300.0, math.radians(200.0 * 0.02), math.radians(5.0))
     rv = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
     heading = np.radians([4.9, 30.0, 90.0])
     out = np.zeros((3, 2))
-    act(rv, heading, out)
+    motion.actuate(rv, heading, out, *act)
     assert np.allclose(out[0], [300.0, 0.0])  # aligned: full speed along rv, no turn
     assert math.isclose(math.degrees(heading[0]), 4.9)
     assert np.allclose(out[1], 0.0) and math.isclose(math.degrees(heading[1]), 26.0)
@@ -176,9 +176,25 @@ def test_s5_1_an_enter_while_sensing_is_off_clears() -> None:
 def test_s4_5_a_target_counts_at_510_and_the_robot_places_at_490() -> None:
     centres = np.array([[2800.0, 2800.0]] * 4)
     xs = np.array([[2800.0 - d, 2800.0] for d in (511.0, 509.0, 491.0, 489.0)])
-    counted, inside = sensing.zone_events(xs, centres, np.array([1] * 4), 510.0, 400.0, 90.0)
+    counted, inside = zone_events(xs, centres, 510.0, 400.0, 90.0)
     assert counted.tolist() == [False, True, True, True]
     assert inside.tolist() == [False, False, False, True]
+
+
+def zone_events(
+    pos: np.ndarray, centres: np.ndarray, count_half: float, place_half: float, reach: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Four carriers at ``pos`` heading to zone 1, each carrying its own target: which count
+    and which may place, from ``sensing.zones`` on fresh state."""
+    n = len(pos)
+    counted, collected = np.zeros(n, dtype=bool), np.zeros(4, dtype=np.int64)
+    inside = np.zeros(n, dtype=bool)
+    sensing.zones(
+        pos, np.arange(n), np.ones(n, dtype=np.int64), centres, counted, collected, inside,
+        np.ones(n, dtype=np.int64), count_half, place_half, reach,
+    )  # fmt: skip
+    assert collected[0] == counted.sum()
+    return counted, inside
 
 
 # -- §4.6: collision avoidance -----------------------------------------------------------------
@@ -188,15 +204,14 @@ def test_s4_6_avoidance_starts_at_150_and_counts_a_body_inside_twice() -> None:
     prox = sensing.Proximity(3, 75.0, 36.0, 600.0, comms=False)
     pos = np.array([[0.0, 0.0], [149.0, 0.0], [0.0, 100.0]])
     prox.update(pos, 1)
-    assert prox.weight[0].tolist() == [0.0, 1.0, 2.0]
+    assert prox.weight(0).tolist() == [0.0, 1.0, 2.0]
     prox.update(np.array([[0.0, 0.0], [151.0, 0.0], [0.0, 1000.0]]), 2)
     assert prox.count[0] == 0
 
 
 def test_s4_6_avoidance_turns_sideways_70_to_79_degrees_counter_clockwise() -> None:
     rng = np.random.default_rng(0)
-    away = np.tile([[1.0, 0.0]], (2000, 1))
-    turned = motion.avoidance(rng, away, (70, 79))
+    turned = np.array([motion.turn(rng, 1.0, 0.0, 70, 79) for _ in range(2000)])
     angles = np.degrees(np.arctan2(turned[:, 1], turned[:, 0]))
     assert set(np.round(angles).astype(int).tolist()) == set(range(70, 80))
 
@@ -214,7 +229,6 @@ def rig(kinds: Robots, positions: list[tuple[float, float]], **changes: object) 
     world = World(small(robots=kinds, targets=Targets(red=1, green=1), **changes), seed=0)
     for i, (x, y) in enumerate(positions):
         place(world, i, x, y)
-    assert isinstance(world.proximity, sensing.Proximity)  # a small group: the dense search
     world.proximity.update(world.pos, 0)
     world.proximity.entered[:] = 0
     return world
@@ -226,9 +240,13 @@ def see(world: World, i: int, colour: int) -> None:
 
 
 def enter_in_order(world: World, order: list[int], at: int) -> None:
-    assert isinstance(world.proximity, sensing.Proximity)
+    """Robots ``order`` came into robot ``at``'s range in that order (and it into theirs)."""
+    prox = world.proximity
     for k, j in enumerate(order):
-        world.proximity.entered[at, j] = world.proximity.entered[j, at] = k + 1
+        for key in (at * prox.n + j, j * prox.n + at):
+            index = int(np.searchsorted(prox.keys, key))
+            assert prox.keys[index] == key, "not in range"
+            prox.entered[index] = k + 1
 
 
 def test_s8_1_a_free_robot_asks_about_an_unknown_colour_at_once() -> None:
@@ -371,9 +389,7 @@ def test_s4_5_the_worlds_zone_counts_at_510_and_places_at_490() -> None:
     count_half, place_half, reach = world._zone
     centres = world.zone_centres
     xs = np.array([[2800.0 - d, 2800.0] for d in (511.0, 509.0, 491.0, 489.0)])
-    counted, inside = sensing.zone_events(
-        xs, centres, np.array([1] * 4), count_half, place_half, reach
-    )
+    counted, inside = zone_events(xs, centres, count_half, place_half, reach)
     assert counted.tolist() == [False, True, True, True]
     assert inside.tolist() == [False, False, False, True]
 
@@ -412,7 +428,7 @@ def test_s4_2_the_walk_timer_runs_only_on_random_walk_ticks() -> None:
             if world.iteration == wait_at:
                 world.timers.start(0, 2 * (world.iteration + 1))  # as a delivery would
             world.step()
-            if not np.array_equal(world.rv, previous) and world.mode[0] == rb.WALK:
+            if not np.array_equal(world.rv, previous) and world.mode[0] == motion.WALK:
                 out.append(world.iteration)
             previous = world.rv.copy()
         return out
@@ -448,11 +464,11 @@ def test_s9_3_el_forgets_everything_learned_after_its_random_walk_ticks() -> Non
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.known[0, 0] and world.memory_iter[0] == 0
-    world.mode[0] = rb.STOP  # waiting: the timer does not run
+    world.mode[0] = motion.STOP  # waiting: the timer does not run
     for _ in range(100):
         world._move()
     assert world.memory_iter[0] == 0 and world.known[0, 0]
-    world.mode[0] = rb.WALK
+    world.mode[0] = motion.WALK
     for _ in range(49):
         world._move()
     assert world.known[0, 0] and world.memory_iter[0] == 49

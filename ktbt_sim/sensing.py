@@ -416,3 +416,15 @@ def zones(
         ey = max(dy - place_half, 0.0)
         if np.hypot(ex, ey) <= reach:
             in_zone[i] = True
+
+
+@jit
+def enable(
+    enabled: np.ndarray, carrying: np.ndarray, wait_end: np.ndarray, cool_end: np.ndarray, call: int
+) -> None:
+    """Target sensing is on for robots that carry nothing and whose cool-down does not keep it
+    off after counter call ``call - 1`` (between the end of the wait and the end of the
+    cool-down, §7)."""
+    for i in range(enabled.shape[0]):
+        off = wait_end[i] < call <= cool_end[i]
+        enabled[i] = carrying[i] < 0 and not off

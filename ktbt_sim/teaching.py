@@ -34,7 +34,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import robot as rb
+from .kernel import jit
 from .scenario import Mode, Teaching
+from .sensing import first_requesters
 
 if TYPE_CHECKING:
     from .world import World
@@ -55,33 +57,49 @@ def step(world: World, t: int) -> None:
 def _scan(world: World) -> None:
     """Step 1, the comms scan: every teacher's ``requestingRobot``."""
     prox = world.proximity
-    scans = prox.has_neighbours & ~world.querying
-    open_ = world.querying & ~world.taught
-    if not open_.any():
-        world.requester[scans] = -1
-        return
-    if world.scenario.teaching is Teaching.BROADCAST:
-        first = prox.requesters(open_, world.known, world.asked)
+    scan(
+        prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
+        prox.entered, world.known, world.asked, world.scenario.teaching is Teaching.BROADCAST,
+    )  # fmt: skip
+
+
+@jit
+def scan(
+    has_neighbours: np.ndarray,
+    querying: np.ndarray,
+    taught: np.ndarray,
+    requester: np.ndarray,
+    keys: np.ndarray,
+    entered: np.ndarray,
+    known: np.ndarray,
+    asked: np.ndarray,
+    broadcast: bool,
+) -> None:
+    """Every robot that is not querying and has neighbours takes as its requester the first
+    neighbour in order of entry with an open query (with ``broadcast``, only one whose
+    question it can answer), or none."""
+    n = querying.shape[0]
+    open_ = querying & ~taught
+    if open_.any():
+        first = first_requesters(keys, entered, n, open_, known, asked, broadcast)
     else:
-        first = prox.requesters(open_)
-    world.requester[scans] = first[scans]
+        first = np.full(n, -1, np.int64)
+    for i in range(n):
+        if has_neighbours[i] and not querying[i]:
+            requester[i] = first[i]
 
 
 def _ask(world: World, t: int) -> None:
     """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
     tsr = world.sensor.tsr
-    ask = tsr >= 0
-    if not ask.any():
+    askers = _askers(
+        tsr, world.timers.cool_end, 2 * t + 1, world.carrying, world.colour_of, world.known
+    )
+    if not len(askers):
         return
-    ask &= ~world.timers.busy(2 * t + 1)
-    ask &= world.carrying < 0
-    if not ask.any():
-        return
-    colours = world.colour_of[tsr]
-    unknown = ~world.known[np.arange(world.n), colours - 1]
     buffered = world.scenario.mode is Mode.PASSIVE_BUFFER
-    for i in np.flatnonzero(ask & unknown).tolist():
-        colour = int(colours[i])
+    for i in askers.tolist():
+        colour = int(world.colour_of[tsr[i]])
         if buffered and rb.sequence_of(colour) in world.agents[i].buffered:
             continue  # PLB does not ask about what it overheard: it learns it (§9.5)
         agent = world.agents[i]
@@ -100,32 +118,60 @@ def _ask(world: World, t: int) -> None:
         world.timers.start(i, 2 * t + 1)
 
 
+@jit
+def _askers(
+    tsr: np.ndarray,
+    cool_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    colour_of: np.ndarray,
+    known: np.ndarray,
+) -> np.ndarray:
+    """The free robots (not busy before ``call``) that have registered a target, carry
+    nothing and do not know the target's colour."""
+    out = np.empty(tsr.shape[0], np.int64)
+    k = 0
+    for i in range(tsr.shape[0]):
+        free = tsr[i] >= 0 and cool_end[i] < call and carrying[i] < 0
+        if free and not known[i, colour_of[tsr[i]] - 1]:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
 def _close(world: World, call: int) -> None:
     """Step 3: waits that ended by counter call ``call`` clear their flags."""
-    active = world.querying | world.teaching
-    if not active.any():
-        return
-    ended = world.timers.wait_end <= call
-    done = world.querying & ended
-    if done.any():
-        for i in np.flatnonzero(done).tolist():
-            world.agents[i].close_query()
-        world.querying[done] = False
-    world.teaching &= ~ended
+    for i in _ended(world.querying, world.teaching, world.timers.wait_end, call).tolist():
+        world.agents[i].close_query()
+
+
+@jit
+def _ended(
+    querying: np.ndarray, teaching: np.ndarray, wait_end: np.ndarray, call: int
+) -> np.ndarray:
+    """Clear the querying and teaching flags of the waits that ended by ``call``; returns the
+    robots whose query closed."""
+    out = np.empty(querying.shape[0], np.int64)
+    k = 0
+    for i in range(querying.shape[0]):
+        if wait_end[i] <= call:
+            if querying[i]:
+                querying[i] = False
+                out[k] = i
+                k += 1
+            teaching[i] = False
+    return out[:k]
 
 
 def _teach(world: World, t: int) -> None:
     """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
-    can = world.requester >= 0
-    if not can.any():
-        return
-    can &= ~world.timers.busy(2 * t + 2)
-    can &= ~world.querying
-    can &= world.carrying < 0
-    if not can.any():
+    can = _teachers(
+        world.requester, world.timers.cool_end, 2 * t + 2, world.querying, world.carrying
+    )
+    if not len(can):
         return
     memory = world.scenario.memory_size
-    for teacher in np.flatnonzero(can).tolist():
+    for teacher in can.tolist():
         learner = int(world.requester[teacher])
         if not world.querying[learner] or world.taught[learner]:
             continue
@@ -153,6 +199,25 @@ def _teach(world: World, t: int) -> None:
             world.taught[learner] = True
             world.memory_iter[learner] = 0
             world.sync_known(learner)
+
+
+@jit
+def _teachers(
+    requester: np.ndarray,
+    cool_end: np.ndarray,
+    call: int,
+    querying: np.ndarray,
+    carrying: np.ndarray,
+) -> np.ndarray:
+    """The robots with a requester that are free before ``call``, not querying and carry
+    nothing."""
+    out = np.empty(requester.shape[0], np.int64)
+    k = 0
+    for i in range(requester.shape[0]):
+        if requester[i] >= 0 and cool_end[i] < call and not querying[i] and carrying[i] < 0:
+            out[k] = i
+            k += 1
+    return out[:k]
 
 
 def came_into_range(world: World, pairs: np.ndarray) -> None:

@@ -38,6 +38,7 @@ from .sensing import (
     Proximity,
     TargetSensor,
     WallSensor,
+    enable,
     zones,
 )
 from .timers import Timers
@@ -146,6 +147,9 @@ class World:
         self.heard_from: dict[int, set[int]] = {}
         self.answered_at: dict[int, int] = {}
         """Who has overheard each teacher's current answer (§9.4)."""
+        self.collision = np.zeros(n, dtype=bool)
+        """Whether each robot's collision sensor holds a robot or a wall (§4.6), as the
+        sensors last fired (none before the first physics step)."""
         self.proximity = Proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
         )
@@ -173,7 +177,6 @@ class World:
             spec.carry_jitter_deg, spec.avoid_turn_deg,
         )  # fmt: skip
         self._memory_duration = scenario.memory_duration or 0
-        self.collision = np.zeros(n, dtype=bool)
         self.proximity.update(self.pos, 0)
 
         # Agents on a network whose broadcasts reach the comms neighbours; a teacher's answer
@@ -320,7 +323,8 @@ class World:
         self._move()
         if self.kt_bt:
             teaching.step(self, t)
-        self.sensor.enabled = (self.carrying < 0) & ~self.timers.sensing_off(2 * t + 2)
+        timers = self.timers
+        enable(self.sensor.enabled, self.carrying, timers.wait_end, timers.cool_end, 2 * t + 2)
         pymunk.batch.set_space_bodies(self.space, pymunk.batch.BodyFields.VELOCITY, self._in)
         self.space.step(self.dt)
         self._out.clear()  # refills ``self._positions``, of which ``self.pos`` is a view
@@ -365,7 +369,7 @@ class World:
         sensors and the zones (§4.5, §4.6, §5.3)."""
         prox = self.proximity
         prox.update(self.pos, t)
-        self.collision = (prox.count > 0) | (self.wall_sensor.count > 0)
+        np.logical_or(prox.count, self.wall_sensor.count, out=self.collision)
         if self.kt_bt and len(prox.newly):
             teaching.came_into_range(self, prox.newly)
         count_half, place_half, reach = self._zone

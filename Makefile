@@ -45,6 +45,7 @@ RELEASE_RL := RL_0_0_10_10_10_10_N_100_100_100_100_200_-1
 studies: $(VENV)/.installed
 	$(BIN)/ktbt sim run all --out results/studies
 	$(BIN)/ktbt sim run teaching --out results/studies
+	$(BIN)/ktbt sim run modes --out results/studies
 	$(BIN)/ktbt sim run calibration --out results/calibration --release-csv
 	$(BIN)/ktbt sim plot results/studies
 	mkdir -p docs/results

@@ -193,25 +193,36 @@ def _stats(values: npt.ArrayLike) -> tuple[float, float]:
     return float(v.mean()), float(std(v))
 
 
-def summary(results: Results) -> dict[str, Any]:
+def summary(results: Results, at: int | None = None) -> dict[str, Any]:
     """Means and sample standard deviations across trials of what the paper's tables report.
 
     Keys: ``trials``; ``collected_pct``, ``queries``, ``responses``, ``lost``, ``knows_0`` ..
-    ``knows_4`` and ``knowledge_score`` at the last recorded row, each as ``<key>_mean`` and
-    ``<key>_std``; ``t95`` and ``t99`` as ``_mean`` and ``_std`` over the trials that reached
-    the fraction only, with ``_reached`` saying how many did.
+    ``knows_4`` and ``knowledge_score`` at the last recorded row (or the last at or before
+    iteration ``at``), each as ``<key>_mean`` and ``<key>_std``; ``t95``, ``t99`` and ``t100``
+    as ``_mean`` and ``_std`` over the trials that reached the fraction only, with
+    ``_reached`` saying how many did; ``knows_4_end`` (``_mean``, ``_std``): robots knowing
+    all four colours when collection ended, over the trials in which it did.
     """
-    out: dict[str, Any] = {"trials": len(results.trials)}
+    last = -1 if at is None else int(np.searchsorted(results.iterations, at, side="right")) - 1
+    out: dict[str, Any] = {
+        "trials": len(results.trials),
+        "iteration": int(results.iterations[last]),
+    }
     finals: dict[str, npt.ArrayLike] = {
-        "collected_pct": percent_collected(results)[:, -1],
-        **{c: results[c][:, -1] for c in ("queries", "responses", "lost", *LEVEL_COLUMNS)},
-        "knowledge_score": mean_knowledge_score(level_counts(results)[:, -1]),
+        "collected_pct": percent_collected(results)[:, last],
+        **{c: results[c][:, last] for c in ("queries", "responses", "lost", *LEVEL_COLUMNS)},
+        "knowledge_score": mean_knowledge_score(level_counts(results)[:, last]),
     }
     for key, values in finals.items():
         out[f"{key}_mean"], out[f"{key}_std"] = _stats(values)
-    for key, fraction in (("t95", 0.95), ("t99", 0.99)):
+    for key, fraction in (("t95", 0.95), ("t99", 0.99), ("t100", 1.0)):
         t = t_fraction(results["collected"], results.total_targets, results.iterations, fraction)
         reached = t[~np.isnan(t)]
         out[f"{key}_mean"], out[f"{key}_std"] = _stats(reached)
         out[f"{key}_reached"] = int(reached.size)
+    done = results["collected"] >= results.total_targets
+    ended = done.any(axis=1)
+    first = done.argmax(axis=1)
+    knows = results["knows_4"][np.flatnonzero(ended), first[ended]]
+    out["knows_4_end_mean"], out["knows_4_end_std"] = _stats(knows)
     return out

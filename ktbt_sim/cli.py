@@ -165,7 +165,7 @@ def run_command(
     scenarios = _scenarios(target, trials, iterations, seed)
     ran, before, seconds = sweep(scenarios, out, _workers(workers), executor, address)
     if release_csv:
-        from .records import export_release
+        from .results import export_release
 
         for scenario in scenarios:
             try:

@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from ktbt_proto.files import write_atomic
+
 from .results import (
     Results,
     combine,
@@ -170,13 +172,10 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
                     "choose another --out or remove it"
                 )
         else:
-            folder.mkdir(parents=True, exist_ok=True)
-            tmp = spec.with_suffix(".tmp")
-            tmp.write_text(text, encoding="utf-8")
-            tmp.replace(spec)
+            write_atomic(spec, text)
         if original[scenario.name] != scenario.name:
             continue
-        for torn in folder.glob("trial-*.tmp*"):  # left by a run that was killed mid-write
+        for torn in folder.glob(".trial-*.tmp"):  # left by a run that was killed mid-write
             torn.unlink(missing_ok=True)
         done = finished(folder)
         jobs += [Job(scenario, folder, t) for t in range(scenario.trials) if t not in done]

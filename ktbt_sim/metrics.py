@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from .records import set_name
 from .results import Results
 
 Array = npt.NDArray[np.float64]
@@ -42,11 +43,6 @@ KNOWLEDGE_SCORE = 0.25
 LEVEL_COLUMNS = tuple(f"knows_{k}" for k in range(LEVELS))
 SETS = 16
 """Species: the sets of colours a robot knows, bit k-1 for colour k (red 1 .. blue 4)."""
-
-
-def set_name(bits: int) -> str:
-    """``set_RG`` for red and green, ``set_none`` for nothing."""
-    return "set_" + ("".join(c for k, c in enumerate("RGYB") if bits >> k & 1) or "none")
 
 
 SET_COLUMNS = tuple(set_name(b) for b in range(SETS))

@@ -1,4 +1,4 @@
-"""How the release's robots move (``release-behaviour.md`` §4), for every robot at once.
+"""How the release's robots move (``spec/simulator.md`` §4), for every robot at once.
 
 The behaviours choose only a motion mode per robot; every iteration :func:`behave` turns each
 robot's mode into its resultant velocity ``rv`` (each branch one of the release's methods) and

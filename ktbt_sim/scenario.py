@@ -5,7 +5,7 @@ Units: lengths in world units (the release's arena is 8000 by 8000), speeds per 
 iterations of ``dt`` seconds. A scenario keeps the paper's numbers (communication range 100 to
 1000, iterations, targets) and names the physical values they stand for in the release
 (``comm_radius``, ``seconds``). Every default is the release's, with its section of
-``reference/release-behaviour.md``.
+``spec/simulator.md``.
 """
 
 from __future__ import annotations
@@ -322,7 +322,7 @@ def _heterogeneity() -> dict[str, Scenario]:
 
 
 def _calibration() -> dict[str, Scenario]:
-    """The release's two published runs (``reference/release-data``), at their size."""
+    """The release's two published runs (its public `SimData` folders), at their size."""
     rgyb = Robots.of(0, 0, 10, 10, 10, 10)
     return {
         "calibration-nl": Scenario(

@@ -1,4 +1,4 @@
-"""What a robot senses (``release-behaviour.md`` §4.5, §4.6, §5), after every physics step.
+"""What a robot senses (``spec/simulator.md`` §4.5, §4.6, §5), after every physics step.
 
 The release's sensors are trigger callbacks that fire after the physics step. Ours are the same:
 pymunk sensor shapes with begin/separate callbacks for targets and walls (only what changed costs

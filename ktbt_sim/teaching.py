@@ -1,4 +1,4 @@
-"""Knowledge transfer as the release does it (``release-behaviour.md`` §8), over real messages.
+"""Knowledge transfer as the release does it (``spec/simulator.md`` §8), over real messages.
 
 Each iteration, after the behaviour trees and the actuators (§8.5):
 
@@ -37,12 +37,13 @@ from . import robot as rb
 from .kernel import jit
 from .scenario import Mode, Teaching
 from .sensing import first_requesters
+from .state import sync_known
 
 if TYPE_CHECKING:
-    from .world import World
+    from .state import Trial
 
 
-def step(world: World, t: int) -> None:
+def step(world: Trial, t: int) -> None:
     _scan(world)
     _ask(world, t)
     _close(world, 2 * t + 1)
@@ -54,7 +55,7 @@ def step(world: World, t: int) -> None:
             _use_buffer(world, t)
 
 
-def _scan(world: World) -> None:
+def _scan(world: Trial) -> None:
     """Step 1, the comms scan: every teacher's ``requestingRobot``."""
     prox = world.proximity
     scan(
@@ -89,7 +90,7 @@ def scan(
             requester[i] = first[i]
 
 
-def _ask(world: World, t: int) -> None:
+def _ask(world: Trial, t: int) -> None:
     """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
     tsr = world.sensor.tsr
     askers = _askers(
@@ -108,9 +109,8 @@ def _ask(world: World, t: int) -> None:
         # A teacher that still holds this robot as its (stale) requester reads its question in
         # the release wherever it is: send it there too.
         for teacher in np.flatnonzero(world.requester == i).tolist():
-            if not world.proximity_has(i, teacher):
+            if not world.proximity.in_range(i, teacher):
                 agent.announce(world.names[teacher])
-        world.queries += 1
         world.asked[i] = colour
         world.querying[i] = True
         world.taught[i] = False
@@ -139,7 +139,7 @@ def _askers(
     return out[:k]
 
 
-def _close(world: World, call: int) -> None:
+def _close(world: Trial, call: int) -> None:
     """Step 3: waits that ended by counter call ``call`` clear their flags."""
     for i in _ended(world.querying, world.teaching, world.timers.wait_end, call).tolist():
         world.agents[i].close_query()
@@ -163,7 +163,7 @@ def _ended(
     return out[:k]
 
 
-def _teach(world: World, t: int) -> None:
+def _teach(world: Trial, t: int) -> None:
     """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
     can = _teachers(
         world.requester, world.timers.cool_end, 2 * t + 2, world.querying, world.carrying
@@ -187,7 +187,6 @@ def _teach(world: World, t: int) -> None:
             continue  # never heard this question
         if not world.agents[teacher].answer(query):
             continue
-        world.responses += 1
         world.agents[learner].now = t
         world.teaching[teacher] = True
         world.walk_flag[teacher] = False
@@ -195,10 +194,9 @@ def _teach(world: World, t: int) -> None:
         world.heard_from[teacher] = set()
         world.answered_at[teacher] = t
         if world.agents[learner].receive():
-            world.learned += 1
             world.taught[learner] = True
             world.memory_iter[learner] = 0
-            world.sync_known(learner)
+            sync_known(world, learner)
 
 
 @jit
@@ -220,7 +218,7 @@ def _teachers(
     return out[:k]
 
 
-def came_into_range(world: World, pairs: np.ndarray) -> None:
+def came_into_range(world: Trial, pairs: np.ndarray) -> None:
     """Askers still untaught send their query to each robot that just came into range."""
     open_ = world.querying & ~world.taught
     if not open_.any():
@@ -230,7 +228,7 @@ def came_into_range(world: World, pairs: np.ndarray) -> None:
             world.agents[i].announce(world.names[j])
 
 
-def _overhear(world: World, t: int) -> None:
+def _overhear(world: Trial, t: int) -> None:
     """§9.4: every robot that is not querying hears the answer of each teaching neighbour, for
     the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6). With
     ``overhear_window = "answer"`` (our variant, a radio's) only the robots in range at the
@@ -251,14 +249,12 @@ def _overhear(world: World, t: int) -> None:
             agent = world.agents[listener]
             world.agents[teacher].transport.send(world.names[listener], answer)
             agent.now = t
-            before = agent.metrics.learned_passive
             if agent.receive():
-                world.learned_passive += agent.metrics.learned_passive - before
                 world.memory_iter[listener] = 0
-                world.sync_known(listener)
+                sync_known(world, listener)
 
 
-def _use_buffer(world: World, t: int) -> None:
+def _use_buffer(world: Trial, t: int) -> None:
     """§9.5: a robot that has registered a target of a colour it does not know, and carries
     nothing, learns that colour from its buffer at once, without a query or a wait."""
     tsr = world.sensor.tsr
@@ -275,6 +271,5 @@ def _use_buffer(world: World, t: int) -> None:
             continue
         agent.now = t
         if agent.learn_buffered(rb.sequence(colour)):
-            world.learned_buffered += 1
             world.memory_iter[i] = 0
-            world.sync_known(i)
+            sync_known(world, i)

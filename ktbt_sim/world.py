@@ -1,6 +1,6 @@
 """The search-and-rescue world: the authors' release, mechanism by mechanism, on pymunk.
 
-One :class:`World` is one trial. Its iteration follows ``release-behaviour.md`` §8.5: every
+One :class:`World` is one trial. Its iteration follows ``spec/simulator.md`` §8.5: every
 robot's behaviour tree is ticked, the actuators turn the resultant velocities into motion, the
 comms scan chooses each teacher's requester, robots ask, teachers answer, physics advances 0.02 s,
 and the sensors fire. Each mechanism lives in its own module: ``geometry`` (§2), ``motion`` (§4),
@@ -41,6 +41,7 @@ from .sensing import (
     enable,
     zones,
 )
+from .state import forget_learned, total
 from .timers import Timers
 
 RECORD_COLUMNS = records.COLUMNS
@@ -140,8 +141,9 @@ class World:
         """The colour each robot last asked about."""
         self.requester = np.full(n, -1, dtype=np.int64)
         """Each teacher's ``requestingRobot`` (§8.2), -1 for none."""
-        self.queries = self.responses = self.learned = 0
-        self.learned_buffered = self.learned_passive = self.forgotten = 0
+        self.forgotten = 0
+        """Learned colours forgotten at once when EL's memory timer ran out (§9.3); an eviction
+        to make room for a new colour (our variant) is not counted here."""
         self.memory_iter = np.zeros(n, dtype=np.int64)
         """EL's memory timer: random-walk ticks since the last pick-up or lesson (§9.3)."""
         self.heard_from: dict[int, set[int]] = {}
@@ -184,6 +186,7 @@ class World:
         self.network = MemoryNetwork(audience=self._audience)
         self.names = [f"r{i}" for i in range(n)]
         self.registry = rb.registry(self)
+        """The behaviours: they write their effects into this world's arrays (``state``)."""
         self.agents: list[Agent] = []
         overhear = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}.get(scenario.mode, "off")
         for i, kind in enumerate(self.kinds):
@@ -205,7 +208,8 @@ class World:
             agent.blackboard[rb.INDEX] = i
             self.agents.append(agent)
         self._signature = np.full(n, -1, dtype=np.int64)
-        self._keys = [rb.sequence_of(c) for c in range(1, 5)]
+        self.sequence_keys = [rb.sequence_of(c) for c in range(1, 5)]
+        self.picked: list[int] = []
         half_count = geometry.ZONE_OUTER * scale / 2 + geometry.TARGET_SIZE / 2
         self._zone = (half_count, geometry.ZONE_INNER * scale / 2, spec.zone_sensor)
 
@@ -242,68 +246,9 @@ class World:
         self.space.add(body, hull, eyes, bumper)
         self.bodies.append(body)
 
-    def proximity_has(self, i: int, j: int) -> bool:
-        """Whether robot ``j`` is in robot ``i``'s comms range."""
-        return self.proximity.in_range(i, j)
-
     def _audience(self, sender: str) -> list[str]:
         i = int(sender[1:])
         return [self.names[j] for j in self.proximity.neighbours(i).tolist()]
-
-    # -- what the behaviours do (release-behaviour.md §4.3, §4.5) ---------------------------
-
-    def set_mode(self, i: int, mode: int) -> None:
-        self.mode[i] = mode
-
-    def pick(self, i: int, colour: int | None) -> bool:
-        """``PickTreasure``: take the registered target at once, wherever it is in the sensor
-        (no approach); clears the random-walk flag, disables sensing, forgets the requester."""
-        t = int(self.sensor.tsr[i])
-        if self.carrying[i] >= 0 or t < 0 or not self.target_free[t]:
-            return False
-        if colour is not None and int(self.target_colour[t]) != int(colour):
-            return False
-        self.carrying[i] = t
-        self.target_free[t] = False
-        self.space.remove(self._target_shapes[t])
-        self.sensor.picked(t)
-        self.walk_flag[i] = False
-        self.requester[i] = -1
-        self.memory_iter[i] = 0
-        self.mode[i] = motion.IDLE
-        return True
-
-    def forget_learned(self, i: int) -> None:
-        """EL: robot ``i`` forgets everything it learned at once; its tree reverts to what it
-        was built with (§9.3)."""
-        self.forgotten += self.agents[i].forget_learned(reason="idle")
-        self.sync_known(i)
-        self.memory_iter[i] = 0
-
-    def sync_known(self, i: int) -> None:
-        """Robot ``i``'s colours, read back from its agent's knowledge base."""
-        knowledge = self.agents[i].knowledge
-        for c, key in enumerate(self._keys):
-            self.known[i, c] = key in knowledge
-
-    def set_goal(self, i: int, colour: int) -> None:
-        """``AssignCPk``: the zone the carried target goes to."""
-        self.goal[i] = colour
-
-    def place(self, i: int) -> bool:
-        """``PlaceTreasure``: the target already belongs to the zone; the robot starts a wait
-        and a cool-down (after every delivery, in every mode: §7)."""
-        if self.carrying[i] < 0 or not self.in_zone[i]:
-            return False
-        self.carrying[i] = -1
-        self.goal[i] = 0
-        self.in_zone[i] = False
-        self.sensor.tsr[i] = -1
-        self.walk_flag[i] = False
-        self.mode[i] = motion.IDLE
-        self.delivered += 1
-        self.timers.start(i, 2 * self.iteration)
-        return True
 
     # -- one iteration ----------------------------------------------------------------------
 
@@ -347,6 +292,10 @@ class World:
             bb[rb.IN_ZONE] = s >> 3 & 1
             bb[rb.SEEN] = s >> 4 & 7
             agent.control.tick()
+        for t in self.picked:  # taken away: out of the space and of every sensor it was in
+            self.space.remove(self._target_shapes[t])
+            self.sensor.picked(t)
+        self.picked.clear()
         # A pick or a place changed this robot's inputs: it ticks again next iteration.
         self._signature[self.mode == motion.IDLE] = -1
 
@@ -361,7 +310,7 @@ class World:
             *walk.avoid_turn_deg,
         )  # fmt: skip
         for i in spent.tolist():
-            self.forget_learned(i)
+            forget_learned(self, i)
         motion.actuate(self.rv, self.heading, self._vel, *self.actuator)
 
     def _sense(self, t: int) -> None:
@@ -379,6 +328,27 @@ class World:
         )  # fmt: skip
 
     # -- what an experiment reads -----------------------------------------------------------
+
+    @property
+    def queries(self) -> int:
+        return total(self, "queries_sent")
+
+    @property
+    def responses(self) -> int:
+        return total(self, "responses_sent")
+
+    @property
+    def learned(self) -> int:
+        """Colours learned from an answer to the robot's own query."""
+        return total(self, "learned_direct")
+
+    @property
+    def learned_buffered(self) -> int:
+        return total(self, "learned_buffered")
+
+    @property
+    def learned_passive(self) -> int:
+        return total(self, "learned_passive")
 
     def run(self, iterations: int) -> None:
         for _ in range(iterations):

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from ktbt_sim import records
 from ktbt_sim.metrics import (
     entropy,
     heterogeneity,
@@ -192,5 +193,5 @@ def test_colour_sets_as_species_10rgyb_starts_heterogeneous() -> None:
     assert complexity == pytest.approx(math.log(4))
     assert disparity == pytest.approx(0.375)
     assert hetero == pytest.approx(math.log(4) * 0.375)
-    assert metrics.set_name(0) == "set_none" and metrics.set_name(0b1011) == "set_RGB"
+    assert records.set_name(0) == "set_none" and records.set_name(0b1011) == "set_RGB"
     assert metrics.set_distance()[0, 15] == pytest.approx(1.0)  # nothing vs all four colours

@@ -1,4 +1,4 @@
-"""The release's rules, one test each (``reference/release-behaviour.md``, section in each name).
+"""The release's rules, one test each (``spec/simulator.md``, section in each name).
 
 Each test builds the smallest real situation that shows its rule: real pymunk shapes and
 callbacks, real agents exchanging query and response messages, the world's own step.
@@ -482,7 +482,7 @@ def test_s9_3_a_pick_up_resets_els_timer() -> None:
     world = rig(Robots.of(0, 1, 0, 0, 0, 0), [(0.0, 0.0)], mode=Mode.EPHEMERAL, memory_duration=50)
     world.memory_iter[0] = 30
     see(world, 0, 1)
-    assert world.pick(0, 1) and world.memory_iter[0] == 0
+    assert rb.pick(world, 0, 1) and world.memory_iter[0] == 0
 
 
 def learn_two(when_full: str) -> World:

@@ -219,8 +219,7 @@ def plot_command(
 @sim.command("list")
 def list_command() -> None:
     """Studies and presets."""
-    from .experiment import STUDIES
-    from .scenario import PRESETS
+    from .scenario import PRESETS, STUDIES
 
     typer.echo("studies:")
     for name, presets in STUDIES.items():
@@ -310,9 +309,8 @@ def demo_command(
 ) -> None:
     """The paper's main result in about a minute: KT-BT against both no-transfer baselines."""
     _need_sim()
-    from .experiment import STUDIES
     from .plots import plot
-    from .scenario import PRESETS
+    from .scenario import PRESETS, STUDIES
 
     try:
         scenarios = [

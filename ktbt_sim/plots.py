@@ -25,7 +25,8 @@ from matplotlib.patches import Patch
 
 from . import metrics
 from .results import Results, load
-from .scenario import PRESETS
+from .scenario import MODE_GROUPS, MODE_VARIANTS, PRESETS
+from .scenario import STUDIES as SCENARIOS
 
 matplotlib.use("Agg")
 
@@ -36,24 +37,14 @@ GROUP_LABELS = {
     "ktbt": "ktbt: 10RGYB, KT-BT",
 }
 OBSTACLES = tuple(f"{g}-obstacles" for g in GROUPS)
-OPPORTUNITIES = tuple(f"opportunities-{n}" for n in (10, 25, 50, 100))
-RANGES = tuple(f"range-{r}" for r in (100, 200, 500, 800, 1000))
-HETEROGENEITY = ("heterogeneity-39i1m", "heterogeneity-10rgyb")
+OPPORTUNITIES = SCENARIOS["opportunities"]
+RANGES = tuple(n for n in SCENARIOS["range"] if n.startswith("range-"))
+HETEROGENEITY = SCENARIOS["heterogeneity"]
 TEACHING = (
     ("10R-10G-10Y-10B, 25 a colour", "ktbt", "ktbt-broadcast"),
     ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
 )
 """Our finding, not the paper's: each group under the release's rule and the broadcast rule."""
-MODES = ("nl", "rl", "el", "el-evict", "plb", "pl", "pl-answer")
-MODE_LABELS = {
-    "nl": "NL: no transfer",
-    "rl": "RL: KT-BT",
-    "el": "EL: ephemeral (3 colours, 5,000 idle ticks)",
-    "el-evict": "EL, evicting the least used",
-    "plb": "PLB: overheard, buffered",
-    "pl": "PL: overheard, learned at once",
-    "pl-answer": "PL, heard only at the answer",
-}
 COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
 
 STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -62,7 +53,7 @@ STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "range": (("range", "queries_lost"), (*RANGES, "bl1")),
     "heterogeneity": (HETEROGENEITY, HETEROGENEITY),
     "teaching": (("teaching",), tuple(n for _, *names in TEACHING for n in names)),
-    "modes": (("modes",), tuple(f"modes-{g}-{m}" for g in ("10rgyb", "39i1m") for m in MODES)),
+    "modes": (("modes",), SCENARIOS["modes"]),
 }
 """Each study's figures and scenarios: ``plot(study=...)`` draws only those figures and tables
 only those scenarios (the range study compares against bl1, so it keeps that too)."""
@@ -420,10 +411,12 @@ def draw_modes(results: Mapping[str, Results]) -> Figure | None:
     messages it took, and how far knowledge spread."""
     groups = [
         (group, runs)
-        for group in ("10rgyb", "39i1m")
+        for group in MODE_GROUPS
         if (
             runs := [
-                (m, results[f"modes-{group}-{m}"]) for m in MODES if f"modes-{group}-{m}" in results
+                (m, results[f"modes-{group}-{m}"])
+                for m in MODE_VARIANTS
+                if f"modes-{group}-{m}" in results
             ]
         )
     ]
@@ -433,7 +426,7 @@ def draw_modes(results: Mapping[str, Results]) -> Figure | None:
     axes = fig.subplots(len(groups), 3, squeeze=False)
     for row, (group, runs) in zip(axes, groups, strict=True):
         for k, (mode, res) in enumerate(runs):
-            label = f"{MODE_LABELS[mode]} (n={len(res.trials)})"
+            label = f"{MODE_VARIANTS[mode].label} (n={len(res.trials)})"
             colour = f"C{k}"
             _mean_band(row[0], res.iterations, metrics.percent_collected(res), label, colour)
             if "messages" in res.data:

@@ -14,7 +14,7 @@ import json
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -238,16 +238,24 @@ class Scenario(_Model):
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
-        """Read a TOML or JSON scenario file; raises ValueError with a one-line reason."""
+        """A TOML or JSON scenario file (the one loader). A ValueError names every problem in
+        it, on one line, so that one run of the command is enough to fix the file."""
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
             data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise ValueError(f"{path}: {reason}") from None
+        try:
             return cls.model_validate(data)
-        except (OSError, UnicodeDecodeError, ValueError, tomllib.TOMLDecodeError) as exc:
-            if isinstance(exc, ValidationError):
-                raise ValueError(f"{path}: {_one_line(exc)}") from None
-            raise ValueError(f"{path}: {exc}") from None
+        except ValidationError as exc:
+            problems = [
+                f"{'.'.join(str(p) for p in e['loc']) or 'scenario'}: {e['msg']}"
+                for e in exc.errors()
+            ]
+            count = f"{len(problems)} problems: " if len(problems) > 1 else ""
+            raise ValueError(f"{path}: {count}{'; '.join(problems)}") from None
 
     def dump(self) -> str:
         return self.model_dump_json(indent=2)
@@ -354,23 +362,40 @@ def _teaching() -> dict[str, Scenario]:
 
 MODE_GROUPS = {"10rgyb": Robots.of(0, 0, 10, 10, 10, 10), "39i1m": Robots.of(39, 1, 0, 0, 0, 0)}
 """The two groups the modes study compares, 25 targets a colour each."""
-MODE_VARIANTS: dict[str, dict[str, Any]] = {
-    "nl": {"mode": Mode.NO_TRANSFER},
-    "rl": {"mode": Mode.KT_BT},
-    "el": {"mode": Mode.EPHEMERAL, "memory_duration": 5_000, "memory_size": 3},
-    "el-evict": {
-        "mode": Mode.EPHEMERAL,
-        "memory_duration": 5_000,
-        "memory_size": 3,
-        "memory_when_full": "evict",
-    },
-    "plb": {"mode": Mode.PASSIVE_BUFFER},
-    "pl": {"mode": Mode.PASSIVE},
-    "pl-answer": {"mode": Mode.PASSIVE, "overhear_window": "answer"},
+
+
+class Variant(NamedTuple):
+    """One entry of the modes study: what it changes in a scenario, and its label."""
+
+    label: str
+    changes: dict[str, Any]
+
+
+MODE_VARIANTS: dict[str, Variant] = {
+    "nl": Variant("NL: no transfer", {"mode": Mode.NO_TRANSFER}),
+    "rl": Variant("RL: KT-BT", {"mode": Mode.KT_BT}),
+    "el": Variant(
+        "EL: ephemeral (3 colours, 5,000 idle ticks)",
+        {"mode": Mode.EPHEMERAL, "memory_duration": 5_000, "memory_size": 3},
+    ),
+    "el-evict": Variant(
+        "EL, evicting the least used",
+        {
+            "mode": Mode.EPHEMERAL,
+            "memory_duration": 5_000,
+            "memory_size": 3,
+            "memory_when_full": "evict",
+        },
+    ),
+    "plb": Variant("PLB: overheard, buffered", {"mode": Mode.PASSIVE_BUFFER}),
+    "pl": Variant("PL: overheard, learned at once", {"mode": Mode.PASSIVE}),
+    "pl-answer": Variant(
+        "PL, heard only at the answer", {"mode": Mode.PASSIVE, "overhear_window": "answer"}
+    ),
 }
 """The release's five modes (EL with a memory of 3 colours forgotten after 5,000 idle
 random-walk ticks), our eviction variant of EL, and our eavesdropping variant of PL (only the
-robots in range at the moment of an answer hear it)."""
+robots in range at the moment of an answer hear it): the one list of the modes study."""
 
 
 def _modes() -> dict[str, Scenario]:
@@ -380,7 +405,7 @@ def _modes() -> dict[str, Scenario]:
             name=f"modes-{group}-{variant}", robots=robots, **changes
         )
         for group, robots in MODE_GROUPS.items()
-        for variant, changes in MODE_VARIANTS.items()
+        for variant, (_, changes) in MODE_VARIANTS.items()
     }
     out["el-25i-25m"] = Scenario(
         name="el-25i-25m",
@@ -411,6 +436,31 @@ PRESETS: dict[str, Scenario] = {
     **_modes(),
 }
 """Every configuration of the paper's tables, by name."""
+
+
+STUDIES: dict[str, tuple[str, ...]] = {
+    "transfer": ("bl1", "bl2", "ktbt", "bl1-obstacles", "bl2-obstacles", "ktbt-obstacles"),
+    "opportunities": tuple(f"opportunities-{n}" for n in (10, 25, 50, 100)),
+    "range": (*(f"range-{r}" for r in (100, 200, 500, 800, 1000)), "bl1"),
+    "heterogeneity": ("heterogeneity-39i1m", "heterogeneity-10rgyb"),
+    "demo": ("bl1", "bl2", "ktbt"),
+}
+"""The paper's studies by name, each a list of presets (``range`` includes BL1 to compare)."""
+STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name in study))
+STUDIES["calibration"] = ("calibration-nl", "calibration-rl")
+"""The release's two published runs, at their size (100,000 iterations): ``ktbt sim compare``
+holds ours against its data."""
+STUDIES["modes"] = tuple(
+    f"modes-{group}-{variant}" for group in MODE_GROUPS for variant in MODE_VARIANTS
+)
+"""The release's five modes and our eviction variant, on 10RGYB and 39I-1M."""
+STUDIES["teaching"] = (
+    "ktbt",
+    "ktbt-broadcast",
+    "heterogeneity-39i1m",
+    "heterogeneity-39i1m-broadcast",
+)
+"""Our finding, not the paper's: the release's first-requester rule against a broadcast rule."""
 
 
 def preset(name: str) -> Scenario:

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -77,6 +77,10 @@ def scenarios_for(target: str) -> list[Scenario]:
         return [Scenario.load(path)]
     known = ", ".join([*STUDIES, *sorted(PRESETS)])
     raise ValueError(f"{target!r} is neither a study, a preset nor a file; known: {known}")
+
+
+Executor = Literal["local", "ray"]
+"""Where a study's trials run: a pool of local processes, or a Ray cluster (the ray extra)."""
 
 
 @dataclass(frozen=True)
@@ -152,7 +156,7 @@ def run(
     out: Path,
     *,
     workers: int = 1,
-    executor: str = "local",
+    executor: Executor = "local",
     address: str | None = None,
     progress: Progress | None = None,
 ) -> dict[str, Results]:
@@ -161,10 +165,8 @@ def run(
     if jobs:
         if executor == "ray":
             _run_ray(jobs, workers, address, progress)
-        elif executor == "local":
-            _run_local(jobs, workers, progress)
         else:
-            raise ValueError(f"unknown executor {executor!r}: local or ray")
+            _run_local(jobs, workers, progress)
     original = twins(scenarios)
     results = {}
     for scenario in scenarios:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ktbt_proto.files import write_atomic
 
-from .scenario import COLOURS, Mode, Robots, Scenario, Targets, Teaching
+from .scenario import COLOURS, Mode, Robots, Scenario, Targets, TeachingRule
 from .state import total
 
 if TYPE_CHECKING:
@@ -80,10 +80,10 @@ def row(world: Trial) -> dict[str, int]:
         out[f"collected_{name}"] = int(world.collected[c])
     out["collected"] = int(world.collected.sum())
     out["querying"] = int(world.querying.sum())
-    out["teaching"] = int(world.teaching.sum())
+    out["teaching"] = int(world.answering.sum())
     out["walking"] = int(world.walk_flag.sum())
     out["carrying"] = int((world.carrying >= 0).sum())
-    out["avoiding"] = int((world.mode == AVOID).sum())
+    out["avoiding"] = int((world.drive == AVOID).sum())
     out["waiting"] = int(waiting.sum())
     out["cooling"] = int((world.timers.busy(call) & ~waiting).sum())
     queries, responses = total(world, "queries_sent"), total(world, "responses_sent")
@@ -271,7 +271,7 @@ def release_name(scenario: Scenario) -> str:
     A ValueError for our own variants, which the release has no name for: a folder named as
     the release's mode would pass our variant's data off as the release's."""
     variants = []
-    if scenario.teaching is not Teaching.RELEASE:
+    if scenario.teaching is not TeachingRule.RELEASE:
         variants.append(f"teaching {scenario.teaching.value}")
     if scenario.memory_when_full != "refuse":
         variants.append(f"memory_when_full {scenario.memory_when_full}")

@@ -82,7 +82,7 @@ def registry(trial: Trial) -> kp.Registry:
     """The behaviours of ``trial``'s robots; the robot is found through ``bb["index"]``. Each
     action writes its effect into the trial's arrays."""
     reg = kp.Registry()
-    mode = trial.mode
+    drive = trial.drive
 
     @reg.condition("_collisionDetectedF")
     def collision(bb: kp.Blackboard) -> bool:
@@ -106,7 +106,7 @@ def registry(trial: Trial) -> kp.Registry:
 
     def moving(name: str, value: int) -> None:
         def act(bb: kp.Blackboard) -> kp.Status:
-            mode[bb[INDEX]] = value
+            drive[bb[INDEX]] = value
             return kp.SUCCESS
 
         reg.add_action(name, act)
@@ -147,7 +147,7 @@ def pick(trial: Trial, i: int, colour: int | None) -> bool:
     trial.walk_flag[i] = False
     trial.requester[i] = -1
     trial.memory_iter[i] = 0
-    trial.mode[i] = IDLE
+    trial.drive[i] = IDLE
     return True
 
 
@@ -161,7 +161,7 @@ def place(trial: Trial, i: int) -> bool:
     trial.in_zone[i] = False
     trial.sensor.tsr[i] = -1
     trial.walk_flag[i] = False
-    trial.mode[i] = IDLE
+    trial.drive[i] = IDLE
     trial.delivered += 1
     trial.timers.start(i, 2 * trial.iteration)
     return True

@@ -38,7 +38,7 @@ class Mode(StrEnum):
     """The release's PL: RL that also learns every answer it overhears at once (§9.4, §9.6)."""
 
 
-class Teaching(StrEnum):
+class TeachingRule(StrEnum):
     """Who answers a query (§8.2)."""
 
     RELEASE = "release"
@@ -165,7 +165,7 @@ class Scenario(_Model):
         description="the paper's and the launcher's range (100 to 1000); the radius in units is"
         " comm_radius (§5.3)",
     )
-    teaching: Teaching = Field(default=Teaching.RELEASE, description="who answers (§8.2)")
+    teaching: TeachingRule = Field(default=TeachingRule.RELEASE, description="who answers (§8.2)")
     memory_duration: int | None = Field(
         default=None,
         ge=1,
@@ -349,12 +349,12 @@ def _calibration() -> dict[str, Scenario]:
 def _teaching() -> dict[str, Scenario]:
     """Our finding, not the paper's: the broadcast teaching rule beside the release's."""
     return {
-        "ktbt-broadcast": Scenario(name="ktbt-broadcast", teaching=Teaching.BROADCAST),
+        "ktbt-broadcast": Scenario(name="ktbt-broadcast", teaching=TeachingRule.BROADCAST),
         "heterogeneity-39i1m-broadcast": Scenario(
             name="heterogeneity-39i1m-broadcast",
             robots=Robots.of(39, 1, 0, 0, 0, 0),
             targets=Targets.each(100),
-            teaching=Teaching.BROADCAST,
+            teaching=TeachingRule.BROADCAST,
             iterations=LONG_RUN,
         ),
     }

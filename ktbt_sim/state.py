@@ -31,8 +31,9 @@ class Trial(Protocol):
     iteration: int
     pos: np.ndarray
     """(n, 2) positions, as pymunk last wrote them."""
-    mode: np.ndarray
-    """The motion mode each robot's tree last chose (``motion.STOP`` … ``motion.IDLE``)."""
+    drive: np.ndarray
+    """The motion each robot's tree last chose (``motion.STOP`` … ``motion.IDLE``); the
+    scenario's ``mode`` is the release's mode of learning, a different thing."""
     walk_flag: np.ndarray
     carrying: np.ndarray
     """The target each robot carries, -1 for none."""
@@ -54,7 +55,8 @@ class Trial(Protocol):
     """Targets taken this iteration, for the world to remove from the physics space."""
     timers: Timers
     querying: np.ndarray
-    teaching: np.ndarray
+    answering: np.ndarray
+    """Robots in a teaching wait (the release's teaching flag)."""
     taught: np.ndarray
     asked: np.ndarray
     """The colour each robot last asked about."""

@@ -13,7 +13,7 @@ Each iteration, after the behaviour trees and the actuators (§8.5):
    (``Agent.announce``), as if it had heard it all along.
 3. **Waits that ended** close their queries (``Agent.close_query``: a query never answered is
    lost) and clear the querying and teaching flags (§7).
-4. **Teaching** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
+4. **TeachingRule** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
    requester answers it (``Agent.answer``) if it knows what the requester asked, the requester
    is still untaught and knows fewer colours than the memory size. It answers nobody else, even
    a later neighbour it could answer. A requester a teacher still holds after it moved out of
@@ -35,7 +35,7 @@ import numpy as np
 
 from . import robot as rb
 from .kernel import jit
-from .scenario import Mode, Teaching
+from .scenario import Mode, TeachingRule
 from .sensing import first_requesters
 from .state import sync_known
 
@@ -60,7 +60,7 @@ def _scan(world: Trial) -> None:
     prox = world.proximity
     scan(
         prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
-        prox.entered, world.known, world.asked, world.scenario.teaching is Teaching.BROADCAST,
+        prox.entered, world.known, world.asked, world.scenario.teaching is TeachingRule.BROADCAST,
     )  # fmt: skip
 
 
@@ -141,7 +141,7 @@ def _askers(
 
 def _close(world: Trial, call: int) -> None:
     """Step 3: waits that ended by counter call ``call`` clear their flags."""
-    for i in _ended(world.querying, world.teaching, world.timers.wait_end, call).tolist():
+    for i in _ended(world.querying, world.answering, world.timers.wait_end, call).tolist():
         world.agents[i].close_query()
 
 
@@ -188,7 +188,7 @@ def _teach(world: Trial, t: int) -> None:
         if not world.agents[teacher].answer(query):
             continue
         world.agents[learner].now = t
-        world.teaching[teacher] = True
+        world.answering[teacher] = True
         world.walk_flag[teacher] = False
         world.timers.start(teacher, 2 * t + 2)
         world.heard_from[teacher] = set()
@@ -233,7 +233,7 @@ def _overhear(world: Trial, t: int) -> None:
     the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6). With
     ``overhear_window = "answer"`` (our variant, a radio's) only the robots in range at the
     moment of the answer hear it."""
-    teachers = np.flatnonzero(world.teaching)
+    teachers = np.flatnonzero(world.answering)
     if not len(teachers):
         return
     moment = world.scenario.overhear_window == "answer"

@@ -119,7 +119,7 @@ class World:
         self.heading = np.full(n, math.pi / 2)  # spawned facing Unity's +z (§3)
         self.rv = np.zeros((n, 2))
         """The resultant velocity each robot's behaviours last wrote (§4.1)."""
-        self.mode = np.full(n, motion.IDLE, dtype=np.int64)
+        self.drive = np.full(n, motion.IDLE, dtype=np.int64)
         self.walk_flag = np.ones(n, dtype=bool)  # on at start (§3)
         """The release's random-walk flag (its CSV's ``Cur. RandomWalk States``, §10)."""
         self.walk_time = np.zeros(n)
@@ -135,7 +135,7 @@ class World:
         self.delivered = 0
         self.timers = Timers(n, timing.wait_limit, timing.cooldown_limit)
         self.querying = np.zeros(n, dtype=bool)
-        self.teaching = np.zeros(n, dtype=bool)
+        self.answering = np.zeros(n, dtype=bool)
         self.taught = np.zeros(n, dtype=bool)
         self.asked = np.zeros(n, dtype=np.int64)
         """The colour each robot last asked about."""
@@ -297,13 +297,13 @@ class World:
             self.sensor.picked(t)
         self.picked.clear()
         # A pick or a place changed this robot's inputs: it ticks again next iteration.
-        self._signature[self.mode == motion.IDLE] = -1
+        self._signature[self.drive == motion.IDLE] = -1
 
     def _move(self) -> None:
         """Every behaviour writes its robot's resultant velocity, then the actuators act."""
         prox, walls, walk = self.proximity, self.wall_sensor, self.walk
         spent = motion.behave(
-            self.mode, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
+            self.drive, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
             self.memory_iter, self._memory_duration, self.goal, self.zone_centres,
             prox.start, prox.others, prox.weights, walls.count, walls.centres, self.rng,
             walk.dt, walk.goal_span, walk.leg_min_s, walk.leg_max_s, *walk.carry_jitter_deg,
@@ -338,7 +338,7 @@ class World:
         return total(self, "responses_sent")
 
     @property
-    def learned(self) -> int:
+    def learned_direct(self) -> int:
         """Colours learned from an answer to the robot's own query."""
         return total(self, "learned_direct")
 

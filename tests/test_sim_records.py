@@ -142,12 +142,12 @@ def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Pa
 def test_every_preset_is_named_as_the_release_names_it_and_reads_back() -> None:
     """Each of the release's modes keeps its own name and memory duration through the folder
     name; our variants, which the release has not, get no release name at all."""
-    from ktbt_sim.scenario import PRESETS, Teaching
+    from ktbt_sim.scenario import PRESETS, TeachingRule
 
     named = set()
     for scenario in PRESETS.values():
         variant = (
-            scenario.teaching is not Teaching.RELEASE
+            scenario.teaching is not TeachingRule.RELEASE
             or scenario.memory_when_full != "refuse"
             or scenario.overhear_window != "wait"
         )

@@ -13,7 +13,7 @@ import pymunk
 
 from ktbt_sim import motion, sensing, teaching
 from ktbt_sim import robot as rb
-from ktbt_sim.scenario import Mode, Robots, Scenario, Targets, Teaching
+from ktbt_sim.scenario import Mode, Robots, Scenario, Targets, TeachingRule
 from ktbt_sim.timers import Timers
 from ktbt_sim.world import World
 
@@ -277,7 +277,7 @@ def test_s8_2_the_broadcast_rule_answers_the_first_question_it_can() -> None:
     world = rig(
         Robots.of(2, 0, 1, 0, 0, 0),
         [(0.0, 0.0), (100.0, 300.0), (0.0, 300.0)],
-        teaching=Teaching.BROADCAST,
+        teaching=TeachingRule.BROADCAST,
     )
     enter_in_order(world, [0, 1], at=2)
     see(world, 0, 2)
@@ -335,7 +335,7 @@ def test_s8_3_a_taught_learner_keeps_waiting_and_its_teacher_waits_too() -> None
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.taught[0] and world.teaching[1]
+    assert world.taught[0] and world.answering[1]
     assert world.timers.waiting(2 * 400)[0] and world.timers.waiting(2 * 400)[1]
     assert world.timers.wait_end[0] == 2 * 1 + 1 + 1001  # not shortened by the answer
 
@@ -428,7 +428,7 @@ def test_s4_2_the_walk_timer_runs_only_on_random_walk_ticks() -> None:
             if world.iteration == wait_at:
                 world.timers.start(0, 2 * (world.iteration + 1))  # as a delivery would
             world.step()
-            if not np.array_equal(world.rv, previous) and world.mode[0] == motion.WALK:
+            if not np.array_equal(world.rv, previous) and world.drive[0] == motion.WALK:
                 out.append(world.iteration)
             previous = world.rv.copy()
         return out
@@ -464,11 +464,11 @@ def test_s9_3_el_forgets_everything_learned_after_its_random_walk_ticks() -> Non
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.known[0, 0] and world.memory_iter[0] == 0
-    world.mode[0] = motion.STOP  # waiting: the timer does not run
+    world.drive[0] = motion.STOP  # waiting: the timer does not run
     for _ in range(100):
         world._move()
     assert world.memory_iter[0] == 0 and world.known[0, 0]
-    world.mode[0] = motion.WALK
+    world.drive[0] = motion.WALK
     for _ in range(49):
         world._move()
     assert world.known[0, 0] and world.memory_iter[0] == 49
@@ -520,7 +520,7 @@ def overhear_rig(mode: Mode) -> World:
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.teaching.tolist() == [False, False, False, True]
+    assert world.answering.tolist() == [False, False, False, True]
     return world
 
 
@@ -535,7 +535,7 @@ def test_s9_4_a_teacher_is_overheard_by_robots_not_asking_for_its_whole_teaching
     assert world.agents[2].buffered == [key]
     for t in range(301, 700):  # the teaching wait ends
         teaching.step(world, t)
-    assert not world.teaching.any()
+    assert not world.answering.any()
 
 
 def test_s9_4_a_robot_asking_does_not_overhear() -> None:
@@ -548,7 +548,7 @@ def test_s9_4_a_robot_asking_does_not_overhear() -> None:
     see(world, 1, 2)  # robot 1 asks about green at the same time
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.teaching[2] and world.querying[1]
+    assert world.answering[2] and world.querying[1]
     assert world.agents[1].buffered == []  # it was asking while robot 2 taught
 
 

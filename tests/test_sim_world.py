@@ -92,7 +92,7 @@ def test_robots_learn_by_real_messages() -> None:
         for _when, teacher in agent.metrics.learned.values():
             assert teacher in world.names and teacher != world.names[i]
             learned += 1
-    assert learned == world.learned == world.responses > 0
+    assert learned == world.learned_direct == world.responses > 0
     sent = sum(a.metrics.queries_sent for a in world.agents)
     assert sent == world.queries
 

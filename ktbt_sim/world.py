@@ -41,7 +41,7 @@ from .sensing import (
     enable,
     zones,
 )
-from .state import forget_learned, total
+from .state import forget_learned
 from .timers import Timers
 
 RECORD_COLUMNS = records.COLUMNS
@@ -328,27 +328,6 @@ class World:
         )  # fmt: skip
 
     # -- what an experiment reads -----------------------------------------------------------
-
-    @property
-    def queries(self) -> int:
-        return total(self, "queries_sent")
-
-    @property
-    def responses(self) -> int:
-        return total(self, "responses_sent")
-
-    @property
-    def learned_direct(self) -> int:
-        """Colours learned from an answer to the robot's own query."""
-        return total(self, "learned_direct")
-
-    @property
-    def learned_buffered(self) -> int:
-        return total(self, "learned_buffered")
-
-    @property
-    def learned_passive(self) -> int:
-        return total(self, "learned_passive")
 
     def run(self, iterations: int) -> None:
         for _ in range(iterations):

@@ -14,6 +14,7 @@ import pymunk
 from ktbt_sim import motion, sensing, teaching
 from ktbt_sim import robot as rb
 from ktbt_sim.scenario import Mode, Robots, Scenario, Targets, TeachingRule
+from ktbt_sim.state import total
 from ktbt_sim.timers import Timers
 from ktbt_sim.world import World
 
@@ -270,7 +271,7 @@ def test_s8_2_a_teacher_answers_only_its_first_requester() -> None:
     for t in range(2, 400):
         teaching.step(world, t)
     assert world.requester[2] == 0
-    assert world.responses == 0 and not world.taught.any()
+    assert total(world, "responses_sent") == 0 and not world.taught.any()
 
 
 def test_s8_2_the_broadcast_rule_answers_the_first_question_it_can() -> None:
@@ -285,7 +286,7 @@ def test_s8_2_the_broadcast_rule_answers_the_first_question_it_can() -> None:
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.requester[2] == 1
-    assert world.responses == 1 and world.taught.tolist() == [False, True, False]
+    assert total(world, "responses_sent") == 1 and world.taught.tolist() == [False, True, False]
     assert world.known[1, 0] and rb.sequence_of(1) in world.agents[1].knowledge
 
 
@@ -294,7 +295,7 @@ def test_s8_2_one_teacher_per_query() -> None:
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.responses == 1
+    assert total(world, "responses_sent") == 1
     assert sum(a.metrics.responses_sent for a in world.agents) == 1
     assert world.agents[0].metrics.responses_received == 1
 
@@ -307,12 +308,12 @@ def test_s8_2_a_query_stays_answerable_for_the_whole_wait() -> None:
     teaching.step(world, 1)
     for t in range(2, 400):
         teaching.step(world, t)
-    assert world.responses == 0
+    assert total(world, "responses_sent") == 0
     place(world, 1, 300.0, 0.0)
     world.proximity.update(world.pos, 400)
     teaching.came_into_range(world, world.proximity.newly)
     teaching.step(world, 401)
-    assert world.responses == 1 and world.known[0, 0]
+    assert total(world, "responses_sent") == 1 and world.known[0, 0]
 
 
 def test_s8_2_a_query_is_not_answerable_after_the_wait() -> None:
@@ -327,7 +328,7 @@ def test_s8_2_a_query_is_not_answerable_after_the_wait() -> None:
     world.proximity.update(world.pos, 503)
     teaching.came_into_range(world, world.proximity.newly)
     teaching.step(world, 504)
-    assert world.responses == 0 and not world.known[0, 0]
+    assert total(world, "responses_sent") == 0 and not world.known[0, 0]
 
 
 def test_s8_3_a_taught_learner_keeps_waiting_and_its_teacher_waits_too() -> None:
@@ -350,7 +351,7 @@ def test_s8_2_the_first_requester_is_by_order_of_entry_not_by_index() -> None:
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.requester[2] == 1
-    assert world.responses == 1 and world.taught.tolist() == [False, True, False]
+    assert total(world, "responses_sent") == 1 and world.taught.tolist() == [False, True, False]
 
 
 def test_s8_2_a_taught_querier_no_longer_holds_the_teachers_attention() -> None:
@@ -372,7 +373,7 @@ def test_s8_2_a_stale_requester_is_answered_out_of_range() -> None:
     see(world, 0, 2)  # green: T (red only) cannot answer, but L is its requester
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.requester[1] == 0 and world.responses == 0
+    assert world.requester[1] == 0 and total(world, "responses_sent") == 0
     world.sensor.tsr[0] = -1  # L loses sight of the green target
     place(world, 0, 3000.0, 3000.0)
     world.proximity.update(world.pos, 3)
@@ -381,7 +382,7 @@ def test_s8_2_a_stale_requester_is_answered_out_of_range() -> None:
     assert world.requester[1] == 0 and not world.proximity.has_neighbours[1]
     see(world, 0, 1)  # now red, from out of range
     teaching.step(world, 1200)
-    assert world.responses == 1 and world.known[0, 0]
+    assert total(world, "responses_sent") == 1 and world.known[0, 0]
 
 
 def test_s4_5_the_worlds_zone_counts_at_510_and_places_at_490() -> None:
@@ -554,17 +555,17 @@ def test_s9_4_a_robot_asking_does_not_overhear() -> None:
 
 def test_s9_5_plb_uses_a_buffered_answer_without_a_query_or_a_wait() -> None:
     world = overhear_rig(Mode.PASSIVE_BUFFER)
-    queries = world.queries
+    queries = total(world, "queries_sent")
     see(world, 1, 1)  # the listener now registers a red target
     teaching.step(world, 3)
-    assert world.known[1, 0] and world.learned_buffered == 1
-    assert world.queries == queries and not world.querying[1]
+    assert world.known[1, 0] and total(world, "learned_buffered") == 1
+    assert total(world, "queries_sent") == queries and not world.querying[1]
     assert world.agents[1].buffered == []
 
 
 def test_s9_6_pl_learns_what_it_overhears_at_once() -> None:
     world = overhear_rig(Mode.PASSIVE)
-    assert world.known[1, 0] and world.learned_passive == 1
+    assert world.known[1, 0] and total(world, "learned_passive") == 1
     assert world.agents[1].metrics.learned_passive == 1
     assert world.agents[1].metrics.queries_sent == 0
 

@@ -22,7 +22,12 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from py_trees import behaviour, common, composites, decorators, trees
+try:
+    from py_trees import behaviour, common, composites, decorators, trees
+except ImportError as exc:  # pragma: no cover - exercised only without the extra
+    raise ImportError(
+        "ktbt_proto.interop.pytrees_control needs py_trees: pip install 'ktbt[py-trees]'"
+    ) from exc
 
 from ..blackboard import Blackboard
 from ..control import ControlFactory, TickClock
@@ -180,8 +185,18 @@ class PyTreesControl:
             return Tree(_view(self.bt.root, adds, drops))
 
     def tick(self) -> Status:
-        self.bt.tick()
-        return from_py_trees_status(self.bt.root.status)
+        bt = self.bt
+        if bt.visitors:
+            bt.tick()
+        else:  # ``BehaviourTree.tick`` without visitors: the same calls, minus a walk of the tree
+            for handler in bt.pre_tick_handlers:
+                handler(bt)
+            for _ in bt.root.tick():
+                pass
+            for handler in bt.post_tick_handlers:
+                handler(bt)
+            bt.count += 1
+        return from_py_trees_status(bt.root.status)
 
     def halt(self) -> None:
         root = self.bt.root
@@ -238,7 +253,7 @@ class PyTreesControl:
             count = 0
             for node, depth in _iterate(made):
                 count += 1
-                nested = _placeholder(node)
+                nested = _placeholder(node) if inner else None
                 if nested is not None:
                     self._add_slot(nested, node, target.depth + depth)
             target.items[key] = made
@@ -292,15 +307,20 @@ class PyTreesControl:
         with self._lock:
             adds, self._adds = self._adds, []
             drops, self._drops = self._drops, []
-            later = []
+            later, changed = [], bool(adds)
+            # What ``insert_subtree`` and ``prune_subtree`` do, without their search of the
+            # whole tree for a parent this backend already holds.
             for slot, made in adds:
-                tree.insert_subtree(made, slot.selector.id, len(slot.selector.children))
+                slot.selector.add_child(made)
             for slot, made in drops:
                 if made.status == _RUNNING:  # never cut short by forgetting
                     later.append((slot, made))
                 elif made.parent is slot.selector:
-                    tree.prune_subtree(made.id)
+                    slot.selector.remove_child(made)
+                    changed = True
             self._drops = later
+        if changed and tree.tree_update_handler is not None:
+            tree.tree_update_handler()
 
 
 def py_trees_control(

@@ -300,6 +300,23 @@ def test_forget_waits_while_the_item_runs() -> None:
     assert all("<k>(new)<e>" in kp.format(t.control.tree, "compact") for t in pair)
 
 
+def test_whoever_ticks_the_tree_gets_the_merge_at_the_next_tick() -> None:
+    _, pyt = twins()
+    control = pyt.control
+    assert isinstance(control, PyTreesControl)
+    updates: list[int] = []
+    control.bt.tree_update_handler = lambda: updates.append(control.ticks)
+    pyt.bb.update(target=2, outcomes={})
+    control.merge(LEARNED, "new", when=SEEN_2)
+    control.bt.tick()  # the user's own loop (tick_tock, a ROS timer), not the agent
+    assert pyt.bb["log"] == ["PickTreasure", "AssignCollectionPoint 2"]
+    assert control.bt.root.status == Pt.SUCCESS and updates == [1]
+    assert control.last_used("new", SEEN_2) == 1
+    control.forget("new", SEEN_2)
+    control.bt.tick()
+    assert updates == [1, 2] and pyt.bb["log"][-1] == "RandomWalk"
+
+
 def test_merged_then_forgotten_before_a_tick_is_never_inserted() -> None:
     _, pyt = twins()
     control = pyt.control

@@ -236,7 +236,8 @@ class PyTreesControl:
             if depth_left < 1 or nodes_left < 1:
                 code = ErrorCode.TOO_DEEP if depth_left < 1 else ErrorCode.TOO_MANY_NODES
                 raise LimitError(code, "the tree has no room for more knowledge there")
-            validate(item, self.registry, limits=replace(self.limits, max_depth=depth_left))
+            room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
+            validate(item, self.registry, limits=room)
             inner = [n.name for n, _ in walk(item) if isinstance(n, Placeholder)]
             for name in inner:
                 if name in self._slots:

@@ -317,6 +317,19 @@ def test_whoever_ticks_the_tree_gets_the_merge_at_the_next_tick() -> None:
     assert updates == [1, 2] and pyt.bb["log"][-1] == "RandomWalk"
 
 
+def test_the_trees_visitors_see_the_learned_item() -> None:
+    pair = twins()
+    control = pair[1].control
+    assert isinstance(control, PyTreesControl)
+    snapshot = py_trees.visitors.SnapshotVisitor()
+    control.bt.add_visitor(snapshot)
+    for twin in pair:
+        twin.control.merge(LEARNED, "new", when=SEEN_2)
+    assert both(pair, target=2) == (kp.SUCCESS, ["PickTreasure", "AssignCollectionPoint 2"])
+    item = control.bt.root.children[4].children[0]
+    assert snapshot.visited[item.id] == Pt.SUCCESS  # what a monitor (py_trees_ros) shows
+
+
 def test_merged_then_forgotten_before_a_tick_is_never_inserted() -> None:
     _, pyt = twins()
     control = pyt.control

@@ -186,7 +186,7 @@ class PyTreesControl:
 
     def tick(self) -> Status:
         bt = self.bt
-        if bt.visitors:
+        if bt.visitors or type(bt).tick is not trees.BehaviourTree.tick:
             bt.tick()
         else:  # ``BehaviourTree.tick`` without visitors: the same calls, minus a walk of the tree
             for handler in bt.pre_tick_handlers:

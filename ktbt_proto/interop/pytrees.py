@@ -60,7 +60,8 @@ Clock = Callable[[], float]
 Behaviours = Mapping[str, Callable[..., behaviour.Behaviour]]
 """The user's own py_trees behaviour per leaf name, made with the leaf's arguments as keywords
 (a negated condition is its factory's behaviour under an ``Inverter``); leaves not named here
-call the registry's bound callables."""
+call the registry's bound callables. Keyed by name only: a name the registry has both as a
+condition and as an action gets one factory for both."""
 ORIGIN = "ktbt_node"
 """The attribute on every behaviour built here that holds the stringBT node it was built from."""
 

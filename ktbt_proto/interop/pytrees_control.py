@@ -107,8 +107,8 @@ class PyTreesControl:
     ``registry`` is what received knowledge is checked against and what its leaves call unless
     ``behaviours`` names the leaf (then the leaf is the user's own behaviour); ``ticks`` is the
     clock ``last_used`` reads (by default this tree's own count of ticks). Items the user put in
-    a placeholder with :func:`~ktbt_proto.interop.to_py_trees` are known and can be taught and
-    forgotten; their use is tracked from the next merge on only if merged here.
+    a placeholder with :func:`~ktbt_proto.interop.to_py_trees` are known, taught and may be
+    forgotten; only merged items are stamped when used (the others report -1).
     """
 
     def __init__(

@@ -465,3 +465,31 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
         "<c>(TargetSeen,colour=1)": "l",
     }
     assert learner.forget(SEEN_2) and not learner.control.knows("new", SEEN_2)
+
+
+def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
+    net = MemoryNetwork()
+    reg = sar_registry()
+    text = (EXAMPLES / "sar_control.sbt").read_text()
+    teacher = Agent(
+        "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
+        reg, net.join("t"), wait_ticks=20, cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+    )  # fmt: skip
+    bb = kp.Blackboard(log=[])
+
+    def no_gripper() -> py_trees.behaviour.Behaviour:
+        raise RuntimeError("no gripper on this robot")
+
+    bt = py_trees_sar(bb, reg)
+    before = kp.format(PyTreesControl(py_trees_sar(bb, reg), reg, bb).tree)
+    learner = Agent(
+        "l", py_trees_control(bt, behaviours={"PickTreasure": no_gripper}), reg, net.join("l"),
+        wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+    )  # fmt: skip
+    learner.encounter(SEEN_2)
+    for _ in range(10):
+        teacher.tick()
+        learner.tick()
+    assert not learner.knows(SEEN_2) and learner.metrics.refused == 1
+    assert "a behaviour failed to build" in learner.metrics.refusals[0][1]
+    assert kp.format(learner.control.tree) == before and bt.root.children[4].children == []

@@ -222,12 +222,14 @@ def both(pair: tuple[Twin, Twin], **inputs: Any) -> tuple[kp.Status, list[str]]:
 
 
 def test_the_py_trees_tree_reads_as_its_stringbt_twin() -> None:
-    _, pyt = twins()
+    live, pyt = twins()
     assert isinstance(pyt.control, PyTreesControl)
     kb = KnowledgeBase.from_tree(pyt.control.tree)
     assert kb.keys() == ["<c>(TargetSeen,colour=1)"]  # the prior built from stringBT
     assert pyt.control.knows("prior", ["TargetSeen(colour=1)"])
     assert not pyt.control.knows("new", SEEN_2) and not pyt.control.knows("nowhere", SEEN_2)
+    assert not live.control.knows("nowhere", SEEN_2)
+    assert not kp.LiveTree("<a>(RandomWalk)", sar_registry()).knows("new", SEEN_2)
     text = kp.format(pyt.control.tree, "compact")
     assert "<k>(new)<e>" in text and "<k>(common)<sq><a>(_treasureOnBoardF)" in text
 

@@ -282,16 +282,17 @@ def _attrs(attrs: list[tuple[str, str]]) -> str:
     return "".join(f' {k}="{v.translate(_ATTR_ESCAPES)}"' for k, v in attrs)
 
 
-def to_xml(tree: Tree | Node) -> str:
-    """The tree as a BT.CPP v4 document (indented, ending with a newline).
+def to_xml(tree: Tree | Node, *, tree_id: str = MAIN_TREE) -> str:
+    """The tree as a BT.CPP v4 document (indented, ending with a newline), as the
+    ``<BehaviorTree>`` ``tree_id`` (a learned item's file names its own, see ``sidecar``).
 
     Raises a :class:`StringBTError` for an invalid tree or for names BT.CPP cannot load.
     """
     validate(tree)
     exporter = _Exporter()
-    body = _Out("BehaviorTree", [("ID", MAIN_TREE)], [as_node(tree)])
+    body = _Out("BehaviorTree", [("ID", tree_id)], [as_node(tree)])
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{MAIN_TREE}">')
+    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{tree_id}">')
     # Convert the tree first, so the model below knows every node it used.
     _write(body, 1, exporter, lines)
     _write(_Out("TreeNodesModel", [], [*exporter.model()]), 1, exporter, lines)

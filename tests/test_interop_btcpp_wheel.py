@@ -14,7 +14,7 @@ import ktbt_proto as kp
 from ktbt_proto.interop import from_xml, to_xml
 
 from .btcpp.cases import ACTIONS, CONDITIONS, SAR_SCRIPTS, example, outcomes, trees
-from .btcpp.trace import live_trace, script_for, wheel_trace
+from .btcpp.trace import compact, live_trace, script_for, wheel_trace
 
 pytest.importorskip("behaviortreepy", reason="pip install 'ktbt[btcpp]'")
 
@@ -79,20 +79,12 @@ PARALLEL_CASES = {
 }
 
 
-def ticks_of(trace: list[str]) -> str:
-    """A trace of three ticks, compact: ticks apart by "; ", lines by ", "."""
-    text = ", ".join(line for line in trace if line != "halt tree")
-    for k in (1, 2, 3):
-        text = text.replace(f"tick {k}, ", "; " if k > 1 else "").replace(", ; ", "; ")
-    return text
-
-
 @pytest.mark.parametrize("case", sorted(PARALLEL_CASES))
 def test_parallel_differs_as_the_spec_says(case: str) -> None:
     text, script, in_stringbt, in_btcpp = PARALLEL_CASES[case]
     live, engine = both(kp.parse(text), script, ticks=3)
-    assert ticks_of(live) == in_stringbt
-    assert ticks_of(engine) == in_btcpp
+    assert compact(live) == in_stringbt
+    assert compact(engine) == in_btcpp
 
 
 # The other way: trees written for BT.CPP with its built-in nodes, imported and ticked alike.

@@ -87,6 +87,17 @@ def _shown(value: Value, kind: str) -> str:
     return json.dumps(encode_value(value), ensure_ascii=False)
 
 
+def compact(trace: list[str]) -> str:
+    """A trace on one line, for pinning one: ticks apart by "; ", lines by ", "."""
+    ticks: list[list[str]] = []
+    for line in trace:
+        if line.startswith("tick "):
+            ticks.append([])
+        elif line != "halt tree" and ticks:
+            ticks[-1].append(line)
+    return "; ".join(", ".join(lines) for lines in ticks)
+
+
 _STATUS = {"S": kp.SUCCESS, "F": kp.FAILURE, "R": kp.RUNNING}
 
 
@@ -165,7 +176,7 @@ def btcpp_trace(harness: Path, xml: str, script: Script, work: Path) -> list[str
         check=False,
     )
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    return done.stdout.splitlines()
+    return done.stdout.split("\n")[:-1]  # not splitlines(): a string may hold U+0085
 
 
 def wheel_trace(xml: str, script: Script) -> list[str]:

@@ -10,6 +10,7 @@ import ktbt_proto as kp
 from ktbt_proto.agent import Agent
 from ktbt_proto.interop import from_xml
 from ktbt_proto.interop.sidecar import LearnedExport, item_digest
+from ktbt_proto.knowledge import Knowledge
 from ktbt_proto.transport import MemoryNetwork
 
 from .test_agent import KNOWER, SEQUENCE, agent, run
@@ -100,3 +101,20 @@ def test_a_file_that_cannot_be_written_is_counted_and_tried_again(tmp_path: Path
     blocker.rmdir()
     export.sync(learner.knowledge)
     assert files(folder) == [blocker.name] and blocker.is_file() and export.errors == 1
+
+
+def test_an_item_btcpp_cannot_load_is_refused_once_and_the_rest_written(tmp_path: Path) -> None:
+    folder = tmp_path / "learned"
+    export = LearnedExport(folder)
+    sleep = Knowledge((kp.Condition("Tired"),), kp.Action("Sleep"), "new", "k")  # a BT.CPP ID
+    rest = Knowledge((kp.Condition("Hungry"),), kp.Action("Eat"), "new", "k")
+    export.sync([sleep, rest])
+    export.sync([sleep, rest])
+    [name] = files(folder)
+    assert "Eat" in (folder / name).read_text()
+    assert list(export.refused.values()) == [
+        "SBT303 'Sleep' is a BT.CPP built-in or reserved node ID"
+    ]
+    export.sync([rest])
+    export.sync([])
+    assert files(folder) == [] and export.errors == 0

@@ -7,8 +7,10 @@ section 12.1): one file per item, ``NNNNNN-<placeholder>-<digest>.xml``, whose o
 subtree)``. ``NNNNNN`` numbers the items in the order they were learned, so the program places
 them in that order; the digest names the item's placeholder and condition sequence. A file is
 replaced whole (``ktbt_proto.files``), so the program never reads half of one, and it is removed
-when the agent forgets its item. The export only observes the agent's knowledge base
-(:meth:`LearnedExport.sync`, after each tick): it changes nothing in the agent.
+when the agent forgets its item. An item BT.CPP could not load (a node named like one of its
+built-ins) is refused with its reason, logged once and not written. The export only observes
+the agent's knowledge base (:meth:`LearnedExport.sync`, after each tick): it changes nothing in
+the agent.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
+from ..errors import StringBTError
 from ..files import fsync_folder, write_atomic
 from ..knowledge import Knowledge
 from .btcpp import to_xml
@@ -57,6 +60,9 @@ class LearnedExport:
         self.files: dict[tuple[str, str], Path] = {}  # (placeholder, digest) -> file
         self.errors = 0
         """Writes and removals that failed (the folder's own errors, not a peer's)."""
+        self.refused: dict[tuple[str, str], str] = {}
+        """Items BT.CPP could not load (a name it reserves, say), with the reason: logged once,
+        never written. The agent may still run them; the BT.CPP program does not get them."""
         self._next = 1
         for path in sorted(self.folder.iterdir()):
             match = _FILE.fullmatch(path.name)
@@ -83,11 +89,17 @@ class LearnedExport:
             changed = True
         for item in learned:
             key = (item.segment, item_digest(item))
-            if key in self.files:
+            if key in self.files or key in self.refused:
                 continue
             path = self.folder / f"{self._next:06d}-{key[0]}-{key[1]}.xml"
             try:
-                write_atomic(path, to_xml(item.item(), tree_id=tree_id(item)))
+                document = to_xml(item.item(), tree_id=tree_id(item))
+            except StringBTError as err:
+                self.refused[key] = f"{err.code.value} {err.message}"
+                log.warning("not exported to BT.CPP: %s: %s", item.key, self.refused[key])
+                continue
+            try:
+                write_atomic(path, document)
             except OSError as exc:
                 self._failed(f"cannot write {path}: {exc}")
                 continue
@@ -95,8 +107,12 @@ class LearnedExport:
             self.files[key] = path
             log.info("wrote %s", path.name)
         if changed:
-            fsync_folder(self.folder)
-        if all(key in self.files for key in known) and len(self.files) == len(known):
+            try:
+                fsync_folder(self.folder)
+            except OSError as exc:
+                self._failed(f"cannot flush {self.folder}: {exc}")
+        written = set(self.files)
+        if written <= known and known <= written | self.refused.keys():  # all done: skip next time
             self._known = known
 
     def _failed(self, message: str) -> None:

@@ -216,6 +216,14 @@ def test_names_bt_cpp_cannot_load_are_refused(text: str, reason: str) -> None:
     assert info.value.code is kp.ErrorCode.INVALID_NAME
 
 
+@pytest.mark.parametrize("text", ["<w>(4294967296)", "<tt1>(4294967296)<a>(A)<e>"])
+def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str) -> None:
+    assert 'ticks="4294967295"' in to_xml(kp.parse(text.replace("4294967296", "4294967295")))
+    with pytest.raises(kp.ValidationError, match="unsigned int") as info:
+        to_xml(kp.parse(text))
+    assert info.value.code is kp.ErrorCode.INVALID_DURATION
+
+
 @pytest.mark.parametrize(
     ("body", "code", "column", "words"),
     [

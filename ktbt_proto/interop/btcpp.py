@@ -124,6 +124,7 @@ _BUILTIN_IDS = (
 )
 BUILTINS = frozenset(_BUILTIN_IDS.split())
 
+_MAX_TICKS = 2**32 - 1
 _NUMBER = re.compile(r"-?[0-9]+(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"([^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"')
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
@@ -225,6 +226,13 @@ class _Exporter:
             attrs.append((port, encode_value(value)))
         return _Out(ident, attrs)
 
+    def _ticks(self, node: Node, ticks: int | float) -> str:
+        """The ``ticks`` port of a ``KTBT_`` node, an ``unsigned int`` in BT.CPP."""
+        if ticks > _MAX_TICKS:
+            message = f"{ticks} ticks is more than BT.CPP's unsigned int holds ({_MAX_TICKS})"
+            raise ValidationError(ErrorCode.INVALID_DURATION, message, node.line, node.column)
+        return format_value(ticks)
+
     def element(self, node: Node) -> _Out:
         if isinstance(node, Condition):
             out = self._leaf("Condition", node)
@@ -234,7 +242,7 @@ class _Exporter:
         if isinstance(node, Wait):
             if node.unit == "ticks":
                 self.custom.add(WAIT_TICKS)
-                return _Out(WAIT_TICKS, [("ticks", format_value(node.duration))])
+                return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
             msec = _msec(node.duration)
             attrs = [("msec", str(msec))]
             if not _same(_seconds(msec), node.duration):
@@ -260,7 +268,7 @@ class _Exporter:
         ident = TT1 if isinstance(node, WaitTimer) else TT2
         assert isinstance(node, WaitTimer | RunTimer)
         self.custom.add(ident)
-        return _Out(ident, [("ticks", format_value(node.ticks))], kids)
+        return _Out(ident, [("ticks", self._ticks(node, node.ticks))], kids)
 
     def model(self) -> list[_Out]:
         entries: list[tuple[str, str, list[Node | _Out | str]]] = []

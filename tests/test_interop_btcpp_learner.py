@@ -33,11 +33,6 @@ pytestmark = pytest.mark.skipif(
 EXAMPLE = ROOT / "examples" / "btcpp"
 
 
-def test_the_example_control_tree_is_the_export() -> None:
-    tree = parse((EXAMPLE / "control.sbt").read_text())
-    assert (EXAMPLE / "control.xml").read_text() == to_xml(tree)
-
-
 @contextmanager
 def robot(folder: Path, target: int) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     """The C++ learner, its output collected line by line; stopped by its pid at the end."""

@@ -8,13 +8,14 @@ from pathlib import Path
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
-from ktbt_proto.interop import from_xml
+from ktbt_proto.interop import from_xml, to_xml
 from ktbt_proto.interop.sidecar import LearnedExport, item_digest
 from ktbt_proto.knowledge import Knowledge
 from ktbt_proto.transport import MemoryNetwork
 
 from .test_agent import KNOWER, SEQUENCE, agent, run
 
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "btcpp"
 GREEN = "<sq><c>(TargetSeen,colour=2)<a>(Pick,colour=2)<e>"
 
 
@@ -118,3 +119,8 @@ def test_an_item_btcpp_cannot_load_is_refused_once_and_the_rest_written(tmp_path
     export.sync([rest])
     export.sync([])
     assert files(folder) == [] and export.errors == 0
+
+
+def test_the_example_robots_control_tree_is_the_export() -> None:
+    tree = kp.parse((EXAMPLE / "control.sbt").read_text())
+    assert (EXAMPLE / "control.xml").read_text() == to_xml(tree)

@@ -621,6 +621,12 @@ def peer_run(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    export_learned: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write each learned item here as a BehaviorTree.CPP file.", file_okay=False
+        ),
+    ] = None,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -644,6 +650,7 @@ def peer_run(
             security=security,
             publish_answers=publish_answers,
             overhear=heard,
+            export_learned=str(export_learned) if export_learned else None,
         )
     )
 

@@ -16,14 +16,8 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
-from ktbt_proto.knowledge import (
-    KnowledgeBase,
-    read_sequence,
-    sequence_key,
-    show_sequence,
-    split_item,
-    stray_nodes,
-)
+from ktbt_proto.items import read_sequence, sequence_key, show_sequence, split_item, stray_nodes
+from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.peer import load_knowledge
 from ktbt_proto.transport import MemoryNetwork
 

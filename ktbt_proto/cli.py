@@ -1,4 +1,7 @@
-"""The ``ktbt`` command line: ``fmt``, ``check``, ``show`` and ``demo``.
+"""The ``ktbt`` command line: the language's tools (``fmt``, ``check``, ``show``, ``merge``,
+``convert``, ``tour``), a fleet's peers (``peer``) and what they leave behind (``kb``, ``log``);
+other packages add commands through the ``ktbt.commands`` entry point (the simulator's ``sim``
+and ``demo``).
 
 Every failure a user can cause (a bad path, an unreadable or non-UTF-8 file, invalid stringBT)
 is one clear line on stderr and an exit code, never a traceback. ``fmt`` follows black: exit 0
@@ -26,6 +29,7 @@ from .limits import DEFAULT_LIMITS
 from .merge import merge
 from .render import render
 from .syntax import parse
+from .transferlog import EVENTS
 from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
@@ -712,11 +716,16 @@ def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save)
     typer.echo(f"{len(kb)} items")
 
 
+LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
+"""The kinds of transfer-log event, as ``--event`` takes them (spec/protocol.md section 8)."""
+
+
 @app.command("log")
 def log_command(
     path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
     event: Annotated[
-        list[str] | None, typer.Option("--event", help="Show only this event (repeatable).")
+        list[LogEvent] | None,
+        typer.Option("--event", help="Show only this event (repeatable)."),
     ] = None,
 ) -> None:
     """Read a transfer log: one line an event, then the count of each kind."""
@@ -724,6 +733,7 @@ def log_command(
 
     from .transferlog import describe, read
 
+    shown = {e.value for e in event or ()}
     counts: Counter[str] = Counter()
     try:
         for entry in read(path):
@@ -731,7 +741,7 @@ def log_command(
                 _say(f"warning: {path}: {entry}")
                 continue
             counts[entry["event"]] += 1
-            if not event or entry["event"] in event:
+            if not shown or entry["event"] in shown:
                 typer.echo(describe(entry))
     except OSError as exc:
         _say(f"error: {path}: {_io_reason(exc)}")

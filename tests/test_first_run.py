@@ -284,6 +284,18 @@ def test_the_default_recording_is_long_enough_to_show_transfers(
     assert int(world.known.sum()) - start >= 10
 
 
+def without_privileges() -> list[str]:
+    """The prefix that runs a command unable to read what its owner may not: as root, root with
+    every capability dropped (the same user, so the interpreter and the clone stay readable
+    wherever they live, a private folder included; only the permission bits of a file count).
+    Skips when root has no ``setpriv``."""
+    if os.geteuid() != 0:
+        return []
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: no file is unreadable")
+    return ["setpriv", "--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all"]
+
+
 def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
     """Permission denied is the file's problem, said in one line, never typer's usage box."""
     folder = tmp_path / "locked"
@@ -296,14 +308,7 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
     for name, text in files.items():
         (folder / name).write_text(text)
         (folder / name).chmod(0)
-    folder.chmod(0o755)
-    tmp_path.chmod(0o755)
-    # As root every file is readable: run as nobody, as a robot's service account would.
-    as_user = (
-        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"] if os.geteuid() == 0 else []
-    )
-    if as_user and shutil.which("setpriv") is None:
-        pytest.skip("running as root without setpriv: no file is unreadable")
+    prefix = without_privileges()
     paper = str(EXAMPLES / "paper_control.sbt")
     for args, expected in [
         (("check", "--registry", "u.toml", paper), "error: cannot read registry u.toml: "),
@@ -312,7 +317,7 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
         (("show", "u.sbt"), "error: cannot read u.sbt: "),
     ]:
         done = subprocess.run(
-            [*as_user, sys.executable, "-m", "ktbt_proto", *args],
+            [*prefix, sys.executable, "-m", "ktbt_proto", *args],
             cwd=folder,
             capture_output=True,
             text=True,
@@ -320,4 +325,27 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
             env={**os.environ, "HOME": str(tmp_path)},
         )
         assert done.returncode in (1, 2)
-        assert one_line(done).startswith(expected), done.stderr
+        line = one_line(done)
+        assert line.startswith(expected) and "Permission denied" in line, done.stderr
+
+
+def test_fmt_rewrites_in_place_in_a_folder_it_cannot_create_files_in(tmp_path: Path) -> None:
+    """A user may own a file in a folder they cannot write: ``fmt`` rewrites it in place."""
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    tree = folder / "t.sbt"
+    tree.write_text("<sl><a>(A)   <a>(B)<e>")
+    folder.chmod(0o555)
+    try:
+        done = subprocess.run(
+            [*without_privileges(), sys.executable, "-m", "ktbt_proto", "fmt", "t.sbt"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    finally:
+        folder.chmod(0o755)
+    assert done.returncode == 0, done.stderr
+    assert tree.read_text() == "<sl>\n    <a>(A)\n    <a>(B)\n<e>\n"
+    assert [p.name for p in folder.iterdir()] == ["t.sbt"]

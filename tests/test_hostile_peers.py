@@ -5,7 +5,7 @@ and 7)."""
 from __future__ import annotations
 
 import json
-import time
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -64,13 +64,21 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
     ):
         declare(silent, "ktbt/v1/knowledge/quiet", held.append)  # never answers
 
+        genuine_arrived = threading.Event()
+        replying: list[threading.Thread] = []
+
         def impostor(q: Any) -> None:
             asked = decode(q.payload.to_bytes())
             forged = encode(Response(id=asked.id, sender="t", sequence=GREEN, subtree=FORGED))
-            time.sleep(0.3)  # after the genuine answer
-            q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
-            q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
-            q.drop()
+
+            def after_the_genuine_answer() -> None:
+                genuine_arrived.wait(10)
+                q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
+                q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
+                q.drop()
+
+            replying.append(threading.Thread(target=after_the_genuine_answer))
+            replying[-1].start()
 
         declare(imp, "ktbt/v1/knowledge/t", impostor)
         see(learner, "t", "silent", "imp")
@@ -81,11 +89,17 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
             got.extend(learner.receive())
             return bool(got)
 
-        assert wait_until(arrived, 10)
-        assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
-        assert held  # the silent peer still holds the query: the answer did not wait for it
-        assert wait_until(lambda: learner.refused >= 2, 10)
-        assert learner.receive() == []
+        try:
+            assert wait_until(arrived, 10)
+            genuine_arrived.set()
+            assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
+            assert held  # the silent peer still holds the query: the answer did not wait for it
+            assert wait_until(lambda: learner.refused >= 2, 10)
+            assert learner.receive() == []
+        finally:
+            genuine_arrived.set()
+            for thread in replying:
+                thread.join(15)
 
 
 def test_queries_come_only_through_the_queryable_and_are_not_replaced() -> None:

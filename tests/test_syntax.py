@@ -3,7 +3,6 @@ reference (lark) parser over the normative grammar."""
 
 from __future__ import annotations
 
-import contextlib
 import time
 from pathlib import Path
 
@@ -266,18 +265,24 @@ def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> 
     assert fast == kp.parse_reference(text) == kp.Tree(tree)
 
 
-def test_nothing_but_stringbt_errors_escape() -> None:
-    for text in [
-        "<a>(X, n=" + "9" * 5000 + ")",
-        "<w>(" + "1" * 3000 + ")",
-        '<a>(X, s="\\ud800")',
-        "\x00",
-        "<" * 1000,
-        "(" * 1000,
-        "<sq>" * 200 + "<e>" * 300,
-    ]:
-        with contextlib.suppress(kp.StringBTError):
-            kp.parse(text)
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("<a>(X, n=" + "9" * 5000 + ")", ("SBT204", 1, 10)),  # a literal over the limit
+        ("<w>(" + "1" * 3000 + ")", ("SBT204", 1, 5)),
+        ("\x00", ("SBT101", 1, 1)),
+        ("<" * 1000, ("SBT101", 1, 1)),
+        ("(" * 1000, ("SBT103", 1, 1)),
+        ("<sq>" * 200 + "<e>" * 300, ("SBT202", 1, 128 * 4 + 1)),  # deeper than the depth limit
+    ],
+    ids=["long-number", "long-wait", "nul", "angles", "parens", "deep-nesting"],
+)
+def test_hostile_text_is_one_positioned_error(text: str, expected: tuple[str, int, int]) -> None:
+    assert errors_of(text) == expected
+
+
+def test_a_lone_surrogate_escape_is_kept_escaped() -> None:
+    assert kp.format(kp.parse('<a>(X, s="\\ud800")'), "compact") == '<a>(X,s="\\ud800")'
 
 
 def test_byte_order_mark_is_not_text() -> None:

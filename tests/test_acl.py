@@ -24,6 +24,8 @@ from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport
 
 from .zenoh_helpers import ROOT, free_port, see, wait_until
 
+pytestmark = pytest.mark.network  # a zenoh router and robots over mutual TLS on loopback
+
 PROFILE = ROOT / "examples" / "zenoh" / "acl-router.json5"
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"

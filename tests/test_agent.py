@@ -260,6 +260,7 @@ def saved_items(path: Path) -> int:
     return len(json.loads(text)["knowledge"])
 
 
+@pytest.mark.network
 def test_knowledge_file_survives_sigkill(tmp_path: Path) -> None:
     path, ready = tmp_path / "i.json", tmp_path / "ready"
     ctx = multiprocessing.get_context("spawn")

@@ -11,6 +11,8 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
 from ktbt_proto.knowledge import KnowledgeBase
@@ -22,6 +24,8 @@ from ktbt_proto.transport.zenoh import ZenohTransport
 from ktbt_proto.trust import Policy, TrustStore
 
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
+
+pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -50,6 +54,7 @@ def teacher_kb() -> KnowledgeBase:
     return KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
 
 
+@pytest.mark.slow
 def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> None:
     """The answer reaches the learner while a silent peer still holds the query (its timeout is
     30 s); a second reply on the teacher's key is refused, not taken in its place; a reply on
@@ -155,6 +160,7 @@ def trusted_learner(port: int, *connect: int, **kw: Any) -> tuple[Agent, ZenohTr
     return robot, transport
 
 
+@pytest.mark.slow
 def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_lying_ones(
     tmp_path: Path,
 ) -> None:
@@ -241,6 +247,7 @@ def test_serve_refuses_a_knowledge_file_without_end(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr and len(result.stderr.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_run_reports_refusals_and_keeps_a_damaged_save_file(tmp_path: Path) -> None:
     save = tmp_path / "kb.json"
     save.write_text('{"version": 1, "knowledge": [{"sequence": "<c>(TargetSeen,colour=9)"')

@@ -173,6 +173,7 @@ conditions = st.builds(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(conditions, min_size=1, max_size=4))
 def test_show_and_read_sequence_round_trip(conds: list[kp.Condition]) -> None:
@@ -214,6 +215,7 @@ def ktbt(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.network
 def test_check_warns_about_placeholder_children_that_are_not_knowledge(tmp_path: Path) -> None:
     tree = tmp_path / "stray.sbt"
     tree.write_text("<sl>\n    <k>(prior)\n        <a>(X)\n        <sq><c>(A)<a>(B)<e><e><e>")
@@ -234,6 +236,7 @@ def test_check_warns_about_placeholder_children_that_are_not_knowledge(tmp_path:
     ]
 
 
+@pytest.mark.network
 def test_check_of_nothing_is_an_error(tmp_path: Path) -> None:
     done = ktbt("check", str(tmp_path))
     assert done.returncode == 2

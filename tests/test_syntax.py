@@ -174,6 +174,7 @@ def test_hundred_thousand_nested_sequences_are_refused_quickly() -> None:
     assert time.perf_counter() - started < 30  # a hang guard, not a benchmark
 
 
+@pytest.mark.slow
 def test_deep_trees_within_raised_limits_need_no_recursion() -> None:
     depth = 20_000
     limits = kp.Limits(max_depth=depth + 1)
@@ -224,6 +225,7 @@ def _outcome(fn: object, text: str) -> object:
         return (type(err).__name__, err.code, err.line, err.column)
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(soup())
 def test_agrees_with_reference_on_token_soup(text: str) -> None:
@@ -247,6 +249,7 @@ def mutated(draw: st.DrawFn) -> str:
     return text[:at] + token + text[at + len(token) :]
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(mutated())
 def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
@@ -256,6 +259,7 @@ def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
         assert _parse_fast(text, DEFAULT_LIMITS) is not None, "fast path refused valid text"
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(with_comments=True), st.sampled_from(["pretty", "compact"]))
 def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> None:

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import zenoh
 
 import ktbt_proto as kp
@@ -30,6 +31,8 @@ from .zenoh_helpers import (
     serving,
     wait_until,
 )
+
+pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -109,6 +112,7 @@ def test_agents_over_zenoh_teach_through_their_trees() -> None:
         assert wait_until(all_finished, 10)  # every query the teacher received was finished
 
 
+@pytest.mark.slow
 def test_three_processes_knowledge_spreads_along_a_chain() -> None:
     """teacher -> r1 -> r2: r2 learns from r1 after the teacher has gone (Theorem 2)."""
     pt, p1, p2 = free_port(), free_port(), free_port()
@@ -152,6 +156,7 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
         assert r1.poll() is None  # still running, still teaching
 
 
+@pytest.mark.slow
 def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
     pt, pl, ph = free_port(), free_port(), free_port()
     with ZenohTransport("i", settings(pl, pt, ph), query_timeout=1.0) as ti:
@@ -197,6 +202,7 @@ def test_a_program_written_from_the_spec_asks_a_ktbt_peer() -> None:
     assert answer["subtree"] == "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>"
 
 
+@pytest.mark.slow
 def test_peer_ask_cli_exit_codes() -> None:
     port = free_port()
     with serving(port):
@@ -235,6 +241,7 @@ def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_clients_through_a_router() -> None:
     port = free_port()
     with (
@@ -258,6 +265,7 @@ def test_clients_through_a_router() -> None:
         assert asked.stdout.startswith("# from teacher\n")
 
 
+@pytest.mark.slow
 def test_user_password_authentication_from_a_config_file(tmp_path: Path) -> None:
     dictionary = tmp_path / "users.txt"
     dictionary.write_text("teacher:s3cret\nlearner:letmein\n")
@@ -276,6 +284,7 @@ def test_user_password_authentication_from_a_config_file(tmp_path: Path) -> None
         assert (refused.returncode, refused.stdout) == (1, "")
 
 
+@pytest.mark.slow
 def test_tls_from_a_config_file(tmp_path: Path) -> None:
     tls = make_tls(tmp_path)
     server = tmp_path / "server.json5"

@@ -11,6 +11,8 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from ktbt_proto.agent import Agent
 from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.messages import Query, Response, encode
@@ -31,6 +33,8 @@ from .zenoh_helpers import (
     settings,
     wait_until,
 )
+
+pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -64,6 +68,7 @@ def ear(port: int, teacher: int, save: str, conn: Connection) -> None:
         )
 
 
+@pytest.mark.slow
 def test_a_third_process_learns_only_from_an_overheard_answer(tmp_path: Path) -> None:
     pt, pe, pl = free_port(), free_port(), free_port()
     save = tmp_path / "ear.json"
@@ -169,6 +174,7 @@ def test_buffer_and_the_trust_policy_over_zenoh() -> None:
         assert buffering.metrics.learned[GREEN][1] == "teacher"
 
 
+@pytest.mark.slow
 def test_a_server_that_overhears_with_buffer_serves_what_it_kept(tmp_path: Path) -> None:
     """Three ``ktbt`` processes: a publishing teacher; an overhearing server that knows only
     colour 4; an asker. Once the teacher is gone, the server answers colour 2 from the answer

@@ -19,11 +19,13 @@ PACKAGE = ROOT / "ktbt_proto"
 
 LANGUAGE = (
     "ktbt_proto.blackboard",
+    "ktbt_proto.control",
     "ktbt_proto.errors",
     "ktbt_proto.format",
     "ktbt_proto.interop",
     "ktbt_proto.interop.btcpp",
     "ktbt_proto.interop.pytrees",
+    "ktbt_proto.interop.pytrees_control",
     "ktbt_proto.items",
     "ktbt_proto.limits",
     "ktbt_proto.merge",

@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench studies fuzz interop clean
+.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,11 @@ pytest: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest
 
 test: lint typecheck pytest
+
+# The quick loop (under a minute): every test but the slow ones and those that start processes
+# or zenoh sessions. `make test` runs them all.
+test-fast: $(VENV)/.installed-dev
+	$(BIN)/python -m pytest -m "not slow and not network"
 
 bench: $(VENV)/.installed-dev
 	$(BIN)/python -m benchmarks

@@ -168,6 +168,7 @@ def unique_placeholders(node: Node) -> Node:
     return go(node)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(valid=True))
 def test_random_trees_round_trip(root: Node) -> None:

@@ -422,6 +422,9 @@ PublishAnswers = Annotated[
         help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
     ),
 ]
+PublishEvents = Annotated[
+    bool, typer.Option("--publish-events", help="Publish every exchange event (ktbt monitor).")
+]
 OverhearMode = Annotated[
     str,
     typer.Option(
@@ -530,6 +533,7 @@ def peer_serve(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    publish_events: PublishEvents = False,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -551,7 +555,9 @@ def peer_serve(
         raise typer.Exit(2) from None
     security = _security(key, "any", None, log)
     _peer_call(
-        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+        lambda: peer.serve(
+            name, served, settings, typer.echo, security, publish_answers, heard, publish_events
+        )
     )
 
 
@@ -621,6 +627,7 @@ def peer_run(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    publish_events: PublishEvents = False,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -644,6 +651,7 @@ def peer_run(
             security=security,
             publish_answers=publish_answers,
             overhear=heard,
+            publish_events=publish_events,
         )
     )
 

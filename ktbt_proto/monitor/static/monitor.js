@@ -6,6 +6,8 @@
 
 (function () {
   const KEEP = 100; // transfers and refusals listed
+  const SLOW = { lists: 250, timeline: 1000, detail: 250 }; // ms between two redraws of these
+  const last = { lists: 0, timeline: 0, detail: 0 };
   const RECENT = 50; // events kept per peer
   const model = {
     peers: new Map(), // name -> {status, since, signed, knows: Map(item -> how), recent: []}
@@ -186,11 +188,30 @@
     if (dirty.matrix) drawMatrix();
     else drawCells(now);
     if (dirty.peers) drawRows();
-    if (dirty.transfers) drawTransfers();
-    if (dirty.refusals) drawRefusals();
-    if (dirty.timeline) drawTimeline();
-    if (dirty.detail) drawDetail();
+    // The lists, the timeline and the detail are redrawn a few times a second at most, so a
+    // busy fleet costs a frame the cells that changed and little more.
+    let later = false;
+    if (dirty.transfers || dirty.refusals) {
+      if (now - last.lists >= SLOW.lists) {
+        last.lists = now;
+        if (dirty.transfers) drawTransfers();
+        if (dirty.refusals) drawRefusals();
+      } else later = true;
+    }
+    if (dirty.timeline) {
+      if (now - last.timeline >= SLOW.timeline) {
+        last.timeline = now;
+        drawTimeline();
+      } else later = true;
+    }
+    if (dirty.detail) {
+      if (now - last.detail >= SLOW.detail) {
+        last.detail = now;
+        drawDetail();
+      } else later = true;
+    }
     if (dirty.stats) drawStats();
+    if (later) setTimeout(schedule, 100);
     for (const ms of pendingLag) {
       const lag = now - ms;
       keep(probe.lags, lag, 200);
@@ -362,6 +383,7 @@
 
   function select(name) {
     selected = name;
+    last.detail = 0;
     dirty.detail = true;
     dirty.peers = true;
     schedule();

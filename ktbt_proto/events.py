@@ -20,14 +20,14 @@ import hashlib
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from .messages import MAX_REASON, MessageRefused
 from .signing import Identity, verify
-from .transferlog import EVENTS
+from .transferlog import EVENTS, TransferLog
 
 PREFIX = "ktbt/v1/events"
 MAX_EVENT_BYTES = 8192
@@ -240,6 +240,39 @@ class EventPublisher:
         except Exception:  # a closing session: the event is lost with it
             with self._lock:
                 self.dropped += 1
+
+
+class AgentStream:
+    """The fleet events of agents in this process (a simulator's, on the in-memory network),
+    published on one zenoh session described by ``settings``, each on its agent's own key, as
+    a peer with ``--publish-events`` publishes its own. Each agent gets a transfer log if it
+    has none (no file: sinks only). The agents declare no liveliness token, since nobody
+    answers for them on the network; a monitor shows them as heard. Close to stop."""
+
+    def __init__(self, agents: Iterable[Any], settings: Any, rate: float = DEFAULT_RATE) -> None:
+        from .transport.zenoh import open_session  # the transport publishes events too
+
+        self._session = open_session(settings)
+        self._declared: list[Any] = []
+        self.publishers: list[EventPublisher] = []
+        for agent in agents:
+            publisher, declared = EventPublisher.on_session(self._session, agent.name, rate=rate)
+            self._declared.append(declared)
+            self.publishers.append(publisher)
+            agent.log = agent.log or TransferLog(None)
+            agent.log.add_sink(publisher)
+
+    def close(self) -> None:
+        for declared in self._declared:
+            declared.undeclare()
+        self._declared = []
+        self._session.close()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> AgentStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def json_schema() -> dict[str, object]:

@@ -104,6 +104,12 @@ def _rss_kb(pid: int) -> int:
     return 0
 
 
+def _cpu_s(pid: int) -> float:
+    """User and system CPU seconds a process has used."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _ms(t: str) -> float:
     return datetime.fromisoformat(t).timestamp() * 1000
 
@@ -199,6 +205,8 @@ def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
         driver = stack.enter_context(chromium())
         driver.get(url)
         start = time.monotonic()
+        load = [os.getloadavg()[0]]
+        cpu = [_cpu_s(monitor.pid)]
         seen_batches = 0
         while generator.poll() is None and time.monotonic() - start < seconds + 30:
             time.sleep(1.0)
@@ -216,6 +224,9 @@ def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
             seen_batches = probe["batches"]
             rss.append(_rss_kb(monitor.pid))
             heap.append(int(probe["heap"]))
+        load.append(os.getloadavg()[0])
+        cpu.append(_cpu_s(monitor.pid))
+        elapsed = time.monotonic() - start
         stats = driver.execute_script(
             "return [document.getElementById('stat-events').textContent,"
             " document.getElementById('stat-dropped').textContent,"
@@ -234,6 +245,13 @@ def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
         "anchor_lag_ms": _summary(anchor),
         "update_gap_ms": _summary(gaps),
         "frame_ms": _summary(frames),
+        "load_average": [round(x, 1) for x in load],
+        "monitor_cpu_percent": round(100 * (cpu[1] - cpu[0]) / elapsed, 1),
+        "monitor_rss_mb_by_quarter": [
+            round(rss[len(rss) * q // 4 - 1] / 1024, 1) for q in (1, 2, 3, 4)
+        ]
+        if len(rss) >= 4
+        else [],
         "monitor_rss_mb": {
             "after_start": round(rss[settle] / 1024, 1) if rss else 0,
             "end": round(rss[-1] / 1024, 1) if rss else 0,
@@ -279,7 +297,10 @@ def report(r: dict[str, Any]) -> str:
         f"monitor memory (RSS): {r['monitor_rss_mb']['after_start']} MB after start-up,"
         f" {r['monitor_rss_mb']['end']} MB at the end, {r['monitor_rss_mb']['max']} MB at most;"
         f" page heap {r['page_heap_mb']['after_start']} -> {r['page_heap_mb']['end']} MB"
-        f" (max {r['page_heap_mb']['max']} MB)",
+        f" (max {r['page_heap_mb']['max']} MB); RSS by quarter of the run:"
+        f" {', '.join(str(x) for x in r['monitor_rss_mb_by_quarter'])} MB; monitor CPU"
+        f" {r['monitor_cpu_percent']} % of a core; machine load {r['load_average'][0]} at the"
+        f" start, {r['load_average'][1]} at the end (2 cores)",
     ]
     return "\n".join(rows)
 

@@ -252,7 +252,10 @@ class AgentStream:
     def __init__(self, agents: Iterable[Any], settings: Any, rate: float = DEFAULT_RATE) -> None:
         from .transport.zenoh import open_session  # the transport publishes events too
 
-        self._session = open_session(settings)
+        try:
+            self._session = open_session(settings)
+        except Exception as exc:  # zenoh's own error: a bad endpoint, a port in use
+            raise ValueError(f"cannot publish events: {exc}") from None
         self._declared: list[Any] = []
         self.publishers: list[EventPublisher] = []
         for agent in agents:

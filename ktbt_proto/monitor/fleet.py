@@ -30,6 +30,8 @@ KEPT = 200
 """Transfers and refusals kept, each."""
 CHANGES = 20_000
 """Changes kept for pages catching up; one further behind is sent a snapshot."""
+TIMELINE = 5000
+"""Points of the spreading timeline kept (one a merge or forget)."""
 LOST_AFTER = 5.0
 """A query sent and not answered within this many seconds is counted lost."""
 
@@ -77,7 +79,7 @@ class Fleet:
         self.items: dict[str, str] = {}
         self.transfers: deque[dict[str, Any]] = deque(maxlen=KEPT)
         self.refusals: deque[dict[str, Any]] = deque(maxlen=KEPT)
-        self.timeline: deque[dict[str, Any]] = deque(maxlen=CHANGES)
+        self.timeline: deque[dict[str, Any]] = deque(maxlen=TIMELINE)
         self.drops: Counter[str] = Counter()
         """What the monitor refused, by why: malformed, oversized, wrong-key, flood, full."""
         self.events = 0

@@ -399,7 +399,7 @@
       p.status + " \u00B7 " + (p.signed ? "signed events" : "unsigned events") + " \u00B7 " + p.queries_lost + " queries lost \u00B7 " + p.dropped + " events dropped by the peer, " + p.lost_events + " lost on the way";
     const root = el("li", selected, "node");
     const kids = el("ul");
-    for (const [how, label] of [["known", "<k>(prior): known"], ["learned", "<k>(new): learned"]]) {
+    for (const [how, label] of [["known", "known (served, or before the monitor started)"], ["learned", "learned while watched"]]) {
       const slot = el("li", label, "node slot");
       const list = el("ul");
       for (const [item, k] of p.knows) {

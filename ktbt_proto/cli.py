@@ -410,6 +410,9 @@ PublishAnswers = Annotated[
         help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
     ),
 ]
+PublishEvents = Annotated[
+    bool, typer.Option("--publish-events", help="Publish every exchange event (ktbt monitor).")
+]
 OverhearMode = Annotated[
     str,
     typer.Option(
@@ -518,6 +521,7 @@ def peer_serve(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    publish_events: PublishEvents = False,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -539,7 +543,9 @@ def peer_serve(
         raise typer.Exit(2) from None
     security = _security(key, "any", None, log)
     _peer_call(
-        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+        lambda: peer.serve(
+            name, served, settings, typer.echo, security, publish_answers, heard, publish_events
+        )
     )
 
 
@@ -615,6 +621,7 @@ def peer_run(
             help="Write each learned item here as a BehaviorTree.CPP file.", file_okay=False
         ),
     ] = None,
+    publish_events: PublishEvents = False,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -639,6 +646,7 @@ def peer_run(
             publish_answers=publish_answers,
             overhear=heard,
             export_learned=str(export_learned) if export_learned else None,
+            publish_events=publish_events,
         )
     )
 

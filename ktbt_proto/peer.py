@@ -294,6 +294,7 @@ def serve(
     security: Security | None = None,
     publish_answers: bool = False,
     overhear: Overhear = "off",
+    publish_events: bool = False,
 ) -> int:
     """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3."""
     security = security or Security()
@@ -311,6 +312,7 @@ def serve(
             publish_answers=publish_answers,
             overhear=overhear != "off",
             screen=lambda r: refusal(r, policy, security.trust),
+            publish_events=publish_events,
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
@@ -410,6 +412,7 @@ def run_agent(
     publish_answers: bool = False,
     overhear: Overhear = "off",
     export_learned: str | None = None,
+    publish_events: bool = False,
 ) -> int:
     """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
     what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
@@ -426,6 +429,7 @@ def run_agent(
             log=security.log,
             publish_answers=publish_answers,
             overhear=overhear != "off",
+            publish_events=publish_events,
         ) as transport,
     ):
         robot = Agent(
@@ -439,7 +443,7 @@ def run_agent(
             identity=security.identity,
             policy=security.policy,
             trust=security.trust,
-            log=security.log,
+            log=transport.log,
             overhear=overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)

@@ -20,7 +20,7 @@ from typing import Any, Literal
 Status = Literal["pass", "fail", "skipped"]
 RSS_GROWTH = 0.20
 """Median resident memory of the peers never killed may grow by at most this fraction from
-the first churn round to the end."""
+the end of the first churn round to the end of the run."""
 RSS_SLACK_KB = 4096
 FD_GROWTH = 16
 """File descriptors of any peer never killed (and of the runner) may grow by at most this."""
@@ -278,7 +278,8 @@ def _partition(h: History, starts: dict[str, Any], ends: dict[str, Any]) -> Verd
     ev = end.get("evidence", {})
     if name == "partition-silent":
         injected = ev.get("chunks_held", 0) + ev.get("connections_held", 0)
-        what = f"{ev.get('chunks_held', 0)} chunks and {ev.get('connections_held', 0)} connections held"
+        held, waiting = ev.get("chunks_held", 0), ev.get("connections_held", 0)
+        what = f"{held} chunks and {waiting} connections held"
     else:
         injected = ev.get("resets", 0) + ev.get("refused", 0)
         what = f"{ev.get('resets', 0)} connections reset, {ev.get('refused', 0)} refused"
@@ -302,7 +303,7 @@ def _bounded(h: History) -> Verdict:
     if len(rounds) < 2:
         return Verdict("memory and descriptors bounded", "skipped", "needs two churn rounds")
     killed = {k["peer"] for k in h.of("kill")}
-    first = rounds[0]["t"]
+    first = rounds[1]["t"]  # after the first round: every peer up and settled once
     before: dict[str, dict[str, Any]] = {}
     after: dict[str, dict[str, Any]] = {}
     for s in h.of("sample"):
@@ -339,10 +340,15 @@ def metrics(h: History) -> dict[str, Any]:
     merged = len(h.of("merged"))
     up = h.one("all-up")
     floor = h.one("floor") or {}
+    ends = {
+        e["round"]: e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end"
+    }
+    rounds = [e["t"] - ends[e["round"]] for e in h.of("round-converged") if e["round"] in ends]
     return {
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
         "all_up_s": None if up is None else up["t"],
         "reference_s": ref,
+        "churn_convergence_s": round(max(rounds), 3) if rounds else None,
         "messages": messages,
         "learned": merged,
         "messages_per_item": round(messages / merged, 2) if merged else None,

@@ -65,7 +65,7 @@ def draw(ax: Any, h: History, title: str) -> None:
         elif e["fault"] in opened:
             ax.axvspan(opened.pop(e["fault"]), e["t"], color=COLOURS[e["fault"]], alpha=0.15,
                        label=e["fault"])  # fmt: skip
-    for peer, steps in knowledge_steps(h).items():
+    for steps in knowledge_steps(h).values():
         xs = [t for t, _ in steps] + [t_end]
         ys = [n for _, n in steps] + [steps[-1][1]]
         ax.step(xs, ys, where="post", lw=0.8, alpha=0.7)

@@ -8,6 +8,7 @@ why, and the run reports loss as skipped."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -81,10 +82,8 @@ def delete(name: str) -> None:
     """Kill what still runs in the namespace (only ours run there) and delete it: its rules
     go with it."""
     for pid in pids(name):
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
     _run("ip", "netns", "del", name)
 
 

@@ -105,7 +105,7 @@ class LinkProxy:
             if not self._open.is_set():
                 self.counters.connections_held += 1
                 await self._open.wait()
-            if self.state == "cut" or pair not in self._conns:
+            if pair not in self._conns:  # cut meanwhile
                 return
             host, port = self.link.target, self.port
             try:

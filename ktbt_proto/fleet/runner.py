@@ -21,6 +21,7 @@ import json
 import os
 import random
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -44,6 +45,16 @@ if not EXAMPLE_KNOWLEDGE.exists():  # a source checkout keeps the examples besid
     EXAMPLE_KNOWLEDGE = ROOT.parent / "examples" / "knowledge" / "colours.sbt"
 COPIED = ("query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received")
 """The peers' exchange events copied into the record."""
+OUTPUTS = (
+    "peers",
+    "zenoh",
+    "events.jsonl",
+    "summary.json",
+    "result.json",
+    "config.json",
+    "knowledge.png",
+)
+"""What a run writes in its folder (and removes there before it starts)."""
 UP = re.compile(r"knows (\d+), will meet|serving (\d+) skills|router listening")
 
 
@@ -210,7 +221,11 @@ class Fleet:
             )  # fmt: skip
         member.lives.append(Life(number, proc, out, self.record.now(), known))
         self.record.emit(
-            "launch", peer=member.node.name, role=member.node.role, life=number, pid=proc.pid,
+            "launch",
+            peer=member.node.name,
+            role=member.node.role,
+            life=number,
+            pid=proc.pid,
             known=sorted(known),
         )
 
@@ -413,8 +428,8 @@ class Fleet:
             started = time.monotonic()
             self.layer.apply(plan.crossing(), "held" if cfg.partition_kind == "silent" else "cut")
             self.fault(name, "start", links=crossing, half=plan.half)
-            for n in late:
-                self.launch(self.members[n])
+            for teacher in late:
+                self.launch(self.members[teacher])
             if not await self.wait_up(late, cfg.up_limit):
                 return "the teachers did not come up"
             await asyncio.sleep(max(0.0, cfg.partition - (time.monotonic() - started)))
@@ -423,7 +438,9 @@ class Fleet:
             self.fault(name, "end", evidence=evidence)
             self.reference = self.record.now()
         for number, victims in enumerate(plan.victims, 1):
-            await asyncio.sleep(0.5 + self.rng.random())
+            # The first round strikes while the victims are still learning (what they saved
+            # must come back, the rest be learned); later ones after the fleet has converged.
+            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.rng.random())
             self.fault("churn", "start", round=number, peers=victims)
             for v in victims:
                 self.kill(self.members[v])
@@ -435,7 +452,8 @@ class Fleet:
             self.fault("churn", "end", round=number, peers=victims)
             self.reference = self.record.now()
             if number < len(plan.victims):  # they learn again and run a while: a round
-                await self.until(self.all_know, cfg.bound)
+                if await self.until(self.all_know, cfg.bound):
+                    self.record.emit("round-converged", round=number)
                 await asyncio.sleep(1.0)
         self.record.emit("reference", at=self.reference)
         if self.converged is not None and self.converged < self.reference:
@@ -443,7 +461,10 @@ class Fleet:
         await self.until(self.all_know, cfg.bound)
         self.converged = self.record.now() if self.all_know() else None
         self.record.emit("converged", at=self.converged)
+        if plan.victims and self.converged is not None:
+            self.record.emit("round-converged", round=len(plan.victims))
         await asyncio.sleep(cfg.settle)
+        self._sample()  # the last samples, before the probe opens a session here
         return None
 
     async def until(self, done: Callable[[], bool], limit: float) -> bool:
@@ -500,7 +521,6 @@ class Fleet:
                 if m.node.role == "learner" or self.teacher_program == "run":
                     saved = read_saved(m.save) if m.node.role != "router" else {}
                     self.record.emit("final", peer=m.node.name, saved=saved)
-            self._sample()
             await self.stop_all()
             for m in self.members.values():
                 for life in m.lives:
@@ -586,6 +606,12 @@ def run(config: FleetConfig, out: Path, say: Say, live: bool = False) -> dict[st
     from .check import check_record
 
     out.mkdir(parents=True, exist_ok=True)
+    for old in OUTPUTS:  # a previous run's files, never anything else
+        target = out / old
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
     why = netns.unavailable(need_nft=bool(config.loss))
     if why is None:
         result = _in_namespace(config, out, live)

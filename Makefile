@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench studies fuzz clean
+.PHONY: demo test lint typecheck pytest bench studies fuzz soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -58,6 +58,12 @@ FUZZ_INPUTS ?= 1000000
 FUZZ_SEED ?=
 fuzz: $(VENV)/.installed-dev
 	$(BIN)/python -m ktbt_proto.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+
+# The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
+# and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,
+# fleet.png). About 5 minutes on 2 cores; packet loss needs root and nftables.
+soak: $(VENV)/.installed-dev
+	nice $(BIN)/ktbt fleet study --out results/fleet --docs docs/results
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures

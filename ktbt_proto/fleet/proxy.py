@@ -81,6 +81,8 @@ class LinkProxy:
             a.close()
             if b is not None:
                 b.close()
+        self._conns.clear()
+        self._open.set()  # held connections wake, find themselves closed, and end
         for task in list(self._tasks):
             task.cancel()
         if self._tasks:
@@ -95,6 +97,10 @@ class LinkProxy:
         task.add_done_callback(self._tasks.discard)
 
     async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        with contextlib.suppress(asyncio.CancelledError):  # the run is ending
+            await self._forward(reader, writer)
+
+    async def _forward(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         if self.state == "cut":
             self.counters.refused += 1
             _reset(writer)

@@ -505,7 +505,10 @@ class Fleet:
         problem: str | None = None
         probe: dict[str, Any] = {}
         try:
-            problem = await self.schedule()
+            try:
+                problem = await self.schedule()
+            except asyncio.CancelledError:  # Ctrl-C or SIGTERM: clean up, record why
+                problem = "interrupted"
             if problem is None:
                 probe = await self.floor()
                 self.record.emit("floor", **probe)
@@ -595,8 +598,19 @@ def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict
 
 
 def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: str | None) -> Any:
-    fleet = Fleet(config, out, say, live, loss_note)
-    return asyncio.run(fleet.run())
+    """One scenario here; SIGINT and SIGTERM stop its schedule, and everything it started is
+    still stopped and recorded."""
+
+    async def main() -> dict[str, Any]:
+        fleet = Fleet(config, out, say, live, loss_note)
+        task = asyncio.current_task()
+        assert task is not None
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, task.cancel)
+        return await fleet.run()
+
+    return asyncio.run(main())
 
 
 def run(config: FleetConfig, out: Path, say: Say, live: bool = False) -> dict[str, Any]:
@@ -641,12 +655,17 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
              str(out), "--live" if live else "--quiet"],
             env={**os.environ, "KTBT_FLEET_NETNS": name},
         )  # fmt: skip
+        previous = signal.signal(signal.SIGTERM, _interrupt)
         try:
             proc.wait()
-        except KeyboardInterrupt:  # the inner runner got the same Ctrl-C: let it clean up
+        except KeyboardInterrupt:  # tell the inner runner (a terminal's Ctrl-C reaches it too)
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGINT)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.wait(timeout=30)
             raise
+        finally:
+            signal.signal(signal.SIGTERM, previous)
         result_file = out / "result.json"
         if result_file.exists():
             result: dict[str, Any] = json.loads(result_file.read_text())
@@ -657,6 +676,10 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
             proc.kill()
             proc.wait()
         netns.delete(name)
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
 
 
 def main() -> None:

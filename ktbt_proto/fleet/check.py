@@ -108,11 +108,14 @@ def _completed(h: History) -> Verdict:
     return Verdict("completed", "pass", "the schedule ran to its end")
 
 
-def convergence_time(h: History) -> float | None:
-    """When the last peer (in its last life) knew every item, or None if one never did."""
+def convergence_time(h: History, among: set[str] | None = None) -> float | None:
+    """When the last peer (in its last life; of ``among``, if given) knew every item, or None
+    if one never did."""
     merges = h.merges()
     latest = 0.0
     for peer, life in h.last_lives().items():
+        if among is not None and peer not in among:
+            continue
         if life["up"] is None:
             return None
         known = set(life.get("known", []))
@@ -244,7 +247,7 @@ def _faults(h: History) -> list[Verdict]:
             out.append(
                 Verdict("fault: delay", "pass", f"{ev['delayed_chunks']} chunks delayed; {shown}")
             )
-    if cfg["partition"]:
+    if cfg["partition"] and cfg["partition_kind"] != "none":
         out.append(_partition(h, starts, ends))
     if cfg["churn"]:
         kills = [k for k in h.of("kill") if k.get("returncode") == -9]
@@ -339,6 +342,8 @@ def metrics(h: History) -> dict[str, Any]:
     messages = len([e for e in counted if e.get("to") != "fleet-probe"])
     merged = len(h.of("merged"))
     up = h.one("all-up")
+    half = {p for p, side in h.plan["half"].items() if side == 0}
+    teacher_half = convergence_time(h, half) if half and up is not None else None
     floor = h.one("floor") or {}
     ends = {
         e["round"]: e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end"
@@ -348,6 +353,9 @@ def metrics(h: History) -> dict[str, Any]:
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
         "all_up_s": None if up is None else up["t"],
         "reference_s": ref,
+        "teacher_half_s": None
+        if teacher_half is None or up is None
+        else round(max(0.0, teacher_half - up["t"]), 3),
         "churn_convergence_s": round(max(rounds), 3) if rounds else None,
         "messages": messages,
         "learned": merged,

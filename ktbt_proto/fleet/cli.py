@@ -45,7 +45,11 @@ def run_command(
         str, typer.Option(help="A half/half partition this long, e.g. 30s (0: none).")
     ] = "0",
     partition_kind: Annotated[
-        str, typer.Option(help="silent (hold bytes, keep sockets) or reset (RST).")
+        str,
+        typer.Option(
+            help="silent (hold bytes, keep sockets), reset (RST), or none (the same halves, "
+            "nothing cut: a baseline)."
+        ),
     ] = "silent",
     churn: Annotated[float, typer.Option(help="Learners killed -9 and restarted, 0 to 1.")] = 0.0,
     churn_rounds: Annotated[int, typer.Option(help="Churn rounds.")] = 1,
@@ -115,11 +119,17 @@ def study_command(
     docs: Annotated[Path, typer.Option(help="Where the table and the figure go.")] = Path(
         "docs/results"
     ),
+    only: Annotated[
+        list[str] | None, typer.Option(help="Run only this scenario (repeatable).")
+    ] = None,
 ) -> None:
     """The whole study: convergence against size, loss, delay, partition and churn."""
-    from .study import study
+    from .study import SCENARIOS, study
 
-    summaries = study(out, docs, typer.echo)
+    unknown = set(only or ()) - {name for name, _, _ in SCENARIOS}
+    if unknown:
+        raise _fail(f"no such scenario: {', '.join(sorted(unknown))}")
+    summaries = study(out, docs, typer.echo, only)
     failed = [s["name"] for s in summaries if not s["passed"]]
     typer.echo(json.dumps({"runs": len(summaries), "failed": failed}))
     raise typer.Exit(1 if failed else 0)

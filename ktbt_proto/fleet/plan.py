@@ -18,7 +18,9 @@ from typing import Any, Literal
 
 Topology = Literal["mesh", "line", "router"]
 TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router")
-PartitionKind = Literal["silent", "reset"]
+PartitionKind = Literal["silent", "reset", "none"]
+"""``none``: the same halves and schedule, nothing held or cut (a baseline for the half
+with the teacher)."""
 
 
 class PlanError(ValueError):
@@ -79,8 +81,8 @@ class FleetConfig:
             raise PlanError("durations are not negative")
         if self.partition and self.topology == "router":
             raise PlanError("--partition needs --topology mesh or line (halves of peer links)")
-        if self.partition_kind not in ("silent", "reset"):
-            raise PlanError("--partition-kind must be silent or reset")
+        if self.partition_kind not in ("silent", "reset", "none"):
+            raise PlanError("--partition-kind must be silent, reset or none")
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -103,7 +105,7 @@ class FleetConfig:
             out.append("loss")
         if self.delay:
             out.append("delay")
-        if self.partition:
+        if self.partition and self.partition_kind != "none":
             out.append(f"partition-{self.partition_kind}")
         if self.churn:
             out.append("churn")

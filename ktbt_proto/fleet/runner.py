@@ -403,39 +403,47 @@ class Fleet:
         return dict(total)
 
     async def schedule(self) -> str | None:
-        """Run the scenario; returns why it could not run to its end, or None."""
+        """Run the scenario; returns why it could not run to its end, or None.
+
+        The learners come up first, then (with a partition, once it has begun on links already
+        up) the teachers: the last peer up is a teacher, and convergence is the time its
+        knowledge takes to reach every peer."""
         cfg, plan = self.config, self.plan
-        names = [n.name for n in plan.nodes]
-        late = [n.name for n in plan.peers if n.role == "teacher"] if cfg.partition else []
+        teachers = [n.name for n in plan.peers if n.role == "teacher"]
+        learners = [n.name for n in plan.peers if n.role == "learner"]
+        if cfg.delay:
+            self.fault("delay", "start", seconds=cfg.delay, links=[li.index for li in plan.links])
         for r in plan.routers:
             self.launch(self.members[r.name])
         if plan.routers and not await self.wait_up([r.name for r in plan.routers], 60):
             return "the routers did not come up"
-        for n in plan.peers:
-            if n.name not in late:
-                self.launch(self.members[n.name])
-        if not await self.wait_up([n for n in names if n not in late], cfg.up_limit):
-            down = [n for n in names if n not in late and not self.members[n].up]
+        for name in learners:
+            self.launch(self.members[name])
+        if not await self.wait_up(learners, cfg.up_limit):
+            down = [n for n in learners if not self.members[n].up]
             return f"not up within {cfg.up_limit:g} s: {', '.join(down)}"
-        self.record.emit("all-up")
-        self.reference = self.record.now()
-        if cfg.delay:
-            self.fault("delay", "start", seconds=cfg.delay, links=[li.index for li in plan.links])
+        self.record.emit("learners-up")
+        crossing = [link.index for link in plan.crossing()]
+        cut = f"partition-{cfg.partition_kind}"
+        injected = bool(cfg.partition) and cfg.partition_kind != "none"
+        started = time.monotonic()
         if cfg.partition:
             await asyncio.sleep(1.0)  # the links between the halves are up
-            crossing = [link.index for link in plan.crossing()]
-            name = f"partition-{cfg.partition_kind}"
             started = time.monotonic()
+        if injected:
             self.layer.apply(plan.crossing(), "held" if cfg.partition_kind == "silent" else "cut")
-            self.fault(name, "start", links=crossing, half=plan.half)
-            for teacher in late:
-                self.launch(self.members[teacher])
-            if not await self.wait_up(late, cfg.up_limit):
-                return "the teachers did not come up"
+            self.fault(cut, "start", links=crossing, half=plan.half)
+        for name in teachers:
+            self.launch(self.members[name])
+        if not await self.wait_up(teachers, cfg.up_limit):
+            return "the teachers did not come up"
+        self.record.emit("all-up")
+        self.reference = self.record.now()
+        if injected:
             await asyncio.sleep(max(0.0, cfg.partition - (time.monotonic() - started)))
             evidence = self._link_counters(crossing)
             self.layer.apply(plan.crossing(), "open")
-            self.fault(name, "end", evidence=evidence)
+            self.fault(cut, "end", evidence=evidence)
             self.reference = self.record.now()
         for number, victims in enumerate(plan.victims, 1):
             # The first round strikes while the victims are still learning (what they saved

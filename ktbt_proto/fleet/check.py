@@ -362,7 +362,8 @@ def metrics(h: History) -> dict[str, Any]:
         "messages_per_item": round(messages / merged, 2) if merged else None,
         "floor_s": floor.get("median_s"),
         "refused": len(h.of("refused")),
-        "transport_errors": len(h.of("error-received")),
+        "error_replies": len(h.of("error-received")),
+        "network_errors": len(h.of("network-error")),
     }
 
 

@@ -10,7 +10,6 @@ session.
 
 from __future__ import annotations
 
-import hashlib
 import random
 import re
 from dataclasses import asdict, dataclass, field
@@ -180,12 +179,6 @@ class Plan:
 
 def _address(prefix: int, k: int) -> str:
     return f"127.{prefix}.{k // 250}.{k % 250 + 1}"
-
-
-def zenoh_id(name: str) -> str:
-    """A stable zenoh id for a peer name (hex, 16 bytes, not starting with 0)."""
-    digest = hashlib.sha256(name.encode()).hexdigest()[:32]
-    return ("1" + digest[1:]) if digest[0] == "0" else digest
 
 
 def make_plan(config: FleetConfig, port: int) -> Plan:

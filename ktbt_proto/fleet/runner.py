@@ -34,8 +34,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+from ..transport.zenoh import stable_zid
 from . import netns
-from .plan import FleetConfig, Node, Plan, make_plan, zenoh_id
+from .plan import FleetConfig, Node, Plan, make_plan
 from .proxy import FaultLayer
 
 Say = Callable[[str], None]
@@ -43,7 +44,10 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 if not EXAMPLE_KNOWLEDGE.exists():  # a source checkout keeps the examples beside the package
     EXAMPLE_KNOWLEDGE = ROOT.parent / "examples" / "knowledge" / "colours.sbt"
-COPIED = ("query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received")
+COPIED = (
+    "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
+    "network-error",
+)  # fmt: skip
 """The peers' exchange events copied into the record."""
 OUTPUTS = (
     "peers",
@@ -177,7 +181,7 @@ class Fleet:
                           "period_increase_factor": 2},
             },
         }  # fmt: skip
-        conf["id"] = zenoh_id(node.name)
+        conf["id"] = stable_zid(node.name)  # a restarted peer is the same peer
         path.write_text(json.dumps(conf, indent=1))
         return path
 

@@ -77,6 +77,7 @@ def draw(ax: Any, h: History, title: str) -> None:
     ax.set_xlabel("seconds since launch")
     ax.set_ylabel("items known")
     ax.set_ylim(-0.2, len(h.items) + 0.2)
+    ax.set_yticks(range(len(h.items) + 1))
     handles, labels = ax.get_legend_handles_labels()
     unique = dict(zip(labels, handles, strict=True))
     ax.legend(unique.values(), unique.keys(), fontsize=7, loc="lower right")

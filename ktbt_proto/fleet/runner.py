@@ -571,12 +571,13 @@ def _port() -> int:
 
 def _run_takes_knowledge() -> bool:
     """Whether ``ktbt peer run`` has ``--knowledge`` (teachers that are fleet members)."""
+    import typer.main
+
     from .. import cli
 
-    source = Path(cli.__file__).read_text(encoding="utf-8")
-    run = source[source.find('@peer_app.command("run")') :]
-    run = run[: run.find("\n@", 1)]
-    return '"--knowledge"' in run
+    peer = getattr(typer.main.get_command(cli.app), "commands", {}).get("peer")
+    run = getattr(peer, "commands", {}).get("run")
+    return any("--knowledge" in getattr(p, "opts", ()) for p in getattr(run, "params", ()))
 
 
 def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict[str, Any]:

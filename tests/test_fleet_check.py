@@ -15,27 +15,27 @@ ITEMS = {"A": "aaaa", "B": "bbbb"}
 
 
 def base(**config: Any) -> list[dict[str, Any]]:
-    """Teacher t0, learners p1 and p2, two items; everyone learns both once; all saved."""
+    """Learners p0 and p1, teacher t2, two items; everyone learns both once; all saved."""
     cfg = FleetConfig(peers=3, **config)
     plan = make_plan(cfg, 7447)
     events: list[dict[str, Any]] = [
         {"t": 0.0, "kind": "run", "config": cfg.to_json(), "plan": plan.to_json(), "items": ITEMS}
     ]
-    for name, known in (("t0", ["A", "B"]), ("p1", []), ("p2", [])):
+    for name, known in (("p0", []), ("p1", []), ("t2", ["A", "B"])):
         events.append({"t": 0.1, "kind": "launch", "peer": name, "life": 1, "known": known})
         events.append({"t": 1.0, "kind": "up", "peer": name, "life": 1, "knows": len(known)})
     events.append({"t": 1.0, "kind": "all-up"})
-    for t, peer, seq in ((1.5, "p1", "A"), (1.6, "p2", "A"), (1.7, "p1", "B"), (1.9, "p2", "B")):
+    for t, peer, seq in ((1.5, "p0", "A"), (1.6, "p1", "A"), (1.7, "p0", "B"), (1.9, "p1", "B")):
         events.append({"t": t - 0.1, "kind": "query-sent", "peer": peer, "life": 1, "id": seq})
         events.append(
-            {"t": t, "kind": "answer-received", "peer": peer, "life": 1, "id": seq, "sender": "t0"}
+            {"t": t, "kind": "answer-received", "peer": peer, "life": 1, "id": seq, "sender": "t2"}
         )
         events.append({"t": t, "kind": "merged", "peer": peer, "life": 1, "sequence": seq})
     events += [
         {"t": 1.0, "kind": "reference", "at": 1.0},
         {"t": 1.9, "kind": "converged", "at": 1.9},
+        {"t": 3.0, "kind": "final", "peer": "p0", "saved": dict(ITEMS)},
         {"t": 3.0, "kind": "final", "peer": "p1", "saved": dict(ITEMS)},
-        {"t": 3.0, "kind": "final", "peer": "p2", "saved": dict(ITEMS)},
         {"t": 4.0, "kind": "end"},
     ]
     return events
@@ -65,7 +65,7 @@ def test_a_peer_that_never_learns_an_item_is_not_converged() -> None:
     events = [
         e
         for e in base()
-        if not (e["kind"] == "merged" and e["peer"] == "p2" and e["sequence"] == "B")
+        if not (e["kind"] == "merged" and e["peer"] == "p0" and e["sequence"] == "B")
     ]
     assert "convergence" in failed(events)
 
@@ -83,7 +83,7 @@ def test_a_duplicate_merge_is_rejected() -> None:
 
 def test_merging_what_a_life_started_with_is_a_duplicate() -> None:
     events = base()
-    launch = next(e for e in events if e["kind"] == "launch" and e["peer"] == "p2")
+    launch = next(e for e in events if e["kind"] == "launch" and e["peer"] == "p0")
     launch["known"] = ["A"]
     assert "no duplicate merge" in failed(events)
 
@@ -98,7 +98,7 @@ def test_merging_what_a_life_started_with_is_a_duplicate() -> None:
 )
 def test_a_corrupted_foreign_or_unreadable_saved_file_is_rejected(saved: Any) -> None:
     events = base()
-    next(e for e in events if e["kind"] == "final" and e["peer"] == "p2")["saved"] = saved
+    next(e for e in events if e["kind"] == "final" and e["peer"] == "p0")["saved"] = saved
     assert "saved files" in failed(events)
 
 
@@ -171,7 +171,7 @@ def test_an_answer_across_the_partition_fails_it() -> None:
     half = History(events).plan["half"]
     other = next(p for p, side in half.items() if side == 1)
     events.append(
-        {"t": 3.0, "kind": "answer-received", "peer": other, "life": 1, "sender": "t0", "id": "x"}
+        {"t": 3.0, "kind": "answer-received", "peer": other, "life": 1, "sender": "t2", "id": "x"}
     )
     assert "fault: partition-silent" in failed(events)
 
@@ -215,7 +215,7 @@ def test_growing_memory_across_churn_rounds_fails() -> None:
     events = [e for e in churned(rounds=2) if e["kind"] != "end"]
     events.append({"t": 3.0, "kind": "fault", "fault": "churn", "phase": "start", "round": 2})
     steady = [
-        {"t": t, "kind": "sample", "peer": "p2", "life": 1, "rss_kb": 30000, "fds": 40}
+        {"t": t, "kind": "sample", "peer": "p0", "life": 1, "rss_kb": 30000, "fds": 40}
         for t in (2.9, 3.5)
     ]
     assert (

@@ -58,6 +58,9 @@ def run_command(
     knowledge: Annotated[
         Path | None, typer.Option(help="The teachers' .sbt file (default: the colours).")
     ] = None,
+    teacher: Annotated[
+        str, typer.Option(help="run (fleet members: peer run --knowledge) or serve (peer serve).")
+    ] = "run",
     out: Annotated[Path, typer.Option(help="Folder for the record and the figure.")] = Path(
         "fleet-run"
     ),
@@ -72,7 +75,8 @@ def run_command(
             peers=peers, teachers=teachers, topology=topology, routers=routers,  # type: ignore[arg-type]
             loss=loss, delay=seconds(delay), partition=seconds(partition),
             partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,  # type: ignore[arg-type]
-            seed=seed, bound=bound, knowledge=str(knowledge.resolve()) if knowledge else "",
+            seed=seed, bound=bound, teacher=teacher,  # type: ignore[arg-type]
+            knowledge=str(knowledge.resolve()) if knowledge else "",
             name=out.name,
         )  # fmt: skip
     except PlanError as exc:

@@ -2,10 +2,10 @@
 seeded choices of its fault schedule (which half each peer is in, who is killed in which churn
 round). Pure data, so that the same seed gives the same fleet and the same faults.
 
-Addresses: peer ``k`` listens on ``127.1.x.y``, router ``r`` on ``127.3.0.(r+1)``, and link
-``l``'s proxy on ``127.2.x.y`` (all of 127.0.0.0/8 is local). A link is dialled by its higher
-peer to its lower one only (peer ``i`` dials ``j < i``): mutual dialling can split a zenoh
-session.
+Learners come first, teachers last (``p0``..., then ``t``...). Addresses: peer ``k`` listens on
+``127.1.x.y``, router ``r`` on ``127.3.0.(r+1)``, and link ``l``'s proxy on ``127.2.x.y`` (all
+of 127.0.0.0/8 is local). A link is dialled by its higher peer to its lower one only (peer
+``i`` dials ``j < i``): mutual dialling can split a zenoh session.
 """
 
 from __future__ import annotations
@@ -63,6 +63,10 @@ class FleetConfig:
     """Seconds for every peer to come up (0: 30 + 1.5 a peer)."""
     knowledge: str = ""
     """The teachers' knowledge file (empty: the example colour skills)."""
+    teacher: Literal["run", "serve"] = "run"
+    """``run``: teachers are fleet members (``ktbt peer run --knowledge``: an agent, which
+    teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which
+    answer every query at once)."""
     name: str = "fleet"
 
     def __post_init__(self) -> None:
@@ -80,6 +84,8 @@ class FleetConfig:
             raise PlanError("durations are not negative")
         if self.partition and self.topology == "router":
             raise PlanError("--partition needs --topology mesh or line (halves of peer links)")
+        if self.teacher not in ("run", "serve"):
+            raise PlanError("--teacher must be run or serve")
         if self.partition_kind not in ("silent", "reset", "none"):
             raise PlanError("--partition-kind must be silent, reset or none")
 
@@ -186,8 +192,9 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
     rng = random.Random(config.seed)
     plan = Plan(config, port)
     width = len(str(config.peers - 1))
-    for k in range(config.peers):
-        role: Literal["teacher", "learner"] = "teacher" if k < config.teachers else "learner"
+    first_teacher = config.peers - config.teachers
+    for k in range(config.peers):  # teachers last: they start last and dial every neighbour
+        role: Literal["teacher", "learner"] = "learner" if k < first_teacher else "teacher"
         name = f"{'t' if role == 'teacher' else 'p'}{k:0{width}d}"
         plan.nodes.append(Node(name, role, _address(1, k), k))
     for r in range(config.router_count):
@@ -219,8 +226,8 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
         size_a = (len(peers) + 1) // 2 - config.teachers
         if size_a < 0 or len(learners) - max(size_a, 0) < 1:
             raise PlanError("a partition needs at least one learner in the half with no teacher")
-        if config.topology == "line":  # halves of a line are its two ends
-            chosen = set(learners[: max(size_a, 0)])
+        if config.topology == "line":  # halves of a line are its two ends (teachers last)
+            chosen = set(learners[len(learners) - max(size_a, 0) :])
         else:
             chosen = set(rng.sample(learners, max(size_a, 0)))
         for p in peers:

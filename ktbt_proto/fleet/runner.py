@@ -163,7 +163,9 @@ class Fleet:
         self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
         self.record = Record(out / "events.jsonl", self.t0)
         self.rng = random.Random(config.seed + 1)
-        self.teacher_program = "run" if _run_takes_knowledge() else "serve"
+        self.teacher_program = (
+            "run" if config.teacher == "run" and _run_takes_knowledge() else "serve"
+        )
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
         self.converged: float | None = None

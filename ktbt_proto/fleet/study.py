@@ -30,7 +30,11 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("churn-20", {"peers": 10, "churn": 0.2, "churn_rounds": 3}, "within 5 s after they are back"),
     ("line-10", {"peers": 10, "topology": "line"}, ""),
     ("router-20", {"peers": 20, "topology": "router"}, ""),
+    ("member-10", {"peers": 10, "teacher": "run"}, ""),
 ]
+"""Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
+is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
+cool-down); learners are always ``ktbt peer run`` agents that teach onward."""
 LIMITS = {"size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0}
 
 
@@ -52,7 +56,7 @@ def study(out: Path, docs: Path, say: Say, only: list[str] | None = None) -> lis
         if only and name not in only:
             continue
         say(f"--- {name}")
-        config = FleetConfig(name=name, seed=7, bound=60.0, **params)
+        config = FleetConfig(name=name, seed=7, bound=60.0, **{"teacher": "serve", **params})
         summary = run(config, out / name, say)
         summaries.append(summary)
         for v in summary["verdicts"]:
@@ -80,7 +84,8 @@ def table(summaries: list[dict[str, Any]]) -> str:
         "# Fleet study",
         "",
         "Real `ktbt peer` processes on loopback, one zenoh session each, every link through the",
-        "fault layer (`ktbt fleet study`, `make soak`); one teacher holds the four colour skills,",
+        "fault layer (`ktbt fleet study`, `make soak`); one teacher holds the four colour skills",
+        "(a `ktbt peer serve`, except in member-10, where it is a `ktbt peer run --knowledge`),",
         "every other peer learns them and teaches onward. The learners start first, the teacher",
         "last. Convergence is the time until every live peer knows every item, counted from the",
         "last peer up (the teacher), the heal of the partition, or the return of the peers",

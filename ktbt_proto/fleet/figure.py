@@ -35,7 +35,7 @@ def knowledge_steps(h: History) -> dict[str, list[tuple[float, int]]]:
     known: dict[str, set[str]] = {}
     timeline: list[tuple[float, str, str, Any]] = []
     for e in h.events:
-        if e["kind"] == "up" and e["peer"] in steps:
+        if e["kind"] == "launch" and e["peer"] in steps:  # a life starts with its save file
             timeline.append((e["t"], e["peer"], "up", e["life"]))
         elif e["kind"] == "merged" and e["peer"] in steps:
             timeline.append((e["t"], e["peer"], "merged", e["sequence"]))

@@ -17,6 +17,7 @@ exchange is written to the transfer log when one is given (``spec/protocol.md`` 
 from __future__ import annotations
 
 import logging
+import os
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -660,13 +661,10 @@ class Agent:
             except OSError:
                 text = ""
             saved = salvage(text, self.receive_limits)
-            aside = path.with_name(
-                f"{path.name}.damaged-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}"
-            )
             try:
                 if not path.is_file() or path.is_symlink():
                     raise OSError(0, "not a regular file")
-                path.rename(aside)
+                aside = _set_aside(path)
                 where = f"moved to {aside.name}"
             except OSError as err:
                 self.knowledge_path = None
@@ -683,6 +681,22 @@ class Agent:
                 continue
             self.knowledge.add(item)
             self.metrics.learned[item.key] = (0, item.source or "")
+
+
+def _set_aside(path: Path) -> Path:
+    """Move a damaged file to ``FILE.damaged-TIME`` (``-2``, ``-3``... if that name is taken):
+    linked under the new name first, which never replaces a file, then unlinked, so no aside
+    file, and nothing in the damaged one, is ever overwritten (spec/protocol.md section 5)."""
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    for n in range(1, 1000):
+        aside = path.with_name(f"{path.name}.damaged-{stamp}" + (f"-{n}" if n > 1 else ""))
+        try:
+            os.link(path, aside)
+        except FileExistsError:
+            continue
+        path.unlink()
+        return aside
+    raise OSError(0, "too many damaged files set aside")
 
 
 class _QueryAndWait:

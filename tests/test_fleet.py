@@ -37,8 +37,8 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
     out = tmp_path / "run"
     proc = subprocess.Popen(
         [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--partition", "8s",
-         "--churn", "0.2", "--loss", "0.1", "--seed", "3", "--bound", "30", "--teacher", "serve", "--no-live",
-         "--out", str(out)],
+         "--churn", "0.2", "--loss", "0.1", "--seed", "3", "--bound", "30", "--teacher", "serve",
+         "--no-live", "--out", str(out)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:

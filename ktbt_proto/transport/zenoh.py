@@ -194,21 +194,16 @@ class ZenohTransport:
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
         self.closed = False
         self._session = open_session(self.settings)
-        direct = zenoh.handlers.Callback  # run where zenoh receives: no thread, no hop
+        # Each entity's callbacks run in one Python thread of its own, for the entity's life
+        # (zenoh's default): faster than taking the GIL from zenoh's own threads.
         try:
             self._declared: list[Any] = [
-                self._session.declare_queryable(
-                    f"{PREFIX}/knowledge/{self.name}", direct(self._on_query, indirect=False)
-                ),
-                self._session.declare_queryable(
-                    f"{PREFIX}/catalog/{self.name}", direct(self._on_catalog, indirect=False)
-                ),
-                self._session.declare_subscriber(
-                    f"{PREFIX}/inbox/{self.name}", direct(self._on_inbox, indirect=False)
-                ),
+                self._session.declare_queryable(f"{PREFIX}/knowledge/{self.name}", self._on_query),
+                self._session.declare_queryable(f"{PREFIX}/catalog/{self.name}", self._on_catalog),
+                self._session.declare_subscriber(f"{PREFIX}/inbox/{self.name}", self._on_inbox),
                 self._session.liveliness().declare_token(f"{PREFIX}/peers/{self.name}"),
                 self._session.liveliness().declare_subscriber(
-                    f"{PREFIX}/peers/*", direct(self._on_presence, indirect=False)
+                    f"{PREFIX}/peers/*", self._on_presence
                 ),
             ]
             if self.publish_answers:
@@ -218,7 +213,7 @@ class ZenohTransport:
                 self._declared.append(
                     self._session.declare_subscriber(
                         f"{PREFIX}/answers/*",
-                        direct(self._on_answer, indirect=False),
+                        self._on_answer,
                         allowed_origin=zenoh.Locality.REMOTE,  # not our own answers
                     )
                 )
@@ -230,7 +225,7 @@ class ZenohTransport:
 
     def broadcast(self, message: Message) -> None:
         """Ask every reachable peer; returns at once, and answers arrive in the inbox."""
-        self._get(message, self.query_timeout, keep=True)
+        self._get(message, self.query_timeout)
 
     def _refuse(self, reason: str, **fields: Any) -> None:
         """Count, log and record one refusal (spec section 2: every refusal is counted)."""
@@ -311,34 +306,39 @@ class ZenohTransport:
         timeout: float | None = None,
         on_answer: Callable[[Response], None] | None = None,
     ) -> list[Response]:
-        """Broadcast ``query`` and wait until the get ends (blocking; for tools and tests).
-        ``on_answer`` sees each answer the moment it arrives, in zenoh's thread."""
+        """Broadcast ``query`` and wait until the get ends, in the caller's thread (for tools,
+        tests and benchmarks; an agent uses :meth:`broadcast`). ``on_answer`` sees each answer
+        the moment it arrives."""
         answers: list[Response] = []
+        heard: set[str] = set()
+        with self._lock:
+            self._asked.append(query.id)
+        try:  # the caller's own thread waits, reading the replies as they arrive
+            replies = self._session.get(
+                f"{PREFIX}/knowledge/*",
+                payload=encode(query),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=self.query_timeout if timeout is None else timeout,
+                allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
+            )
+            for reply in replies:
+                answer = self._reply(reply, query, heard)
+                if answer is not None:
+                    answers.append(answer)
+                    if on_answer is not None:
+                        on_answer(answer)
+        except Exception:  # a closing session; the query is simply lost
+            log.debug("%s: query failed", self.name, exc_info=True)
+        return answers
 
-        def collect(answer: Response) -> None:
-            answers.append(answer)
-            if on_answer is not None:
-                on_answer(answer)
-
-        wait = self.query_timeout if timeout is None else timeout
-        ended = self._get(query, wait, keep=False, on_answer=collect)
-        if ended is not None:
-            ended.wait(wait + 5.0)  # zenoh ends the get at its timeout; this is a backstop
-        return list(answers)
-
-    def _get(
-        self,
-        message: Message,
-        timeout: float,
-        keep: bool,
-        on_answer: Callable[[Response], None] | None = None,
-    ) -> threading.Event | None:
-        """One get, which holds no thread: each reply is handled by a callback as it arrives
-        (replies are not consolidated), and the get's end by the callback's drop. A reply is an
-        answer only if it is a response to this query, on its sender's own key, and the first
-        from that key. Returns an event set when the get has ended (None: not sent)."""
+    def _get(self, message: Message, timeout: float) -> None:
+        """One get, which holds no thread: each reply is handled as it arrives by a callback run
+        in zenoh's own thread (replies are not consolidated), and the get's end by the
+        callback's drop. A reply is an answer only if it is a response to this query, on its
+        sender's own key, and the first from that key; answers go to the inbox."""
         if self.closed:
-            return None
+            return
         with self._lock:
             full = self._asking >= self.max_asking
             if not full:
@@ -346,20 +346,15 @@ class ZenohTransport:
                 self._asked.append(message.id)
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
-            return None
+            return
         heard: set[str] = set()
         ended = threading.Event()
 
         def on_reply(reply: Any) -> None:
-            if self.closed:
-                return
-            answer = self._reply(reply, message, heard)
-            if answer is None:
-                return
-            if on_answer is not None:
-                on_answer(answer)
-            if keep:
-                self._deliver(answer)
+            if not self.closed:
+                answer = self._reply(reply, message, heard)
+                if answer is not None:
+                    self._deliver(answer)
 
         def on_end() -> None:
             with self._lock:
@@ -380,7 +375,6 @@ class ZenohTransport:
             log.debug("%s: query failed", self.name, exc_info=True)
             if not ended.is_set():
                 on_end()
-        return ended
 
     def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
         """The answer a reply carries, or None: refused and counted, a peer's error, or the
@@ -505,13 +499,8 @@ class ZenohTransport:
         if found is None:
             return
         item = found if isinstance(found, SignedItem) else SignedItem(found)
-        response = Response(
-            id=message.id,
-            sender=self.name,
-            sequence=message.sequence,
-            subtree=item.subtree,
-            author=item.author,
-            signature=item.signature,
+        response = Response.of(
+            message.id, self.name, message.sequence, item.subtree, item.author, item.signature
         )
         if self.identity is not None:
             response = self.identity.sign_reply(response)

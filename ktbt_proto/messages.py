@@ -119,24 +119,20 @@ class Response(_Message):
         ``sequence``, this peer's name, an item it holds, checked when it was loaded or
         received): validated again only when it could be too large, since a teacher builds one
         for every query it answers."""
-        text = (id, sender, sequence, subtree, author, signature)
-        if _ENVELOPE + 6 * sum(len(t) for t in text if t is not None) > MAX_MESSAGE_BYTES:
-            return cls(
-                id=id,
-                sender=sender,
-                sequence=sequence,
-                subtree=subtree,
-                author=author,
-                signature=signature,
-            )
-        return cls.model_construct(
-            id=id,
-            sender=sender,
-            sequence=sequence,
-            subtree=subtree,
-            author=author,
-            signature=signature,
-        )
+        fields: dict[str, Any] = {
+            "id": id,
+            "sender": sender,
+            "sequence": sequence,
+            "subtree": subtree,
+            "author": author,
+            "signature": signature,
+        }
+        if (
+            _ENVELOPE + 6 * sum(len(t) for t in fields.values() if t is not None)
+            > MAX_MESSAGE_BYTES
+        ):
+            return cls(**fields)
+        return cls.model_construct(**fields)
 
     @model_validator(mode="after")
     def _fits_a_message(self) -> Response:

@@ -37,7 +37,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
@@ -57,6 +57,7 @@ from .base import Message, NetworkError, Received
 log = logging.getLogger("ktbt.zenoh")
 
 PREFIX = "ktbt/v1"
+_M = TypeVar("_M", Query, Response, ErrorReply)
 Lookup = Callable[[str], str | SignedItem | None]
 """Sequence key -> compact subtree (signed by its author, or not), or None: answers queries
 straight from the callback."""
@@ -383,13 +384,8 @@ class ZenohTransport:
             self._reply_error(reply.err.payload.to_bytes(), asked)
             return None
         key = str(reply.ok.key_expr)
-        try:
-            answer = decode(reply.ok.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a reply to {asked.id}: {exc.reason}", key=key)
-            return None
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} sent as a reply", key=key)
+        answer = self._decoded(reply.ok.payload.to_bytes(), Response, f"a reply to {asked.id}", key)
+        if answer is None:
             return None
         if key != f"{PREFIX}/knowledge/{answer.sender}":
             self._refuse(f"a reply naming {answer.sender} came on {key[:80]}", key=key)
@@ -421,19 +417,28 @@ class ZenohTransport:
             log.debug("%s: query %s: network error: %s", self.name, asked.id, reason)
             self._deliver(NetworkError(asked.id, reason))
             return
-        try:
-            error = decode(payload, self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"an error reply to {asked.id}: {exc.reason}")
-            return
-        if not isinstance(error, ErrorReply):
-            self._refuse(f"a {error.type} from {error.sender} sent as an error reply")
+        error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
+        if error is None:
             return
         log.info("%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message)
         if self.log is not None:
             self.log.record(
                 "error-received", peer=self.name, sender=error.sender, reason=error.message
             )
+
+    def _decoded(self, payload: bytes, kind: type[_M], what: str, key: str = "") -> _M | None:
+        """``payload`` as a message of the ``kind`` expected where it came (``what``); anything
+        else is refused and counted, with the key it came on."""
+        fields = {"key": key[:80]} if key else {}
+        try:
+            message = decode(payload, self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"{what}: {exc.reason}", **fields)
+            return None
+        if not isinstance(message, kind):
+            self._refuse(f"{what}: a {message.type} from {message.sender}", **fields)
+            return None
+        return message
 
     def _on_presence(self, sample: Any) -> None:
         """A peer's liveliness token appeared (or went): a new neighbour is counted."""
@@ -525,15 +530,9 @@ class ZenohTransport:
     def _on_inbox(self, sample: Any) -> None:
         """A late answer. Only a response is taken: a query arrives only through the
         queryable, where zenoh knows it came from a get."""
-        try:
-            message = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a message in the inbox: {exc.reason}")
-            return
-        if not isinstance(message, Response):
-            self._refuse(f"a {message.type} from {message.sender} put in the inbox")
-            return
-        self._deliver(message)
+        message = self._decoded(sample.payload.to_bytes(), Response, "a message in the inbox")
+        if message is not None:
+            self._deliver(message)
 
     def _on_answer(self, sample: Any) -> None:
         """An answer another peer published (section 4.3), checked as a reply is: within the
@@ -541,13 +540,8 @@ class ZenohTransport:
         passing the trust policy; then queued for the agent, a newcomer to a full queue refused.
         A copy of an answer to this peer's own query is left to the reply."""
         key = str(sample.key_expr)
-        try:
-            answer = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"an overheard answer: {exc.reason}", key=key[:80])
-            return
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} published as an answer", key=key)
+        answer = self._decoded(sample.payload.to_bytes(), Response, "an overheard answer", key)
+        if answer is None:
             return
         if key != f"{PREFIX}/answers/{answer.sender}" or answer.sender == self.name:
             self._refuse(f"an answer naming {answer.sender} came on {key[:80]}", key=key[:80])

@@ -37,7 +37,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
@@ -57,6 +57,7 @@ from .base import Message, NetworkError, Received
 log = logging.getLogger("ktbt.zenoh")
 
 PREFIX = "ktbt/v1"
+_M = TypeVar("_M", Query, Response, ErrorReply)
 Lookup = Callable[[str], str | SignedItem | None]
 """Sequence key -> compact subtree (signed by its author, or not), or None: answers queries
 straight from the callback."""
@@ -194,21 +195,16 @@ class ZenohTransport:
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
         self.closed = False
         self._session = open_session(self.settings)
-        direct = zenoh.handlers.Callback  # run where zenoh receives: no thread, no hop
+        # Each entity's callbacks run in one Python thread of its own, for the entity's life
+        # (zenoh's default): faster than taking the GIL from zenoh's own threads.
         try:
             self._declared: list[Any] = [
-                self._session.declare_queryable(
-                    f"{PREFIX}/knowledge/{self.name}", direct(self._on_query, indirect=False)
-                ),
-                self._session.declare_queryable(
-                    f"{PREFIX}/catalog/{self.name}", direct(self._on_catalog, indirect=False)
-                ),
-                self._session.declare_subscriber(
-                    f"{PREFIX}/inbox/{self.name}", direct(self._on_inbox, indirect=False)
-                ),
+                self._session.declare_queryable(f"{PREFIX}/knowledge/{self.name}", self._on_query),
+                self._session.declare_queryable(f"{PREFIX}/catalog/{self.name}", self._on_catalog),
+                self._session.declare_subscriber(f"{PREFIX}/inbox/{self.name}", self._on_inbox),
                 self._session.liveliness().declare_token(f"{PREFIX}/peers/{self.name}"),
                 self._session.liveliness().declare_subscriber(
-                    f"{PREFIX}/peers/*", direct(self._on_presence, indirect=False)
+                    f"{PREFIX}/peers/*", self._on_presence
                 ),
             ]
             if self.publish_answers:
@@ -218,7 +214,7 @@ class ZenohTransport:
                 self._declared.append(
                     self._session.declare_subscriber(
                         f"{PREFIX}/answers/*",
-                        direct(self._on_answer, indirect=False),
+                        self._on_answer,
                         allowed_origin=zenoh.Locality.REMOTE,  # not our own answers
                     )
                 )
@@ -230,7 +226,7 @@ class ZenohTransport:
 
     def broadcast(self, message: Message) -> None:
         """Ask every reachable peer; returns at once, and answers arrive in the inbox."""
-        self._get(message, self.query_timeout, keep=True)
+        self._get(message, self.query_timeout)
 
     def _refuse(self, reason: str, **fields: Any) -> None:
         """Count, log and record one refusal (spec section 2: every refusal is counted)."""
@@ -311,34 +307,39 @@ class ZenohTransport:
         timeout: float | None = None,
         on_answer: Callable[[Response], None] | None = None,
     ) -> list[Response]:
-        """Broadcast ``query`` and wait until the get ends (blocking; for tools and tests).
-        ``on_answer`` sees each answer the moment it arrives, in zenoh's thread."""
+        """Broadcast ``query`` and wait until the get ends, in the caller's thread (for tools,
+        tests and benchmarks; an agent uses :meth:`broadcast`). ``on_answer`` sees each answer
+        the moment it arrives."""
         answers: list[Response] = []
+        heard: set[str] = set()
+        with self._lock:
+            self._asked.append(query.id)
+        try:  # the caller's own thread waits, reading the replies as they arrive
+            replies = self._session.get(
+                f"{PREFIX}/knowledge/*",
+                payload=encode(query),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=self.query_timeout if timeout is None else timeout,
+                allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
+            )
+            for reply in replies:
+                answer = self._reply(reply, query, heard)
+                if answer is not None:
+                    answers.append(answer)
+                    if on_answer is not None:
+                        on_answer(answer)
+        except Exception:  # a closing session; the query is simply lost
+            log.debug("%s: query failed", self.name, exc_info=True)
+        return answers
 
-        def collect(answer: Response) -> None:
-            answers.append(answer)
-            if on_answer is not None:
-                on_answer(answer)
-
-        wait = self.query_timeout if timeout is None else timeout
-        ended = self._get(query, wait, keep=False, on_answer=collect)
-        if ended is not None:
-            ended.wait(wait + 5.0)  # zenoh ends the get at its timeout; this is a backstop
-        return list(answers)
-
-    def _get(
-        self,
-        message: Message,
-        timeout: float,
-        keep: bool,
-        on_answer: Callable[[Response], None] | None = None,
-    ) -> threading.Event | None:
-        """One get, which holds no thread: each reply is handled by a callback as it arrives
-        (replies are not consolidated), and the get's end by the callback's drop. A reply is an
-        answer only if it is a response to this query, on its sender's own key, and the first
-        from that key. Returns an event set when the get has ended (None: not sent)."""
+    def _get(self, message: Message, timeout: float) -> None:
+        """One get, which holds no thread: each reply is handled as it arrives by a callback run
+        in zenoh's own thread (replies are not consolidated), and the get's end by the
+        callback's drop. A reply is an answer only if it is a response to this query, on its
+        sender's own key, and the first from that key; answers go to the inbox."""
         if self.closed:
-            return None
+            return
         with self._lock:
             full = self._asking >= self.max_asking
             if not full:
@@ -346,20 +347,15 @@ class ZenohTransport:
                 self._asked.append(message.id)
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
-            return None
+            return
         heard: set[str] = set()
         ended = threading.Event()
 
         def on_reply(reply: Any) -> None:
-            if self.closed:
-                return
-            answer = self._reply(reply, message, heard)
-            if answer is None:
-                return
-            if on_answer is not None:
-                on_answer(answer)
-            if keep:
-                self._deliver(answer)
+            if not self.closed:
+                answer = self._reply(reply, message, heard)
+                if answer is not None:
+                    self._deliver(answer)
 
         def on_end() -> None:
             with self._lock:
@@ -380,7 +376,6 @@ class ZenohTransport:
             log.debug("%s: query failed", self.name, exc_info=True)
             if not ended.is_set():
                 on_end()
-        return ended
 
     def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
         """The answer a reply carries, or None: refused and counted, a peer's error, or the
@@ -389,13 +384,8 @@ class ZenohTransport:
             self._reply_error(reply.err.payload.to_bytes(), asked)
             return None
         key = str(reply.ok.key_expr)
-        try:
-            answer = decode(reply.ok.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a reply to {asked.id}: {exc.reason}", key=key)
-            return None
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} sent as a reply", key=key)
+        answer = self._decoded(reply.ok.payload.to_bytes(), Response, f"a reply to {asked.id}", key)
+        if answer is None:
             return None
         if key != f"{PREFIX}/knowledge/{answer.sender}":
             self._refuse(f"a reply naming {answer.sender} came on {key[:80]}", key=key)
@@ -427,19 +417,28 @@ class ZenohTransport:
             log.debug("%s: query %s: network error: %s", self.name, asked.id, reason)
             self._deliver(NetworkError(asked.id, reason))
             return
-        try:
-            error = decode(payload, self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"an error reply to {asked.id}: {exc.reason}")
-            return
-        if not isinstance(error, ErrorReply):
-            self._refuse(f"a {error.type} from {error.sender} sent as an error reply")
+        error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
+        if error is None:
             return
         log.info("%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message)
         if self.log is not None:
             self.log.record(
                 "error-received", peer=self.name, sender=error.sender, reason=error.message
             )
+
+    def _decoded(self, payload: bytes, kind: type[_M], what: str, key: str = "") -> _M | None:
+        """``payload`` as a message of the ``kind`` expected where it came (``what``); anything
+        else is refused and counted, with the key it came on."""
+        fields = {"key": key[:80]} if key else {}
+        try:
+            message = decode(payload, self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"{what}: {exc.reason}", **fields)
+            return None
+        if not isinstance(message, kind):
+            self._refuse(f"{what}: a {message.type} from {message.sender}", **fields)
+            return None
+        return message
 
     def _on_presence(self, sample: Any) -> None:
         """A peer's liveliness token appeared (or went): a new neighbour is counted."""
@@ -505,13 +504,8 @@ class ZenohTransport:
         if found is None:
             return
         item = found if isinstance(found, SignedItem) else SignedItem(found)
-        response = Response(
-            id=message.id,
-            sender=self.name,
-            sequence=message.sequence,
-            subtree=item.subtree,
-            author=item.author,
-            signature=item.signature,
+        response = Response.of(
+            message.id, self.name, message.sequence, item.subtree, item.author, item.signature
         )
         if self.identity is not None:
             response = self.identity.sign_reply(response)
@@ -536,15 +530,9 @@ class ZenohTransport:
     def _on_inbox(self, sample: Any) -> None:
         """A late answer. Only a response is taken: a query arrives only through the
         queryable, where zenoh knows it came from a get."""
-        try:
-            message = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a message in the inbox: {exc.reason}")
-            return
-        if not isinstance(message, Response):
-            self._refuse(f"a {message.type} from {message.sender} put in the inbox")
-            return
-        self._deliver(message)
+        message = self._decoded(sample.payload.to_bytes(), Response, "a message in the inbox")
+        if message is not None:
+            self._deliver(message)
 
     def _on_answer(self, sample: Any) -> None:
         """An answer another peer published (section 4.3), checked as a reply is: within the
@@ -552,13 +540,8 @@ class ZenohTransport:
         passing the trust policy; then queued for the agent, a newcomer to a full queue refused.
         A copy of an answer to this peer's own query is left to the reply."""
         key = str(sample.key_expr)
-        try:
-            answer = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"an overheard answer: {exc.reason}", key=key[:80])
-            return
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} published as an answer", key=key)
+        answer = self._decoded(sample.payload.to_bytes(), Response, "an overheard answer", key)
+        if answer is None:
             return
         if key != f"{PREFIX}/answers/{answer.sender}" or answer.sender == self.name:
             self._refuse(f"an answer naming {answer.sender} came on {key[:80]}", key=key[:80])

@@ -17,6 +17,8 @@ import pytest
 
 from tests.zenoh_helpers import ROOT
 
+pytestmark = [pytest.mark.slow, pytest.mark.network]  # make test-fast skips it
+
 
 def _alive(pid: int) -> bool:
     try:

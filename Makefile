@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop clean
+.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -70,6 +70,12 @@ fuzz: $(VENV)/.installed-dev
 interop: $(VENV)/.installed-dev
 	$(BIN)/python -m tests.btcpp.build
 	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/test_interop_btcpp_engine.py tests/test_interop_btcpp_learner.py
+
+# The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
+# and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,
+# fleet.png). About 6 minutes on 2 cores; packet loss needs root and nftables.
+soak: $(VENV)/.installed-dev
+	nice $(BIN)/ktbt fleet study --out results/fleet --docs docs/results
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures

@@ -31,6 +31,7 @@ EVENTS = (
     "merged",
     "forgotten",
     "error-received",
+    "network-error",
 )
 MAX_LINE = 1_000_000
 """A line longer than this is not read (a log is ours, but a file may be anything)."""

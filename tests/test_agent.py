@@ -327,3 +327,43 @@ def test_teaching_does_not_cut_the_own_wait_short() -> None:
     assert a.metrics.queries_lost == 0  # still waiting
     run(net, [a, b], 25)
     assert a.metrics.queries_lost == 1
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_an_item_is_merged_once_whatever_the_duplicates_reordering_and_re_asks(
+    tmp_path: Path, seed: int
+) -> None:
+    """Four teachers answer every query, their answers duplicated and shuffled, and the learner
+    asks again and again (it forgets, and re-asks with the same id): each time it learns, the
+    item is merged once, its bytes the author's."""
+    import random
+
+    from ktbt_proto.transferlog import TransferLog, read
+
+    rng = random.Random(seed)
+    net = MemoryNetwork()
+    log = TransferLog(tmp_path / "i.log")
+    teachers = [agent(net, f"k{n}", KNOWER, cooldown_ticks=0) for n in range(4)]
+    learner = agent(net, "i", wait_ticks=50, cooldown_ticks=1, repeat_every=3, log=log)
+    learned = 0
+    for _ in range(3):
+        learner.encounter(SEQUENCE)
+        for _ in range(40):
+            net.step()
+            for t in rng.sample(teachers, len(teachers)):
+                t.tick()
+            inbox = learner.transport._inbox  # type: ignore[attr-defined]
+            mail = list(inbox) * 2  # every answer twice, in any order
+            rng.shuffle(mail)
+            inbox.clear()
+            inbox.extend(mail)
+            learner.tick()
+        assert learner.knows(SEQUENCE)
+        item = learner.knowledge.lookup("<c>(TargetSeen,colour=2)")
+        assert item is not None and kp.format(item.subtree, "compact") == "<a>(Pick,colour=2)"
+        learned += 1
+        learner.forget(SEQUENCE)
+    log.close()
+    merged = [e for e in read(tmp_path / "i.log") if isinstance(e, dict) and e["event"] == "merged"]
+    assert len(merged) == learned == 3  # once each time, never twice
+    assert learner.metrics.forgotten == 3

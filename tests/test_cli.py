@@ -222,3 +222,35 @@ def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:
     assert code == 2 and "expected a condition before ','" in err  # usage: exit 2
     code, _, err = ktbt("merge", str(control), "-", "--when", " ", stdin=b"<a>(Z)")
     assert code == 2 and "names no condition" in err
+
+
+@pytest.mark.parametrize(
+    ("sequence", "caret", "code"),
+    [
+        ("TargetSeen(colour=100)", "                  ^", "SBT310"),  # under the value
+        ("Carrying, TargetSeen(colour = 100)", "                              ^", "SBT310"),
+        ("TargetSeen(color=2)", "           ^", "SBT311"),  # under the argument's name
+        ("Carrying, Nope", "          ^", "SBT305"),  # under the unknown condition
+    ],
+)
+def test_peer_run_refuses_at_start_a_sequence_its_own_registry_refuses(
+    sequence: str, caret: str, code: str
+) -> None:
+    """It could never accept an answer to it: exit 2 before joining any network, the error in
+    one line, a caret under the part of the argument at fault (no asking for its duration)."""
+    status, out, err = ktbt("peer", "run", "--sequence", sequence, "--duration", "600")
+    assert status == 2 and out == ""
+    lines = err.splitlines()
+    assert lines[0].startswith(f"error: --sequence {sequence!r}: {code} ")
+    assert lines[1:] == [f"    {sequence}", f"    {caret}"]
+    assert "Traceback" not in err
+
+
+def test_peer_commands_take_fixed_choices_as_choices() -> None:
+    for args in (
+        ["run", "--mode", "router"],
+        ["serve", "--knowledge", "x.sbt", "--overhear", "loud"],
+        ["ask", "--sequence", "A", "--policy", "x"],
+    ):
+        status, _, err = ktbt("peer", *args)
+        assert status == 2 and "is not one of" in err, err

@@ -323,3 +323,67 @@ def test_peer_list_shows_who_authored_what_a_signed_server_serves(tmp_path: Path
         listed = ktbt_run("peer", "list", "--connect", endpoint(port), "--timeout", "5")
     assert listed.returncode == 0, listed.stdout + listed.stderr
     assert f"  TargetSeen(colour=2)  (author {public})" in listed.stdout  # as people type it
+
+
+def test_no_number_of_silent_peers_holds_an_asker_or_a_thread() -> None:
+    """Three silent peers hold every query for the whole query timeout (30 s). Six queries in a
+    row are still all sent and answered by the teacher while the silent peers hold them, and
+    the open gets hold no thread (spec/protocol.md section 3)."""
+    pt, pl = free_port(), free_port()
+    quiet = [free_port() for _ in range(3)]
+    kb = teacher_kb()
+    with ExitStack() as stack:
+        stack.enter_context(ZenohTransport("t", settings(pt), lookup=answers(kb)))
+        held: list[Any] = []
+        for n, port in enumerate(quiet):
+            silent, _ = stack.enter_context(hostile(f"silent{n}", port, pt))
+            declare(silent, f"ktbt/v1/knowledge/quiet{n}", held.append)  # never answers
+        learner = stack.enter_context(
+            ZenohTransport("me", settings(pl, pt, *quiet), query_timeout=30)
+        )
+        see(learner, "t", "silent0", "silent1", "silent2")
+        threads = threading.active_count()
+        for n in range(6):
+            learner.broadcast(Query(id=f"q{n}", sender="me", sequence=GREEN))
+        got: list[Any] = []
+
+        def answered() -> bool:
+            got.extend(learner.receive())
+            return len(got) >= 6
+
+        assert wait_until(answered, 15)
+        assert sorted(m.id for m in got) == [f"q{n}" for n in range(6)]
+        assert wait_until(lambda: len(held) == 18, 10)  # each silent peer holds all six
+        assert threading.active_count() == threads  # six open gets, no thread held for them
+        assert learner.network_errors == 0 and learner.refused == 0
+
+
+def test_the_networks_own_errors_are_counted_apart_not_refused(tmp_path: Path) -> None:
+    """A get that times out at the asker: zenoh sends its own reply error (``Timeout``), which
+    is the network's, not a peer's message: counted in ``network_errors`` and logged as a
+    ``network-error`` event, never decoded nor counted as a refusal."""
+    ps, pl = free_port(), free_port()
+    log = TransferLog(tmp_path / "me.log")
+    with (
+        hostile("silent", ps) as (silent, held),
+        ZenohTransport("me", settings(pl, ps), query_timeout=0.5, log=log) as transport,
+    ):
+        declare(silent, "ktbt/v1/knowledge/quiet", held.append)
+        see(transport, "silent")
+        agent = Agent("me", DEMO_CONTROL, demo_registry(), transport, wait_ticks=1000, log=log)
+        agent.encounter(["TargetSeen(colour=2)"])
+        agent.tick()  # asks
+
+        def timed_out() -> bool:
+            agent.tick()
+            return agent.metrics.network_errors >= 1
+
+        assert wait_until(timed_out, 15)
+        assert held  # the silent peer really held the query
+        assert agent.metrics.refused == 0 and transport.refused == 0
+        assert transport.network_errors == 1
+    log.close()
+    events = [e for e in read(tmp_path / "me.log") if isinstance(e, dict)]
+    errors = [e for e in events if e["event"] == "network-error"]
+    assert len(errors) == 1 and errors[0]["reason"] == "Timeout" and errors[0]["peer"] == "me"
+    assert not [e for e in events if e["event"] == "refused"]

@@ -2,11 +2,27 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 from ..messages import ErrorReply, Query, Response
 
 Message = Query | Response | ErrorReply
+
+
+@dataclass(frozen=True)
+class NetworkError:
+    """The network's own error about one of this peer's queries (a get that timed out at a
+    router or at the asker, say): not a message, and nothing any peer sent, so never a refusal
+    (spec/protocol.md section 3). ``id`` is the query's; ``reason`` the network's words."""
+
+    id: str
+    reason: str
+    type: str = "network-error"
+
+
+Received = Message | NetworkError
+"""What :meth:`Transport.receive` hands over."""
 
 
 class Transport(Protocol):
@@ -23,6 +39,6 @@ class Transport(Protocol):
 
     def send(self, to: str, message: Message) -> None: ...
 
-    def receive(self) -> list[Message]: ...
+    def receive(self) -> list[Received]: ...
 
     def close(self) -> None: ...

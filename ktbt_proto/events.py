@@ -168,7 +168,8 @@ def from_log(entry: dict[str, Any], n: int, dropped: int = 0) -> FleetEvent:
     }
     if isinstance(sequence, str):
         fields["item"] = digest(sequence)
-        fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else sequence[:2045] + "..."
+        clipped = sequence[: MAX_SEQUENCE - 3] + "..."
+        fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else clipped
     for name in ("id", "sender", "to", "teacher", "author", "where", "tick"):
         if entry.get(name) is not None:
             fields[name] = entry[name]

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..events import FleetEvent, digest
+from ..trust import TrustStore
 
 MAX_PEERS = 512
 MAX_ITEMS = 512
@@ -32,6 +33,8 @@ CHANGES = 20_000
 """Changes kept for pages catching up; one further behind is sent a snapshot."""
 TIMELINE = 5000
 """Points of the spreading timeline kept (one a merge or forget)."""
+REASONS = 5
+"""The last reasons kept for each kind of thing refused, shown on the page."""
 LOST_AFTER = 5.0
 """A query sent and not answered within this many seconds is counted lost."""
 
@@ -73,7 +76,10 @@ class Fleet:
     """The fleet's state, thread-safe; every change is also appended to a bounded list of
     changes numbered from 1."""
 
-    def __init__(self) -> None:
+    def __init__(self, trust: TrustStore | None = None) -> None:
+        self.trust = trust
+        """Keys of peers known by name (``ktbt monitor --trust``): such a peer's events must be
+        signed by its key. Any other peer's first key is pinned."""
         self._lock = threading.Lock()
         self.peers: dict[str, Peer] = {}
         self.items: dict[str, str] = {}
@@ -81,7 +87,10 @@ class Fleet:
         self.refusals: deque[dict[str, Any]] = deque(maxlen=KEPT)
         self.timeline: deque[dict[str, Any]] = deque(maxlen=TIMELINE)
         self.drops: Counter[str] = Counter()
-        """What the monitor refused, by why: malformed, oversized, wrong-key, flood, full."""
+        """What the monitor refused, by why: malformed, oversized, wrong key, forged, replayed,
+        flood, full."""
+        self.reasons: dict[str, deque[str]] = {}
+        """The last :data:`REASONS` reasons of each kind refused."""
         self.events = 0
         self._changes: deque[tuple[int, dict[str, Any]]] = deque(maxlen=CHANGES)
         self._version = 0
@@ -90,16 +99,23 @@ class Fleet:
 
     # -- input -------------------------------------------------------------------------------
 
-    def drop(self, why: str) -> None:
-        """Count one thing refused; the count goes with every batch (:meth:`stats`), not as a
-        change, so a flood of junk never pushes real changes out."""
+    def drop(self, why: str, reason: str | None = None) -> None:
+        """Count one thing refused, keeping its reason; the count goes with every batch
+        (:meth:`stats`), not as a change, so a flood of junk never pushes real changes out."""
         with self._lock:
-            self.drops[why] += 1
+            self._drop(why, reason)
+
+    def _drop(self, why: str, reason: str | None) -> None:
+        self.drops[why] += 1
+        if reason is not None:
+            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(_clip(reason, 200))
 
     def peer_joined(self, name: str) -> None:
         with self._lock:
             peer = self._peer(_clip(name))
             if peer is not None and peer.status != "present":
+                if peer.status == "gone":
+                    peer.last_n = -1  # it restarted: its numbering starts over
                 peer.status, peer.since = "present", time.time()
                 self._change(peer.view())
 
@@ -122,18 +138,25 @@ class Fleet:
                     peer.knows[item] = {"how": "known", "t": None}
                     self._change({"k": "know", "peer": peer.name, "item": item, "how": "known"})
 
-    def event(self, event: FleetEvent, signed: bool) -> None:
+    def event(self, event: FleetEvent) -> None:
         """One event, already checked (:func:`~ktbt_proto.events.decode_event`) and known to
-        have come on its peer's own key."""
+        have come on its peer's own key. Refused, and counted, when it is not signed by the key
+        the trust store gives its peer, or by the first key it came with, or comes unsigned
+        after signed ones ("forged"), or numbers at or below one already taken ("replayed")."""
         now = time.time()
+        signed = event.sig is not None
         with self._lock:
             peer = self._peer(event.peer)
             if peer is None:
                 return
+            refused = self._refusal(peer, event)
+            if refused is not None:
+                self._drop(*refused)
+                return
             self.events += 1
             if event.n > peer.last_n + 1:
                 peer.lost_events += event.n - peer.last_n - 1
-            peer.last_n = max(peer.last_n, event.n)
+            peer.last_n = event.n
             peer.dropped = max(peer.dropped, event.dropped)
             peer.key = event.key if signed else peer.key
             if peer.status == "heard" and not peer.since:
@@ -151,12 +174,30 @@ class Fleet:
                 if value is not None:
                     seen[name] = value
             if event.item is not None and event.sequence is not None:
-                self._item(event.item, event.sequence)
+                whole = digest(event.sequence) == event.item
+                if whole or event.sequence.endswith("..."):  # clipped (section 10)
+                    self._item(event.item, event.sequence, clipped=not whole)
+                else:
+                    self._drop(
+                        "malformed",
+                        f"event {event.n} of {peer.name}: its sequence is not of its item",
+                    )
             peer.recent.append(seen)
             self._change(seen)
             self._follow(peer, event, signed, now)
             self._expire_queries(peer, now)
             self._dirty.add(peer.name)
+
+    def _refusal(self, peer: Peer, event: FleetEvent) -> tuple[str, str] | None:
+        bound = self.trust.names.get(peer.name) if self.trust is not None else None
+        expected = bound or peer.key
+        if expected is not None and event.key != expected:
+            how = "the trust store's" if bound else "its first"
+            what = "unsigned" if event.key is None else f"signed by {event.key}"
+            return "forged", f"event {event.n} of {peer.name}: {what}, not by {how} key"
+        if event.n <= peer.last_n:
+            return "replayed", f"event {event.n} of {peer.name}: {peer.last_n} was taken already"
+        return None
 
     def _follow(self, peer: Peer, event: FleetEvent, signed: bool, now: float) -> None:
         kind = event.event
@@ -233,10 +274,14 @@ class Fleet:
             self._change(peer.view())
         return peer
 
-    def _item(self, item: str, sequence: str) -> bool:
-        if item in self.items:
-            return True
-        if len(self.items) >= MAX_ITEMS:
+    def _item(self, item: str, sequence: str, clipped: bool = False) -> bool:
+        """Name ``item`` by ``sequence``: its whole text (whose digest it is) or, from an
+        event, its text clipped, replaced by the whole once a catalog or event says it."""
+        known = self.items.get(item)
+        if known is not None:
+            if clipped or known == sequence:
+                return True
+        elif len(self.items) >= MAX_ITEMS:
             self.drops["full"] += 1
             return False
         self.items[item] = sequence
@@ -269,7 +314,8 @@ class Fleet:
 
     def stats(self) -> dict[str, Any]:
         with self._lock:
-            return {"drops": dict(self.drops), "events": self.events}
+            reasons = {why: list(kept) for why, kept in self.reasons.items()}
+            return {"drops": dict(self.drops), "reasons": reasons, "events": self.events}
 
     def snapshot(self) -> tuple[int, dict[str, Any]]:
         with self._lock:

@@ -113,9 +113,31 @@ def test_tables_are_bounded_and_what_does_not_fit_is_counted(
         fleet.catalog("p0", [f"<c>(X{n})"])
     assert len(fleet.peers) == 3 and len(fleet.items) == 2
     assert fleet.drops["full"] == 7 + 8
+    fleet.peer_left("p1")  # a peer gone makes room for a newcomer; one present never does
+    fleet.peer_joined("q")
+    assert set(fleet.peers) == {"p0", "p2", "q"}
+    fleet.peer_joined("<" * 1000)  # not a peer name
+    fleet.catalog("p0", ["not a sequence", "<c>(A"])
+    assert "<" * 1000 not in fleet.peers and fleet.drops["malformed"] == 3
+    assert "not a peer name" in fleet.stats()["reasons"]["malformed"][0]
+
+    fleet = Fleet()  # items nobody knows make room for new ones
+    for n in range(3):
+        fleet.event(ev("r1", n, "query-sent", id=f"q{n}", item=digest(f"<c>(Y{n})"),
+                       sequence=f"<c>(Y{n})"))  # fmt: skip
+    assert list(fleet.items) == [digest("<c>(Y1)"), digest("<c>(Y2)")] and not fleet.drops
+
+
+def test_a_catalog_that_no_longer_lists_an_item_says_it_was_forgotten(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     fleet = Fleet()
-    fleet.peer_joined("<" * 1000)
-    assert [len(name) for name in fleet.peers] == [fleet_module.MAX_NAME]
+    fleet.catalog("t", [GREEN, "<c>(A)"])
+    fleet.catalog("t", ["<c>(A)"])
+    assert digest(GREEN) in fleet.peers["t"].knows  # just listed: maybe a race, kept
+    monkeypatch.setattr(fleet_module, "LOST_AFTER", -1.0)
+    fleet.catalog("t", ["<c>(A)"])
+    assert list(fleet.peers["t"].knows) == [digest("<c>(A)")]
 
 
 def test_a_page_that_fell_behind_gets_a_snapshot_and_batches_are_bounded(

@@ -12,19 +12,22 @@ snapshot instead. Data flows one way: zenoh callbacks call :meth:`Fleet.peer_joi
 from __future__ import annotations
 
 import itertools
+import re
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any
 
+from ..errors import StringBTError
 from ..events import FleetEvent, digest
+from ..items import parse_sequence
+from ..messages import _ID
 from ..trust import TrustStore
 
 MAX_PEERS = 512
 MAX_ITEMS = 512
-MAX_NAME = 128
-"""A liveliness name is shown as it came (a key chunk may hold anything), clipped to this."""
 RECENT = 50
 """Events kept per peer, for its detail view."""
 KEPT = 200
@@ -39,7 +42,14 @@ LOST_AFTER = 5.0
 """A query sent and not answered within this many seconds is counted lost."""
 
 
-def _clip(text: str, most: int = MAX_NAME) -> str:
+_NAME = re.compile(_ID)
+
+
+def _iso(seconds: float) -> str:
+    return datetime.fromtimestamp(seconds, UTC).isoformat(timespec="milliseconds")
+
+
+def _clip(text: str, most: int) -> str:
     return text if len(text) <= most else text[: most - 3] + "..."
 
 
@@ -58,6 +68,8 @@ class Peer:
     key: str | None = None
     queries_lost: int = 0
     open_queries: dict[str, float] = field(default_factory=dict)
+    heard: float = 0.0
+    """When anything last came from or about it (monotonic): the oldest idle peer goes first."""
 
     def view(self) -> dict[str, Any]:
         return {
@@ -110,9 +122,16 @@ class Fleet:
         if reason is not None:
             self.reasons.setdefault(why, deque(maxlen=REASONS)).append(_clip(reason, 200))
 
+    def _named(self, name: str, where: str) -> Peer | None:
+        """The peer of a name from a key expression: a peer name (section 1) or refused."""
+        if not _NAME.fullmatch(name):
+            self._drop("malformed", f"{where}: {_clip(name, 64)!r} is not a peer name")
+            return None
+        return self._peer(name)
+
     def peer_joined(self, name: str) -> None:
         with self._lock:
-            peer = self._peer(_clip(name))
+            peer = self._named(name, "liveliness")
             if peer is not None and peer.status != "present":
                 if peer.status == "gone":
                     peer.last_n = -1  # it restarted: its numbering starts over
@@ -121,22 +140,42 @@ class Fleet:
 
     def peer_left(self, name: str) -> None:
         with self._lock:
-            peer = self.peers.get(_clip(name))
+            peer = self.peers.get(name)
             if peer is not None and peer.status != "gone":
                 peer.status, peer.since = "gone", time.time()
                 self._change(peer.view())
 
     def catalog(self, name: str, sequences: list[str]) -> None:
-        """What a peer's catalog says it knows (served or learned before we listened)."""
+        """What a peer's catalog says it knows (served or learned before we listened): each
+        entry must be a sequence of conditions (stringBT); what the peer no longer lists, and
+        did not learn in the last :data:`LOST_AFTER` seconds, it has forgotten (its forget
+        event may have been lost)."""
+        now = time.time()
         with self._lock:
-            peer = self._peer(_clip(name))
+            peer = self._named(name, "catalog")
             if peer is None:
                 return
+            listed: set[str] = set()
+            whole = len(sequences) <= MAX_ITEMS
             for sequence in sequences[:MAX_ITEMS]:
-                item = digest(sequence)
+                try:
+                    parse_sequence(sequence)
+                    item = digest(sequence)
+                except (StringBTError, UnicodeError, RecursionError) as exc:
+                    self._drop("malformed", f"catalog of {peer.name}: {str(exc).splitlines()[0]}")
+                    whole = False
+                    continue
+                listed.add(item)
                 if item not in peer.knows and self._item(item, sequence):
-                    peer.knows[item] = {"how": "known", "t": None}
+                    peer.knows[item] = {"how": "known", "t": None, "at": now}
                     self._change({"k": "know", "peer": peer.name, "item": item, "how": "known"})
+            if not whole:
+                return
+            for item in [i for i, k in peer.knows.items() if i not in listed]:
+                if now - peer.knows[item].get("at", 0.0) > LOST_AFTER:
+                    del peer.knows[item]
+                    self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
+                    self._spread(item, _iso(now))
 
     def event(self, event: FleetEvent) -> None:
         """One event, already checked (:func:`~ktbt_proto.events.decode_event`) and known to
@@ -207,7 +246,12 @@ class Fleet:
         elif kind == "answer-received" and event.id is not None:
             peer.open_queries.pop(event.id, None)
         elif kind == "merged" and event.item is not None and event.item in self.items:
-            peer.knows[event.item] = {"how": "learned", "t": event.t, "teacher": event.teacher}
+            peer.knows[event.item] = {
+                "how": "learned",
+                "t": event.t,
+                "teacher": event.teacher,
+                "at": now,
+            }
             transfer = {
                 "k": "transfer",
                 "t": event.t,
@@ -265,25 +309,41 @@ class Fleet:
     # -- bounded tables ----------------------------------------------------------------------
 
     def _peer(self, name: str) -> Peer | None:
+        """The peer named, made if need be; when the table is full, the peer not present that
+        was heard from longest ago makes room, and only if every peer is present is the new
+        one refused."""
         peer = self.peers.get(name)
         if peer is None:
             if len(self.peers) >= MAX_PEERS:
-                self.drops["full"] += 1
-                return None
+                idle = [p for p in self.peers.values() if p.status != "present"]
+                if not idle:
+                    self.drops["full"] += 1
+                    return None
+                oldest = min(idle, key=lambda p: p.heard)
+                del self.peers[oldest.name]
+                self._dirty.discard(oldest.name)
+                self._change({"k": "unpeer", "peer": oldest.name})
             peer = self.peers[name] = Peer(name)
             self._change(peer.view())
+        peer.heard = time.monotonic()
         return peer
 
     def _item(self, item: str, sequence: str, clipped: bool = False) -> bool:
         """Name ``item`` by ``sequence``: its whole text (whose digest it is) or, from an
-        event, its text clipped, replaced by the whole once a catalog or event says it."""
+        event, its text clipped, replaced by the whole once a catalog or event says it. When
+        the table is full, the oldest item no peer knows makes room."""
         known = self.items.get(item)
         if known is not None:
             if clipped or known == sequence:
                 return True
         elif len(self.items) >= MAX_ITEMS:
-            self.drops["full"] += 1
-            return False
+            known_by_some = set().union(*(p.knows for p in self.peers.values()))
+            unknown = next((i for i in self.items if i not in known_by_some), None)
+            if unknown is None:
+                self.drops["full"] += 1
+                return False
+            del self.items[unknown]
+            self._change({"k": "unitem", "item": unknown})
         self.items[item] = sequence
         self._change({"k": "item", "item": item, "sequence": sequence})
         return True

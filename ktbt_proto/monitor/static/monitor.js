@@ -117,6 +117,14 @@
         model.items.set(change.item, change.sequence);
         dirty.matrix = true;
         break;
+      case "unpeer":
+        model.peers.delete(change.peer);
+        dirty.matrix = dirty.peers = true;
+        break;
+      case "unitem":
+        model.items.delete(change.item);
+        dirty.matrix = true;
+        break;
       case "know": {
         const p = peer(change.peer);
         if (change.how) p.knows.set(change.item, { how: change.how, at: now, t: change.t });
@@ -129,7 +137,7 @@
         keep(p.recent, change, RECENT);
         if (change.peer === selected) dirty.detail = true;
         const ms = Date.parse(change.t);
-        if (!Number.isNaN(ms)) pendingLag.push(ms);
+        if (!Number.isNaN(ms) && pendingLag.length < 5000) pendingLag.push(ms); // a hidden tab draws nothing
         break;
       }
       case "transfer":
@@ -270,7 +278,8 @@
     td.className = "cell " + how;
     td.textContent = how === "learned" ? "\u25CF" : how === "known" ? "\u25CB" : "";
     td.title = how === "learned" && k.t ? "learned " + clock(k.t) : how;
-    td.setAttribute("data-shown-at", String(now));
+    if (k && !k.shownAt) k.shownAt = now; // the first time drawn, kept across rebuilds
+    td.setAttribute("data-shown-at", String(k ? k.shownAt : now));
   }
 
   function drawCells(now) {
@@ -452,6 +461,16 @@
     set("stat-lost", lost);
     set("stat-dropped", dropped);
     document.getElementById("stat-dropped").title = Object.entries(drops).map(([k, v]) => k + ": " + v).join(", ");
+    const reasons = model.stats.reasons || {};
+    const lines = [];
+    for (const [why, count] of Object.entries(drops)) {
+      const li = el("li", null, "dropped");
+      li.setAttribute("data-why", why);
+      li.appendChild(el("span", why + ": " + count, "why"));
+      for (const reason of reasons[why] || []) li.appendChild(el("span", reason, "reason"));
+      lines.push(li);
+    }
+    document.getElementById("dropped").replaceChildren(...lines);
     set("stat-peer-dropped", peerDropped);
     const lag = probe.lags.length ? probe.lags[probe.lags.length - 1] : null;
     set("stat-lag", lag === null ? "-" : lag + " ms");

@@ -281,14 +281,19 @@ class AgentStream:
             raise ValueError(f"cannot publish events: {exc}") from None
         self._declared: list[Any] = []
         self.publishers: list[EventPublisher] = []
+        self._logs: list[tuple[TransferLog, EventPublisher]] = []
         for agent in agents:
             publisher, declared = EventPublisher.on_session(self._session, agent.name, rate=rate)
             self._declared.append(declared)
             self.publishers.append(publisher)
             agent.log = agent.log or TransferLog(None)
             agent.log.add_sink(publisher)
+            self._logs.append((agent.log, publisher))
 
     def close(self) -> None:
+        for log, publisher in self._logs:
+            log.remove_sink(publisher)
+        self._logs = []
         for declared in self._declared:
             declared.undeclare()
         self._declared = []

@@ -141,6 +141,7 @@ class ZenohTransport:
         """The ids of this peer's latest queries: a published copy of an answer to one of them
         is not overheard (the answer itself comes as a reply)."""
         self._publisher: Any = None
+        self._sink: EventPublisher | None = None
         self._asking = 0
         self._lock = threading.Lock()
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
@@ -163,6 +164,7 @@ class ZenohTransport:
                 )
                 self._declared.append(publisher)
                 self.log.add_sink(events)
+                self._sink = events
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(
@@ -263,6 +265,8 @@ class ZenohTransport:
             pending, self._pending = self._pending, {}
         for query, _ in pending.values():
             query.drop()
+        if self._sink is not None and self.log is not None:
+            self.log.remove_sink(self._sink)
         for entity in self._declared:
             entity.undeclare()
         self._session.close()

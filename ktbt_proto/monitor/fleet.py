@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from ..errors import StringBTError
-from ..events import FleetEvent, digest
+from ..events import FleetEvent, _clip, digest
 from ..items import parse_sequence
 from ..messages import _ID
 from ..trust import TrustStore
@@ -47,10 +47,6 @@ _NAME = re.compile(_ID)
 
 def _iso(seconds: float) -> str:
     return datetime.fromtimestamp(seconds, UTC).isoformat(timespec="milliseconds")
-
-
-def _clip(text: str, most: int) -> str:
-    return text if len(text) <= most else text[: most - 3] + "..."
 
 
 @dataclass

@@ -10,7 +10,6 @@ the fleet may send at most :data:`RATE_ALL` events a second, and each key and si
 
 from __future__ import annotations
 
-import json
 import threading
 from collections import OrderedDict
 from typing import Any
@@ -18,9 +17,9 @@ from typing import Any
 import zenoh
 
 from ..events import MAX_EVENT_BYTES, PREFIX, RateLimit, decode_event
-from ..messages import MAX_MESSAGE_BYTES, MessageRefused
+from ..messages import MessageRefused
 from ..transport import zenoh as zenoh_transport
-from ..transport.zenoh import ZenohSettings, open_session
+from ..transport.zenoh import ZenohSettings, catalog_replies, open_session
 from .fleet import MAX_PEERS, Fleet
 
 RATE = 1000.0
@@ -106,42 +105,18 @@ class Listener:
         end of the loop; only closing ends it."""
         while not self._stop.is_set():
             try:
-                replies = list(
-                    self._session.get(f"{zenoh_transport.PREFIX}/catalog/*", timeout=1.0)
-                )
+                for name, entries in catalog_replies(self._session, 1.0, self._refused):
+                    try:
+                        self.fleet.catalog(name, [e["sequence"] for e in entries])
+                    except Exception as exc:  # a peer's junk that got past the checks
+                        self.fleet.drop("malformed", f"catalog of {name[:64]!r}: {exc}")
             except zenoh.ZError:  # the network's own error (a closing session): not a peer's
                 self.fleet.drop("network", "a catalog query failed")
-                replies = []
-            for reply in replies:
-                try:
-                    self._catalog(reply)
-                except Exception as exc:  # a peer's junk that got past the checks
-                    self.fleet.drop("malformed", f"a catalog reply: {exc}")
             self.fleet.tend()
             self._stop.wait(CATALOG_EVERY)
 
-    def _catalog(self, reply: Any) -> None:
-        if reply.ok is None:
-            return
-        name = str(reply.ok.key_expr).split("/", 3)[-1]
-        payload = reply.ok.payload.to_bytes()
-        if len(payload) > MAX_MESSAGE_BYTES:
-            self.fleet.drop("oversized")
-            return
-        try:
-            value = json.loads(payload)
-        except (ValueError, RecursionError):
-            self.fleet.drop("malformed")
-            return
-        if not isinstance(value, list):
-            self.fleet.drop("malformed")
-            return
-        sequences = [
-            v["sequence"] if isinstance(v, dict) else v
-            for v in value
-            if isinstance(v, str) or (isinstance(v, dict) and isinstance(v.get("sequence"), str))
-        ]
-        self.fleet.catalog(name, [s for s in sequences if len(s) <= 4096])
+    def _refused(self, reason: str) -> None:
+        self.fleet.drop("malformed", reason)
 
     def close(self) -> None:
         self._stop.set()

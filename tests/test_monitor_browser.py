@@ -177,9 +177,11 @@ def test_peers_transfers_refusals_and_departures_show_live(
                      "--connect", endpoint(port), ready="serving")
     )  # fmt: skip
     assert wait_until(lambda: page.status("victim") == "present", 15)
+    page.js("window.row = document.querySelector('#matrix tbody tr[data-peer=victim]')")
     victim.send_signal(signal.SIGKILL)
     victim.wait(timeout=10)
     assert wait_until(lambda: page.status("victim") == "gone", 20)
+    assert page.js("return window.row.isConnected")  # its row updated, not the matrix rebuilt
     assert page.status("t") == "present"
     assert int(page.stat("stat-gone")) == 3  # r1 and r2 left too
 

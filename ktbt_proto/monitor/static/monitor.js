@@ -67,6 +67,10 @@
       .join(", ");
   }
 
+  const MAX_ROWS = 200;
+  const MAX_COLS = 100;
+  const drawn = { peers: new Set(), items: new Set() };
+
   function peer(name) {
     let p = model.peers.get(name);
     if (!p) {
@@ -108,14 +112,14 @@
     switch (change.k) {
       case "peer": {
         const p = peer(change.peer);
-        if (p.status !== change.status) dirty.matrix = true;
+        // a status is redrawn on its row (drawRows); only a new peer rebuilds the matrix
         Object.assign(p, { status: change.status, since: change.since, signed: change.signed, queries_lost: change.queries_lost, dropped: change.dropped, lost_events: change.lost_events });
         dirty.peers = true;
         break;
       }
       case "item":
         model.items.set(change.item, change.sequence);
-        dirty.matrix = true;
+        if (drawn.items.has(change.item) || drawn.items.size < MAX_COLS) dirty.matrix = true;
         break;
       case "unpeer":
         model.peers.delete(change.peer);
@@ -239,7 +243,8 @@
     const table = document.getElementById("matrix");
     const head = el("tr");
     head.appendChild(el("th", "peer"));
-    const items = itemOrder();
+    const all = itemOrder();
+    const items = all.slice(0, MAX_COLS); // a bounded matrix: what is not drawn is said
     for (const [item, sequence] of items) {
       const th = el("th", shown(sequence), "item");
       th.title = sequence;
@@ -249,7 +254,14 @@
     table.tHead.replaceChildren(head);
     const rows = [];
     cells.clear();
-    const names = [...model.peers.keys()].sort();
+    const everyone = [...model.peers.keys()].sort();
+    const names = everyone.slice(0, MAX_ROWS);
+    drawn.peers = new Set(names);
+    drawn.items = new Set(items.map(([item]) => item));
+    const hidden = [];
+    if (everyone.length > names.length) hidden.push(everyone.length - names.length + " peers");
+    if (all.length > items.length) hidden.push(all.length - items.length + " items");
+    document.getElementById("matrix-more").textContent = hidden.length ? hidden.join(" and ") + " not drawn" : "";
     const now = Date.now();
     for (const name of names) {
       const tr = el("tr");
@@ -286,7 +298,11 @@
     for (const key of pendingCells) {
       const td = cells.get(key);
       if (!td) {
-        dirty.matrix = true;
+        const cut = key.indexOf("\u0000");
+        // a peer or item not drawn yet: rebuild while the matrix has room for it
+        const newPeer = !drawn.peers.has(key.slice(0, cut)) && drawn.peers.size < MAX_ROWS;
+        const newItem = !drawn.items.has(key.slice(cut + 1)) && drawn.items.size < MAX_COLS;
+        if (newPeer || newItem) dirty.matrix = true;
         continue;
       }
       const cut = key.indexOf("\u0000");

@@ -179,3 +179,11 @@ def test_a_bad_address_is_one_line() -> None:
     )  # fmt: skip
     assert done.returncode == 2 and "is not HOST:PORT" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_a_page_must_name_the_bound_address_or_an_allowed_host() -> None:
+    from ktbt_proto.monitor.command import LOOPBACK_NAMES, allowed_hosts
+
+    assert allowed_hosts("127.0.0.1", []) == LOOPBACK_NAMES
+    assert allowed_hosts("192.0.2.7", ["robots.example"]) == ["192.0.2.7", "robots.example"]
+    assert allowed_hosts("2001:db8::1", []) == ["2001:db8::1", "[2001:db8::1]"]

@@ -33,6 +33,14 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
+def allowed_hosts(host: str, allow: list[str]) -> list[str]:
+    """The Host headers a page may send: the loopback names when bound to loopback, else the
+    bound address itself, and every ``--allow-host`` (a page reached by another name, as by
+    DNS rebinding, is refused)."""
+    bound = LOOPBACK_NAMES if _is_loopback(host) else [host, f"[{host}]" if ":" in host else host]
+    return [*dict.fromkeys([*bound, *allow])]
+
+
 def monitor_command(
     connect: Connect = None,
     http: Annotated[
@@ -103,8 +111,7 @@ def monitor_command(
         raise typer.Exit(2) from None
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
-    hosts = [*(LOOPBACK_NAMES if loopback else [host, shown]), *(allow_host or [])]
-    app = create_app(fleet, hosts)
+    app = create_app(fleet, allowed_hosts(host, allow_host or []))
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
     if loopback:
         typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")

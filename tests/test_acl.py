@@ -180,7 +180,7 @@ def test_a_robot_publishes_events_on_its_own_key_and_only_the_monitor_hears_them
             )
     finally:
         for opened_session in opened:
-            opened_session.close()
+            opened_session.close()  # type: ignore[no-untyped-call]
         session.close()
     if acl:
         # The impostor hears only its own put (a session delivers to itself), never r1's.

@@ -178,13 +178,19 @@ def test_merges_forgets_and_refusals_are_not_dropped_for_a_flood_of_queries() ->
 
 def test_events_leave_in_the_order_of_their_numbers() -> None:
     out: list[int] = []
-    publish = EventPublisher(
-        "r1", lambda p: (time.sleep(0.0005), out.append(decode_event(p).n)), rate=1e9, burst=10**6
-    )
+
+    def slow_put(payload: bytes) -> None:  # a put that lets other threads run meanwhile
+        time.sleep(0.0005)
+        out.append(decode_event(payload).n)
+
+    publish = EventPublisher("r1", slow_put, rate=1e9, burst=10**6)
     entry = {"t": "2026-12-01T00:00:00.000+00:00", "event": "query-sent", "peer": "r1"}
-    threads = [
-        threading.Thread(target=lambda: [publish(entry) for _ in range(50)]) for _ in range(4)
-    ]
+
+    def record() -> None:
+        for _ in range(50):
+            publish(entry)
+
+    threads = [threading.Thread(target=record) for _ in range(4)]
     for thread in threads:
         thread.start()
     for thread in threads:

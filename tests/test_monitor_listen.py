@@ -84,4 +84,4 @@ def test_a_forger_flooding_a_peers_key_does_not_silence_the_peer(
         assert fleet.drops["flood"] > 0, fleet.stats()
         assert wait_until(lambda: fleet.peers["r1"].last_n == 1, 10), fleet.stats()
     finally:
-        publisher.undeclare()  # type: ignore[no-untyped-call]
+        publisher.undeclare()

@@ -117,15 +117,20 @@ def _ms(t: str) -> float:
 # -- the generator -------------------------------------------------------------------------------
 
 
-def generate(port: int, peers: int, rate: float, seconds: float) -> int:
-    """Listen on ``port`` and publish ``rate`` events a second, spread over ``peers`` peers."""
+def generate(port: int, peers: int, rate: float, seconds: float, signed: bool = False) -> int:
+    """Listen on ``port`` and publish ``rate`` events a second, spread over ``peers`` peers
+    (each signing its events with a key pair of its own if ``signed``)."""
     from ktbt_proto.events import EventPublisher
+    from ktbt_proto.signing import Identity
     from ktbt_proto.transport.zenoh import ZenohSettings, open_session
 
     session = open_session(ZenohSettings(listen=[f"tcp/127.0.0.1:{port}"]))
     names = [f"robot{i:02d}" for i in range(peers)]
     tokens = [session.liveliness().declare_token(f"ktbt/v1/peers/{n}") for n in names]
-    publishers = [EventPublisher.on_session(session, n) for n in names]
+    publishers = [
+        EventPublisher.on_session(session, n, identity=Identity.generate() if signed else None)
+        for n in names
+    ]
     print("generating", flush=True)
     time.sleep(3.0)  # the monitor connects and subscribes
     sent, start = 0, time.monotonic()
@@ -166,7 +171,7 @@ def generate(port: int, peers: int, rate: float, seconds: float) -> int:
 # -- the measurement -----------------------------------------------------------------------------
 
 
-def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
+def bench(peers: int, rate: float, seconds: float, signed: bool = False) -> dict[str, Any]:
     from ktbt_proto.events import decode_event
     from ktbt_proto.transport.zenoh import ZenohSettings, open_session
     from tests.browser import chromium, unavailable
@@ -185,7 +190,7 @@ def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
         generator = stack.enter_context(
             _process("-m", "benchmarks.bench_monitor", "--generate", str(fleet),
                      "--peers", str(peers), "--rate", str(rate), "--seconds", str(seconds),
-                     ready="generating")
+                     *(["--signed"] if signed else []), ready="generating")
         )  # fmt: skip
         monitor = stack.enter_context(
             _process("-m", "ktbt_proto", "monitor", "--connect", f"tcp/127.0.0.1:{fleet}",
@@ -235,6 +240,8 @@ def bench(peers: int, rate: float, seconds: float) -> dict[str, Any]:
     settle = len(rss) // 6  # the first tenth-ish of the run: start-up
     return {
         "peers": peers,
+        "signed": signed,
+        "items": len(ITEMS),
         "rate": rate,
         "seconds": seconds,
         "events_shown": int(stats[0]),
@@ -375,6 +382,62 @@ def screenshot(path: Path, peers: int = 20) -> None:
     print(f"wrote {path}")
 
 
+def publish_cost(rounds: int) -> dict[str, Any]:
+    """``bench_transfer``'s path (ask, check, merge, tick) between a teacher and a learner that
+    publish no events (the anchor), publish them unsigned, and publish them signed (every
+    event of both logs: query and answer sent and received), round by round in turn."""
+    import gc
+
+    import ktbt_proto as kp
+    from benchmarks import bench_transfer as bt
+    from benchmarks.timing import gc_paused
+    from ktbt_proto.peer import DEMO_CONTROL, demo_registry, load_knowledge
+    from ktbt_proto.signing import Identity
+    from ktbt_proto.transport.zenoh import ZenohTransport, peers
+
+    kb = load_knowledge(bt.KNOWLEDGE_PATH)
+    control, registry = kp.parse(DEMO_CONTROL), demo_registry()
+    modes = ("none", "unsigned", "signed")
+    samples: dict[str, list[int]] = {mode: [] for mode in modes}
+    with ExitStack() as stack:
+        pairs: dict[str, ZenohTransport] = {}
+        for mode in modes:
+            pt, pl = bt.free_port(), bt.free_port()
+            publish = mode != "none"
+            key = Identity.generate() if mode == "signed" else None
+            stack.enter_context(
+                ZenohTransport(bt.TEACHER, bt.settings(pt), lookup=bt.serve_lookup(kb),
+                               catalog=kb.keys, publish_events=publish, identity=key)
+            )  # fmt: skip
+            learner = stack.enter_context(
+                ZenohTransport(
+                    bt.LEARNER, bt.settings(pl, pt), publish_events=publish, identity=key
+                )
+            )
+
+            def sees(asker: ZenohTransport = learner) -> bool:
+                return bt.TEACHER in peers(asker, 0.3)
+
+            bt._wait(sees, "no teacher")
+            pairs[mode] = learner
+        with gc_paused():
+            for r in range(bt.WARMUP + rounds):
+                if r and r % 100 == 0:
+                    gc.collect()
+                for mode in modes[r % 3 :] + modes[: r % 3]:
+                    fresh = bt.fresh_learner(control, registry, bt.COLOURS[r % len(bt.COLOURS)])
+                    elapsed, ok = bt.transfer(pairs[mode], fresh, [[] for _ in bt.PHASES])
+                    if not ok:
+                        raise AssertionError(f"{mode}: round {r} did not complete")
+                    if r >= bt.WARMUP:
+                        samples[mode].append(elapsed)
+    result: dict[str, Any] = {"rounds": rounds, **{m: bt._us(s) for m, s in samples.items()}}
+    result["ratio"] = {
+        m: round(result[m]["median"] / result["none"]["median"], 2) for m in ("unsigned", "signed")
+    }
+    return result
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0] if __doc__ else None)
     parser.add_argument("--peers", type=int, default=40)
@@ -382,15 +445,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--generate", type=int, metavar="PORT", help=argparse.SUPPRESS)
     parser.add_argument("--screenshot", type=Path, metavar="PNG")
+    parser.add_argument("--signed", action="store_true", help="The peers sign their events.")
+    parser.add_argument(
+        "--publish-cost", type=int, metavar="ROUNDS", help="Time transfers with and without events."
+    )
     args = parser.parse_args(argv)
     if args.generate:
-        return generate(args.generate, args.peers, args.rate, args.seconds)
+        return generate(args.generate, args.peers, args.rate, args.seconds, args.signed)
+    if args.publish_cost:
+        cost = publish_cost(args.publish_cost)
+        RESULTS_DIR.mkdir(exist_ok=True)
+        (RESULTS_DIR / "monitor_publish_cost.json").write_text(json.dumps(cost, indent=2) + "\n")
+        print(json.dumps(cost, indent=2))
+        return 0
     if args.screenshot:
         screenshot(args.screenshot)
         return 0
-    result = bench(args.peers, args.rate, args.seconds)
+    result = bench(args.peers, args.rate, args.seconds, args.signed)
     RESULTS_DIR.mkdir(exist_ok=True)
-    (RESULTS_DIR / "monitor.json").write_text(json.dumps(result, indent=2) + "\n")
+    (RESULTS_DIR / ("monitor_signed.json" if args.signed else "monitor.json")).write_text(
+        json.dumps(result, indent=2) + "\n"
+    )
     print(report(result))
     return 0
 

@@ -23,9 +23,26 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 
-from .messages import MAX_REASON, MessageRefused
+from .messages import (
+    _ID,
+    _KEY,
+    _SIGNATURE,
+    _WIRE,
+    MAX_REASON,
+    MessageRefused,
+    _require_version_and_type,
+    _wire_fields,
+)
 from .signing import Identity, verify
 from .transferlog import TransferLog
 
@@ -41,9 +58,10 @@ DEFAULT_RATE = 200.0
 DEFAULT_BURST = 400
 """Events a publisher may send at once after a quiet spell."""
 
-_ID = r"^[A-Za-z0-9_.-]{1,64}$"
-_KEY = r"^[A-Za-z0-9_-]{43}$"
-_SIGNATURE = r"^[A-Za-z0-9_-]{86}$"
+KEPT_KINDS = frozenset({"merged", "forgotten", "refused"})
+"""What changes the fleet view (a tree's knowledge, a refusal) takes its own bucket, apart from
+queries and answers: a busy peer's merges and forgets are never dropped for its chatter."""
+
 _DIGEST = r"^[0-9a-f]{64}$"
 
 _KIND = r"^[a-z][a-z-]{0,31}$"
@@ -51,17 +69,12 @@ _KIND = r"^[a-z][a-z-]{0,31}$"
 as it came, so a log that learns a new kind publishes it without a new model."""
 
 
-def _required_wire_fields(schema: dict[str, Any]) -> None:
-    required = schema.setdefault("required", [])
-    for name in ("type", "v"):
-        if name not in required:
-            required.insert(0, name)
-
-
 class FleetEvent(BaseModel):
     """One event of one peer's transfer log, as published (section 10)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_required_wire_fields)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, strict=True, json_schema_extra=_require_version_and_type
+    )
 
     v: Literal[1] = Field(default=1, description="Protocol version (the integer 1).")
     type: Literal["event"] = "event"
@@ -87,6 +100,15 @@ class FleetEvent(BaseModel):
     dropped: int = Field(default=0, ge=0, le=2**53, description="Events the peer dropped so far.")
     key: str | None = Field(default=None, pattern=_KEY, description="The peer's public key.")
     sig: str | None = Field(default=None, pattern=_SIGNATURE, description="Its signature.")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _wire(cls, data: Any, info: ValidationInfo) -> Any:
+        """Received, an event names ``v`` and ``type`` (section 1); ``v`` is never a boolean;
+        strict, so ``"n": "5"`` or ``"tick": 1.0`` is refused, not coerced."""
+        if isinstance(data, dict) and info.context == _WIRE and "type" not in data:
+            raise ValueError("an event names its type 'type'")
+        return _wire_fields(data, info)
 
 
 _ADAPTER: TypeAdapter[FleetEvent] = TypeAdapter(FleetEvent)
@@ -115,7 +137,7 @@ def decode_event(data: bytes, max_bytes: int = MAX_EVENT_BYTES) -> FleetEvent:
     if len(data) > max_bytes:
         raise MessageRefused(f"event of {len(data)} bytes exceeds the limit of {max_bytes}")
     try:
-        event = _ADAPTER.validate_json(data)
+        event = _ADAPTER.validate_json(data, context=_WIRE)
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first.get("loc", ())) or "event"
@@ -146,7 +168,8 @@ def from_log(entry: dict[str, Any], n: int, dropped: int = 0) -> FleetEvent:
     }
     if isinstance(sequence, str):
         fields["item"] = digest(sequence)
-        fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else sequence[:2045] + "..."
+        clipped = sequence[: MAX_SEQUENCE - 3] + "..."
+        fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else clipped
     for name in ("id", "sender", "to", "teacher", "author", "where", "tick"):
         if entry.get(name) is not None:
             fields[name] = entry[name]
@@ -203,6 +226,8 @@ class EventPublisher:
     ) -> None:
         self.peer, self._put, self.identity = peer, put, identity
         self._limit = RateLimit(rate, burst, clock)
+        self._kept = RateLimit(rate, burst, clock)
+        """The bucket of :data:`KEPT_KINDS`, apart, so a flood of queries never drops them."""
         self._lock = threading.Lock()
         self.sent = 0
         """Events published."""
@@ -217,8 +242,12 @@ class EventPublisher:
         return cls(peer, publisher.put, **options), publisher
 
     def __call__(self, entry: dict[str, Any]) -> None:
+        # Everything, the put included, under one lock: the events leave in the order of their
+        # numbers, so a receiver counts a gap as a loss (a zenoh put with the default drop
+        # congestion control does not block).
         with self._lock:
-            if not self._limit.take():
+            limit = self._kept if entry.get("event") in KEPT_KINDS else self._limit
+            if not limit.take():
                 self.dropped += 1
                 return
             try:
@@ -230,11 +259,9 @@ class EventPublisher:
                 event = event.model_copy(update={"key": self.identity.public})
                 event = event.model_copy(update={"sig": self.identity.sign(signed_bytes(event))})
             self.sent += 1
-            payload = encode_event(event)
-        try:
-            self._put(payload)
-        except Exception:  # a closing session: the event is lost with it
-            with self._lock:
+            try:
+                self._put(encode_event(event))
+            except Exception:  # a closing session: the event is lost with it
                 self.dropped += 1
 
 
@@ -254,14 +281,19 @@ class AgentStream:
             raise ValueError(f"cannot publish events: {exc}") from None
         self._declared: list[Any] = []
         self.publishers: list[EventPublisher] = []
+        self._logs: list[tuple[TransferLog, EventPublisher]] = []
         for agent in agents:
             publisher, declared = EventPublisher.on_session(self._session, agent.name, rate=rate)
             self._declared.append(declared)
             self.publishers.append(publisher)
             agent.log = agent.log or TransferLog(None)
             agent.log.add_sink(publisher)
+            self._logs.append((agent.log, publisher))
 
     def close(self) -> None:
+        for log, publisher in self._logs:
+            log.remove_sink(publisher)
+        self._logs = []
         for declared in self._declared:
             declared.undeclare()
         self._declared = []

@@ -54,12 +54,17 @@ class _Message(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _wire_fields(cls, data: Any, info: ValidationInfo) -> Any:
-        if isinstance(data, dict):
-            if info.context == _WIRE and "v" not in data:
-                raise ValueError("a message names its protocol version 'v'")
-            if not isinstance(data.get("v", 1), int) or isinstance(data.get("v"), bool):
-                raise ValueError("'v' must be the integer 1")  # true == 1 in Python, not here
-        return data
+        return _wire_fields(data, info)
+
+
+def _wire_fields(data: Any, info: ValidationInfo) -> Any:
+    """Received (``context=_WIRE``), a message names ``v``; ``v`` is never a boolean."""
+    if isinstance(data, dict):
+        if info.context == _WIRE and "v" not in data:
+            raise ValueError("a message names its protocol version 'v'")
+        if not isinstance(data.get("v", 1), int) or isinstance(data.get("v"), bool):
+            raise ValueError("'v' must be the integer 1")  # true == 1 in Python, not here
+    return data
 
 
 class Query(_Message):

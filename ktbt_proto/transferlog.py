@@ -61,6 +61,17 @@ class TransferLog:
         with self._lock:
             self._sinks = (*self._sinks, sink)
 
+    @property
+    def sinks(self) -> tuple[Sink, ...]:
+        """The sinks events are handed to now."""
+        return self._sinks
+
+    def remove_sink(self, sink: Sink) -> None:
+        """Stop handing events to ``sink`` (a transport closing removes its publisher, so a
+        log reused by another transport publishes once)."""
+        with self._lock:
+            self._sinks = tuple(s for s in self._sinks if s is not sink)
+
     def record(self, event: str, **fields: Any) -> None:
         entry = {"t": datetime.now(UTC).isoformat(timespec="milliseconds"), "event": event}
         entry.update({k: v for k, v in fields.items() if v is not None})

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import io
 import json
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +112,14 @@ def test_hostile_fields_are_clipped_or_left_out_and_the_event_stays_small() -> N
             b'{"v": 1, "type": "event", "peer": "a", "n": 0, "t": "x", "event": "merged", "z": 1}',
             "z",
         ),
+        (b'{"peer": "a", "n": 0, "t": "x", "event": "merged"}', "type"),
+        (b'{"type": "event", "peer": "a", "n": 0, "t": "x", "event": "merged"}', "'v'"),
+        (b'{"v": true, "type": "event", "peer": "a", "n": 0, "t": "x", "event": "merged"}', "'v'"),
+        (b'{"v": 1, "type": "event", "peer": "a", "n": "5", "t": "x", "event": "merged"}', "n"),
+        (
+            b'{"v": 1, "type": "event", "peer": "a", "n": 0, "t": "x", "event": "m", "tick": 1.0}',
+            "tick",
+        ),
     ],
 )
 def test_malformed_events_are_refused_with_a_reason(data: bytes, why: str) -> None:
@@ -150,6 +160,42 @@ def test_the_publisher_drops_beyond_its_rate_and_says_how_many() -> None:
     now[0] = 1.0  # a second later: one more token
     publish(entry)
     assert decode_event(out[-1]).dropped == publish.dropped > 0
+
+
+def test_merges_forgets_and_refusals_are_not_dropped_for_a_flood_of_queries() -> None:
+    out: list[bytes] = []
+    publish = EventPublisher("r1", out.append, rate=1.0, burst=5, clock=lambda: 0.0)
+    query = {"t": "2026-12-01T00:00:00.000+00:00", "event": "query-sent", "peer": "r1"}
+    for _ in range(100):
+        publish(query)
+    publish({**query, "event": "merged", "sequence": SEQ, "teacher": "t"})
+    publish({**query, "event": "forgotten", "sequence": SEQ})
+    assert [decode_event(p).event for p in out[-2:]] == ["merged", "forgotten"]
+    for _ in range(100):  # their own bucket is bounded too
+        publish({**query, "event": "refused", "reason": "junk"})
+    assert publish.sent == 5 + 5
+
+
+def test_events_leave_in_the_order_of_their_numbers() -> None:
+    out: list[int] = []
+
+    def slow_put(payload: bytes) -> None:  # a put that lets other threads run meanwhile
+        time.sleep(0.0005)
+        out.append(decode_event(payload).n)
+
+    publish = EventPublisher("r1", slow_put, rate=1e9, burst=10**6)
+    entry = {"t": "2026-12-01T00:00:00.000+00:00", "event": "query-sent", "peer": "r1"}
+
+    def record() -> None:
+        for _ in range(50):
+            publish(entry)
+
+    threads = [threading.Thread(target=record) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert out == list(range(200))
 
 
 def test_a_log_with_a_publisher_publishes_what_it_writes() -> None:

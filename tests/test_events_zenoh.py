@@ -13,7 +13,7 @@ from ktbt_proto.events import FleetEvent, decode_event, digest
 from ktbt_proto.signing import Identity
 from ktbt_proto.transport.zenoh import ZenohSettings, open_session
 
-from .zenoh_helpers import endpoint, free_port, ktbt_process, serving, wait_until
+from .zenoh_helpers import endpoint, free_port, ktbt_process, serving, settings, wait_until
 
 GREEN = "<c>(TargetSeen,colour=2)"
 
@@ -119,3 +119,14 @@ def test_in_memory_agents_stream_the_same_events() -> None:
     merged = next(e for e in heard if e.event == "merged")
     assert (merged.peer, merged.teacher, merged.item) == ("r1", "t", digest(GREEN))
     assert {e.event for e in heard if e.peer == "t"} >= {"query-received", "answer-sent"}
+
+
+def test_a_closed_transport_no_longer_publishes_its_logs_events() -> None:
+    from ktbt_proto.transferlog import TransferLog
+    from ktbt_proto.transport.zenoh import ZenohTransport
+
+    log = TransferLog(None)
+    for _ in range(2):  # the same log, reused by a second transport
+        with ZenohTransport("a", settings(free_port()), publish_events=True, log=log):
+            assert len(log.sinks) == 1
+    assert log.sinks == ()

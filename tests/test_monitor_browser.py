@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import signal
+import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from contextlib import ExitStack
@@ -17,7 +18,8 @@ from typing import Any
 
 import pytest
 
-from ktbt_proto.events import FleetEvent, digest, encode_event
+from ktbt_proto.events import FleetEvent, digest, encode_event, signed_bytes
+from ktbt_proto.signing import Identity
 
 from .browser import chromium, unavailable
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, serving, wait_until
@@ -83,6 +85,17 @@ class Page:
         )
         return found
 
+    def dropped(self) -> dict[str, list[str]]:
+        """What the page says was dropped, by why: the count's line and the reasons kept."""
+        found: dict[str, list[str]] = self.js(
+            "const out = {};"
+            "for (const li of document.querySelectorAll('#dropped li'))"
+            "  out[li.getAttribute('data-why')] ="
+            "    [...li.querySelectorAll('span')].map(e => e.textContent);"
+            "return out;"
+        )
+        return found
+
     def stat(self, name: str) -> str:
         return str(self.js("return document.getElementById(arguments[0]).textContent;", name))
 
@@ -126,7 +139,11 @@ def test_peers_transfers_refusals_and_departures_show_live(
     assert cell is not None
     lag = cell["at"] - _ms(merged["t"])
     assert lag <= 1000, f"shown {lag} ms after the merge"
-    assert any("t" in t and "r1" in t for t in page.texts("#transfers li"))
+    whos = page.js(
+        "return [...document.querySelectorAll('#transfers li')]"
+        "  .map(li => [...li.querySelectorAll('.who')].map(e => e.textContent));"
+    )
+    assert ["t", "r1"] in whos, whos
 
     # A teacher whose answer breaks the learner's registry: refused, with the learner's reason.
     bad = tmp_path / "bad.sbt"
@@ -136,7 +153,8 @@ def test_peers_transfers_refusals_and_departures_show_live(
         ktbt_process("peer", "serve", "--id", "bad", "--knowledge", str(bad), "--connect",
                      endpoint(port), ready="serving")
     )  # fmt: skip
-    assert wait_until(lambda: page.status("bad") == "present", 15)
+    assert wait_until(lambda: page.status("bad") == "present", 15)  # the matrix is rebuilt
+    assert page.cell("r1", digest(GREEN)) == cell  # first shown when it was, not at the rebuild
     with ktbt_process(
         "peer", "run", "--id", "r2", "--connect", endpoint(port), "--log", str(log2),
         "--sequence", "Carrying", "--duration", "4", "--publish-events",
@@ -159,9 +177,11 @@ def test_peers_transfers_refusals_and_departures_show_live(
                      "--connect", endpoint(port), ready="serving")
     )  # fmt: skip
     assert wait_until(lambda: page.status("victim") == "present", 15)
+    page.js("window.row = document.querySelector('#matrix tbody tr[data-peer=victim]')")
     victim.send_signal(signal.SIGKILL)
     victim.wait(timeout=10)
     assert wait_until(lambda: page.status("victim") == "gone", 20)
+    assert page.js("return window.row.isConnected")  # its row updated, not the matrix rebuilt
     assert page.status("t") == "present"
     assert int(page.stat("stat-gone")) == 3  # r1 and r2 left too
 
@@ -186,7 +206,8 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
         def event(n: int, **fields: Any) -> bytes:
             return encode_event(FleetEvent(peer="h", n=n, t=now, **fields))
 
-        assert wait_until(lambda: page.status(hostile_id) == "present", 10)  # connected
+        # connected, and the token's name, not a peer name, refused
+        assert wait_until(lambda: "malformed" in page.dropped(), 10)
         events.put(event(0, event="merged", item=digest(item), sequence=item, teacher="t"))
         events.put(event(1, event="refused", reason=reason))
         assert wait_until(lambda: any(reason in t for t in page.texts("#refusals li")), 10)
@@ -205,6 +226,20 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
         )
         dropped = page.js("return document.getElementById('stat-dropped').title")
         assert all(why in dropped for why in ("malformed", "oversized", "wrong key", "flood"))
+        # A signed peer, then an event of its name under another key, and a replay.
+        me, mallory = Identity.generate(), Identity.generate()
+
+        def signed(n: int, who: Identity) -> bytes:
+            one = FleetEvent(peer="s", n=n, t=now, event="query-sent", key=who.public)
+            return encode_event(one.model_copy(update={"sig": who.sign(signed_bytes(one))}))
+
+        own = session.declare_publisher("ktbt/v1/events/s")
+        own.put(signed(0, me))
+        own.put(signed(1, mallory))
+        own.put(signed(0, me))
+        assert wait_until(lambda: {"forged", "replayed"} <= set(page.dropped()), 10)
+        assert any(mallory.public in r for r in page.dropped()["forged"])
+        own.undeclare()  # type: ignore[no-untyped-call]
         flood.undeclare()  # type: ignore[no-untyped-call]
         events.undeclare()  # type: ignore[no-untyped-call]
         token.undeclare()  # type: ignore[no-untyped-call]
@@ -213,5 +248,21 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
 
     assert page.js("return window.pwned === undefined")
     assert page.js("return document.querySelectorAll('img, b, script:not([src])').length") == 0
-    assert hostile_id in page.texts("#matrix th.peer-name")
+    assert hostile_id not in page.texts("#matrix th.peer-name")
+    assert any(hostile_id in r for r in page.dropped()["malformed"])  # as text
     assert any('note="<script>' in t for t in page.texts("#matrix th.item"))
+
+
+def test_the_page_is_served_with_its_policy_and_only_to_its_own_host(
+    fleet: tuple[Page, int, ExitStack],
+) -> None:
+    page, _, _ = fleet
+    url = page.driver.current_url
+    with urllib.request.urlopen(url, timeout=5) as reply:
+        policy = reply.headers["Content-Security-Policy"]
+    assert "script-src 'self'" in policy and "frame-ancestors 'none'" in policy
+    assert "unsafe-inline" not in policy
+    evil = urllib.request.Request(url, headers={"Host": "evil.example"})
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(evil, timeout=5)
+    assert refused.value.code == 400

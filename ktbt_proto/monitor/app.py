@@ -24,7 +24,7 @@ from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
-from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.responses import FileResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -69,10 +69,6 @@ def create_app(fleet: Fleet, hosts: list[str] | None = None) -> Starlette:
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html", media_type="text/html; charset=utf-8")
 
-    async def snapshot(request: Request) -> Response:
-        version, state = fleet.snapshot()
-        return JSONResponse({"v": version, "snapshot": state, "stats": fleet.stats()})
-
     async def stream(request: Request) -> Response:
         async def batches() -> AsyncIterator[str]:
             version: int | None = None
@@ -100,7 +96,6 @@ def create_app(fleet: Fleet, hosts: list[str] | None = None) -> Starlette:
     return Starlette(
         routes=[
             Route("/", index),
-            Route("/api/snapshot", snapshot),
             Route("/api/stream", stream),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ],

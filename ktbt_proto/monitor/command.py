@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import ipaddress
 import socket
+from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from ..cli import Config, Connect, Mode, ZenohMode
 
 INSTALL = "ktbt monitor needs the monitor extra: pip install 'ktbt[monitor]'"
 LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
@@ -30,22 +33,38 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
+def allowed_hosts(host: str, allow: list[str]) -> list[str]:
+    """The Host headers a page may send: the loopback names when bound to loopback, else the
+    bound address itself, and every ``--allow-host`` (a page reached by another name, as by
+    DNS rebinding, is refused)."""
+    bound = LOOPBACK_NAMES if _is_loopback(host) else [host, f"[{host}]" if ":" in host else host]
+    return [*dict.fromkeys([*bound, *allow])]
+
+
 def monitor_command(
-    connect: Annotated[
-        list[str],
-        typer.Option(
-            "--connect", help="A zenoh endpoint of the fleet, tcp/HOST:PORT (repeatable)."
-        ),
-    ],
+    connect: Connect = None,
     http: Annotated[
-        str, typer.Option("--http", help="Where to serve the page, HOST:PORT (localhost only).")
+        str,
+        typer.Option(
+            "--http",
+            help="Where to serve the page, HOST:PORT; a host other than loopback is reachable "
+            "from other machines (pages must then name it or an --allow-host).",
+        ),
     ] = "127.0.0.1:8470",
-    config: Annotated[
-        str | None, typer.Option("--config", help="A zenoh JSON5 config (TLS, credentials).")
+    allow_host: Annotated[
+        list[str] | None,
+        typer.Option("--allow-host", help="Another Host name a page may use (repeatable)."),
     ] = None,
-    mode: Annotated[str, typer.Option("--mode", help="peer, or client (through a router).")] = (
-        "peer"
-    ),
+    config: Config = None,
+    mode: Mode = ZenohMode.peer,
+    trust: Annotated[
+        Path | None,
+        typer.Option(
+            "--trust",
+            help="Peers' keys, 'NAME KEY' a line: their events must be signed by them (others' "
+            "first key is pinned).",
+        ),
+    ] = None,
 ) -> None:
     """Serve a live view of the fleet in the browser: who is present, who knows what, each
     transfer and refusal as it happens (spec/protocol.md section 10)."""
@@ -58,9 +77,20 @@ def monitor_command(
     except ImportError:
         typer.echo(INSTALL, err=True)
         raise typer.Exit(2) from None
+    from ..cli import _settings
     from ..peer import until_signalled
-    from ..transport.zenoh import ZenohSettings
+    from ..signing import KeyFileError
+    from ..trust import TrustStore
 
+    if not connect:
+        typer.echo("error: --connect ENDPOINT: the fleet to listen to", err=True)
+        raise typer.Exit(2)
+    settings = _settings(None, connect, config, False, mode.value)
+    try:
+        store = TrustStore.load(trust) if trust is not None else None
+    except KeyFileError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     host, port = _address(http)
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
@@ -72,8 +102,7 @@ def monitor_command(
         typer.echo(f"error: cannot serve on {http}: {exc.strerror or exc}", err=True)
         raise typer.Exit(2) from None
     port = sock.getsockname()[1]
-    fleet = Fleet()
-    settings = ZenohSettings(connect=connect, config=config, mode=mode)
+    fleet = Fleet(store)
     try:
         listener = Listener(fleet, settings)
     except Exception as exc:  # zenoh's own error: a bad endpoint or config
@@ -82,7 +111,7 @@ def monitor_command(
         raise typer.Exit(2) from None
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
-    app = create_app(fleet, LOOPBACK_NAMES if loopback else None)
+    app = create_app(fleet, allowed_hosts(host, allow_host or []))
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
     if loopback:
         typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")

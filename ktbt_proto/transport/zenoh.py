@@ -36,7 +36,7 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -196,6 +196,7 @@ class ZenohTransport:
         """The ids of this peer's latest queries: a published copy of an answer to one of them
         is not overheard (the answer itself comes as a reply)."""
         self._publisher: Any = None
+        self._sink: EventPublisher | None = None
         self._asking = 0
         self._lock = threading.Lock()
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
@@ -223,6 +224,7 @@ class ZenohTransport:
                 )
                 self._declared.append(publisher)
                 self.log.add_sink(events)
+                self._sink = events
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(
@@ -302,6 +304,8 @@ class ZenohTransport:
             pending, self._pending = self._pending, {}
         for query, _ in pending.values():
             query.drop()
+        if self._sink is not None and self.log is not None:
+            self.log.remove_sink(self._sink)
         for entity in self._declared:
             entity.undeclare()
         self._session.close()
@@ -587,30 +591,43 @@ class ZenohTransport:
             query.drop()
 
 
-def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
-    """Each peer's catalog entries as ``{"sequence": ..., "author": ..., ...}``; a reply on a
-    key that is not a catalog, too large, or not a JSON array is ignored."""
-    out: dict[str, list[dict[str, str]]] = {}
-    for reply in owner._session.get(f"{PREFIX}/catalog/*", timeout=timeout):
+def catalog_replies(
+    session: zenoh.Session, timeout: float, refused: Callable[[str], None] | None = None
+) -> Iterator[tuple[str, list[dict[str, str]]]]:
+    """Each peer's catalog, as its name and its entries ``{"sequence": ..., "author": ...,
+    ...}`` (a sequence whole, other values clipped to 200 characters); a reply too large or not
+    a JSON array is skipped, and ``refused`` told why."""
+    for reply in session.get(f"{PREFIX}/catalog/*", timeout=timeout):
         if reply.ok is None:
             continue
         name = str(reply.ok.key_expr).rsplit("/", 1)[-1]
         payload = reply.ok.payload.to_bytes()
+        why = None
         if len(payload) > MAX_MESSAGE_BYTES:
-            continue
-        try:
-            value = json.loads(payload)
-        except (ValueError, RecursionError):  # a peer's garbage is its own problem
-            continue
-        if not isinstance(value, list):
+            why = f"catalog of {name[:64]!r}: {len(payload)} bytes"
+        else:
+            try:
+                value = json.loads(payload)
+            except (ValueError, RecursionError):  # a peer's garbage is its own problem
+                value = None
+            if not isinstance(value, list):
+                why = f"catalog of {name[:64]!r}: not a JSON array"
+        if why is not None:
+            if refused is not None:
+                refused(why)
             continue
         entries = []
         for v in value:
             if isinstance(v, dict) and isinstance(v.get("sequence"), str):
-                entries.append({str(k): str(x)[:200] for k, x in v.items()})
+                entry = {str(k): str(x)[:200] for k, x in v.items()}
+                entries.append({**entry, "sequence": v["sequence"]})
             elif not isinstance(v, dict | list):
                 entries.append({"sequence": str(v)})
-        out[name] = entries
+        yield name, entries
+
+
+def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
+    out = dict(catalog_replies(owner._session, timeout))
     out.pop(owner.name, None)
     return out
 

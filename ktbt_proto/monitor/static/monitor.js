@@ -67,6 +67,10 @@
       .join(", ");
   }
 
+  const MAX_ROWS = 200;
+  const MAX_COLS = 100;
+  const drawn = { peers: new Set(), items: new Set() };
+
   function peer(name) {
     let p = model.peers.get(name);
     if (!p) {
@@ -108,13 +112,21 @@
     switch (change.k) {
       case "peer": {
         const p = peer(change.peer);
-        if (p.status !== change.status) dirty.matrix = true;
+        // a status is redrawn on its row (drawRows); only a new peer rebuilds the matrix
         Object.assign(p, { status: change.status, since: change.since, signed: change.signed, queries_lost: change.queries_lost, dropped: change.dropped, lost_events: change.lost_events });
         dirty.peers = true;
         break;
       }
       case "item":
         model.items.set(change.item, change.sequence);
+        if (drawn.items.has(change.item) || drawn.items.size < MAX_COLS) dirty.matrix = true;
+        break;
+      case "unpeer":
+        model.peers.delete(change.peer);
+        dirty.matrix = dirty.peers = true;
+        break;
+      case "unitem":
+        model.items.delete(change.item);
         dirty.matrix = true;
         break;
       case "know": {
@@ -129,7 +141,7 @@
         keep(p.recent, change, RECENT);
         if (change.peer === selected) dirty.detail = true;
         const ms = Date.parse(change.t);
-        if (!Number.isNaN(ms)) pendingLag.push(ms);
+        if (!Number.isNaN(ms) && pendingLag.length < 5000) pendingLag.push(ms); // a hidden tab draws nothing
         break;
       }
       case "transfer":
@@ -231,7 +243,8 @@
     const table = document.getElementById("matrix");
     const head = el("tr");
     head.appendChild(el("th", "peer"));
-    const items = itemOrder();
+    const all = itemOrder();
+    const items = all.slice(0, MAX_COLS); // a bounded matrix: what is not drawn is said
     for (const [item, sequence] of items) {
       const th = el("th", shown(sequence), "item");
       th.title = sequence;
@@ -241,7 +254,14 @@
     table.tHead.replaceChildren(head);
     const rows = [];
     cells.clear();
-    const names = [...model.peers.keys()].sort();
+    const everyone = [...model.peers.keys()].sort();
+    const names = everyone.slice(0, MAX_ROWS);
+    drawn.peers = new Set(names);
+    drawn.items = new Set(items.map(([item]) => item));
+    const hidden = [];
+    if (everyone.length > names.length) hidden.push(everyone.length - names.length + " peers");
+    if (all.length > items.length) hidden.push(all.length - items.length + " items");
+    document.getElementById("matrix-more").textContent = hidden.length ? hidden.join(" and ") + " not drawn" : "";
     const now = Date.now();
     for (const name of names) {
       const tr = el("tr");
@@ -270,14 +290,19 @@
     td.className = "cell " + how;
     td.textContent = how === "learned" ? "\u25CF" : how === "known" ? "\u25CB" : "";
     td.title = how === "learned" && k.t ? "learned " + clock(k.t) : how;
-    td.setAttribute("data-shown-at", String(now));
+    if (k && !k.shownAt) k.shownAt = now; // the first time drawn, kept across rebuilds
+    td.setAttribute("data-shown-at", String(k ? k.shownAt : now));
   }
 
   function drawCells(now) {
     for (const key of pendingCells) {
       const td = cells.get(key);
       if (!td) {
-        dirty.matrix = true;
+        const cut = key.indexOf("\u0000");
+        // a peer or item not drawn yet: rebuild while the matrix has room for it
+        const newPeer = !drawn.peers.has(key.slice(0, cut)) && drawn.peers.size < MAX_ROWS;
+        const newItem = !drawn.items.has(key.slice(cut + 1)) && drawn.items.size < MAX_COLS;
+        if (newPeer || newItem) dirty.matrix = true;
         continue;
       }
       const cut = key.indexOf("\u0000");
@@ -452,6 +477,16 @@
     set("stat-lost", lost);
     set("stat-dropped", dropped);
     document.getElementById("stat-dropped").title = Object.entries(drops).map(([k, v]) => k + ": " + v).join(", ");
+    const reasons = model.stats.reasons || {};
+    const lines = [];
+    for (const [why, count] of Object.entries(drops)) {
+      const li = el("li", null, "dropped");
+      li.setAttribute("data-why", why);
+      li.appendChild(el("span", why + ": " + count, "why"));
+      for (const reason of reasons[why] || []) li.appendChild(el("span", reason, "reason"));
+      lines.push(li);
+    }
+    document.getElementById("dropped").replaceChildren(...lines);
     set("stat-peer-dropped", peerDropped);
     const lag = probe.lags.length ? probe.lags[probe.lags.length - 1] : null;
     set("stat-lag", lag === null ? "-" : lag + " ms");

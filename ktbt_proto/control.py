@@ -15,16 +15,17 @@ nothing.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from .registry import Registry
+from .runtime import TickClock
 from .status import Status
 from .tree import Condition, Node, Tree
 
-TickClock = Callable[[], int]
-"""The tick number a backend stamps ``last_used`` with (the agent's clock)."""
+__all__ = ["ControlFactory", "ControlTree", "TickClock"]
 
 
+@runtime_checkable
 class ControlTree(Protocol):
     """A robot's running control tree, as the agent learns into it (``spec/protocol.md`` §4)."""
 

@@ -413,8 +413,10 @@ def test_limits_and_a_failing_factory_change_nothing() -> None:
         raise RuntimeError("no such gripper")
 
     faulty = PyTreesControl(py_trees_sar(bb, reg), reg, bb, behaviours={"PickTreasure": broken})
-    with pytest.raises(RuntimeError):
+    with pytest.raises(kp.MergeError) as caught:  # the application's failure, as a refusal
         faulty.merge(LEARNED, "new", when=SEEN_2)
+    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert "no such gripper" in caught.value.message
     assert not faulty.knows("new", SEEN_2)
     assert faulty.tick() is kp.RUNNING and faulty.bt.root.children[4].children == []
 

@@ -56,7 +56,7 @@ from ..tree import (
 )
 from .pytrees import ORIGIN, Behaviours, Clock, build, from_py_trees_status, origin
 
-__all__ = ["PREFIX", "PyTreesControl", "py_trees_control"]
+__all__ = ["PREFIX", "PyTreesControl", "py_trees_control", "tick_tree"]
 
 log = logging.getLogger("ktbt.pytrees")
 
@@ -221,25 +221,18 @@ class PyTreesControl:
         composites as their stringBT kind; any other behaviour as an action named after it
         (a decorator other than ``Inverter`` as its child)."""
         with self._lock:
-            adds: dict[int, list[behaviour.Behaviour]] = {}
-            for slot, made in self._adds:
-                adds.setdefault(id(slot.selector), []).append(made)
-            drops = {id(made) for _, made in self._drops}
-            return Tree(_view(self.bt.root, adds, drops))
+            return Tree(self._read(self.bt.root))
+
+    def _read(self, made: behaviour.Behaviour) -> Node:
+        """``made`` as stringBT, pending merges and forgets included (under the lock)."""
+        adds: dict[int, list[behaviour.Behaviour]] = {}
+        for slot, added in self._adds:
+            adds.setdefault(id(slot.selector), []).append(added)
+        return _view(made, adds, {id(dropped) for _, dropped in self._drops})
 
     def tick(self) -> Status:
-        bt = self.bt
-        if bt.visitors or type(bt).tick is not trees.BehaviourTree.tick:
-            bt.tick()
-        else:  # ``BehaviourTree.tick`` without visitors: the same calls, minus a walk of the tree
-            for handler in bt.pre_tick_handlers:
-                handler(bt)
-            for _ in bt.root.tick():
-                pass
-            for handler in bt.post_tick_handlers:
-                handler(bt)
-            bt.count += 1
-        return from_py_trees_status(bt.root.status)
+        tick_tree(self.bt)
+        return from_py_trees_status(self.bt.root.status)
 
     def halt(self) -> None:
         root = self.bt.root
@@ -266,7 +259,7 @@ class PyTreesControl:
         with self._lock:
             target = self._slot(slot)
             known = target.items.get(key)
-            held = [] if known is None else [_view(known.made, {}, set())]
+            held = [] if known is None else [self._read(known.made)]
             if not admits(slot, held, item):
                 return False
             count, _ = check_item(
@@ -382,6 +375,24 @@ class PyTreesControl:
             _shut_down(made.iterate())
         if changed and tree.tree_update_handler is not None:
             tree.tree_update_handler()
+
+
+def tick_tree(bt: trees.BehaviourTree) -> None:
+    """Tick ``bt`` once as ``BehaviourTree.tick`` does (py_trees 2.6): its pre-tick handlers,
+    the root, its post-tick handlers, the count. Without visitors it skips the walk of the
+    whole tree that ``BehaviourTree.tick`` makes for them after the tick (nothing else differs,
+    ``tests/test_pytrees_agent_rules.py`` checks it); a tree with visitors, or of a class with
+    its own ``tick``, is ticked by its ``tick``."""
+    if bt.visitors or type(bt).tick is not trees.BehaviourTree.tick:
+        bt.tick()
+        return
+    for handler in bt.pre_tick_handlers:
+        handler(bt)
+    for _ in bt.root.tick():
+        pass
+    for handler in bt.post_tick_handlers:
+        handler(bt)
+    bt.count += 1
 
 
 def _selectors(root: behaviour.Behaviour) -> dict[str, behaviour.Behaviour]:

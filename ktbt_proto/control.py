@@ -9,7 +9,7 @@ compiled :class:`~ktbt_proto.runtime.LiveTree` is one backend, a py_trees ``Beha
 another. Every backend keeps the same rules: a merge or a forget takes effect at a tick
 boundary, never inside a tick; a forget leaves a running item alone until it stops
 (``spec/stringbt.md`` section 4); whatever does not fit raises a ``StringBTError`` and changes
-nothing.
+nothing, a behaviour the application's code fails to build included (``SBT403``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,6 @@ hypothesis, and must give the same status, the same calls and the same halts, ti
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from hypothesis import given, settings
@@ -30,7 +29,7 @@ from .test_pytrees_agent import (
     py_trees_sar,
     sar_registry,
 )
-from .zenoh_helpers import free_port, see
+from .zenoh_helpers import free_port, see, wait_until
 from .zenoh_helpers import settings as zenoh_settings
 
 C, W, T, Z = FLAGS
@@ -69,12 +68,13 @@ def test_a_py_trees_robot_learns_over_zenoh_and_ticks_as_its_teacher() -> None:
         )
         assert isinstance(learner.control, PyTreesControl)
         learner.encounter(SEEN_2)
-        deadline = time.monotonic() + 20
-        while not learner.knows(SEEN_2) and time.monotonic() < deadline:
+
+        def learned() -> bool:
             teacher.tick()
             learner.tick()
-            time.sleep(0.005)
-        assert learner.knows(SEEN_2), learner.metrics.refusals
+            return learner.knows(SEEN_2)
+
+        assert wait_until(learned, 20), learner.metrics.refusals
         assert learner.metrics.learned["<c>(TargetSeen,colour=2)"][1] == "teacher"
         assert learner.metrics.refused == 0
         new = bt.root.children[4]

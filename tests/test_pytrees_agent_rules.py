@@ -216,6 +216,26 @@ def test_an_agent_resumes_past_saved_knowledge_its_behaviours_cannot_build(
     assert agent.tick() is kp.RUNNING
 
 
+def test_a_livetree_refuses_what_its_registry_cannot_build_too() -> None:
+    reg = sar_registry()
+
+    class Gripper:
+        def __init__(self, bb: kp.Blackboard) -> None:
+            raise RuntimeError("no gripper on this robot")
+
+        def tick(self) -> kp.Status:
+            return kp.SUCCESS
+
+    reg.add_action("Grip", Gripper)
+    live = kp.LiveTree("<sl><k>(new)<e><a>(RandomWalk)<e>", reg, kp.Blackboard(log=[]))
+    before = kp.format(live.tree), counts(live)
+    with pytest.raises(kp.MergeError) as caught:
+        live.merge("<a>(Grip)", when=SEEN_2)
+    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert (kp.format(live.tree), counts(live)) == before and not live.knows("new", SEEN_2)
+    assert live.tick() is kp.RUNNING
+
+
 def test_an_agent_takes_a_factory_not_a_built_backend() -> None:
     reg, net = sar_registry(), MemoryNetwork()
     bb = kp.Blackboard(log=[])

@@ -66,6 +66,7 @@ Key = tuple[Condition, ...]
 _RUNNING = common.Status.RUNNING
 _FAILURE = common.Status.FAILURE
 _NOT_A_NAME = re.compile(r"[^A-Za-z0-9_]")
+_NO_SETUP = behaviour.Behaviour.setup
 
 
 def _placeholder(made: behaviour.Behaviour) -> str | None:
@@ -262,7 +263,7 @@ class PyTreesControl:
             held = [] if known is None else [self._read(known.made)]
             if not admits(slot, held, item):
                 return False
-            count, _ = check_item(
+            count, nested = check_item(
                 item,
                 self.registry,
                 self.limits,
@@ -279,8 +280,11 @@ class PyTreesControl:
             made = _Item(kids, key, self._now)
             setattr(made, ORIGIN, item)
             self._set_up(made)
-            self._register(item, _selectors(made), target.depth)
-            own, inner = _own(item)
+            if nested:
+                self._register(item, _selectors(made), target.depth)
+                own, inner = _own(item)
+            else:
+                own, inner = count, []
             target.items[key] = _Held(made, own, inner)
             self._adds.append((target, made))
             self._nodes += count
@@ -293,7 +297,8 @@ class PyTreesControl:
         try:
             with building():
                 for node in made.iterate():
-                    node.setup(**self.setup_kwargs)
+                    if type(node).setup is not _NO_SETUP:  # py_trees' own does nothing
+                        node.setup(**self.setup_kwargs)
                     done.append(node)
         except MergeError:
             _shut_down(done)

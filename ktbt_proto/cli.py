@@ -1,4 +1,7 @@
-"""The ``ktbt`` command line: ``fmt``, ``check``, ``show`` and ``demo``.
+"""The ``ktbt`` command line: the language's tools (``fmt``, ``check``, ``show``, ``merge``,
+``convert``, ``tour``), a fleet's peers (``peer``) and what they leave behind (``kb``, ``log``);
+other packages add commands through the ``ktbt.commands`` entry point (the simulator's ``sim``
+and ``demo``).
 
 Every failure a user can cause (a bad path, an unreadable or non-UTF-8 file, invalid stringBT)
 is one clear line on stderr and an exit code, never a traceback. ``fmt`` follows black: exit 0
@@ -7,11 +10,9 @@ when nothing changed or files were rewritten, 1 when ``--check`` finds work, 123
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import os
 import sys
-import tempfile
 from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
@@ -21,12 +22,14 @@ import typer
 
 from . import __version__
 from .errors import StringBTError
+from .files import write_atomic
 from .format import Style
 from .format import format as format_tree
 from .limits import DEFAULT_LIMITS
 from .merge import merge
 from .render import render
 from .syntax import parse
+from .transferlog import EVENTS
 from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
@@ -76,30 +79,15 @@ def _io_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def _write_atomically(path: str, text: str) -> None:
-    """Replace a file's contents so that a crash leaves either the old or the new file.
-
-    A symlink is written through (its target changes, the link stays); a file in a folder we
-    cannot create files in is rewritten in place instead."""
-    path = os.path.realpath(path)
-    directory = os.path.dirname(path)
-    if not os.access(directory, os.W_OK):
+def _write(path: str, text: str) -> None:
+    """Replace a file durably, keeping its permissions (:func:`files.write_atomic`: a symlink is
+    written through). A file in a folder we cannot create files in is rewritten in place: a
+    user may format a file they own in a folder they do not."""
+    if not os.access(os.path.dirname(os.path.realpath(path)), os.W_OK):
         with open(path, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
         return
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".ktbt-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        with contextlib.suppress(OSError):  # keep the file's permissions where we can
-            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, text, keep_mode=True)
 
 
 def _has_comments(tree: Tree) -> bool:
@@ -182,7 +170,7 @@ def fmt_command(
             _say(f"would reformat {name}")
             continue
         try:
-            _write_atomically(path, new)
+            _write(path, new)
         except OSError as exc:
             _say(f"error: cannot write {name}: {_io_reason(exc)}")
             failed += 1
@@ -217,7 +205,7 @@ def check_command(
     """Report every problem as file:line:col: CODE message; exit 1 if there are any.
 
     Warnings (SBT5xx) are reported too, but do not change the exit status."""
-    from .knowledge import stray_nodes
+    from .items import stray_nodes
 
     vocabulary = None
     if registry is not None:
@@ -296,7 +284,7 @@ def merge_command(
         sys.stdout.write(text)
         return
     try:
-        _write_atomically(output, text)
+        _write(output, text)
     except OSError as exc:
         _say(f"error: cannot write {output}: {_io_reason(exc)}")
         raise typer.Exit(1) from None
@@ -346,7 +334,7 @@ def show_command(
 def _sequence_or_exit(option: str, text: str) -> tuple[Condition, ...]:
     """A condition sequence as typed (``TargetSeen(colour=2), !_inZoneF``); a mistake is one
     line naming the option, and a caret under the character in what the user typed."""
-    from .knowledge import read_sequence
+    from .items import read_sequence
 
     try:
         return read_sequence(text)
@@ -421,6 +409,9 @@ PublishAnswers = Annotated[
         "--publish-answers",
         help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
     ),
+]
+PublishEvents = Annotated[
+    bool, typer.Option("--publish-events", help="Publish every exchange event (ktbt monitor).")
 ]
 OverhearMode = Annotated[
     str,
@@ -530,6 +521,7 @@ def peer_serve(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    publish_events: PublishEvents = False,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -551,7 +543,9 @@ def peer_serve(
         raise typer.Exit(2) from None
     security = _security(key, "any", None, log)
     _peer_call(
-        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+        lambda: peer.serve(
+            name, served, settings, typer.echo, security, publish_answers, heard, publish_events
+        )
     )
 
 
@@ -621,6 +615,13 @@ def peer_run(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    export_learned: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write each learned item here as a BehaviorTree.CPP file.", file_okay=False
+        ),
+    ] = None,
+    publish_events: PublishEvents = False,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -644,6 +645,8 @@ def peer_run(
             security=security,
             publish_answers=publish_answers,
             overhear=heard,
+            export_learned=str(export_learned) if export_learned else None,
+            publish_events=publish_events,
         )
     )
 
@@ -728,11 +731,16 @@ def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save)
     typer.echo(f"{len(kb)} items")
 
 
+LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
+"""The kinds of transfer-log event, as ``--event`` takes them (spec/protocol.md section 8)."""
+
+
 @app.command("log")
 def log_command(
     path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
     event: Annotated[
-        list[str] | None, typer.Option("--event", help="Show only this event (repeatable).")
+        list[LogEvent] | None,
+        typer.Option("--event", help="Show only this event (repeatable)."),
     ] = None,
 ) -> None:
     """Read a transfer log: one line an event, then the count of each kind."""
@@ -740,6 +748,7 @@ def log_command(
 
     from .transferlog import describe, read
 
+    shown = {e.value for e in event or ()}
     counts: Counter[str] = Counter()
     try:
         for entry in read(path):
@@ -747,7 +756,7 @@ def log_command(
                 _say(f"warning: {path}: {entry}")
                 continue
             counts[entry["event"]] += 1
-            if not event or entry["event"] in event:
+            if not shown or entry["event"] in shown:
                 typer.echo(describe(entry))
     except OSError as exc:
         _say(f"error: {path}: {_io_reason(exc)}")

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 
 from .errors import ErrorCode, LimitError, StringBTError, ValidationError
-from .knowledge import read_sequence, split_item
+from .items import read_sequence, split_item
 from .limits import Limits
 from .tree import (
     Condition,

@@ -24,6 +24,7 @@ from .agent import RECEIVE_LIMITS, Agent, Overhear
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
+from .interop.sidecar import LearnedExport
 from .knowledge import Knowledge, KnowledgeBase, parse_sequence, sequence_key, show_sequence
 from .limits import DEFAULT_LIMITS
 from .merge import conditions as parse_conditions
@@ -293,6 +294,7 @@ def serve(
     security: Security | None = None,
     publish_answers: bool = False,
     overhear: Overhear = "off",
+    publish_events: bool = False,
 ) -> int:
     """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3."""
     security = security or Security()
@@ -310,6 +312,7 @@ def serve(
             publish_answers=publish_answers,
             overhear=overhear != "off",
             screen=lambda r: refusal(r, policy, security.trust),
+            publish_events=publish_events,
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
@@ -408,11 +411,14 @@ def run_agent(
     security: Security | None = None,
     publish_answers: bool = False,
     overhear: Overhear = "off",
+    export_learned: str | None = None,
+    publish_events: bool = False,
 ) -> int:
     """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
     what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
     and, with a transfer log, there) and the summary counts all of them, transport ones too.
-    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3."""
+    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3. ``export_learned``: a
+    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1)."""
     security = security or Security()
     with (
         until_signalled() as stop,
@@ -423,6 +429,7 @@ def run_agent(
             log=security.log,
             publish_answers=publish_answers,
             overhear=overhear != "off",
+            publish_events=publish_events,
         ) as transport,
     ):
         robot = Agent(
@@ -436,10 +443,13 @@ def run_agent(
             identity=security.identity,
             policy=security.policy,
             trust=security.trust,
-            log=security.log,
+            log=transport.log,
             overhear=overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        export = LearnedExport(export_learned) if export_learned is not None else None
+        if export is not None:  # what a resumed --save file holds already
+            export.sync(robot.knowledge)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
@@ -455,6 +465,8 @@ def run_agent(
                 break
             robot.encounter([todo[0]] if todo else None)
             robot.tick()
+            if export is not None:
+                export.sync(robot.knowledge)
             for key in robot.metrics.learned.keys() - announced:
                 tick, source = robot.metrics.learned[key]
                 say(f"{name}: learned {shown(key)} from {source} at tick {tick}")

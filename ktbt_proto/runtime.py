@@ -18,7 +18,7 @@ from typing import Any
 
 from .blackboard import Blackboard
 from .errors import ErrorCode, StringBTError
-from .knowledge import split_item
+from .items import split_item
 from .limits import DEFAULT_LIMITS, Limits
 from .merge import (
     MergeError,

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import py_trees
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -223,6 +224,7 @@ def _anything(tree: kp.Tree) -> kp.Registry:
     return reg
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(valid=True), st.integers(0, 2**32), st.integers(1, 12))
 def test_random_trees_tick_identically(root: Node, seed: int, ticks: int) -> None:

@@ -445,7 +445,7 @@ def test_merges_from_another_thread_while_the_tree_ticks() -> None:
 # -- the learner's tick is BehaviourTree.tick ---------------------------------------------------
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(trees(valid=True), st.integers(0, 2**32), st.integers(1, 10))
 def test_the_learners_tick_is_behaviour_tree_tick(root: kp.Node, seed: int, ticks: int) -> None:
     tree = kp.Tree(unique_placeholders(root))

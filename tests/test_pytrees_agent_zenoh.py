@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -31,6 +32,8 @@ from .test_pytrees_agent import (
 )
 from .zenoh_helpers import free_port, see, wait_until
 from .zenoh_helpers import settings as zenoh_settings
+
+pytestmark = pytest.mark.network  # zenoh sessions on loopback
 
 C, W, T, Z = FLAGS
 STATUSES = st.sampled_from([kp.SUCCESS, kp.FAILURE, kp.RUNNING])

@@ -33,7 +33,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
 from ..blackboard import Blackboard
 from ..control import ControlFactory, TickClock
 from ..errors import ErrorCode, ValidationError
-from ..knowledge import show_sequence, split_item
+from ..items import show_sequence, split_item
 from ..limits import DEFAULT_LIMITS, Limits
 from ..merge import MergeError, admits, building, check_item, conditions, knowledge
 from ..registry import Registry

@@ -13,7 +13,8 @@ class Transport(Protocol):
     """Broadcast a query to whoever can hear, answer one peer, and collect what arrived.
 
     ``receive`` never blocks: an agent drains it once per tick. Inboxes are bounded: when one
-    is full the oldest message is dropped, so a flood cannot exhaust memory.
+    is full the newcomer is refused and counted (``refused``), so a flood can neither exhaust
+    memory nor push out what came first (spec/protocol.md section 2).
     """
 
     name: str

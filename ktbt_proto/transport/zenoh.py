@@ -9,6 +9,8 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
 - ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
   for the peers that overhear (``overhear``; spec section 4.3).
+- ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
+  (spec section 10).
 
 Queries are issued from a worker thread, never from a zenoh callback; every query a peer
 receives is finished (answered, refused, or dropped once its answer window passes); sessions are
@@ -37,6 +39,7 @@ from typing import Any
 
 import zenoh
 
+from ..events import EventPublisher
 from ..messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -124,6 +127,9 @@ class ZenohTransport:
     overheard_limit: int = 64
     """Overheard answers waiting for the agent at most; a newcomer beyond is refused, so a
     flood of published answers never takes a direct answer's place in the inbox."""
+    publish_events: bool = False
+    """Publish every event of ``log`` (one is made if there is none) on ``ktbt/v1/events/<name>``,
+    signed with ``identity`` if there is one (section 10)."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     _session: Any = field(init=False, default=None)
@@ -150,6 +156,13 @@ class ZenohTransport:
             if self.publish_answers:
                 self._publisher = self._session.declare_publisher(f"{PREFIX}/answers/{self.name}")
                 self._declared.append(self._publisher)
+            if self.publish_events:
+                self.log = self.log or TransferLog(None)
+                events, publisher = EventPublisher.on_session(
+                    self._session, self.name, identity=self.identity
+                )
+                self._declared.append(publisher)
+                self.log.add_sink(events)
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(

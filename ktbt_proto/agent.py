@@ -186,6 +186,12 @@ class Agent:
         self.metrics = Metrics()
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.now = 0
+        if isinstance(control, ControlTree):
+            raise TypeError(
+                f"Agent takes its control tree as stringBT or as a backend's factory such as "
+                f"py_trees_control(tree), not a built {type(control).__name__}: the agent builds "
+                "it around its own registry, blackboard and clock (spec/protocol.md section 4.4)"
+            )
         self.control: ControlTree = (
             control(registry, self.blackboard, self._clock)
             if callable(control)
@@ -612,9 +618,6 @@ class Agent:
             return False
         except StringBTError as err:
             self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
-            return False
-        except Exception as exc:  # an application behaviour failed to build: not merged
-            self.refuse(f"from {response.sender}: a behaviour failed to build: {exc!r}"[:300])
             return False
         if changed:
             received = datetime.now(UTC).isoformat(timespec="seconds")

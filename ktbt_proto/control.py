@@ -9,22 +9,23 @@ compiled :class:`~ktbt_proto.runtime.LiveTree` is one backend, a py_trees ``Beha
 another. Every backend keeps the same rules: a merge or a forget takes effect at a tick
 boundary, never inside a tick; a forget leaves a running item alone until it stops
 (``spec/stringbt.md`` section 4); whatever does not fit raises a ``StringBTError`` and changes
-nothing.
+nothing, a behaviour the application's code fails to build included (``SBT403``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from .registry import Registry
+from .runtime import TickClock
 from .status import Status
 from .tree import Condition, Node, Tree
 
-TickClock = Callable[[], int]
-"""The tick number a backend stamps ``last_used`` with (the agent's clock)."""
+__all__ = ["ControlFactory", "ControlTree", "TickClock"]
 
 
+@runtime_checkable
 class ControlTree(Protocol):
     """A robot's running control tree, as the agent learns into it (``spec/protocol.md`` §4)."""
 

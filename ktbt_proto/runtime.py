@@ -13,14 +13,24 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 from .blackboard import Blackboard
-from .errors import ErrorCode, LimitError, StringBTError, ValidationError
+from .errors import ErrorCode, StringBTError
 from .items import split_item
 from .limits import DEFAULT_LIMITS, Limits
-from .merge import MergeError, conditions, find_placeholder, knowledge, merge_at, remove_at
+from .merge import (
+    MergeError,
+    building,
+    check_item,
+    conditions,
+    descend,
+    find_placeholder,
+    knowledge,
+    merge_at,
+    remove_at,
+)
 from .registry import Registry
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse
@@ -576,15 +586,15 @@ class LiveTree:
 
     def knows(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Whether placeholder ``slot`` holds an item answering ``when`` (pending included)."""
-        path = find_placeholder(self._tree, slot)
-        if path is None:
-            return False
-        node = self._tree.root
-        for index in path:
-            assert isinstance(node, Container)
-            node = node.children[index]
-        assert isinstance(node, Container)
-        return _index_of(list(node.children), conditions(when)) is not None
+        with self._lock:
+            tree = self._tree
+            path = self._paths.get(slot)
+            if path is None:
+                path = find_placeholder(tree, slot)
+                if path is None:
+                    return False
+                self._paths[slot] = path
+        return _index_of(list(descend(tree, path)[1].children), conditions(when)) is not None
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder
@@ -649,21 +659,18 @@ class LiveTree:
             if merged is None:
                 return False
             # The item must fit the registry and, where it lands, the limits of the whole tree.
-            depth_left = self.limits.max_depth - len(path) - 1
-            nodes_left = self.limits.max_nodes - self._nodes
-            if depth_left < 1 or nodes_left < 1:
-                code = ErrorCode.TOO_DEEP if depth_left < 1 else ErrorCode.TOO_MANY_NODES
-                raise LimitError(code, "the tree has no room for more knowledge there")
-            room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
-            validate(item, self.registry, limits=room)
-            compiled, slots, item_nodes = compile_node(
-                item, self.registry, self.blackboard, self.clock, self._tick_clock
+            item_nodes, _ = check_item(
+                item,
+                self.registry,
+                self.limits,
+                depth=len(path) + 1,
+                nodes=self._nodes,
+                taken=self._slots,
             )
-            for name in slots:
-                if name in self._slots:
-                    raise ValidationError(
-                        ErrorCode.DUPLICATE_PLACEHOLDER, f"placeholder {name!r} appears twice"
-                    )
+            with building():
+                compiled, slots, _ = compile_node(
+                    item, self.registry, self.blackboard, self.clock, self._tick_clock
+                )
             self._slots.update(slots)
             self._pending.append((self._slots[slot], compiled, item))
             self._tree = merged

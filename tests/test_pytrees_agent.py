@@ -365,39 +365,7 @@ def test_nested_placeholders_merge_and_go_with_their_item() -> None:
 # -- refusals: a StringBTError, and the tree as it was ------------------------------------------
 
 
-def _shape(control: PyTreesControl) -> list[tuple[str, int]]:
-    return [(b.name, id(b)) for b in control.bt.root.iterate()]
-
-
-@pytest.mark.parametrize(
-    ("subtree", "slot", "when", "code"),
-    [
-        (LEARNED, "nowhere", SEEN_2, kp.ErrorCode.UNKNOWN_SLOT),
-        ("<a>(Fly)", "new", SEEN_2, kp.ErrorCode.UNKNOWN_ACTION),
-        ("<a>(AssignCollectionPoint, colour=true)", "new", SEEN_2, kp.ErrorCode.INVALID_VALUE),
-        ("<a>(PickTreasure)", "new", ["Levitating"], kp.ErrorCode.UNKNOWN_CONDITION),
-        ("<a>(PickTreasure)", "prior", ["TargetSeen(colour=1)"], kp.ErrorCode.KNOWLEDGE_CONFLICT),
-        (
-            "<sq><k>(prior)<e><a>(PickTreasure)<e>",
-            "new",
-            SEEN_2,
-            kp.ErrorCode.DUPLICATE_PLACEHOLDER,
-        ),
-        ("<sq><a>(PickTreasure)", "new", SEEN_2, kp.ErrorCode.UNEXPECTED_END),
-        ("<a>(PickTreasure)", "new", None, kp.ErrorCode.NOT_KNOWLEDGE),
-    ],
-)
-def test_refusals_change_nothing(subtree: str, slot: str, when: Any, code: kp.ErrorCode) -> None:
-    _, pyt = twins()
-    control = pyt.control
-    assert isinstance(control, PyTreesControl)
-    pyt.tick()
-    before, text = _shape(control), kp.format(control.tree)
-    with pytest.raises(kp.StringBTError) as caught:
-        control.merge(subtree, slot, when=when)
-    assert caught.value.code == code
-    assert pyt.tick() == (kp.RUNNING, ["RandomWalk"])
-    assert _shape(control) == before and kp.format(control.tree) == text
+# (Every refusal, and what it leaves as it was: tests/test_pytrees_agent_rules.py.)
 
 
 def test_limits_and_a_failing_factory_change_nothing() -> None:
@@ -413,8 +381,10 @@ def test_limits_and_a_failing_factory_change_nothing() -> None:
         raise RuntimeError("no such gripper")
 
     faulty = PyTreesControl(py_trees_sar(bb, reg), reg, bb, behaviours={"PickTreasure": broken})
-    with pytest.raises(RuntimeError):
+    with pytest.raises(kp.MergeError) as caught:  # the application's failure, as a refusal
         faulty.merge(LEARNED, "new", when=SEEN_2)
+    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert "no such gripper" in caught.value.message
     assert not faulty.knows("new", SEEN_2)
     assert faulty.tick() is kp.RUNNING and faulty.bt.root.children[4].children == []
 

@@ -11,6 +11,7 @@ port-less part runs in ``make test`` through the ``behaviortreepy`` wheel.
 from __future__ import annotations
 
 import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -174,3 +175,12 @@ def test_a_tree_written_for_btcpp_imports_and_ticks_the_same(
     tree = from_xml(WRITTEN_FOR_BTCPP)
     plan = script_for(WRITTEN_FOR_BTCPP, script, TICKS)
     assert btcpp_trace(harness, WRITTEN_FOR_BTCPP, plan, tmp_path) == live_trace(tree, plan)
+
+
+def test_a_timer_whose_count_cannot_be_read_starts_no_activation() -> None:
+    program = build.program("unread_ticks", HARNESS.parent / "unread_ticks.cpp")
+    done = subprocess.run([str(program)], capture_output=True, text=True, timeout=60, check=True)
+    assert done.stdout.splitlines() == [
+        "KTBT_TT1 error", "KTBT_TT1 RUNNING", "KTBT_TT1 RUNNING", "KTBT_TT1 SUCCESS",
+        "KTBT_TT2 error", "KTBT_TT2 SUCCESS", "KTBT_TT2 SUCCESS", "KTBT_TT2 SUCCESS",
+    ]  # fmt: skip

@@ -35,11 +35,13 @@ EXAMPLE = ROOT / "examples" / "btcpp"
 
 
 @contextmanager
-def robot(folder: Path, target: int) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+def robot(
+    folder: Path, target: int, control: Path = EXAMPLE / "control.xml"
+) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
     """The C++ learner, its output collected line by line; stopped by its pid at the end."""
     program = build.program("learner", EXAMPLE / "learner.cpp")
     proc = subprocess.Popen(
-        [str(program), str(EXAMPLE / "control.xml"), str(folder), "--target", str(target)],
+        [str(program), str(control), str(folder), "--target", str(target)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -130,3 +132,28 @@ def test_a_file_the_robot_cannot_load_is_refused_and_the_rest_runs(tmp_path: Pat
         assert wait_until(lambda: sum("refused 1000001" in x for x in lines) == 1, 30), lines
         assert wait_until(lambda: [x.strip() for x in lines].count("rebuilt 1 learned") == 2, 30)
         assert proc.poll() is None, lines
+
+
+HAND_WRITTEN = """<?xml version='1.0'?>
+<root main_tree_to_execute='MainTree' BTCPP_format='4'>
+ <BehaviorTree ID='MainTree'><ReactiveFallback>
+  <!-- written by hand: single quotes, a comment, an innate item inside the placeholder -->
+  <ReactiveFallback _description='learned skills' name='k:new'
+    ><ReactiveSequence><Carrying/><ReactiveFallback><DeliverToZone/></ReactiveFallback
+    ></ReactiveSequence></ReactiveFallback>
+  <RandomWalk/>
+ </ReactiveFallback></BehaviorTree>
+</root>
+"""
+
+
+def test_items_are_placed_in_a_control_tree_laid_out_by_hand(tmp_path: Path) -> None:
+    control = tmp_path / "control.xml"
+    control.write_text(HAND_WRITTEN)
+    folder = tmp_path / "learned"
+    folder.mkdir()
+    skill = parse("<sq><c>(TargetSeen, colour=3)<a>(AssignCollectionPoint, colour=3)<e>")
+    (folder / f"000001-new-{'1' * 16}.xml").write_text(to_xml(skill, tree_id="ktbt-new-1"))
+    with robot(folder, target=3, control=control) as (proc, lines):
+        assert wait_until(lambda: any("AssignCollectionPoint colour=3" in x for x in lines), 30)
+        assert "rebuilt 1 learned" in [x.strip() for x in lines] and proc.poll() is None

@@ -184,3 +184,11 @@ def test_a_timer_whose_count_cannot_be_read_starts_no_activation() -> None:
         "KTBT_TT1 error", "KTBT_TT1 RUNNING", "KTBT_TT1 RUNNING", "KTBT_TT1 SUCCESS",
         "KTBT_TT2 error", "KTBT_TT2 SUCCESS", "KTBT_TT2 SUCCESS", "KTBT_TT2 SUCCESS",
     ]  # fmt: skip
+
+
+def test_a_braced_string_reaches_the_port_as_a_string(harness: Path, tmp_path: Path) -> None:
+    # Unquoted, BT.CPP would read {x} as the blackboard entry x (absent: an error).
+    tree = kp.parse('<sq><a>(A0, goal="{x}")<a>(A1, goal=" {goal} ")<e>')
+    live, engine = both(harness, tree, {"A0": "S", "A1": "S"}, tmp_path, ticks=1)
+    assert engine == live
+    assert 'call A0 goal="\\"{x}\\""' in live, live

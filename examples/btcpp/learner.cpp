@@ -14,8 +14,9 @@
 // value that does not read fails its node.
 //
 // Options: --target C (the colour the robot sees, 0 for none), --ticks N (0: until stopped),
-// --period-ms P (between ticks). It prints "rebuilt N learned", "refused FILE: WHY", each call
-// of an action ("call NAME port=value"; RandomWalk only when it starts) and each halt.
+// --period-ms P (between ticks). It prints "rebuilt N learned", "refused FILE: WHY", "failure
+// NODE: WHY" (a port that did not read), each call of an action ("call NAME port=value";
+// RandomWalk only when it starts) and each halt.
 #include <algorithm>
 #include <chrono>
 #include <csignal>

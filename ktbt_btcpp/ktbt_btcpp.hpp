@@ -60,9 +60,9 @@ private:
   {
     if(!active_)
     {
-      active_ = true;
+      limit_ = readTicks(*this);  // first: a count that cannot be read starts no activation
       waited_ = 0;
-      limit_ = readTicks(*this);
+      active_ = true;
     }
     setStatus(BT::NodeStatus::RUNNING);
     if(waited_ < limit_)
@@ -112,9 +112,9 @@ private:
   {
     if(!active_)
     {
-      active_ = true;
+      limit_ = readTicks(*this);  // first: a count that cannot be read starts no activation
       ran_ = 0;
-      limit_ = readTicks(*this);
+      active_ = true;
     }
     if(limit_ == 0)
     {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 from pathlib import Path
 
 import pytest
@@ -175,8 +176,8 @@ def test_random_trees_round_trip(root: Node) -> None:
     tree = kp.Tree(unique_placeholders(root))
     try:
         xml = to_xml(tree)
-    except kp.ValidationError as err:  # a name BT.CPP cannot load: refused, with a reason
-        assert err.code is kp.ErrorCode.INVALID_NAME
+    except kp.ValidationError as err:  # a name or a subnormal BT.CPP cannot load: refused
+        assert err.code in (kp.ErrorCode.INVALID_NAME, kp.ErrorCode.INVALID_VALUE), err
         assume(False)
     assert from_xml(xml) == tree
     assert from_xml(xml.encode()) == tree
@@ -189,10 +190,14 @@ def test_values_keep_their_type(value: bool | int | float | str) -> None:
 
 
 def test_values_are_quoted_only_when_needed() -> None:
-    plain = ["map", "", "{goal}", "1 m", "True"]
+    plain = ["map", "", "{goal", "a {goal}", "1 m", "True"]
     assert [encode_value(v) for v in plain] == plain
-    quoted = ["1", "-2.5e3", "true", '"x', "\x01"]
-    assert [encode_value(v) for v in quoted] == ['"1"', '"-2.5e3"', '"true"', '"\\"x"', '"\\u0001"']
+    quoted = ["1", "-2.5e3", "true", '"x', "\x01", "{goal}", " {a b} ", "{}"]
+    assert [encode_value(v) for v in quoted] == [
+        '"1"', '"-2.5e3"', '"true"', '"\\"x"', '"\\u0001"', '"{goal}"', '" {a b} "', '"{}"'
+    ]  # fmt: skip
+    # A blackboard reference for BT.CPP: quoted, so a peer's string stays a string.
+    assert from_xml(to_xml(kp.parse('<a>(Go, s="{x}")'))) == kp.parse('<a>(Go, s="{x}")')
     numbers = [encode_value(v) for v in (1, 1.0, 1e16, -0.0, True)]
     assert numbers == ["1", "1.0", "1e+16", "-0.0", "true"]
 
@@ -217,12 +222,48 @@ def test_names_bt_cpp_cannot_load_are_refused(text: str, reason: str) -> None:
     assert info.value.code is kp.ErrorCode.INVALID_NAME
 
 
-@pytest.mark.parametrize("text", ["<w>(4294967296)", "<tt1>(4294967296)<a>(A)<e>"])
-def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str) -> None:
-    assert 'ticks="4294967295"' in to_xml(kp.parse(text.replace("4294967296", "4294967295")))
+@pytest.mark.parametrize(
+    ("text", "limit"),
+    [
+        ("<w>(4294967296)", ("4294967295", 'ticks="4294967295"')),
+        ("<tt1>(4294967296)<a>(A)<e>", ("4294967295", 'ticks="4294967295"')),
+        ("<wt>(4294968)", ("4294967.295", 'msec="4294967295"')),
+    ],
+)
+def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str, limit: tuple[str, str]) -> None:
+    largest, attribute = limit
+    assert attribute in to_xml(kp.parse(re.sub(r"\(\d+\)", f"({largest})", text, count=1)))
     with pytest.raises(kp.ValidationError, match="unsigned int") as info:
         to_xml(kp.parse(text))
     assert info.value.code is kp.ErrorCode.INVALID_DURATION
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        '<KTBT_TT1 ticks="4294967296"><Action ID="A"/></KTBT_TT1>',
+        '<Action ID="KTBT_WaitTicks" ticks="4294967296"/>',
+        '<Sleep msec="4294967296"/>',
+    ],
+)
+def test_import_refuses_counts_btcpp_cannot_load(body: str) -> None:
+    assert from_xml(doc(body.replace("4294967296", "4294967295")))
+    err = error(doc(body))
+    assert err.code is kp.ErrorCode.INVALID_DURATION and "unsigned int" in err.message
+
+
+@pytest.mark.parametrize("value", [5e-324, -1e-310, 2.225073858507201e-308])
+def test_subnormal_doubles_are_refused(value: float) -> None:
+    smallest_normal = kp.Tree(kp.Action("Go", (("v", 2.2250738585072014e-308),)))
+    assert from_xml(to_xml(smallest_normal)) == smallest_normal
+    with pytest.raises(kp.ValidationError, match="subnormal") as info:
+        to_xml(kp.Tree(kp.Action("Go", (("v", value),))))
+    assert info.value.code is kp.ErrorCode.INVALID_VALUE
+
+
+def test_the_tree_id_is_escaped() -> None:
+    xml = to_xml(kp.parse("<a>(Go)"), tree_id='a"b')
+    assert 'main_tree_to_execute="a&quot;b"' in xml and from_xml(xml) == kp.parse("<a>(Go)")
 
 
 @pytest.mark.parametrize(
@@ -242,6 +283,8 @@ def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str) -> None:
         ('<Decorator ID="KTBT_TT1" ticks="1.5"><Action ID="A"/></Decorator>', "SBT307", 1, "ticks"),
         ('<Action ID="KTBT_WaitTicks" ticks="-1"/>', "SBT307", 1, "number of ticks"),
         ('<Sleep msec="x"/>', "SBT307", 1, "msec"),
+        ('<Condition ID="Sleep" msec="1"/>', "SBT102", 1, "Sleep is BT.CPP's own Action"),
+        ('<Action ID="Sequence"/>', "SBT102", 1, "Sequence is BT.CPP's own Control"),
         ('<Action ID="1x"/>', "SBT303", 1, "'1x'"),
         ('<Inverter foo="1"><Action ID="A"/></Inverter>', "SBT103", 1, "'foo'"),
     ],

@@ -124,3 +124,68 @@ def test_an_item_btcpp_cannot_load_is_refused_once_and_the_rest_written(tmp_path
 def test_the_example_robots_control_tree_is_the_export() -> None:
     tree = kp.parse((EXAMPLE / "control.sbt").read_text())
     assert (EXAMPLE / "control.xml").read_text() == to_xml(tree)
+
+
+def item(action: str, colour: int = 2, segment: str = "new") -> Knowledge:
+    conditions = (kp.Condition("TargetSeen", args=(("colour", colour),)),)
+    return Knowledge(conditions, kp.Action(action), segment, "k")
+
+
+def test_a_file_of_another_subtree_for_the_same_sequence_is_replaced(tmp_path: Path) -> None:
+    folder = tmp_path / "learned"
+    old, new = item("PickTreasure"), item("DeliverToZone")
+    LearnedExport(folder).sync([old])  # a previous run knew PickTreasure for colour 2
+    [stale] = files(folder)
+    again = LearnedExport(folder)  # the restarted agent knows DeliverToZone for it
+    again.sync([new])
+    [name] = files(folder)
+    assert name != stale and name.startswith("000002-new-")
+    assert "DeliverToZone" in (folder / name).read_text()
+    # Forgotten and learned again with another subtree between two syncs: rewritten too.
+    again.sync([old])
+    assert "PickTreasure" in (folder / files(folder)[0]).read_text()
+
+
+def test_a_refused_item_is_forgotten_with_its_refusal(tmp_path: Path) -> None:
+    export = LearnedExport(tmp_path)
+    export.sync([item("Sleep")])
+    assert list(export.refused) and files(tmp_path) == []
+    export.sync([])
+    assert export.refused == {}
+
+
+def test_a_placeholder_that_is_not_a_name_is_refused(tmp_path: Path) -> None:
+    folder = tmp_path / "learned"
+    export = LearnedExport(folder)
+    export.sync([item("Pick", segment="../../x"), item("Pick", 3)])
+    assert [n[:11] for n in files(folder)] == ["000001-new-"] and files(tmp_path) == ["learned"]
+    assert ["not a stringBT name" in why for why in export.refused.values()] == [True]
+
+
+def test_numbers_are_reserved_per_item_and_may_grow_past_six_digits(tmp_path: Path) -> None:
+    folder = tmp_path / "learned"
+    first, second = item("Pick"), item("Pick", 3)
+    export = LearnedExport(folder)
+    blocker = folder / f"000001-new-{item_digest(first)}.xml"
+    (blocker / "inside").mkdir(parents=True)
+    export.sync([first, second])  # the first write fails: the second does not take its number
+    assert export.errors == 1 and f"000002-new-{item_digest(second)}.xml" in files(folder)
+    (blocker / "inside").rmdir()
+    blocker.rmdir()
+    export.sync([first, second])
+    assert [n[:7] for n in files(folder)] == ["000001-", "000002-"]
+    late = folder / f"9999999-new-{item_digest(second)}.xml"
+    (folder / files(folder)[1]).rename(late)
+    again = LearnedExport(folder)  # seven digits: adopted, and the next number follows it
+    again.sync([first, second, item("Pick", 4)])
+    assert [n.split("-")[0] for n in files(folder)] == ["000001", "10000000", "9999999"]
+
+
+def test_temporary_files_left_by_a_crash_are_removed(tmp_path: Path) -> None:
+    name = f"000001-new-{'a' * 16}.xml"
+    left = tmp_path / f".{name}.4242.0badc0de.tmp"
+    other = tmp_path / ".notes.txt.4242.0badc0de.tmp"  # not one of ours
+    left.write_text("<root")
+    other.write_text("")
+    LearnedExport(tmp_path)
+    assert files(tmp_path) == [other.name]

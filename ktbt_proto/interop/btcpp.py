@@ -52,13 +52,19 @@ name used both as a condition and an action (BT.CPP has one namespace of node ID
 Values. XML attributes are strings; numbers are written as their stringBT literals and booleans
 as ``true``/``false``, which BT.CPP's converters read. A string is written as is, unless it would
 read back as something else or cannot be an XML character: if it looks like a number or boolean,
-starts with ``"``, or holds a control character, it is written as its JSON literal (quotes
-included). Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
+starts with ``"``, is ``{...}`` (spaces aside: BT.CPP would read a blackboard reference, so a
+peer's string could name a key of the robot's blackboard), or holds a control character, it is
+written as its JSON literal (quotes included). A subnormal double (``5e-324``) is refused
+(``SBT310``): BT.CPP's converter cannot read it. The ``ticks`` of the ``KTBT_`` nodes and
+``Sleep``'s ``msec`` are ``unsigned int`` ports: a larger count is refused (``SBT307``), both
+ways. Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
 anything else is a string. A ``{key}`` blackboard reference imports as that literal string, and
 port defaults declared in a TreeNodesModel are not applied.
 
 Import accepts both ``<X/>`` (when the TreeNodesModel declares X) and the explicit
-``<Action ID="X"/>``, ``<Condition ID="X"/>`` and ``<Decorator ID="KTBT_TT1">`` forms. Anything
+``<Action ID="X"/>``, ``<Condition ID="X"/>`` and ``<Decorator ID="KTBT_TT1">`` forms; the
+explicit form of a node stringBT maps must name its BT.CPP kind (``<Action ID="Sleep"/>``, never
+``<Condition ID="Sleep"/>``). Anything
 without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting attributes...) is a
 :class:`ParseError` whose line and column point at the element; malformed XML is one too, never
 an XML exception. DOCTYPE declarations (hence entities) are refused. Comments are not exported.
@@ -70,6 +76,7 @@ import json
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -128,6 +135,8 @@ _MAX_TICKS = 2**32 - 1
 _NUMBER = re.compile(r"-?[0-9]+(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"([^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"')
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
+# BT.CPP reads a port value as a blackboard reference when, spaces stripped, it is ``{...}``.
+_REFERENCE = re.compile(r" *\{.*\} *", re.DOTALL)
 _PORT = re.compile(r"[A-Za-z][A-Za-z0-9_]*(-[A-Za-z_][A-Za-z0-9_]*)*")
 _ATTR_ESCAPES = str.maketrans(
     {
@@ -159,6 +168,8 @@ def encode_value(value: Value) -> str:
         return format_value(value)
     if value in ("true", "false") or value.startswith('"') or _NUMBER.fullmatch(value):
         return json.dumps(value, ensure_ascii=False)
+    if _REFERENCE.fullmatch(value):
+        return json.dumps(value, ensure_ascii=False)
     if _NOT_XML.search(value):
         quoted = json.dumps(value, ensure_ascii=False)
         return quoted.replace("\ufffe", "\\ufffe").replace("\uffff", "\\uffff")
@@ -174,6 +185,11 @@ def decode_value(text: str) -> Value:
         decoded: str = json.loads(text)
         return decoded
     return text
+
+
+def btcpp_name(name: str) -> str:
+    """A stringBT name as a BT.CPP node ID or port name: ``nav.MoveTo`` -> ``nav-MoveTo``."""
+    return name.replace(".", "-")
 
 
 def _same(a: object, b: object) -> bool:
@@ -213,23 +229,27 @@ class _Exporter:
         name = node.name
         if name in BUILTINS or name.startswith(RESERVED_PREFIX):
             self._refuse(node, f"{name!r} is a BT.CPP built-in or reserved node ID")
-        ident = name.replace(".", "-")
+        ident = btcpp_name(name)
         if self.kinds.setdefault(ident, kind) != kind:
             self._refuse(node, f"{name!r} is both a condition and an action; BT.CPP has one ID")
         ports = self.ports.setdefault(ident, {})
         attrs: list[tuple[str, str]] = []
         for key, value in node.args:
-            port = key.replace(".", "-")
+            port = btcpp_name(key)
             if not _PORT.fullmatch(port) or port in ("ID", "name"):
                 self._refuse(node, f"argument {key!r} of {name!r} cannot be a BT.CPP port name")
+            if isinstance(value, float) and 0 < abs(value) < sys.float_info.min:
+                message = f"argument {key!r}: BT.CPP cannot read the subnormal double {value!r}"
+                raise ValidationError(ErrorCode.INVALID_VALUE, message, node.line, node.column)
             ports.setdefault(port, set()).add(_PORT_TYPES[type(value)])
             attrs.append((port, encode_value(value)))
         return _Out(ident, attrs)
 
-    def _ticks(self, node: Node, ticks: int | float) -> str:
-        """The ``ticks`` port of a ``KTBT_`` node, an ``unsigned int`` in BT.CPP."""
+    def _ticks(self, node: Node, ticks: int | float, unit: str = "ticks") -> str:
+        """The ``ticks`` port of a ``KTBT_`` node or ``Sleep``'s ``msec``, both an ``unsigned
+        int`` in BT.CPP."""
         if ticks > _MAX_TICKS:
-            message = f"{ticks} ticks is more than BT.CPP's unsigned int holds ({_MAX_TICKS})"
+            message = f"{ticks} {unit} is more than BT.CPP's unsigned int holds ({_MAX_TICKS})"
             raise ValidationError(ErrorCode.INVALID_DURATION, message, node.line, node.column)
         return format_value(ticks)
 
@@ -244,7 +264,7 @@ class _Exporter:
                 self.custom.add(WAIT_TICKS)
                 return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
             msec = _msec(node.duration)
-            attrs = [("msec", str(msec))]
+            attrs = [("msec", self._ticks(node, msec, "msec"))]
             if not _same(_seconds(msec), node.duration):
                 attrs.insert(0, ("name", SECONDS_PREFIX + format_value(node.duration)))
             return _Out("Sleep", attrs)
@@ -300,7 +320,7 @@ def to_xml(tree: Tree | Node, *, tree_id: str = MAIN_TREE) -> str:
     exporter = _Exporter()
     body = _Out("BehaviorTree", [("ID", tree_id)], [as_node(tree)])
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{tree_id}">')
+    lines.append(f"<root{_attrs([('BTCPP_format', '4'), ('main_tree_to_execute', tree_id)])}>")
     # Convert the tree first, so the model below knows every node it used.
     _write(body, 1, exporter, lines)
     _write(_Out("TreeNodesModel", [], [*exporter.model()]), 1, exporter, lines)
@@ -362,6 +382,9 @@ _ATTRIBUTES = {
     "w": {"ticks"},
 }
 _DECORATORS = {"neg", "tt1", "tt2"}
+# The explicit form of a node stringBT maps: <Action ID="Sleep"/>, never <Condition ID="Sleep"/>.
+_EXPLICIT_TAG = {kind: "Control" for kind in ("sq", "msq", "sl", "msl", "pl")}
+_EXPLICIT_TAG.update(neg="Decorator", tt1="Decorator", tt2="Decorator", wt="Action", w="Action")
 _EXPLICIT = {"Action": "a", "Condition": "c", "Decorator": None, "Control": None}
 _HINTS = {
     "SequenceWithMemory": "it resumes at a child that failed, which stringBT cannot express",
@@ -498,6 +521,8 @@ class _Importer:
         if explicit and not ident:
             self.fail(ErrorCode.UNEXPECTED_TOKEN, f"<{tag}> needs an ID attribute", el)
         kind = _KINDS.get(ident)
+        if kind is not None and explicit and tag != _EXPLICIT_TAG[kind]:
+            self.unsupported(el, f"{ident} is BT.CPP's own {_EXPLICIT_TAG[kind]} node")
         if kind is None:
             leaf = _EXPLICIT.get(tag if explicit else self.model.get(ident, ""))
             reserved = ident in BUILTINS or ident.startswith(RESERVED_PREFIX)
@@ -535,12 +560,20 @@ class _Importer:
             self.fail(code, f"<{el.tag}> needs an integer {key}, not {text!r}", el)
         return value
 
+    def unsigned(self, el: _El, key: str) -> int:
+        """A ``ticks`` or ``msec`` port, which BT.CPP reads as an ``unsigned int``."""
+        value = self.integer(el, key)
+        if value > _MAX_TICKS:
+            message = f"<{el.tag}> {key} {value} is more than BT.CPP's unsigned int holds"
+            self.fail(ErrorCode.INVALID_DURATION, message, el)
+        return value
+
     def leaf(self, el: _El, kind: str, ident: str, negated: bool = False) -> Node:
         pos = (el.line, el.column)
         if kind == "w":
-            return Wait(self.integer(el, "ticks"), "ticks", pos=pos)
+            return Wait(self.unsigned(el, "ticks"), "ticks", pos=pos)
         if kind == "wt":
-            msec = self.integer(el, "msec")
+            msec = self.unsigned(el, "msec")
             try:
                 seconds = _seconds(msec)
             except OverflowError:
@@ -622,7 +655,7 @@ class _Importer:
             return Inverter(children, pos=pos)
         if kind in ("tt1", "tt2"):
             timer = WaitTimer if kind == "tt1" else RunTimer
-            return timer(children, self.integer(el, "ticks"), pos=pos)
+            return timer(children, self.unsigned(el, "ticks"), pos=pos)
         # BT.CPP counts a negative count from the end: -1 is all N children.
         n = len(children)
         success = self.integer(el, "success_count", "-1")

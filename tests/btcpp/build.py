@@ -2,7 +2,8 @@
 
 The source is the source distribution of ``behaviortreepy`` (it carries BehaviorTree.CPP's whole
 tree with its third-party folder), fetched with pip. The library is built in Release without its
-tests, examples, tools, SQLite logger or Groot2 interface, and installed under
+tests, examples, tools, SQLite logger or Groot2 interface, and installed (with the header of its
+bundled tinyxml2, whose symbols the library exports) under
 ``~/.cache/ktbt/btcpp-<version>-<compiler>/`` (``$KTBT_CACHE`` overrides ``~/.cache/ktbt``): outside
 the clone, so a fresh clone reuses it. A file lock makes parallel test processes wait for one
 build instead of starting two. Programs are cached by a digest of their sources.
@@ -101,35 +102,45 @@ def _source(work: Path) -> Path:
     return source
 
 
+def tinyxml2_header(prefix: Path) -> Path:
+    """BehaviorTree.CPP's bundled tinyxml2, whose symbols the library exports: copied beside
+    its headers, so a program (the example robot) parses XML with the engine's own parser."""
+    return prefix / "include" / "tinyxml2" / "tinyxml2.h"
+
+
 def engine() -> Path:
     """The install prefix of BehaviorTree.CPP (include/, lib/), built if not there yet."""
     prefix = cache_root() / f"btcpp-{BTCPP_VERSION}-{compiler()}"
-    stamp = prefix / "built"
-    if stamp.exists():
+    stamp, header = prefix / "built", tinyxml2_header(prefix)
+    if stamp.exists() and header.exists():
         return prefix
     with locked(prefix.parent / f"{prefix.name}.lock"):
-        if stamp.exists():  # another process built it while this one waited
+        if stamp.exists() and header.exists():  # another process built it while this one waited
             return prefix
         start = time.monotonic()
-        shutil.rmtree(prefix, ignore_errors=True)
         with tempfile.TemporaryDirectory(dir=cache_root()) as scratch:
             work = Path(scratch)
             source = _source(work)
-            build = work / "build"
-            _run(
-                [
-                    "cmake",
-                    "-S",
-                    str(source),
-                    "-B",
-                    str(build),
-                    *CMAKE_OPTIONS,
-                    f"-DCMAKE_INSTALL_PREFIX={prefix}",
-                ]
-            )
-            _run(["cmake", "--build", str(build), "--parallel", str(os.cpu_count() or 1)])
-            _run(["cmake", "--install", str(build)])
-        stamp.write_text(f"{time.monotonic() - start:.1f}\n")
+            if not stamp.exists():
+                shutil.rmtree(prefix, ignore_errors=True)
+                build = work / "build"
+                _run(
+                    [
+                        "cmake",
+                        "-S",
+                        str(source),
+                        "-B",
+                        str(build),
+                        *CMAKE_OPTIONS,
+                        f"-DCMAKE_INSTALL_PREFIX={prefix}",
+                    ]
+                )
+                _run(["cmake", "--build", str(build), "--parallel", str(os.cpu_count() or 1)])
+                _run(["cmake", "--install", str(build)])
+            header.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source / "3rdparty" / "tinyxml2" / "tinyxml2.h", header)
+        if not stamp.exists():
+            stamp.write_text(f"{time.monotonic() - start:.1f}\n")
     return prefix
 
 

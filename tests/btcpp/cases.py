@@ -29,15 +29,16 @@ def outcomes(
     return script
 
 
-# Values a BT.CPP port reads back as the export means them: ints within BT.CPP's 32-bit int,
-# and no "{key}" strings (BT.CPP reads those as blackboard references).
+# Port values: ints within BT.CPP's 32-bit int; subnormal doubles on purpose (the export refuses
+# them, BT.CPP cannot read them) next to the smallest normal one; "{key}" strings, which BT.CPP
+# would read as blackboard references were they not quoted.
 port_values = st.one_of(
     st.booleans(),
     st.integers(-(2**31), 2**31 - 1),
     st.floats(allow_nan=False, allow_infinity=False),
-    st.text(st.characters(codec="utf-8", exclude_categories=["Cs"]), max_size=8).filter(
-        lambda s: not (s.startswith("{") and s.endswith("}"))
-    ),
+    st.sampled_from((5e-324, -1e-310, 2.2250738585072014e-308)),
+    st.text(st.characters(codec="utf-8", exclude_categories=["Cs"]), max_size=8),
+    st.text("{}x ", max_size=5),
 )
 port_names = st.sampled_from(("x", "goal", "nav.frame"))
 

@@ -203,6 +203,8 @@ class Groot2Publisher:
         self.errors: Counter[str] = Counter()
         """Error replies sent, by reason (a hostile or confused client is counted, not fatal)."""
         self.requests = 0
+        self.heartbeat = HEARTBEAT
+        """Seconds without a request after which every hook is disabled (the client went away)."""
         self._lock = threading.Condition()
         self._view: _View | None = None
         self._hooks: dict[tuple[int, int], _Hook] = {}
@@ -430,7 +432,7 @@ class Groot2Publisher:
 
     def _heartbeat(self) -> None:
         with self._lock:
-            if self._hooks_enabled and time.monotonic() - self._last_request > HEARTBEAT:
+            if self._hooks_enabled and time.monotonic() - self._last_request > self.heartbeat:
                 self._hooks_enabled = False  # wakes every breakpoint: the client went away
                 self._lock.notify_all()
 

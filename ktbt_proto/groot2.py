@@ -400,12 +400,13 @@ class Groot2Publisher:
 
     def _serve(self) -> None:
         rep = self._rep
+        rep.setsockopt(zmq.RCVTIMEO, 100)  # to notice close() and a client gone quiet
         while not self._closed:
             try:
-                if not rep.poll(100):
-                    self._heartbeat()
-                    continue
                 frames = rep.recv_multipart()
+            except zmq.Again:
+                self._heartbeat()
+                continue
             except zmq.ZMQError:
                 break
             self.requests += 1

@@ -24,16 +24,18 @@ import time
 import uuid
 import xml.etree.ElementTree as ET
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from .errors import StringBTError
 from .format import format_value
 from .interop.btcpp import to_xml
+from .knowledge import Knowledge
+from .registry import Registry
 from .runtime import Halt, LiveTree, Tick
 from .status import FAILURE, RUNNING, SUCCESS, Status
-from .tree import Condition, Container, Node, Placeholder, Tree, Wait
+from .tree import Action, Condition, Container, Node, Placeholder, Selector, Tree, Wait, walk
 
 try:
     import msgpack
@@ -43,7 +45,7 @@ except ImportError as exc:  # pragma: no cover - exercised without the extra
         "Groot2 monitoring needs pyzmq and msgpack: pip install 'ktbt[groot]'"
     ) from exc
 
-__all__ = ["PROTOCOL_ID", "Groot2Publisher", "serve"]
+__all__ = ["PROTOCOL_ID", "Groot2Publisher", "knowledge_tree", "serve"]
 
 log = logging.getLogger("ktbt.groot2")
 
@@ -632,3 +634,24 @@ def _hook_from(entry: object) -> _Hook:
 def serve(tree: Any, port: int = 1667, host: str = "127.0.0.1") -> Groot2Publisher:
     """Serve ``tree`` (a LiveTree or an agent) to Groot2 on ``port`` and ``port + 1``."""
     return Groot2Publisher(tree, port, host)
+
+
+def knowledge_tree(knowledge: Iterable[Knowledge]) -> LiveTree:
+    """What a teacher that ticks no tree (``ktbt peer serve``) shows Groot2: its items, each in a
+    placeholder named for its segment, under a reactive selector, with stand-in behaviours that
+    are never ticked (spec/groot2.md section 2)."""
+    segments: dict[str, list[Node]] = {}
+    reg = Registry()
+    for item in knowledge:
+        segments.setdefault(item.segment, []).append(item.item())
+        for node, _ in walk(item.item()):
+            if isinstance(node, Condition) and not reg.has_condition(node.name):
+                reg.add_condition(node.name, _never)
+            elif isinstance(node, Action) and not reg.has_action(node.name):
+                reg.add_action(node.name, _never)
+    slots = tuple(Placeholder(tuple(items), name) for name, items in segments.items())
+    return LiveTree(Tree(Selector(slots or (Placeholder((), "new"),))), reg)
+
+
+def _never(bb: object, **args: object) -> Status:
+    return FAILURE

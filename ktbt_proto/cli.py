@@ -430,6 +430,10 @@ OverhearMode = Annotated[
         "(keep, check and learn when needed).",
     ),
 ]
+GrootPort = Annotated[
+    int | None,
+    typer.Option("--groot", help="Serve Groot2 (btview) on this port and the next, loopback."),
+]
 
 
 def _overhear(mode: str) -> Overhear:
@@ -530,6 +534,7 @@ def peer_serve(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    groot: GrootPort = None,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -551,7 +556,9 @@ def peer_serve(
         raise typer.Exit(2) from None
     security = _security(key, "any", None, log)
     _peer_call(
-        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+        lambda: peer.serve(
+            name, served, settings, typer.echo, security, publish_answers, heard, groot
+        )
     )
 
 
@@ -621,6 +628,7 @@ def peer_run(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearMode = "off",
+    groot: GrootPort = None,
 ) -> None:
     """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
     from . import peer
@@ -644,6 +652,7 @@ def peer_run(
             security=security,
             publish_answers=publish_answers,
             overhear=heard,
+            groot=groot,
         )
     )
 

@@ -11,7 +11,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -293,13 +293,16 @@ def serve(
     security: Security | None = None,
     publish_answers: bool = False,
     overhear: Overhear = "off",
+    groot: int | None = None,
 ) -> int:
-    """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3."""
+    """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3;
+    ``groot``: show the knowledge to Groot2 on that port (spec/groot2.md)."""
     security = security or Security()
     ear = Overhearing(name, knowledge, answers(knowledge, security.identity), overhear, say)
     policy = security.policy
     with (
         until_signalled() as stop,
+        ExitStack() as stack,
         ZenohTransport(
             name,
             settings,
@@ -313,6 +316,11 @@ def serve(
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        if groot is not None:
+            from .groot2 import Groot2Publisher, knowledge_tree
+
+            stack.enter_context(Groot2Publisher(knowledge_tree(knowledge), groot))
+            say(f"{name}: Groot2 on port {groot} (btview snapshot -p {groot})")
         if security.identity is not None:
             say(f"  signed as {security.identity.public}")
         for item in knowledge:
@@ -408,14 +416,17 @@ def run_agent(
     security: Security | None = None,
     publish_answers: bool = False,
     overhear: Overhear = "off",
+    groot: int | None = None,
 ) -> int:
     """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
     what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
     and, with a transfer log, there) and the summary counts all of them, transport ones too.
-    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3."""
+    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3; ``groot``: serve the
+    control tree to Groot2 on that port (spec/groot2.md)."""
     security = security or Security()
     with (
         until_signalled() as stop,
+        ExitStack() as stack,
         ZenohTransport(
             name,
             settings,
@@ -440,6 +451,11 @@ def run_agent(
             overhear=overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        if groot is not None:
+            from .groot2 import Groot2Publisher
+
+            stack.enter_context(Groot2Publisher(robot, groot))
+            say(f"{name}: Groot2 on port {groot} (btview snapshot -p {groot})")
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)

@@ -1,7 +1,7 @@
 """Our Groot2 publisher against BehaviorTree.CPP's own ``Groot2Publisher`` (through
 ``behaviortreepy``): the same port-less tree, ticked with the same leaf outcomes, asked the same
 requests. Replies must have the same structure, and the same bytes where the protocol fixes them
-(spec/groot2.md section 6)."""
+(spec/groot2.md section 7)."""
 
 from __future__ import annotations
 
@@ -226,7 +226,7 @@ def test_malformed_requests_get_the_same_error(pair: Pair, frames: list[bytes]) 
 
 
 def test_another_protocol_id_is_refused_where_btcpp_answers(pair: Pair) -> None:
-    """The one difference (spec/groot2.md section 5): BT.CPP answers a request of another
+    """A difference (spec/groot2.md section 6): BT.CPP answers a request of another
     protocol as if it were protocol 2, and overwrites the id in its reply; we refuse it."""
     ours, theirs = pair.both("S", protocol=3)
     assert ours[0] == b"error"

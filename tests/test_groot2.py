@@ -362,3 +362,35 @@ def test_an_agent_is_served_through_its_control_tree() -> None:
         assert uid_of(c, "Walk") > 0 and c.request("S")[0][1] == ord("S")
     with pytest.raises(TypeError):
         groot2.Groot2Publisher(object(), port)
+
+
+def test_without_the_extra_one_line_says_how_to_install() -> None:
+    """pyzmq missing (blocked here): the library and ``--groot`` say how to get it, in one line."""
+    import subprocess
+    import sys
+
+    from .zenoh_helpers import ROOT, endpoint, free_port
+
+    block = "import sys; sys.modules['zmq'] = None; "
+    library = subprocess.run(
+        [sys.executable, "-c", block + "import ktbt_proto.groot2"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert library.returncode == 1
+    assert "ImportError: Groot2 monitoring needs pyzmq and msgpack: pip install 'ktbt[groot]'" in (
+        library.stderr
+    )
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
+    args = ["peer", "serve", "--knowledge", str(knowledge), "--listen", endpoint(free_port())]
+    run = "from ktbt_proto.cli import main; sys.argv = ['ktbt', *sys.argv[1:]]; main()"
+    command = subprocess.run(
+        [sys.executable, "-c", block + run, *args, "--groot", str(free_ports())],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert command.returncode == 1
+    assert command.stderr.count("\n") == 1 and "pip install 'ktbt[groot]'" in command.stderr

@@ -169,11 +169,13 @@ class _View:
 
 def _leaf_name(node: Node) -> str:
     """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``."""
-    if isinstance(node, Wait):
+    if not isinstance(node, Condition | Action):
+        assert isinstance(node, Wait)
         return f"wait {format_value(node.duration)} {node.unit}"
-    args = getattr(node, "args", ())
-    head = ("!" if getattr(node, "negated", False) else "") + str(getattr(node, "name", ""))
-    return head + ("(" + ", ".join(f"{k}={format_value(v)}" for k, v in args) + ")" if args else "")
+    head = ("!" if isinstance(node, Condition) and node.negated else "") + node.name
+    if not node.args:
+        return head
+    return head + "(" + ", ".join(f"{k}={format_value(v)}" for k, v in node.args) + ")"
 
 
 def _json_value(value: Any) -> Any:
@@ -264,7 +266,7 @@ class Groot2Publisher:
         uid = spots[0].uid
         if (PRE, uid) not in self._hooks and (POST, uid) not in self._hooks:
             return probed
-        return self._hooked(index, probed, spots, view)
+        return self._hooked(index, probed, show, spots[0], view)
 
     def holds(self, index: int, holds: Callable[[], object]) -> Callable[[], object]:
         spots = self._spots(index)
@@ -285,7 +287,7 @@ class Groot2Publisher:
         def as_tick() -> Status:
             return SUCCESS if probed() else FAILURE
 
-        hooked = self._hooked(index, as_tick, spots, view)
+        hooked = self._hooked(index, as_tick, show, spots[0], view)
 
         def predicate() -> object:
             return hooked() is SUCCESS
@@ -337,10 +339,12 @@ class Groot2Publisher:
         raw = struct.pack("<Q", max(micros, 0))[:6] + struct.pack("<HB", uid, _RAW.get(byte, 0))
         self._transitions.append(raw)
 
-    def _hooked(self, index: int, tick: Tick, spots: list[_Spot], view: _View) -> Tick:
+    def _hooked(
+        self, index: int, tick: Tick, show: Callable[[Status], None], spot: _Spot, view: _View
+    ) -> Tick:
         """A node with a hook: BehaviorTree.CPP's pre- and post-tick callbacks. A forced result
         ends the node's activation: if it was running, it is halted first."""
-        uid, offset, status = spots[0].uid, spots[0].offset, view.status
+        uid, offset, status = spot.uid, spot.offset, view.status
 
         def halt() -> None:
             compiled = view.halts.get(index)
@@ -353,8 +357,7 @@ class Groot2Publisher:
                 forced = self._run(pre)
                 if forced is not None:
                     halt()
-                    for spot in spots:
-                        status[spot.offset] = spot.table[forced]
+                    show(forced)
                     return forced
             result = tick()
             post = self._hooks.get((POST, uid))
@@ -363,8 +366,7 @@ class Groot2Publisher:
                 if forced is not None:
                     if result is RUNNING:
                         halt()
-                    for spot in spots:
-                        status[spot.offset] = spot.table[forced]
+                    show(forced)
                     return forced
             return result
 

@@ -45,7 +45,7 @@ except ImportError as exc:  # pragma: no cover - exercised without the extra
         "Groot2 monitoring needs pyzmq and msgpack: pip install 'ktbt[groot]'"
     ) from exc
 
-__all__ = ["PROTOCOL_ID", "Groot2Publisher", "knowledge_tree", "serve"]
+__all__ = ["PROTOCOL_ID", "Groot2Publisher", "knowledge_tree"]
 
 log = logging.getLogger("ktbt.groot2")
 
@@ -631,11 +631,6 @@ def _hook_from(entry: object) -> _Hook:
     if status not in _STATUS_NAMES:
         raise Refused(f"Cannot convert this to NodeStatus: {status}")
     return _Hook(uid, position, mode, bool(fields["enabled"]), bool(fields["once"]), status)
-
-
-def serve(tree: Any, port: int = 1667, host: str = "127.0.0.1") -> Groot2Publisher:
-    """Serve ``tree`` (a LiveTree or an agent) to Groot2 on ``port`` and ``port + 1``."""
-    return Groot2Publisher(tree, port, host)
 
 
 def knowledge_tree(knowledge: Iterable[Knowledge]) -> LiveTree:

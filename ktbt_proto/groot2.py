@@ -145,9 +145,11 @@ class _View:
         while todo:  # the XML in document order is the tree in pre-order, plus two extras
             el, node = todo.pop()
             elements.append((el, index, _SAME, True))
-            if isinstance(node, Condition) and node.negated:
+            if isinstance(node, Condition) and node.negated and len(el) == 1:
                 elements.append((el[0], index, _INVERTED, False))
-            elif isinstance(node, Placeholder) and not node.children:
+                if "name" not in el[0].attrib:
+                    el[0].set("name", _leaf_name(node).removeprefix("!"))
+            elif isinstance(node, Placeholder) and not node.children and len(el) == 1:
                 elements.append((el[0], index, _FAILING, False))
             elif isinstance(node, Container):
                 assert len(el) == len(node.children), (el.tag, node)

@@ -449,6 +449,10 @@ Overhearing = Annotated[
         "(keep, check and learn when needed).",
     ),
 ]
+GrootPort = Annotated[
+    int | None,
+    typer.Option("--groot", help="Serve Groot2 (btview) on this port and the next, loopback."),
+]
 
 
 def _network_parameters(mode: bool) -> list[inspect.Parameter]:
@@ -630,6 +634,7 @@ def peer_serve(
     publish_answers: PublishAnswers = False,
     overhear: Overhearing = OverhearMode.off,
     publish_events: PublishEvents = False,
+    groot: GrootPort = None,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -638,7 +643,9 @@ def peer_serve(
     _check_peer(name)
     served = _knowledge_or_exit(knowledge)
     security = _security(key, "any", None, log)
-    member = peer.Member(name, settings, security, publish_answers, overhear.value, publish_events)
+    member = peer.Member(
+        name, settings, security, publish_answers, overhear.value, publish_events, groot
+    )
     _peer_call(lambda: peer.serve(member, served, typer.echo))
 
 
@@ -714,6 +721,7 @@ def peer_run(
         ),
     ] = None,
     publish_events: PublishEvents = False,
+    groot: GrootPort = None,
 ) -> None:
     """Run an agent that meets each sequence (default: the four colours), learns it and
     teaches what it knows; with --knowledge it starts knowing that file's items."""
@@ -725,7 +733,9 @@ def peer_run(
         _acceptable_or_exit("--sequence", text, registry)
     start = _knowledge_or_exit(knowledge) if knowledge is not None else None
     security = _security(key, policy.value, trust, log)
-    member = peer.Member(name, settings, security, publish_answers, overhear.value, publish_events)
+    member = peer.Member(
+        name, settings, security, publish_answers, overhear.value, publish_events, groot
+    )
     sequences = sequence or peer.COLOURS
     _peer_call(
         lambda: peer.run_agent(

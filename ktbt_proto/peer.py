@@ -14,7 +14,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -80,6 +80,8 @@ class Member:
     publish_answers: bool = False
     overhear: Overhear = "off"
     publish_events: bool = False
+    groot: int | None = None
+    """A port to serve Groot2 on (and the next), loopback (spec/groot2.md)."""
 
     def transport(self, **kw: Any) -> ZenohTransport:
         """This member's zenoh peer, with its stable zenoh id."""
@@ -316,15 +318,18 @@ class Overhearing:
 
 def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
     """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
-    overhearing as the member says (section 4.3)."""
+    overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
+    is shown to Groot2 (spec/groot2.md)."""
     security = member.security
     ear = Overhearing(
         member.name, knowledge, answers(knowledge, security.identity), member.overhear, say
     )
     policy = security.policy
     name = member.name
+    groot = member.groot
     with (
         until_signalled() as stop,
+        ExitStack() as stack,
         member.transport(
             lookup=ear.lookup,
             catalog=ear.catalog(catalog(knowledge, security.identity)),
@@ -333,6 +338,11 @@ def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        if groot is not None:
+            from .groot2 import Groot2Publisher, knowledge_tree
+
+            stack.enter_context(Groot2Publisher(knowledge_tree(knowledge), groot))
+            say(f"{name}: Groot2 on port {groot} (btview snapshot -p {groot})")
         if security.identity is not None:
             say(f"  signed as {security.identity.public}")
         for item in knowledge:
@@ -471,11 +481,13 @@ def run_agent(
     appears; it teaches what it knows to whoever asks, and prints what it learned. Refusals are
     logged (to stderr and, with a transfer log, there) and the summary counts all of them,
     transport ones too; the network's own errors are counted apart. ``export_learned``: a
-    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1)."""
+    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1);
+    the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (
         until_signalled() as stop,
+        ExitStack() as stack,
         member.transport(query_timeout=wait_ticks / tick_rate) as transport,
     ):
         robot = Agent(
@@ -493,6 +505,11 @@ def run_agent(
             overhear=member.overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        if member.groot is not None:
+            from .groot2 import Groot2Publisher
+
+            stack.enter_context(Groot2Publisher(robot, member.groot))
+            say(f"{name}: Groot2 on port {member.groot} (btview snapshot -p {member.groot})")
         export = LearnedExport(export_learned) if export_learned is not None else None
         if export is not None:  # what a resumed --save file holds already
             export.sync(robot.knowledge)

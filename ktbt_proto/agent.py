@@ -27,6 +27,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from .blackboard import Blackboard
+from .control import ControlFactory, ControlTree
 from .errors import StringBTError
 from .format import format as format_tree
 from .knowledge import (
@@ -125,14 +126,15 @@ class Agent:
     """One robot's KT-BT trees, bound to a transport.
 
     ``control``: the robot's control tree (with a ``<k>(new)`` placeholder for learned
-    knowledge); ``registry``: its conditions and actions, against which received knowledge is
-    checked. The application tells the agent what it faces with :meth:`encounter`.
+    knowledge), or a backend's factory (``spec/protocol.md`` section 4.4); ``registry``: its
+    conditions and actions, against which received knowledge is checked. The application tells
+    the agent what it faces with :meth:`encounter`.
     """
 
     def __init__(
         self,
         name: str,
-        control: Tree | Node | str,
+        control: Tree | Node | str | ControlFactory,
         registry: Registry,
         transport: Transport,
         *,
@@ -184,7 +186,11 @@ class Agent:
         self.metrics = Metrics()
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.now = 0
-        self.control = LiveTree(control, registry, self.blackboard, ticks=self._clock)
+        self.control: ControlTree = (
+            control(registry, self.blackboard, self._clock)
+            if callable(control)
+            else LiveTree(control, registry, self.blackboard, ticks=self._clock)
+        )
         self.registry = registry
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         self.wait_ticks = wait_ticks

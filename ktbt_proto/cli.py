@@ -1,4 +1,7 @@
-"""The ``ktbt`` command line: ``fmt``, ``check``, ``show`` and ``demo``.
+"""The ``ktbt`` command line: the language's tools (``fmt``, ``check``, ``show``, ``merge``,
+``convert``, ``tour``), a fleet's peers (``peer``) and what they leave behind (``kb``, ``log``);
+other packages add commands through the ``ktbt.commands`` entry point (the simulator's ``sim``
+and ``demo``).
 
 Every failure a user can cause (a bad path, an unreadable or non-UTF-8 file, invalid stringBT)
 is one clear line on stderr and an exit code, never a traceback. ``fmt`` follows black: exit 0
@@ -7,13 +10,11 @@ when nothing changed or files were rewritten, 1 when ``--check`` finds work, 123
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import functools
 import inspect
 import os
 import sys
-import tempfile
 from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
@@ -23,12 +24,14 @@ import typer
 
 from . import __version__
 from .errors import StringBTError
+from .files import write_atomic
 from .format import Style
 from .format import format as format_tree
 from .limits import DEFAULT_LIMITS
 from .merge import merge
 from .render import render
 from .syntax import parse
+from .transferlog import EVENTS
 from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
@@ -79,30 +82,15 @@ def _io_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def _write_atomically(path: str, text: str) -> None:
-    """Replace a file's contents so that a crash leaves either the old or the new file.
-
-    A symlink is written through (its target changes, the link stays); a file in a folder we
-    cannot create files in is rewritten in place instead."""
-    path = os.path.realpath(path)
-    directory = os.path.dirname(path)
-    if not os.access(directory, os.W_OK):
+def _write(path: str, text: str) -> None:
+    """Replace a file durably, keeping its permissions (:func:`files.write_atomic`: a symlink is
+    written through). A file in a folder we cannot create files in is rewritten in place: a
+    user may format a file they own in a folder they do not."""
+    if not os.access(os.path.dirname(os.path.realpath(path)), os.W_OK):
         with open(path, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
         return
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".ktbt-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        with contextlib.suppress(OSError):  # keep the file's permissions where we can
-            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, text, keep_mode=True)
 
 
 def _has_comments(tree: Tree) -> bool:
@@ -185,7 +173,7 @@ def fmt_command(
             _say(f"would reformat {name}")
             continue
         try:
-            _write_atomically(path, new)
+            _write(path, new)
         except OSError as exc:
             _say(f"error: cannot write {name}: {_io_reason(exc)}")
             failed += 1
@@ -220,7 +208,7 @@ def check_command(
     """Report every problem as file:line:col: CODE message; exit 1 if there are any.
 
     Warnings (SBT5xx) are reported too, but do not change the exit status."""
-    from .knowledge import stray_nodes
+    from .items import stray_nodes
 
     vocabulary = None
     if registry is not None:
@@ -299,7 +287,7 @@ def merge_command(
         sys.stdout.write(text)
         return
     try:
-        _write_atomically(output, text)
+        _write(output, text)
     except OSError as exc:
         _say(f"error: cannot write {output}: {_io_reason(exc)}")
         raise typer.Exit(1) from None
@@ -349,7 +337,7 @@ def show_command(
 def _sequence_or_exit(option: str, text: str) -> tuple[Condition, ...]:
     """A condition sequence as typed (``TargetSeen(colour=2), !_inZoneF``); a mistake is one
     line naming the option, and a caret under the character in what the user typed."""
-    from .knowledge import read_sequence
+    from .items import read_sequence
 
     try:
         return read_sequence(text)
@@ -449,6 +437,9 @@ PublishAnswers = Annotated[
         "--publish-answers",
         help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
     ),
+]
+PublishEvents = Annotated[
+    bool, typer.Option("--publish-events", help="Publish every exchange event (ktbt monitor).")
 ]
 Overhearing = Annotated[
     OverhearMode,
@@ -638,6 +629,7 @@ def peer_serve(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: Overhearing = OverhearMode.off,
+    publish_events: PublishEvents = False,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
@@ -646,7 +638,7 @@ def peer_serve(
     _check_peer(name)
     served = _knowledge_or_exit(knowledge)
     security = _security(key, "any", None, log)
-    member = peer.Member(name, settings, security, publish_answers, overhear.value)
+    member = peer.Member(name, settings, security, publish_answers, overhear.value, publish_events)
     _peer_call(lambda: peer.serve(member, served, typer.echo))
 
 
@@ -715,6 +707,13 @@ def peer_run(
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: Overhearing = OverhearMode.off,
+    export_learned: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write each learned item here as a BehaviorTree.CPP file.", file_okay=False
+        ),
+    ] = None,
+    publish_events: PublishEvents = False,
 ) -> None:
     """Run an agent that meets each sequence (default: the four colours), learns it and
     teaches what it knows; with --knowledge it starts knowing that file's items."""
@@ -726,7 +725,7 @@ def peer_run(
         _acceptable_or_exit("--sequence", text, registry)
     start = _knowledge_or_exit(knowledge) if knowledge is not None else None
     security = _security(key, policy.value, trust, log)
-    member = peer.Member(name, settings, security, publish_answers, overhear.value)
+    member = peer.Member(name, settings, security, publish_answers, overhear.value, publish_events)
     sequences = sequence or peer.COLOURS
     _peer_call(
         lambda: peer.run_agent(
@@ -737,6 +736,7 @@ def peer_run(
             duration=duration,
             exit_when_done=exit_when_done,
             knowledge_path=str(knowledge_file) if knowledge_file else None,
+            export_learned=str(export_learned) if export_learned else None,
         )
     )
 
@@ -813,11 +813,16 @@ def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save)
     typer.echo(f"{len(kb)} items")
 
 
+LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
+"""The kinds of transfer-log event, as ``--event`` takes them (spec/protocol.md section 8)."""
+
+
 @app.command("log")
 def log_command(
     path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
     event: Annotated[
-        list[str] | None, typer.Option("--event", help="Show only this event (repeatable).")
+        list[LogEvent] | None,
+        typer.Option("--event", help="Show only this event (repeatable)."),
     ] = None,
 ) -> None:
     """Read a transfer log: one line an event, then the count of each kind."""
@@ -825,6 +830,7 @@ def log_command(
 
     from .transferlog import describe, read
 
+    shown = {e.value for e in event or ()}
     counts: Counter[str] = Counter()
     try:
         for entry in read(path):
@@ -832,7 +838,7 @@ def log_command(
                 _say(f"warning: {path}: {entry}")
                 continue
             counts[entry["event"]] += 1
-            if not event or entry["event"] in event:
+            if not shown or entry["event"] in shown:
                 typer.echo(describe(entry))
     except OSError as exc:
         _say(f"error: {path}: {_io_reason(exc)}")

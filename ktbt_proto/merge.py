@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from .errors import ErrorCode, StringBTError
-from .knowledge import read_sequence, split_item
+from .items import read_sequence, split_item
 from .tree import (
     Condition,
     Container,

@@ -27,6 +27,7 @@ from .agent import Agent
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
+from .interop.sidecar import LearnedExport
 from .knowledge import Knowledge, KnowledgeBase, sequence_key, show_sequence
 from .limits import DEFAULT_LIMITS
 from .merge import conditions as parse_conditions
@@ -78,6 +79,8 @@ class Member:
     security: Security = field(default_factory=Security)
     publish_answers: bool = False
     overhear: Overhear = "off"
+    publish_events: bool = False
+    """Publish this member's fleet events (``ktbt_proto.events``, for ``ktbt monitor``)."""
 
     def transport(self, **kw: Any) -> ZenohTransport:
         """This member's zenoh peer, with its stable zenoh id."""
@@ -90,6 +93,7 @@ class Member:
             log=self.security.log,
             publish_answers=self.publish_answers,
             overhear=self.overhear != "off",
+            publish_events=self.publish_events,
             **kw,
         )
 
@@ -414,7 +418,7 @@ BACKOFF_MOST = 2.0
 
 @dataclass
 class Backoff:
-    """When a learner may ask next (spec/protocol.md section 4.4): at once at first, then
+    """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
     after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
     once again when it learns something or a new peer appears."""
 
@@ -460,13 +464,15 @@ def run_agent(
     duration: float = 30.0,
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
+    export_learned: str | None = None,
 ) -> int:
     """A fleet member that learns and teaches: it starts with ``knowledge`` (if any) and what
     ``knowledge_path`` saved, meets each sequence in turn until it knows it (or time runs out),
     asking again with a bounded backoff while it is missing, and at once when a new peer
     appears; it teaches what it knows to whoever asks, and prints what it learned. Refusals are
     logged (to stderr and, with a transfer log, there) and the summary counts all of them,
-    transport ones too; the network's own errors are counted apart."""
+    transport ones too; the network's own errors are counted apart. ``export_learned``: a
+    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1)."""
     security = member.security
     name = member.name
     with (
@@ -484,10 +490,13 @@ def run_agent(
             identity=security.identity,
             policy=security.policy,
             trust=security.trust,
-            log=security.log,
+            log=transport.log,
             overhear=member.overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        export = LearnedExport(export_learned) if export_learned is not None else None
+        if export is not None:  # what a resumed --save file holds already
+            export.sync(robot.knowledge)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
@@ -512,6 +521,8 @@ def run_agent(
                 backoff.lost(now)
             robot.encounter([todo[0]] if todo and backoff.ready(now) else None)
             robot.tick()
+            if export is not None:
+                export.sync(robot.knowledge)
             for key in robot.metrics.learned.keys() - announced:
                 tick, source = robot.metrics.learned[key]
                 say(f"{name}: learned {shown(key)} from {source} at tick {tick}")

@@ -18,7 +18,7 @@ from typing import Any
 
 from .blackboard import Blackboard
 from .errors import ErrorCode, LimitError, StringBTError, ValidationError
-from .knowledge import split_item
+from .items import split_item
 from .limits import DEFAULT_LIMITS, Limits
 from .merge import MergeError, conditions, find_placeholder, knowledge, merge_at, remove_at
 from .registry import Registry
@@ -573,6 +573,18 @@ class LiveTree:
             return None
         index = _index_of(compiled.items, conditions(when))
         return None if index is None else compiled.used[index]
+
+    def knows(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
+        """Whether placeholder ``slot`` holds an item answering ``when`` (pending included)."""
+        path = find_placeholder(self._tree, slot)
+        if path is None:
+            return False
+        node = self._tree.root
+        for index in path:
+            assert isinstance(node, Container)
+            node = node.children[index]
+        assert isinstance(node, Container)
+        return _index_of(list(node.children), conditions(when)) is not None
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.network  # every test runs the ktbt command as a process
+
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
@@ -199,13 +201,16 @@ def test_hostile_inputs_get_one_line_not_a_traceback(tmp_path: Path) -> None:
     assert proc.returncode == 123 and "Traceback" not in proc.stderr
 
 
-def test_fmt_writes_through_symlinks(tmp_path: Path) -> None:
+def test_fmt_writes_through_symlinks_and_keeps_permissions(tmp_path: Path) -> None:
     target = tmp_path / "t.sbt"
     target.write_text(UGLY)
     link = tmp_path / "link.sbt"
+    target.chmod(0o640)
     link.symlink_to(target)
     assert ktbt("fmt", str(link))[0] == 0
     assert link.is_symlink() and target.read_text() == PRETTY
+    assert target.stat().st_mode & 0o777 == 0o640  # the file's permissions are kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.sbt", "t.sbt"]
 
 
 def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
@@ -23,6 +24,8 @@ from ktbt_proto.transport.zenoh import ZenohTransport
 from ktbt_proto.trust import Policy, TrustStore
 
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
+
+pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -51,6 +54,7 @@ def teacher_kb() -> KnowledgeBase:
     return KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
 
 
+@pytest.mark.slow
 def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> None:
     """The answer reaches the learner while a silent peer still holds the query (its timeout is
     30 s); a second reply on the teacher's key is refused, not taken in its place; a reply on
@@ -65,13 +69,21 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
     ):
         declare(silent, "ktbt/v1/knowledge/quiet", held.append)  # never answers
 
+        genuine_arrived = threading.Event()
+        replying: list[threading.Thread] = []
+
         def impostor(q: Any) -> None:
             asked = decode(q.payload.to_bytes())
             forged = encode(Response(id=asked.id, sender="t", sequence=GREEN, subtree=FORGED))
-            time.sleep(0.3)  # after the genuine answer
-            q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
-            q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
-            q.drop()
+
+            def after_the_genuine_answer() -> None:
+                genuine_arrived.wait(10)
+                q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
+                q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
+                q.drop()
+
+            replying.append(threading.Thread(target=after_the_genuine_answer))
+            replying[-1].start()
 
         declare(imp, "ktbt/v1/knowledge/t", impostor)
         see(learner, "t", "silent", "imp")
@@ -82,11 +94,17 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
             got.extend(learner.receive())
             return bool(got)
 
-        assert wait_until(arrived, 10)
-        assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
-        assert held  # the silent peer still holds the query: the answer did not wait for it
-        assert wait_until(lambda: learner.refused >= 2, 10)
-        assert learner.receive() == []
+        try:
+            assert wait_until(arrived, 10)
+            genuine_arrived.set()
+            assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
+            assert held  # the silent peer still holds the query: the answer did not wait for it
+            assert wait_until(lambda: learner.refused >= 2, 10)
+            assert learner.receive() == []
+        finally:
+            genuine_arrived.set()
+            for thread in replying:
+                thread.join(15)
 
 
 def test_queries_come_only_through_the_queryable_and_are_not_replaced() -> None:
@@ -142,6 +160,7 @@ def trusted_learner(port: int, *connect: int, **kw: Any) -> tuple[Agent, ZenohTr
     return robot, transport
 
 
+@pytest.mark.slow
 def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_lying_ones(
     tmp_path: Path,
 ) -> None:
@@ -228,6 +247,7 @@ def test_serve_refuses_a_knowledge_file_without_end(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr and len(result.stderr.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_run_reports_refusals_and_keeps_a_damaged_save_file(tmp_path: Path) -> None:
     save = tmp_path / "kb.json"
     save.write_text('{"version": 1, "knowledge": [{"sequence": "<c>(TargetSeen,colour=9)"')

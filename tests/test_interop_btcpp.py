@@ -69,15 +69,15 @@ SMALL_XML = """\
   <BehaviorTree ID="MainTree">
     <Sequence>
       <Inverter name="!nav.Near">
-        <Condition ID="nav-Near" d="1.5" frame="map" ok="true"/>
+        <nav-Near d="1.5" frame="map" ok="true"/>
       </Inverter>
       <Parallel success_count="1" failure_count="2">
-        <Decorator ID="KTBT_TT1" ticks="3">
-          <Action ID="Say" text="&quot;42&quot;"/>
-        </Decorator>
-        <Decorator ID="KTBT_TT2" ticks="2">
-          <Action ID="KTBT_WaitTicks" ticks="4"/>
-        </Decorator>
+        <KTBT_TT1 ticks="3">
+          <Say text="&quot;42&quot;"/>
+        </KTBT_TT1>
+        <KTBT_TT2 ticks="2">
+          <KTBT_WaitTicks ticks="4"/>
+        </KTBT_TT2>
       </Parallel>
       <ReactiveFallback name="k:new">
         <AlwaysFailure/>
@@ -116,6 +116,16 @@ def test_exact_xml_of_a_small_tree() -> None:
     tree = kp.parse(SMALL)
     assert to_xml(tree) == SMALL_XML
     assert from_xml(SMALL_XML) == tree
+
+
+def test_explicit_form_is_read() -> None:
+    # BT.CPP 3's and older exports' form: <Action ID="X"/>, <Decorator ID="KTBT_TT1">.
+    xml = """<root BTCPP_format="4"><BehaviorTree ID="Main"><Sequence>
+        <Condition ID="Seen" colour="2"/><Decorator ID="KTBT_TT2" ticks="4">
+        <Action ID="KTBT_WaitTicks" ticks="1"/></Decorator><Action ID="Go"/></Sequence>
+        </BehaviorTree></root>"""
+    tree = from_xml(xml)
+    assert kp.format(tree, "compact") == "<msq><c>(Seen,colour=2)<tt2>(4)<w>(1)<e><a>(Go)<e>"
 
 
 def test_groot2_compact_form_is_read() -> None:
@@ -158,6 +168,7 @@ def unique_placeholders(node: Node) -> Node:
     return go(node)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(valid=True))
 def test_random_trees_round_trip(root: Node) -> None:
@@ -193,6 +204,10 @@ def test_values_are_quoted_only_when_needed() -> None:
         ("<a>(Go, name=1)", "argument 'name'"),
         ("<a>(Sleep)", "built-in"),
         ("<c>(KTBT_TT1)", "reserved"),
+        ("<a>(Action)", "built-in"),
+        ("<c>(Condition)", "built-in"),
+        ("<a>(SubTree)", "built-in"),
+        ("<a>(root)", "built-in"),
         ("<sq><c>(X)<a>(X)<e>", "both a condition and an action"),
     ],
 )
@@ -200,6 +215,14 @@ def test_names_bt_cpp_cannot_load_are_refused(text: str, reason: str) -> None:
     with pytest.raises(kp.ValidationError, match=reason) as info:
         to_xml(kp.parse(text))
     assert info.value.code is kp.ErrorCode.INVALID_NAME
+
+
+@pytest.mark.parametrize("text", ["<w>(4294967296)", "<tt1>(4294967296)<a>(A)<e>"])
+def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str) -> None:
+    assert 'ticks="4294967295"' in to_xml(kp.parse(text.replace("4294967296", "4294967295")))
+    with pytest.raises(kp.ValidationError, match="unsigned int") as info:
+        to_xml(kp.parse(text))
+    assert info.value.code is kp.ErrorCode.INVALID_DURATION
 
 
 @pytest.mark.parametrize(

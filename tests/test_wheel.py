@@ -19,6 +19,9 @@ import pytest
 
 from .zenoh_helpers import endpoint, free_port
 
+# Builds the wheel and installs it into fresh virtual environments.
+pytestmark = [pytest.mark.network, pytest.mark.slow]
+
 ROOT = Path(__file__).resolve().parent.parent
 SIM_ONLY = ("numpy", "pymunk", "pyarrow", "matplotlib", "pygame")
 CORE_LIMIT = 60_000_000

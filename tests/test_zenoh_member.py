@@ -1,4 +1,4 @@
-"""Fleet members that survive a real network (spec/protocol.md sections 3, 4.4 and 5), as real
+"""Fleet members that survive a real network (spec/protocol.md sections 3, 4.5 and 5), as real
 ``ktbt peer`` processes on loopback: teachers and learners are one program and knowledge travels
 hops with its author's bytes; a member killed with SIGKILL comes back, as the same zenoh peer,
 with what it saved; a save file it cannot read is set aside, never overwritten; a learner

@@ -17,20 +17,25 @@ stringBT              BT.CPP v4 XML
                       BT.CPP does not tick again a child that finished earlier in the same
                       activation; stringBT ticks every child on every tick.
 ``<neg>``             ``Inverter``
-``<c>(X, k=v)``       ``<Condition ID="X" k="v"/>``; ``<c>(!X)`` is ``<Inverter name="!X">``
-                      around it. The name marks the inverter as a negation (the same behaviour,
-                      since a condition never runs), so it imports as ``<c>(!X)``, not ``<neg>``.
-``<a>(X, k=v)``       ``<Action ID="X" k="v"/>``
+``<c>(X, k=v)``       ``<X k="v"/>``, declared ``<Condition ID="X">`` in the model; ``<c>(!X)``
+                      is ``<Inverter name="!X">`` around it. The name marks the inverter as a
+                      negation (the same behaviour, since a condition never runs), so it
+                      imports as ``<c>(!X)``, not ``<neg>``.
+``<a>(X, k=v)``       ``<X k="v"/>``, declared ``<Action ID="X">`` in the model
 ``<wt>(S)``           ``<Sleep msec="round(1000 S)"/>``. When those milliseconds do not read
                       back as exactly S (``<wt>(2.0)``, ``<wt>(0.0015)``), ``name="wt:S"`` keeps
                       the literal; import uses it only while it still agrees with ``msec``.
-``<tt1>(N)``          ``<Decorator ID="KTBT_TT1" ticks="N">``
-``<tt2>(N)``          ``<Decorator ID="KTBT_TT2" ticks="N">``
-``<w>(N)``            ``<Action ID="KTBT_WaitTicks" ticks="N"/>``
+``<tt1>(N)``          ``<KTBT_TT1 ticks="N">``
+``<tt2>(N)``          ``<KTBT_TT2 ticks="N">``
+``<w>(N)``            ``<KTBT_WaitTicks ticks="N"/>``
 ``<k>(name)``         ``<ReactiveFallback name="k:name">`` (a placeholder *is* a reactive
                       selector); empty, it holds one ``<AlwaysFailure/>``, because BT.CPP wants a
                       child under every control node and an empty placeholder fails.
 ====================  =======================================================================
+
+Every node is written by its element name, as BT.CPP 4 and Groot2 write them: BT.CPP's loader
+looks up a ``ReactiveSequence``'s children by element name, so the explicit ``<Action ID="X"/>``
+form is refused there ("Unknown node type: Action").
 
 The three ``KTBT_`` nodes are custom because stringBT's timers count ticks and BT.CPP's
 (``Delay``, ``Timeout``) count milliseconds; ``Delay`` and ``Timeout`` are therefore not used.
@@ -52,11 +57,11 @@ included). Import reads ``true``/``false``, then stringBT numbers, then JSON str
 anything else is a string. A ``{key}`` blackboard reference imports as that literal string, and
 port defaults declared in a TreeNodesModel are not applied.
 
-Import accepts both ``<Action ID="X"/>`` and Groot2's ``<X/>`` (when the TreeNodesModel declares
-X). Anything without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting
-attributes...) is a :class:`ParseError` whose line and column point at the element; malformed XML
-is one too, never an XML exception. DOCTYPE declarations (hence entities) are refused. Comments
-are not exported.
+Import accepts both ``<X/>`` (when the TreeNodesModel declares X) and the explicit
+``<Action ID="X"/>``, ``<Condition ID="X"/>`` and ``<Decorator ID="KTBT_TT1">`` forms. Anything
+without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting attributes...) is a
+:class:`ParseError` whose line and column point at the element; malformed XML is one too, never
+an XML exception. DOCTYPE declarations (hence entities) are refused. Comments are not exported.
 """
 
 from __future__ import annotations
@@ -105,17 +110,21 @@ PLACEHOLDER_PREFIX = "k:"
 SECONDS_PREFIX = "wt:"
 INDENT = "  "
 
-# BT.CPP 4.6 built-in node IDs: a condition or action of the same name could not be registered.
+# BT.CPP 4.8 built-in node IDs (and 4.6's TryCatch, 3.x's SequenceStar): a condition or action
+# of the same name could not be registered. The element names BT.CPP's loader reads as document
+# structure or as the explicit form cannot name a node either.
 _BUILTIN_IDS = (
     "AlwaysFailure AlwaysSuccess AsyncFallback AsyncSequence Delay Fallback ForceFailure "
     "ForceSuccess IfThenElse Inverter KeepRunningUntilFailure LoopBool LoopDouble LoopInt "
     "LoopString Parallel ParallelAll Precondition ReactiveFallback ReactiveSequence Repeat "
     "RetryUntilSuccessful RunOnce Script ScriptCondition Sequence SequenceWithMemory "
     "SetBlackboard SkipUnlessUpdated Sleep SubTree Switch2 Switch3 Switch4 Switch5 Switch6 "
-    "Timeout TryCatch UnsetBlackboard WaitValueUpdate WasEntryUpdated WhileDoElse"
+    "Timeout TryCatch UnsetBlackboard WaitValueUpdate WasEntryUpdated WhileDoElse SequenceStar "
+    "Action Condition Control Decorator BehaviorTree TreeNodesModel root include"
 )
 BUILTINS = frozenset(_BUILTIN_IDS.split())
 
+_MAX_TICKS = 2**32 - 1
 _NUMBER = re.compile(r"-?[0-9]+(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"([^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"')
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
@@ -208,14 +217,21 @@ class _Exporter:
         if self.kinds.setdefault(ident, kind) != kind:
             self._refuse(node, f"{name!r} is both a condition and an action; BT.CPP has one ID")
         ports = self.ports.setdefault(ident, {})
-        attrs = [("ID", ident)]
+        attrs: list[tuple[str, str]] = []
         for key, value in node.args:
             port = key.replace(".", "-")
             if not _PORT.fullmatch(port) or port in ("ID", "name"):
                 self._refuse(node, f"argument {key!r} of {name!r} cannot be a BT.CPP port name")
             ports.setdefault(port, set()).add(_PORT_TYPES[type(value)])
             attrs.append((port, encode_value(value)))
-        return _Out(kind, attrs)
+        return _Out(ident, attrs)
+
+    def _ticks(self, node: Node, ticks: int | float) -> str:
+        """The ``ticks`` port of a ``KTBT_`` node, an ``unsigned int`` in BT.CPP."""
+        if ticks > _MAX_TICKS:
+            message = f"{ticks} ticks is more than BT.CPP's unsigned int holds ({_MAX_TICKS})"
+            raise ValidationError(ErrorCode.INVALID_DURATION, message, node.line, node.column)
+        return format_value(ticks)
 
     def element(self, node: Node) -> _Out:
         if isinstance(node, Condition):
@@ -226,7 +242,7 @@ class _Exporter:
         if isinstance(node, Wait):
             if node.unit == "ticks":
                 self.custom.add(WAIT_TICKS)
-                return _Out("Action", [("ID", WAIT_TICKS), ("ticks", format_value(node.duration))])
+                return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
             msec = _msec(node.duration)
             attrs = [("msec", str(msec))]
             if not _same(_seconds(msec), node.duration):
@@ -252,7 +268,7 @@ class _Exporter:
         ident = TT1 if isinstance(node, WaitTimer) else TT2
         assert isinstance(node, WaitTimer | RunTimer)
         self.custom.add(ident)
-        return _Out("Decorator", [("ID", ident), ("ticks", format_value(node.ticks))], kids)
+        return _Out(ident, [("ticks", self._ticks(node, node.ticks))], kids)
 
     def model(self) -> list[_Out]:
         entries: list[tuple[str, str, list[Node | _Out | str]]] = []
@@ -274,16 +290,17 @@ def _attrs(attrs: list[tuple[str, str]]) -> str:
     return "".join(f' {k}="{v.translate(_ATTR_ESCAPES)}"' for k, v in attrs)
 
 
-def to_xml(tree: Tree | Node) -> str:
-    """The tree as a BT.CPP v4 document (indented, ending with a newline).
+def to_xml(tree: Tree | Node, *, tree_id: str = MAIN_TREE) -> str:
+    """The tree as a BT.CPP v4 document (indented, ending with a newline), as the
+    ``<BehaviorTree>`` ``tree_id`` (a learned item's file names its own, see ``sidecar``).
 
     Raises a :class:`StringBTError` for an invalid tree or for names BT.CPP cannot load.
     """
     validate(tree)
     exporter = _Exporter()
-    body = _Out("BehaviorTree", [("ID", MAIN_TREE)], [as_node(tree)])
+    body = _Out("BehaviorTree", [("ID", tree_id)], [as_node(tree)])
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{MAIN_TREE}">')
+    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{tree_id}">')
     # Convert the tree first, so the model below knows every node it used.
     _write(body, 1, exporter, lines)
     _write(_Out("TreeNodesModel", [], [*exporter.model()]), 1, exporter, lines)

@@ -29,8 +29,8 @@ class Transport(Protocol):
     """Broadcast a query to whoever can hear, answer one peer, and collect what arrived.
 
     ``receive`` never blocks: an agent drains it once per tick. Inboxes are bounded: when one
-    is full the newcomer is refused and counted (the first answer wins, so what came first is
-    kept), so a flood cannot exhaust memory.
+    is full the newcomer is refused and counted (``refused``), so a flood can neither exhaust
+    memory nor push out what came first (spec/protocol.md section 2).
     """
 
     name: str

@@ -9,6 +9,8 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
 - ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
   for the peers that overhear (``overhear``; spec section 4.3).
+- ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
+  (spec section 10).
 
 A get never holds a thread: its replies are handled by a callback run where zenoh receives
 them, and the get's end by the callback's drop, so no number of silent peers or dead links slows
@@ -41,6 +43,7 @@ from typing import Any, TypeVar
 
 import zenoh
 
+from ..events import EventPublisher
 from ..messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -174,6 +177,9 @@ class ZenohTransport:
     overheard_limit: int = 64
     """Overheard answers waiting for the agent at most; a newcomer beyond is refused, so a
     flood of published answers never takes a direct answer's place in the inbox."""
+    publish_events: bool = False
+    """Publish every event of ``log`` (one is made if there is none) on ``ktbt/v1/events/<name>``,
+    signed with ``identity`` if there is one (section 10)."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     network_errors: int = 0
@@ -210,6 +216,13 @@ class ZenohTransport:
             if self.publish_answers:
                 self._publisher = self._session.declare_publisher(f"{PREFIX}/answers/{self.name}")
                 self._declared.append(self._publisher)
+            if self.publish_events:
+                self.log = self.log or TransferLog(None)
+                events, publisher = EventPublisher.on_session(
+                    self._session, self.name, identity=self.identity
+                )
+                self._declared.append(publisher)
+                self.log.add_sink(events)
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(

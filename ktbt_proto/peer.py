@@ -80,6 +80,7 @@ class Member:
     publish_answers: bool = False
     overhear: Overhear = "off"
     publish_events: bool = False
+    """Publish this member's fleet events (``ktbt_proto.events``, for ``ktbt monitor``)."""
     groot: int | None = None
     """A port to serve Groot2 on (and the next), loopback (spec/groot2.md)."""
 

@@ -1,4 +1,4 @@
-"""Fleet members that survive a real network (spec/protocol.md sections 3, 4.4 and 5), as real
+"""Fleet members that survive a real network (spec/protocol.md sections 3, 4.5 and 5), as real
 ``ktbt peer`` processes on loopback: teachers and learners are one program and knowledge travels
 hops with its author's bytes; a member killed with SIGKILL comes back, as the same zenoh peer,
 with what it saved; a save file it cannot read is set aside, never overwritten; a learner
@@ -10,6 +10,8 @@ import json
 import signal
 from pathlib import Path
 
+import pytest
+
 from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.peer import Backoff, Member
 from ktbt_proto.signing import Identity, item_bytes, verify
@@ -18,12 +20,14 @@ from ktbt_proto.transport.zenoh import stable_zid
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, serving
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
+pytestmark = pytest.mark.network  # ktbt peer processes on loopback
 
 
 def run(name: str, port: int, *extra: str) -> list[str]:
     return ["peer", "run", "--id", name, "--listen", endpoint(port), *extra]
 
 
+@pytest.mark.slow
 def test_teachers_and_learners_are_one_program_and_knowledge_travels_two_hops(
     tmp_path: Path,
 ) -> None:
@@ -68,6 +72,7 @@ def test_teachers_and_learners_are_one_program_and_knowledge_travels_two_hops(
     assert verify(author.public, item.signature, item_bytes(item.key, subtree))
 
 
+@pytest.mark.slow
 def test_a_member_killed_with_sigkill_comes_back_the_same_peer_with_what_it_saved(
     tmp_path: Path,
 ) -> None:
@@ -99,6 +104,7 @@ def test_a_member_killed_with_sigkill_comes_back_the_same_peer_with_what_it_save
         assert str(same._session.info.zid()) == stable_zid("r")
 
 
+@pytest.mark.slow
 def test_a_save_file_it_cannot_read_is_set_aside_and_never_overwritten(tmp_path: Path) -> None:
     """Three damaged files in a row (another version, truncated, not UTF-8), each set aside
     under its own name, while the learner saves what it learns in a new file."""
@@ -121,6 +127,7 @@ def test_a_save_file_it_cannot_read_is_set_aside_and_never_overwritten(tmp_path:
     assert sorted(p.read_bytes() for p in aside) == sorted(damaged)  # all three, whole
 
 
+@pytest.mark.slow
 def test_a_learner_started_before_any_teacher_learns_when_one_appears() -> None:
     """Its endpoint is retried for ever, its queries are lost and it backs off; the teacher's
     appearance (its liveliness token) has it ask again."""

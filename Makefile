@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck pytest bench studies fuzz clean
+.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,11 @@ pytest: $(VENV)/.installed-dev
 
 test: lint typecheck pytest
 
+# The quick loop (under a minute): every test but the slow ones and those that start processes
+# or zenoh sessions. `make test` runs them all.
+test-fast: $(VENV)/.installed-dev
+	$(BIN)/python -m pytest -m "not slow and not network"
+
 bench: $(VENV)/.installed-dev
 	$(BIN)/python -m benchmarks
 
@@ -59,6 +64,19 @@ FUZZ_INPUTS ?= 1000000
 FUZZ_SEED ?=
 fuzz: $(VENV)/.installed-dev
 	$(BIN)/python -m ktbt_proto.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+
+# BehaviorTree.CPP itself as the judge of our XML, and a C++ robot learning beside a KT-BT agent
+# (not part of `make test`): the library is built from source once per version and compiler into
+# ~/.cache/ktbt (minutes the first time), then the differential and sidecar tests run against it.
+interop: $(VENV)/.installed-dev
+	$(BIN)/python -m tests.btcpp.build
+	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/test_interop_btcpp_engine.py tests/test_interop_btcpp_learner.py
+
+# The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
+# and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,
+# fleet.png). About 6 minutes on 2 cores; packet loss needs root and nftables.
+soak: $(VENV)/.installed-dev
+	nice $(BIN)/ktbt fleet study --out results/fleet --docs docs/results
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures

@@ -1,6 +1,7 @@
 """KT-BT: behaviour trees that robots share while they run.
 
-The public names below are a contract (``ARCHITECTURE.md``); everything else may move.
+The public names below are a contract (``ARCHITECTURE.md`` at the repository root says what
+each layer holds); everything else may move.
 """
 
 from .blackboard import Blackboard

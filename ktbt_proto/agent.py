@@ -17,23 +17,23 @@ exchange is written to the transfer log when one is given (``spec/protocol.md`` 
 from __future__ import annotations
 
 import logging
+import os
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Literal
 
 from pydantic import ValidationError
 
 from .blackboard import Blackboard
+from .control import ControlFactory, ControlTree
 from .errors import StringBTError
 from .format import format as format_tree
 from .knowledge import (
     MAX_FILE,
     Knowledge,
     KnowledgeBase,
-    parse_sequence,
     remove_stale_temporaries,
     salvage,
     sequence_key,
@@ -42,26 +42,20 @@ from .limits import Limits
 from .memory import MemoryPolicy
 from .merge import conditions as parse_conditions
 from .messages import Query, Response
+from .overhearing import Ear, Heard, Overhear
+from .receiving import RECEIVE_LIMITS, Refused, read, vet
 from .registry import Registry
 from .runtime import LiveTree
 from .signing import Identity
 from .status import FAILURE, RUNNING, SUCCESS, Status
-from .syntax import parse
 from .transferlog import TransferLog
-from .transport.base import Transport
+from .transport.base import NetworkError, Transport
 from .tree import Condition, Node, Tree
 from .trust import Policy, TrustStore, refusal
-from .validate import validate
 
 log = logging.getLogger("ktbt.agent")
 
-Overhear = Literal["off", "update", "buffer"]
-"""What an agent does with answers to others' queries (spec/protocol.md section 4.3)."""
-
-RECEIVE_LIMITS = Limits(
-    max_size=60_000, max_depth=32, max_nodes=2_000, max_literal=256, max_number=1_000_000
-)
-"""What a learner accepts from a peer: far tighter than a file on disk."""
+__all__ = ["RECEIVE_LIMITS", "Agent", "Metrics", "Overhear"]
 MAX_WAITING = 256
 """Queries, and answers to the open query, held between ticks; a newcomer beyond is refused
 (the first answer wins, so what came first is what is kept)."""
@@ -123,20 +117,24 @@ class Metrics:
     """Answers to others' queries received (section 4.3)."""
     overheard_refused: int = 0
     """Of those, refused: a check failed, or the buffer was full (also counted in ``refused``)."""
+    network_errors: int = 0
+    """The network's own errors about this agent's queries (a get that timed out): not
+    refusals, since no peer sent them (spec/protocol.md section 3)."""
 
 
 class Agent:
     """One robot's KT-BT trees, bound to a transport.
 
     ``control``: the robot's control tree (with a ``<k>(new)`` placeholder for learned
-    knowledge); ``registry``: its conditions and actions, against which received knowledge is
-    checked. The application tells the agent what it faces with :meth:`encounter`.
+    knowledge), or a backend's factory (``spec/protocol.md`` section 4.4); ``registry``: its
+    conditions and actions, against which received knowledge is checked. The application tells
+    the agent what it faces with :meth:`encounter`.
     """
 
     def __init__(
         self,
         name: str,
-        control: Tree | Node | str,
+        control: Tree | Node | str | ControlFactory,
         registry: Registry,
         transport: Transport,
         *,
@@ -157,12 +155,8 @@ class Agent:
         buffer_size: int = 16,
     ) -> None:
         self.name = name
-        if overhear not in ("off", "update", "buffer"):
-            raise ValueError(f"overhear must be 'off', 'update' or 'buffer', not {overhear!r}")
-        self.overhear: Overhear = overhear
-        """What to do with answers addressed to others (section 4.3)."""
-        self.buffer_size = buffer_size
-        self._buffer: dict[str, Response] = {}
+        self.ear = Ear(overhear, buffer_size)
+        """What to do with answers addressed to others, and the buffer (section 4.3)."""
         self.last_answer: Response | None = None
         """The last answer this agent sent (what a listener nearby may overhear)."""
         self.memory = memory or MemoryPolicy()
@@ -192,7 +186,17 @@ class Agent:
         self.metrics = Metrics()
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.now = 0
-        self.control = LiveTree(control, registry, self.blackboard, ticks=self._clock)
+        if isinstance(control, ControlTree):
+            raise TypeError(
+                f"Agent takes its control tree as stringBT or as a backend's factory such as "
+                f"py_trees_control(tree), not a built {type(control).__name__}: the agent builds "
+                "it around its own registry, blackboard and clock (spec/protocol.md section 4.4)"
+            )
+        self.control: ControlTree = (
+            control(registry, self.blackboard, self._clock)
+            if callable(control)
+            else LiveTree(control, registry, self.blackboard, ticks=self._clock)
+        )
         self.registry = registry
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         self.wait_ticks = wait_ticks
@@ -274,7 +278,9 @@ class Agent:
         """
         self.now = self.now + 1 if now is None else now
         for message in self.transport.receive():
-            if isinstance(message, Query):
+            if isinstance(message, NetworkError):
+                self._network_error(message)
+            elif isinstance(message, Query):
                 self._received(message)
                 if self.blackboard.get(COOLING_DOWN):  # a cooling robot does not listen
                     continue
@@ -295,6 +301,17 @@ class Agent:
         self.learn.tick()
         self.tend_memory()
         return status
+
+    @property
+    def overhear(self) -> Overhear:
+        return self.ear.mode
+
+    def _network_error(self, error: NetworkError) -> None:
+        """The network's own error about a query of ours: counted apart, logged as its own
+        event, never a refusal (spec/protocol.md section 3)."""
+        self.metrics.network_errors += 1
+        log.debug("%s: network error on query %s: %s", self.name, error.id, error.reason)
+        self._record("network-error", id=error.id, reason=error.reason)
 
     def _received(self, query: Query) -> None:
         self.metrics.queries_received += 1
@@ -381,7 +398,9 @@ class Agent:
         learned = 0
         heard = self._heard
         for message in self.transport.receive():
-            if isinstance(message, Query):
+            if isinstance(message, NetworkError):
+                self._network_error(message)
+            elif isinstance(message, Query):
                 self._received(message)
                 heard.pop(message.sender, None)
                 heard[message.sender] = message
@@ -406,28 +425,20 @@ class Agent:
         """An answer to somebody else's query (or to none): refused unless this agent
         overhears; then learned at once (``update``) or kept for later (``buffer``), after the
         same checks as a direct answer. Returns how many items were learned."""
-        if self.overhear == "off":
+        heard = self.ear.hear(response, response.sequence in self.knowledge, self._overheard)
+        if heard is Heard.OFF:
             self.refuse(f"from {response.sender}: an answer to no open question")
             return 0
         self.metrics.overheard += 1
-        if response.sequence in self.knowledge:
-            self._buffer.pop(response.sequence, None)
-            return 0
-        if self.overhear == "update":
-            if self._accept_overheard(response):
-                self.metrics.learned_passive += 1
-                return 1
-            return 0
-        if response.sequence in self._buffer:  # the first answer heard is kept
-            return 0
-        if len(self._buffer) >= self.buffer_size:
+        if heard is Heard.FULL:
             self.metrics.overheard_refused += 1
             self.refuse(f"from {response.sender}: overheard answer, buffer full")
-            return 0
-        self._buffer[response.sequence] = response
+        elif heard is Heard.LEARNED:
+            self.metrics.learned_passive += 1
+            return 1
         return 0
 
-    def _accept_overheard(self, response: Response) -> bool:
+    def _overheard(self, response: Response) -> bool:
         asked = Query(id=response.id, sender=self.name, sequence=response.sequence)
         if self.accept(response, asked):
             return True
@@ -437,16 +448,16 @@ class Agent:
     @property
     def buffered(self) -> list[str]:
         """The sequences of the overheard answers kept for later, in the order heard."""
-        return list(self._buffer)
+        return self.ear.buffered
 
     def learn_buffered(self, sequence: Iterable[Condition | str] | str) -> bool:
         """Learn ``sequence`` from an overheard answer kept in the buffer, without asking; True
         if it was there and passed the checks (the entry is used up either way)."""
         key = sequence if isinstance(sequence, str) else sequence_key(parse_conditions(sequence))
-        response = self._buffer.pop(key, None)
+        response = self.ear.take(key)
         if response is None or key in self.knowledge:
             return False
-        if self._accept_overheard(response):
+        if self._overheard(response):
             self.metrics.learned_buffered += 1
             return True
         return False
@@ -583,7 +594,10 @@ class Agent:
         self._record("refused", reason=reason)
 
     def accept(self, response: Response, asked: Query) -> bool:
-        """Check a response against every rule; merge it if it passes. True if learned."""
+        """The receive pipeline (spec/protocol.md section 2), the one every answer goes through,
+        direct, overheard or buffered: log it, check it (``ktbt_proto.receiving``), make room
+        under the memory policy, merge it, record and save it. True if the item is known now
+        (learned, or known already); a refusal is counted and logged with its reason."""
         self._record(
             "answer-received",
             sender=response.sender,
@@ -591,29 +605,19 @@ class Agent:
             sequence=response.sequence,
             author=response.author,
         )
-        if response.sequence != asked.sequence:
-            self.refuse(f"from {response.sender}: answers {response.sequence}, not the question")
-            return False
-        why = refusal(response, self.policy, self.trust)
-        if why is not None:
-            self.refuse(f"from {response.sender}: {why}")
-            return False
-        if asked.sequence in self.knowledge:  # known already (perhaps innate): nothing to merge
-            return True
         try:
-            conds = parse_sequence(asked.sequence, self.receive_limits)
-            subtree = parse(response.subtree, limits=self.receive_limits).root
-            # Receive limits (numbers included) and the registry's types, before the merge.
-            validate(subtree, self.registry, limits=self.receive_limits)
+            vet(response, asked.sequence, self.policy, self.trust)
+            if asked.sequence in self.knowledge:  # known already (perhaps innate): nothing to do
+                return True
+            conds, subtree = read(response, self.receive_limits, self.registry)
             if not self._make_room():
-                self.refuse(f"from {response.sender}: memory full ({self.memory.capacity} items)")
-                return False
+                raise Refused(f"from {response.sender}: memory full ({self.memory.capacity} items)")
             changed = self.control.merge(subtree, self.slot, when=conds)
+        except Refused as refused:
+            self.refuse(refused.reason)
+            return False
         except StringBTError as err:
             self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
-            return False
-        except Exception as exc:  # an application behaviour failed to build: not merged
-            self.refuse(f"from {response.sender}: a behaviour failed to build: {exc!r}"[:300])
             return False
         if changed:
             received = datetime.now(UTC).isoformat(timespec="seconds")
@@ -666,13 +670,10 @@ class Agent:
             except OSError:
                 text = ""
             saved = salvage(text, self.receive_limits)
-            aside = path.with_name(
-                f"{path.name}.damaged-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}"
-            )
             try:
                 if not path.is_file() or path.is_symlink():
                     raise OSError(0, "not a regular file")
-                path.rename(aside)
+                aside = _set_aside(path)
                 where = f"moved to {aside.name}"
             except OSError as err:
                 self.knowledge_path = None
@@ -689,6 +690,22 @@ class Agent:
                 continue
             self.knowledge.add(item)
             self.metrics.learned[item.key] = (0, item.source or "")
+
+
+def _set_aside(path: Path) -> Path:
+    """Move a damaged file to ``FILE.damaged-TIME`` (``-2``, ``-3``... if that name is taken):
+    linked under the new name first, which never replaces a file, then unlinked, so no aside
+    file, and nothing in the damaged one, is ever overwritten (spec/protocol.md section 5)."""
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    for n in range(1, 1000):
+        aside = path.with_name(f"{path.name}.damaged-{stamp}" + (f"-{n}" if n > 1 else ""))
+        try:
+            os.link(path, aside)
+        except FileExistsError:
+            continue
+        path.unlink()
+        return aside
+    raise OSError(0, "too many damaged files set aside")
 
 
 class _QueryAndWait:

@@ -1,4 +1,7 @@
-"""The ``ktbt`` command line: ``fmt``, ``check``, ``show`` and ``demo``.
+"""The ``ktbt`` command line: the language's tools (``fmt``, ``check``, ``show``, ``merge``,
+``convert``, ``tour``), a fleet's peers (``peer``) and what they leave behind (``kb``, ``log``);
+other packages add commands through the ``ktbt.commands`` entry point (the simulator's ``sim``
+and ``demo``).
 
 Every failure a user can cause (a bad path, an unreadable or non-UTF-8 file, invalid stringBT)
 is one clear line on stderr and an exit code, never a traceback. ``fmt`` follows black: exit 0
@@ -7,11 +10,11 @@ when nothing changed or files were rewritten, 1 when ``--check`` finds work, 123
 
 from __future__ import annotations
 
-import contextlib
 import difflib
+import functools
+import inspect
 import os
 import sys
-import tempfile
 from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
@@ -21,18 +24,21 @@ import typer
 
 from . import __version__
 from .errors import StringBTError
+from .files import write_atomic
 from .format import Style
 from .format import format as format_tree
 from .limits import DEFAULT_LIMITS
 from .merge import merge
 from .render import render
 from .syntax import parse
+from .transferlog import EVENTS
 from .tree import Condition, Tree
 from .validate import Vocabulary, check
 
 if TYPE_CHECKING:
-    from .agent import Overhear
+    from .knowledge import KnowledgeBase
     from .peer import Security
+    from .registry import Registry
     from .transport.zenoh import ZenohSettings
 
 app = typer.Typer(
@@ -76,30 +82,15 @@ def _io_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def _write_atomically(path: str, text: str) -> None:
-    """Replace a file's contents so that a crash leaves either the old or the new file.
-
-    A symlink is written through (its target changes, the link stays); a file in a folder we
-    cannot create files in is rewritten in place instead."""
-    path = os.path.realpath(path)
-    directory = os.path.dirname(path)
-    if not os.access(directory, os.W_OK):
+def _write(path: str, text: str) -> None:
+    """Replace a file durably, keeping its permissions (:func:`files.write_atomic`: a symlink is
+    written through). A file in a folder we cannot create files in is rewritten in place: a
+    user may format a file they own in a folder they do not."""
+    if not os.access(os.path.dirname(os.path.realpath(path)), os.W_OK):
         with open(path, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
         return
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".ktbt-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        with contextlib.suppress(OSError):  # keep the file's permissions where we can
-            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, text, keep_mode=True)
 
 
 def _has_comments(tree: Tree) -> bool:
@@ -182,7 +173,7 @@ def fmt_command(
             _say(f"would reformat {name}")
             continue
         try:
-            _write_atomically(path, new)
+            _write(path, new)
         except OSError as exc:
             _say(f"error: cannot write {name}: {_io_reason(exc)}")
             failed += 1
@@ -217,7 +208,7 @@ def check_command(
     """Report every problem as file:line:col: CODE message; exit 1 if there are any.
 
     Warnings (SBT5xx) are reported too, but do not change the exit status."""
-    from .knowledge import stray_nodes
+    from .items import stray_nodes
 
     vocabulary = None
     if registry is not None:
@@ -296,7 +287,7 @@ def merge_command(
         sys.stdout.write(text)
         return
     try:
-        _write_atomically(output, text)
+        _write(output, text)
     except OSError as exc:
         _say(f"error: cannot write {output}: {_io_reason(exc)}")
         raise typer.Exit(1) from None
@@ -346,7 +337,7 @@ def show_command(
 def _sequence_or_exit(option: str, text: str) -> tuple[Condition, ...]:
     """A condition sequence as typed (``TargetSeen(colour=2), !_inZoneF``); a mistake is one
     line naming the option, and a caret under the character in what the user typed."""
-    from .knowledge import read_sequence
+    from .items import read_sequence
 
     try:
         return read_sequence(text)
@@ -389,11 +380,36 @@ peer_app = typer.Typer(
 )
 app.add_typer(peer_app, name="peer")
 
+
+class ZenohMode(StrEnum):
+    """How a peer command joins the fleet (a router is ``ktbt peer router``)."""
+
+    peer = "peer"
+    client = "client"
+
+
+class OverhearMode(StrEnum):
+    """What a fleet member does with the answers others publish (spec/protocol.md 4.3)."""
+
+    off = "off"
+    update = "update"
+    buffer = "buffer"
+
+
+class PolicyName(StrEnum):
+    """Which answers are accepted (spec/protocol.md section 7)."""
+
+    any = "any"
+    signed = "signed"
+    trusted = "trusted"
+
+
 Listen = Annotated[
     list[str] | None, typer.Option("--listen", help="Endpoint to listen on, e.g. tcp/0.0.0.0:7447.")
 ]
 Connect = Annotated[
-    list[str] | None, typer.Option("--connect", help="Endpoint of a peer or router to connect to.")
+    list[str] | None,
+    typer.Option("--connect", help="Endpoint of a peer or router (retried for ever)."),
 ]
 Config = Annotated[
     Path | None,
@@ -402,12 +418,12 @@ Config = Annotated[
 Multicast = Annotated[
     bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
 ]
-Mode = Annotated[str, typer.Option("--mode", help="peer, or client (through a router).")]
+Mode = Annotated[ZenohMode, typer.Option("--mode", help="peer, or client (through a router).")]
 KeyFile = Annotated[
     Path | None, typer.Option("--key", help="This peer's private key (ktbt peer keygen).")
 ]
-PolicyName = Annotated[
-    str, typer.Option("--policy", help="Accept answers: any, signed, or trusted (--trust).")
+Policy = Annotated[
+    PolicyName, typer.Option("--policy", help="Accept answers: any, signed, or trusted (--trust).")
 ]
 TrustFile = Annotated[
     Path | None, typer.Option("--trust", help="Trusted keys: 'KEY' or 'NAME KEY' a line.")
@@ -422,21 +438,73 @@ PublishAnswers = Annotated[
         help="Also publish every answer sent on ktbt/v1/answers/<id>, for peers that overhear.",
     ),
 ]
-OverhearMode = Annotated[
-    str,
+PublishEvents = Annotated[
+    bool, typer.Option("--publish-events", help="Publish every exchange event (ktbt monitor).")
+]
+Overhearing = Annotated[
+    OverhearMode,
     typer.Option(
         "--overhear",
         help="Answers others publish: off (ignore), update (check and learn at once), or buffer "
         "(keep, check and learn when needed).",
     ),
 ]
+GrootPort = Annotated[
+    int | None,
+    typer.Option("--groot", help="Serve Groot2 (btview) on this port and the next, loopback."),
+]
 
 
-def _overhear(mode: str) -> Overhear:
-    if mode not in ("off", "update", "buffer"):
-        _say(f"error: --overhear must be off, update or buffer, not {mode!r}")
-        raise typer.Exit(2)
-    return cast("Overhear", mode)
+def _network_parameters(mode: bool) -> list[inspect.Parameter]:
+    """The network options every peer command takes, defined once (``router`` has no mode)."""
+    keyword = inspect.Parameter.KEYWORD_ONLY
+    options = [
+        inspect.Parameter("listen", keyword, default=None, annotation=Listen),
+        inspect.Parameter("connect", keyword, default=None, annotation=Connect),
+        inspect.Parameter("config", keyword, default=None, annotation=Config),
+        inspect.Parameter("multicast", keyword, default=False, annotation=Multicast),
+    ]
+    if mode:
+        options.append(inspect.Parameter("mode", keyword, default=ZenohMode.peer, annotation=Mode))
+    return options
+
+
+def _networked(*, mode: bool = True) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """A peer command that takes the network options: the command itself names a ``settings``
+    parameter and receives the ``ZenohSettings`` they describe (checked, one line and exit 2 if
+    not); every other parameter is the command's own."""
+
+    def decorate(command: Callable[..., None]) -> Callable[..., None]:
+        own = [
+            p
+            for p in inspect.signature(
+                command,
+                eval_str=True,
+                locals={"ZenohSettings": object},  # loaded only to run
+            ).parameters.values()
+            if p.name != "settings"
+        ]
+        network = _network_parameters(mode)
+        names = [p.name for p in network]
+
+        @functools.wraps(command)
+        def run(**options: object) -> None:
+            given = {name: options.pop(name) for name in names}
+            settings = _settings(
+                cast("list[str] | None", given["listen"]),
+                cast("list[str] | None", given["connect"]),
+                cast("Path | None", given["config"]),
+                bool(given["multicast"]),
+                str(given.get("mode", ZenohMode.peer)),
+            )
+            command(settings=settings, **options)
+
+        parameters = [*own, *network]
+        run.__signature__ = inspect.Signature(parameters)  # type: ignore[attr-defined]
+        run.__annotations__ = {p.name: p.annotation for p in parameters}
+        return run
+
+    return decorate
 
 
 def _security(key: Path | None, policy: str, trust: Path | None, log: Path | None) -> Security:
@@ -447,9 +515,6 @@ def _security(key: Path | None, policy: str, trust: Path | None, log: Path | Non
     from .trust import Policy, TrustStore
 
     configure_logging()
-    if policy not in {p.value for p in Policy}:
-        _say(f"error: --policy must be any, signed or trusted, not {policy!r}")
-        raise typer.Exit(2)
     if policy == Policy.TRUSTED and trust is None:
         _say("error: --policy trusted needs --trust FILE")
         raise typer.Exit(2)
@@ -481,9 +546,6 @@ def _settings(
         except OSError as exc:
             _say(f"error: cannot read --config {config}: {_io_reason(exc)}")
             raise typer.Exit(2) from None
-    if mode not in ("peer", "client"):
-        _say(f"error: --mode must be peer or client, not {mode!r}")
-        raise typer.Exit(2)
     return ZenohSettings(listen or (), connect or (), config, mode, multicast)
 
 
@@ -515,48 +577,82 @@ def _peer_call(action: Callable[[], int]) -> None:
     raise typer.Exit(code)
 
 
+def _knowledge_or_exit(path: Path) -> KnowledgeBase:
+    """A knowledge file to serve or start with; a problem with it is one line and exit 2."""
+    from . import peer
+
+    try:
+        return peer.load_knowledge(path)
+    except OSError as exc:
+        _say(f"error: cannot read --knowledge {path}: {_io_reason(exc)}")
+    except StringBTError as err:
+        _say(f"{path}:{err}")
+    except ValueError as exc:
+        _say(f"error: {exc}")
+    raise typer.Exit(2)
+
+
+def _acceptable_or_exit(option: str, text: str, registry: Registry) -> None:
+    """A sequence the learner's own registry refuses (an unknown condition, an argument of the
+    wrong type or out of range) could never be learned: one line, a caret under the part of
+    ``text`` at fault, exit 2."""
+    import re
+
+    from .tree import Sequence
+    from .validate import validate
+
+    conds = _sequence_or_exit(option, text)
+    seen: dict[str, int] = {}
+    for cond in conds:
+        nth = seen.get(cond.name, 0)
+        seen[cond.name] = nth + 1
+        try:
+            validate(Sequence((cond,)), registry)
+        except StringBTError as err:
+            starts = [m.start(1) for m in re.finditer(rf"({re.escape(cond.name)})\b", text)]
+            at = starts[nth] if nth < len(starts) else 0
+            arg = re.search(r"argument '?(\w+)'?=?", err.message)
+            if arg is not None:
+                found = re.compile(rf"\b{re.escape(arg.group(1))}\s*(=\s*)?").search(text, at)
+                if found is not None:
+                    at = found.end() if err.code == "SBT310" else found.start()
+            _say(f"error: {option} {text!r}: {err.code} {err.message}")
+            _say(f"    {text}\n    {' ' * at}^")
+            raise typer.Exit(2) from None
+
+
 @peer_app.command("serve")
+@_networked()
 def peer_serve(
+    settings: ZenohSettings,
     knowledge: Annotated[
         Path, typer.Option("--knowledge", help="A .sbt knowledge file.", readable=False)
     ],
     name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "server",
-    listen: Listen = None,
-    connect: Connect = None,
-    config: Config = None,
-    multicast: Multicast = False,
-    mode: Mode = "peer",
     key: KeyFile = None,
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
-    overhear: OverhearMode = "off",
+    overhear: Overhearing = OverhearMode.off,
+    publish_events: PublishEvents = False,
+    groot: GrootPort = None,
 ) -> None:
     """Answer queries for the knowledge in a file until stopped (signed, with --key); with
     --overhear, also serve what it overhears."""
     from . import peer
 
     _check_peer(name)
-    heard = _overhear(overhear)
-    settings = _settings(listen, connect, config, multicast, mode)
-    try:
-        served = peer.load_knowledge(knowledge)
-    except OSError as exc:
-        _say(f"error: cannot read --knowledge {knowledge}: {_io_reason(exc)}")
-        raise typer.Exit(2) from None
-    except StringBTError as err:
-        _say(f"{knowledge}:{err}")
-        raise typer.Exit(2) from None
-    except ValueError as exc:
-        _say(f"error: {exc}")
-        raise typer.Exit(2) from None
+    served = _knowledge_or_exit(knowledge)
     security = _security(key, "any", None, log)
-    _peer_call(
-        lambda: peer.serve(name, served, settings, typer.echo, security, publish_answers, heard)
+    member = peer.Member(
+        name, settings, security, publish_answers, overhear.value, publish_events, groot
     )
+    _peer_call(lambda: peer.serve(member, served, typer.echo))
 
 
 @peer_app.command("ask")
+@_networked()
 def peer_ask(
+    settings: ZenohSettings,
     sequence: Annotated[
         str,
         typer.Option(
@@ -567,12 +663,7 @@ def peer_ask(
     ],
     timeout: Annotated[float, typer.Option(help="Seconds to wait for answers.")] = 2.0,
     name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "asker",
-    listen: Listen = None,
-    connect: Connect = None,
-    config: Config = None,
-    multicast: Multicast = False,
-    mode: Mode = "peer",
-    policy: PolicyName = "any",
+    policy: Policy = PolicyName.any,
     trust: TrustFile = None,
     log: LogFile = None,
 ) -> None:
@@ -583,8 +674,7 @@ def peer_ask(
 
     _check_peer(name, timeout)
     conds = _sequence_or_exit("--sequence", sequence)
-    settings = _settings(listen, connect, config, multicast, mode)
-    security = _security(None, policy, trust, log)
+    security = _security(None, policy.value, trust, log)
     _peer_call(
         lambda: peer.ask(name, conds, settings, timeout, typer.echo, note=_say, security=security)[
             0
@@ -593,7 +683,9 @@ def peer_ask(
 
 
 @peer_app.command("run")
+@_networked()
 def peer_run(
+    settings: ZenohSettings,
     name: Annotated[str, typer.Option("--id", help="This agent's name.")] = "robot",
     sequence: Annotated[
         list[str] | None,
@@ -610,72 +702,75 @@ def peer_run(
         Path | None,
         typer.Option("--save", help="Persist learned knowledge here.", readable=False),
     ] = None,
-    listen: Listen = None,
-    connect: Connect = None,
-    config: Config = None,
-    multicast: Multicast = False,
-    mode: Mode = "peer",
+    knowledge: Annotated[
+        Path | None,
+        typer.Option(
+            "--knowledge", help="A .sbt knowledge file to start with (and teach).", readable=False
+        ),
+    ] = None,
     key: KeyFile = None,
-    policy: PolicyName = "any",
+    policy: Policy = PolicyName.any,
     trust: TrustFile = None,
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
-    overhear: OverhearMode = "off",
+    overhear: Overhearing = OverhearMode.off,
+    export_learned: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write each learned item here as a BehaviorTree.CPP file.", file_okay=False
+        ),
+    ] = None,
+    publish_events: PublishEvents = False,
+    groot: GrootPort = None,
 ) -> None:
-    """Run a demo agent that meets each sequence (default: the four colours) and learns it."""
+    """Run an agent that meets each sequence (default: the four colours), learns it and
+    teaches what it knows; with --knowledge it starts knowing that file's items."""
     from . import peer
 
     _check_peer(name, duration, most=365 * 86400)  # an agent may run for days
-    heard = _overhear(overhear)
+    registry = peer.demo_registry()
     for text in sequence or ():
-        _sequence_or_exit("--sequence", text)
-    settings = _settings(listen, connect, config, multicast, mode)
-    security = _security(key, policy, trust, log)
+        _acceptable_or_exit("--sequence", text, registry)
+    start = _knowledge_or_exit(knowledge) if knowledge is not None else None
+    security = _security(key, policy.value, trust, log)
+    member = peer.Member(
+        name, settings, security, publish_answers, overhear.value, publish_events, groot
+    )
     sequences = sequence or peer.COLOURS
     _peer_call(
         lambda: peer.run_agent(
-            name,
-            settings,
+            member,
             sequences,
             typer.echo,
+            knowledge=start,
             duration=duration,
             exit_when_done=exit_when_done,
             knowledge_path=str(knowledge_file) if knowledge_file else None,
-            security=security,
-            publish_answers=publish_answers,
-            overhear=heard,
+            export_learned=str(export_learned) if export_learned else None,
         )
     )
 
 
 @peer_app.command("router")
-def peer_router(
-    listen: Listen = None,
-    connect: Connect = None,
-    config: Config = None,
-    multicast: Multicast = False,
-) -> None:
+@_networked(mode=False)
+def peer_router(settings: ZenohSettings) -> None:
     """Run a zenoh router, for fleets that span subnets."""
     from . import peer
 
-    _peer_call(lambda: peer.router(_settings(listen, connect, config, multicast), typer.echo))
+    _peer_call(lambda: peer.router(settings, typer.echo))
 
 
 @peer_app.command("list")
+@_networked()
 def peer_list(
+    settings: ZenohSettings,
     timeout: Annotated[float, typer.Option(help="Seconds to look.")] = 2.0,
     name: Annotated[str, typer.Option("--id", help="This peer's name.")] = "observer",
-    listen: Listen = None,
-    connect: Connect = None,
-    config: Config = None,
-    multicast: Multicast = False,
-    mode: Mode = "peer",
 ) -> None:
     """Show who is present and what each knows."""
     from . import peer
 
     _check_peer(name, timeout)
-    settings = _settings(listen, connect, config, multicast, mode)
     _peer_call(lambda: peer.list_peers(name, settings, timeout, typer.echo))
 
 
@@ -728,11 +823,16 @@ def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save)
     typer.echo(f"{len(kb)} items")
 
 
+LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
+"""The kinds of transfer-log event, as ``--event`` takes them (spec/protocol.md section 8)."""
+
+
 @app.command("log")
 def log_command(
     path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
     event: Annotated[
-        list[str] | None, typer.Option("--event", help="Show only this event (repeatable).")
+        list[LogEvent] | None,
+        typer.Option("--event", help="Show only this event (repeatable)."),
     ] = None,
 ) -> None:
     """Read a transfer log: one line an event, then the count of each kind."""
@@ -740,6 +840,7 @@ def log_command(
 
     from .transferlog import describe, read
 
+    shown = {e.value for e in event or ()}
     counts: Counter[str] = Counter()
     try:
         for entry in read(path):
@@ -747,7 +848,7 @@ def log_command(
                 _say(f"warning: {path}: {entry}")
                 continue
             counts[entry["event"]] += 1
-            if not event or entry["event"] in event:
+            if not shown or entry["event"] in shown:
                 typer.echo(describe(entry))
     except OSError as exc:
         _say(f"error: {path}: {_io_reason(exc)}")

@@ -50,6 +50,7 @@ class ErrorCode(StrEnum):
     # Merging knowledge into a placeholder.
     UNKNOWN_SLOT = ("SBT401", "no knowledge placeholder with the requested name")
     KNOWLEDGE_CONFLICT = ("SBT402", "the placeholder answers the same conditions differently")
+    BEHAVIOUR_FAILED = ("SBT403", "the application's code failed to build or set up a behaviour")
     # Warnings: the tree is valid, but probably not what was meant.
     NOT_KNOWLEDGE = ("SBT501", "a placeholder holds a node that is not a knowledge item")
 

@@ -11,6 +11,7 @@ either the old file or the new one, never a mixture; a temporary file left by a 
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import secrets
 from collections.abc import Iterator
@@ -20,6 +21,13 @@ from pathlib import Path
 def temporary_name(final: Path) -> Path:
     """A fresh temporary name beside ``final`` (the pattern ``.<name>.*.tmp``)."""
     return final.with_name(f".{final.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
+def temporaries(path: str | Path) -> list[Path]:
+    """The temporary files a replace of ``path`` killed midway may have left (a symlink is
+    followed, as :func:`replacing` follows it), oldest name first."""
+    final = Path(os.path.realpath(path))
+    return sorted(final.parent.glob(f".{glob.escape(final.name)}.*.tmp"))
 
 
 def fsync_folder(folder: Path) -> None:

@@ -6,172 +6,40 @@ learned across a crash.
 from __future__ import annotations
 
 import json
-import os
-import re
-import tempfile
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
-from functools import lru_cache
+from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ErrorCode, ParseError, StringBTError
+from .errors import StringBTError
+from .files import temporaries, write_atomic
 from .format import format as format_tree
-from .format import format_value
+from .items import (  # re-exported: what an item and a sequence are belongs to the language
+    parse_sequence,
+    read_sequence,
+    sequence_key,
+    show_sequence,
+    split_item,
+    stray_nodes,
+)
 from .limits import DEFAULT_LIMITS, Limits
 from .syntax import parse
 from .tree import Condition, Node, Placeholder, Sequence, Tree, as_node, walk
 
+__all__ = [
+    "MAX_FILE",
+    "Knowledge",
+    "KnowledgeBase",
+    "parse_sequence",
+    "read_sequence",
+    "remove_stale_temporaries",
+    "salvage",
+    "sequence_key",
+    "show_sequence",
+    "split_item",
+    "stray_nodes",
+]
+
 FORMAT_VERSION = 1
-
-
-def sequence_key(conditions: Iterable[Condition]) -> str:
-    """The canonical form of a condition sequence: how knowledge is looked up and asked for."""
-    return "".join(format_tree(c, "compact") for c in conditions)
-
-
-@lru_cache(maxsize=1024)
-def parse_sequence(key: str, limits: Limits = DEFAULT_LIMITS) -> tuple[Condition, ...]:
-    """The conditions of a sequence key (``<c>(A)<c>(!B)``); raises StringBTError. Cached:
-    a robot asks and is asked about the same few sequences again and again."""
-    root = parse(f"<sq>{key}<e>", limits=limits).root
-    assert isinstance(root, Sequence)
-    conds = root.children
-    if not conds or not all(isinstance(c, Condition) for c in conds):
-        raise ParseError(ErrorCode.UNEXPECTED_TOKEN, "a sequence holds conditions only")
-    return tuple(c for c in conds if isinstance(c, Condition))
-
-
-# -- the sequence as people type and read it (spec/protocol.md, section 1) ----------------------
-
-_NAME = re.compile(r"\s*(!?\s*[A-Za-z0-9_.]+)\s*")
-
-
-def show_sequence(sequence: str | Iterable[Condition]) -> str:
-    """A condition sequence as the command line prints it and reads it back:
-    ``TargetSeen(colour=2), !_inZoneF``. Takes conditions or a wire key (``<c>(...)...``)."""
-    conds = parse_sequence(sequence) if isinstance(sequence, str) else tuple(sequence)
-    parts = []
-    for c in conds:
-        head = ("!" if c.negated else "") + c.name
-        if c.args:
-            head += "(" + ", ".join(f"{k}={format_value(v)}" for k, v in c.args) + ")"
-        parts.append(head)
-    return ", ".join(parts)
-
-
-def read_sequence(text: str) -> tuple[Condition, ...]:
-    """Conditions from what a user types: ``TargetSeen(colour=2), !_inZoneF`` (what
-    :func:`show_sequence` prints), or the wire form ``<c>(TargetSeen,colour=2)<c>(!_inZoneF)``.
-
-    Raises :class:`ParseError` (or another StringBTError) positioned in ``text`` itself, with
-    a caret under the offending character, never in an internal rewrite of it."""
-    return _read_sequence(text)
-
-
-@lru_cache(maxsize=1024)
-def _read_sequence(text: str) -> tuple[Condition, ...]:
-    if not text.strip():
-        raise ParseError(ErrorCode.EMPTY, "the sequence names no condition", source=text)
-    if text.lstrip().startswith("<"):
-        try:
-            return parse_sequence(text)
-        except StringBTError as err:  # columns of "<sq>" + text + "<e>"
-            column = max(1, err.column - 4) if err.line == 1 else err.column
-            if err.line == 1 and column > len(text):  # at the "<e>" this function added
-                raise ParseError(
-                    ErrorCode.UNEXPECTED_END,
-                    "the sequence ends inside a condition",
-                    1,
-                    column,
-                    source=text,
-                ) from None
-            raise type(err)(err.code, err.message, err.line, column, source=text) from None
-    conds = []
-    for start, end in _top_level_spans(text):
-        conds.append(_read_condition(text, start, end))
-    return tuple(conds)
-
-
-def _top_level_spans(text: str) -> list[tuple[int, int]]:
-    """(start, end) of each comma-separated part, commas inside parentheses or strings kept."""
-    spans: list[tuple[int, int]] = []
-    depth, quoted, escaped, start = 0, False, False, 0
-    for i, char in enumerate(text):
-        if quoted:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                quoted = False
-        elif char == '"':
-            quoted = True
-        elif char == "(":
-            depth += 1
-        elif char == ")":
-            depth -= 1
-        elif char == "," and depth == 0:
-            spans.append((start, i))
-            start = i + 1
-    spans.append((start, len(text)))
-    return spans
-
-
-def _read_condition(text: str, start: int, end: int) -> Condition:
-    def fail(code: ErrorCode, message: str, at: int) -> ParseError:
-        return ParseError(code, message, 1, at + 1, source=text)
-
-    part = text[start:end]
-    if not part.strip():
-        raise fail(
-            ErrorCode.UNEXPECTED_TOKEN, "expected a condition before ','", min(end, len(text) - 1)
-        )
-    name = _NAME.match(text, start, end)
-    if name is None:
-        at = start + len(part) - len(part.lstrip())
-        raise fail(ErrorCode.UNEXPECTED_CHARACTER, "expected a condition name", at)
-    head = name.group(1)
-    rest = name.end()
-    if rest == end:
-        args, open_at, close_at = "", -1, -1
-    elif text[rest] == "(":
-        open_at = rest
-        close_at = len(text[:end].rstrip()) - 1
-        if text[close_at] != ")" or close_at == open_at:
-            raise fail(ErrorCode.UNEXPECTED_END, "missing ) to close the arguments", close_at + 1)
-        args = text[open_at + 1 : close_at]
-    else:
-        raise fail(ErrorCode.UNEXPECTED_TOKEN, "expected '(' or ',' after the condition name", rest)
-    rewrite = f"<c>({head}, {args})" if args.strip() else f"<c>({head})"
-    try:
-        node = parse(rewrite).root
-    except StringBTError as err:
-        raise type(err)(
-            err.code,
-            err.message,
-            1,
-            _user_column(err, head, name, args, open_at, close_at) + 1,
-            source=text,
-        ) from None
-    if not isinstance(node, Condition):  # pragma: no cover - the grammar guarantees it
-        raise fail(ErrorCode.UNEXPECTED_TOKEN, "not a condition", start)
-    return replace(node, pos=None)
-
-
-def _user_column(
-    err: StringBTError, head: str, name: re.Match[str], args: str, open_at: int, close_at: int
-) -> int:
-    """Where in the user's text column ``err.column`` of ``<c>(HEAD, ARGS)`` came from."""
-    r = err.column - 1 if err.line == 1 else len(head) + len(args) + 6
-    if r < 4:
-        return name.start(1)
-    if r < 4 + len(head):
-        return name.start(1) + r - 4
-    if r < 6 + len(head):
-        return open_at if open_at >= 0 else name.end(1)
-    if r < 6 + len(head) + len(args):
-        return open_at + 1 + r - 6 - len(head)
-    return close_at if close_at >= 0 else name.end(1)
 
 
 @dataclass(frozen=True)
@@ -196,46 +64,6 @@ class Knowledge:
 
     def item(self) -> Sequence:
         return Sequence((*self.conditions, self.subtree))
-
-
-def split_item(node: Node) -> tuple[tuple[Condition, ...], Node] | None:
-    """A knowledge item's condition sequence and action subtree; None if ``node`` is not an item
-    (spec/stringbt.md, section 4). An item is a reactive ``<sq>`` whose leading conditions are
-    the key and whose remaining children (at least one) are the actions: one child is the
-    subtree itself, several are ``Sequence(children)``. So the paper's flat form
-    ``<sq><c>(A)<a>(X)<a>(Y)<e>`` and the nested ``<sq><c>(A)<sq><a>(X)<a>(Y)<e><e>`` are the
-    same item, and tick the same way."""
-    if not isinstance(node, Sequence) or node.memory:
-        return None
-    children = node.children
-    n = 0
-    while n < len(children) and isinstance(children[n], Condition):
-        n += 1
-    if n == 0 or n == len(children):
-        return None
-    conds = tuple(c for c in children[:n] if isinstance(c, Condition))
-    rest = children[n:]
-    return conds, rest[0] if len(rest) == 1 else Sequence(rest)
-
-
-def stray_nodes(tree: Tree | Node) -> list[StringBTError]:
-    """Warnings (``SBT501``) for every child of a placeholder that is not a knowledge item: it is
-    ticked like any node, but never taught, looked up or counted as knowledge."""
-    found = []
-    for node, _ in walk(as_node(tree)):
-        if isinstance(node, Placeholder):
-            for child in node.children:
-                if split_item(child) is None:
-                    found.append(
-                        StringBTError(
-                            ErrorCode.NOT_KNOWLEDGE,
-                            f"<k>({node.name}) holds a node that is not a knowledge item "
-                            "(<sq>, its conditions, then its actions): it is never taught",
-                            child.line,
-                            child.column,
-                        )
-                    )
-    return found
 
 
 class KnowledgeBase:
@@ -329,26 +157,9 @@ class KnowledgeBase:
         return kb
 
     def save(self, path: str | Path) -> None:
-        """Write atomically (temporary file, fsync, rename, fsync of the folder): after a crash
-        the file holds either the previous or the new base, never a mixture."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(self.to_json())
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        directory = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
+        """Write durably (spec/protocol.md section 5): after a crash the file holds either the
+        previous or the new base, never a mixture."""
+        write_atomic(path, self.to_json())
 
     @classmethod
     def load(cls, path: str | Path, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
@@ -411,9 +222,8 @@ def salvage(text: str, limits: Limits = DEFAULT_LIMITS) -> list[Knowledge]:
 
 def remove_stale_temporaries(path: str | Path) -> list[Path]:
     """Delete the temporary files a save killed midway left next to ``path``; returns them."""
-    path = Path(path)
     removed = []
-    for tmp in path.parent.glob(f".{path.name}.*.tmp"):
+    for tmp in temporaries(path):
         try:
             tmp.unlink()
         except OSError:

@@ -7,10 +7,14 @@ is proportional to the depth of the placeholder, not to the size of the tree.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Sequence as Items
+from contextlib import contextmanager
+from dataclasses import replace
 
-from .errors import ErrorCode, StringBTError
-from .knowledge import read_sequence, split_item
+from .errors import ErrorCode, LimitError, StringBTError, ValidationError
+from .items import read_sequence, split_item
+from .limits import Limits
 from .tree import (
     Condition,
     Container,
@@ -19,12 +23,29 @@ from .tree import (
     Sequence,
     Tree,
     as_node,
+    walk,
     with_children,
 )
+from .validate import SupportsNames, validate
 
 
 class MergeError(StringBTError):
     """The knowledge cannot go where it was asked to go; the tree is unchanged."""
+
+
+@contextmanager
+def building() -> Iterator[None]:
+    """Build an item's behaviours: whatever the application's own code raises on the way (a
+    registry factory, a py_trees behaviour's constructor or ``setup``) is a refusal like any
+    other, a :class:`MergeError` (``SBT403``), and the caller changes nothing."""
+    try:
+        yield
+    except StringBTError:
+        raise
+    except Exception as exc:
+        raise MergeError(
+            ErrorCode.BEHAVIOUR_FAILED, f"a behaviour failed to build: {exc!r}"[:300]
+        ) from exc
 
 
 def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
@@ -95,7 +116,7 @@ def merge(
     )
 
 
-def _descend(control: Tree | Node, path: tuple[int, ...]) -> tuple[list[Container], Placeholder]:
+def descend(control: Tree | Node, path: tuple[int, ...]) -> tuple[list[Container], Placeholder]:
     """The containers from the root down to the placeholder at ``path``, and the placeholder."""
     chain: list[Container] = []
     node = as_node(control)
@@ -118,27 +139,68 @@ def _rebuild(
     return Tree(new, footer=control.footer if isinstance(control, Tree) else ())
 
 
+def admits(slot: str, held: Items[Node], item: Node) -> bool:
+    """Whether placeholder ``slot``, holding ``held``, takes ``item`` (spec/stringbt.md section
+    4): False if it holds it already (written flat or nested); a knowledge item answering the
+    same condition sequence with another subtree raises :class:`MergeError` (``SBT402``)."""
+    split = split_item(item)
+    for existing in held:
+        if existing == item:
+            return False
+        known = None if split is None else split_item(existing)
+        if known is not None and split is not None and known[0] == split[0]:
+            if known[1] == split[1]:  # the same item, written flat or nested (spec section 4)
+                return False
+            line, column = existing.pos if existing.pos else (0, 0)
+            raise MergeError(
+                ErrorCode.KNOWLEDGE_CONFLICT,
+                f"<k>({slot}) already answers this condition sequence with another subtree",
+                line,
+                column,
+            )
+    return True
+
+
+def check_item(
+    item: Node,
+    registry: SupportsNames,
+    limits: Limits,
+    *,
+    depth: int,
+    nodes: int,
+    taken: Collection[str],
+) -> tuple[int, list[str]]:
+    """Check ``item`` for a placeholder at ``depth`` (the root is 1) of a tree of ``nodes``
+    nodes whose placeholders are named ``taken``: room left there, then the item against the
+    registry and the limits of what is left, then no placeholder it holds named as one the tree
+    has (``SBT304``). Raises a :class:`StringBTError`; returns the item's number of nodes and
+    the names of the placeholders it holds. Every backend of a live tree checks a merge here."""
+    depth_left = limits.max_depth - depth
+    nodes_left = limits.max_nodes - nodes
+    if depth_left < 1 or nodes_left < 1:
+        code = ErrorCode.TOO_DEEP if depth_left < 1 else ErrorCode.TOO_MANY_NODES
+        raise LimitError(code, "the tree has no room for more knowledge there")
+    validate(item, registry, limits=replace(limits, max_depth=depth_left, max_nodes=nodes_left))
+    count, inner = 0, []
+    for node, _ in walk(item):
+        count += 1
+        if isinstance(node, Placeholder):
+            if node.name in taken:
+                raise ValidationError(
+                    ErrorCode.DUPLICATE_PLACEHOLDER, f"placeholder {node.name!r} appears twice"
+                )
+            inner.append(node.name)
+    return count, inner
+
+
 def merge_at(control: Tree | Node, item: Node, path: tuple[int, ...]) -> Tree | None:
     """Append ``item`` to the placeholder at ``path`` (from :func:`find_placeholder`); None if
     the placeholder already holds it. A merge never moves a placeholder, since it only appends
     inside one; :func:`remove_at` does move those nested in later siblings of the removed item,
     so a caller that keeps paths must drop those below the placeholder after a removal."""
-    chain, node = _descend(control, path)
-    split = split_item(item)
-    for existing in node.children:
-        if existing == item:
-            return None
-        known = None if split is None else split_item(existing)
-        if known is not None and split is not None and known[0] == split[0]:
-            if known[1] == split[1]:  # the same item, written flat or nested (spec section 4)
-                return None
-            line, column = existing.pos if existing.pos else (0, 0)
-            raise MergeError(
-                ErrorCode.KNOWLEDGE_CONFLICT,
-                f"<k>({node.name}) already answers this condition sequence with another subtree",
-                line,
-                column,
-            )
+    chain, node = descend(control, path)
+    if not admits(node.name, node.children, item):
+        return None
     return _rebuild(control, chain, path, with_children(node, (*node.children, item)))
 
 
@@ -161,7 +223,7 @@ def remove_at(
 ) -> tuple[Tree, Node] | None:
     """Remove the item keyed ``key`` from the placeholder at ``path``: the new tree and the
     removed item, or None if the placeholder holds no item with that condition sequence."""
-    chain, node = _descend(control, path)
+    chain, node = descend(control, path)
     for k, existing in enumerate(node.children):
         split = split_item(existing)
         if split is not None and split[0] == key:

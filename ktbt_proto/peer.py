@@ -1,7 +1,10 @@
 """What ``ktbt peer`` does: serve knowledge, ask for it, run a learning agent, route, list.
 
 Every command is a real zenoh peer (or router) with explicit endpoints, and closes its session
-on exit, including on SIGINT and SIGTERM.
+on exit, including on SIGINT and SIGTERM. A fleet member (``serve``, ``run``) is a
+:class:`Member`: its name, network settings (with a zenoh id derived from its name, so a
+restarted peer is the same peer), security, and what it publishes and overhears; an option
+every member takes is one field there.
 """
 
 from __future__ import annotations
@@ -11,8 +14,8 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
@@ -20,23 +23,33 @@ from typing import Annotated, Any
 from pydantic import Field
 from pydantic import ValidationError as PydanticError
 
-from .agent import RECEIVE_LIMITS, Agent, Overhear
+from .agent import Agent
 from .blackboard import Blackboard
 from .errors import StringBTError
 from .format import format as format_tree
-from .knowledge import Knowledge, KnowledgeBase, parse_sequence, sequence_key, show_sequence
+from .interop.sidecar import LearnedExport
+from .knowledge import Knowledge, KnowledgeBase, sequence_key, show_sequence
 from .limits import DEFAULT_LIMITS
 from .merge import conditions as parse_conditions
+from .merge import merge
 from .messages import Query, Response
+from .overhearing import Ear, Heard, Overhear
+from .receiving import Refused, check
 from .registry import Registry
 from .signing import Identity, SignedItem
 from .status import RUNNING, SUCCESS, Status
 from .syntax import parse
 from .transferlog import TransferLog
-from .transport.zenoh import ZenohSettings, ZenohTransport, catalogs, open_session, peers
-from .tree import Condition
+from .transport.zenoh import (
+    ZenohSettings,
+    ZenohTransport,
+    catalogs,
+    open_session,
+    peers,
+    stable_zid,
+)
+from .tree import Condition, Placeholder, Tree
 from .trust import Policy, TrustStore, refusal
-from .validate import validate
 
 Colour = Annotated[int, Field(ge=1, le=4)]
 """The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
@@ -53,6 +66,38 @@ class Security:
 
 
 Say = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Member:
+    """A long-running fleet member (``ktbt peer serve``, ``ktbt peer run``): what both take.
+    Its zenoh id is derived from ``name`` unless the settings name one (spec/protocol.md
+    section 3)."""
+
+    name: str
+    settings: ZenohSettings = field(default_factory=ZenohSettings)
+    security: Security = field(default_factory=Security)
+    publish_answers: bool = False
+    overhear: Overhear = "off"
+    publish_events: bool = False
+    """Publish this member's fleet events (``ktbt_proto.events``, for ``ktbt monitor``)."""
+    groot: int | None = None
+    """A port to serve Groot2 on (and the next), loopback (spec/groot2.md)."""
+
+    def transport(self, **kw: Any) -> ZenohTransport:
+        """This member's zenoh peer, with its stable zenoh id."""
+        settings = self.settings
+        if settings.zid is None:
+            settings = replace(settings, zid=stable_zid(self.name))
+        return ZenohTransport(
+            self.name,
+            settings,
+            log=self.security.log,
+            publish_answers=self.publish_answers,
+            overhear=self.overhear != "off",
+            publish_events=self.publish_events,
+            **kw,
+        )
 
 
 def shown(key: str) -> str:
@@ -204,12 +249,12 @@ def catalog(
 
 
 class Overhearing:
-    """A server that overhears (spec/protocol.md section 4.3): an answer another peer published
-    is checked as a robot checks a direct answer (the trust policy, in the transport; the
-    receive limits and the structure, here) and added to what the server serves, at once
-    (``update``) or, kept in a buffer of ``buffer_size``, when a query first asks for it
-    (``buffer``). The subtree is served as received, so its author's signature still holds.
-    Lookups run in zenoh callbacks while the main thread hears: one lock guards the tables."""
+    """A server that overhears (spec/protocol.md section 4.3), through the one :class:`Ear`
+    and the one set of receive checks (``ktbt_proto.receiving``; the trust policy also runs in
+    the transport): an answer another peer published is added to what the server serves, at
+    once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
+    subtree is served as received, so its author's signature still holds. Lookups run in zenoh
+    callbacks while the main thread hears: one lock guards the tables."""
 
     def __init__(
         self,
@@ -220,31 +265,19 @@ class Overhearing:
         say: Say,
         buffer_size: int = 16,
     ) -> None:
-        self.name, self.knowledge, self.served, self.mode, self.say = (
-            name,
-            knowledge,
-            served,
-            mode,
-            say,
-        )
-        self.buffer_size = buffer_size
+        self.name, self.knowledge, self.served, self.say = name, knowledge, served, say
+        self.ear = Ear(mode, buffer_size)
         self.learned: dict[str, SignedItem] = {}
-        self.buffer: dict[str, Response] = {}
         self.refused = 0
         self.lock = threading.Lock()
 
     def heard(self, message: object) -> None:
-        if not isinstance(message, Response) or self.mode == "off":
+        if not isinstance(message, Response):
             return
         with self.lock:
-            if message.sequence in self.knowledge or message.sequence in self.buffer:
-                return  # known, or the first answer heard is kept
-            if self.mode == "update":
-                self._learn(message)
-            elif len(self.buffer) >= self.buffer_size:
-                self._refuse(f"from {message.sender}: overheard answer, buffer full")
-            else:
-                self.buffer[message.sequence] = message
+            heard = self.ear.hear(message, message.sequence in self.knowledge, self._learn)
+        if heard is Heard.FULL:
+            self._refuse(f"from {message.sender}: overheard answer, buffer full")
 
     def lookup(self, key: str) -> SignedItem | None:
         found = self.served(key)
@@ -252,8 +285,10 @@ class Overhearing:
             return found
         with self.lock:
             found = self.learned.get(key)
-            kept = self.buffer.pop(key, None) if found is None else None
-            return self._learn(kept) if kept is not None else found
+            if found is not None:
+                return found
+            kept = self.ear.take(key)
+            return self.learned.get(key) if kept is not None and self._learn(kept) else None
 
     def catalog(self, entries: Callable[[], list[str | dict[str, Any]]]) -> Callable[[], Any]:
         def locked() -> list[str | dict[str, Any]]:
@@ -262,62 +297,58 @@ class Overhearing:
 
         return locked
 
-    def _learn(self, answer: Response) -> SignedItem | None:
+    def _learn(self, answer: Response) -> bool:
         try:
-            conds = parse_sequence(answer.sequence, RECEIVE_LIMITS)
-            subtree = parse(answer.subtree, limits=RECEIVE_LIMITS).root
-            validate(subtree, limits=RECEIVE_LIMITS)
-        except StringBTError as err:
-            self._refuse(f"from {answer.sender}: {err.code.value} {err.message}")
-            return None
+            conds, subtree = check(answer, answer.sequence)
+        except Refused as refused:
+            self._refuse(refused.reason)
+            return False
         received = datetime.now(UTC).isoformat(timespec="seconds")
         self.knowledge.add(
             Knowledge(conds, subtree, "new", answer.sender, None, answer.author,
                       answer.signature, received)
         )  # fmt: skip
-        item = SignedItem(answer.subtree, answer.author, answer.signature)
-        self.learned[answer.sequence] = item
+        self.learned[answer.sequence] = SignedItem(answer.subtree, answer.author, answer.signature)
         self.say(f"{self.name}: learned {shown(answer.sequence)} from {answer.sender} (overheard)")
-        return item
+        return True
 
     def _refuse(self, reason: str) -> None:
         self.refused += 1
         logging.getLogger("ktbt.peer").info("%s refused: %s", self.name, reason)
 
 
-def serve(
-    name: str,
-    knowledge: KnowledgeBase,
-    settings: ZenohSettings,
-    say: Say,
-    security: Security | None = None,
-    publish_answers: bool = False,
-    overhear: Overhear = "off",
-) -> int:
-    """Serve ``knowledge`` until stopped; ``publish_answers`` and ``overhear``: section 4.3."""
-    security = security or Security()
-    ear = Overhearing(name, knowledge, answers(knowledge, security.identity), overhear, say)
+def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
+    """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
+    overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
+    is shown to Groot2 (spec/groot2.md)."""
+    security = member.security
+    ear = Overhearing(
+        member.name, knowledge, answers(knowledge, security.identity), member.overhear, say
+    )
     policy = security.policy
+    name = member.name
+    groot = member.groot
     with (
         until_signalled() as stop,
-        ZenohTransport(
-            name,
-            settings,
+        ExitStack() as stack,
+        member.transport(
             lookup=ear.lookup,
             catalog=ear.catalog(catalog(knowledge, security.identity)),
             identity=security.identity,
-            log=security.log,
-            publish_answers=publish_answers,
-            overhear=overhear != "off",
             screen=lambda r: refusal(r, policy, security.trust),
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        if groot is not None:
+            from .groot2 import Groot2Publisher, knowledge_tree
+
+            stack.enter_context(Groot2Publisher(knowledge_tree(knowledge), groot))
+            say(f"{name}: Groot2 on port {groot} (btview snapshot -p {groot})")
         if security.identity is not None:
             say(f"  signed as {security.identity.public}")
         for item in knowledge:
             say(f"  {show_sequence(item.conditions)}")
-        if overhear == "off":
+        if member.overhear == "off":
             stop.wait()
         while not stop.wait(0.05):
             for message in transport.receive():
@@ -345,19 +376,15 @@ def ask(
     responses: list[Response] = []
 
     def show(answer: Response) -> None:
-        if answer.id != query.id or answer.sequence != key:
+        if answer.id != query.id:
             return
-        why = refusal(answer, security.policy, security.trust)
-        try:  # shown only if it is stringBT within a robot's receive limits (numbers too)
-            tree = parse(answer.subtree, limits=RECEIVE_LIMITS)
-            validate(tree, limits=RECEIVE_LIMITS)
-        except StringBTError as err:
-            why = why or f"{err.code.value} {err.message}"
-        if why is not None:
-            say(f"# from {answer.sender}: refused, {why}")
+        try:  # shown only if it passes a robot's receive checks (numbers too)
+            _, subtree = check(answer, key, security.policy, security.trust)
+        except Refused as refused:
+            say(f"# refused {refused.reason}")
             return
         say(f"# from {answer.sender}{provenance(answer)}")
-        say(format_tree(tree).rstrip())
+        say(format_tree(subtree).rstrip())
         responses.append(answer)
 
     with ZenohTransport(
@@ -392,42 +419,81 @@ def provenance(answer: Response) -> str:
     return f" ({', '.join(words)})" if words else ""
 
 
+BACKOFF_FIRST = 0.25
+"""Seconds a learner holds back after its first unanswered query, doubling with each one."""
+BACKOFF_MOST = 2.0
+"""The longest it holds back: knowledge that is missing is asked for again at least this often
+(after the wait and the cool-down)."""
+
+
+@dataclass
+class Backoff:
+    """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
+    after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
+    once again when it learns something or a new peer appears."""
+
+    first: float = BACKOFF_FIRST
+    most: float = BACKOFF_MOST
+    hold: float = 0.0
+    until: float = 0.0
+
+    def lost(self, now: float) -> None:
+        self.hold = self.first if self.hold == 0 else min(self.hold * 2, self.most)
+        self.until = now + self.hold
+
+    def reset(self, now: float) -> None:
+        self.hold, self.until = 0.0, now
+
+    def ready(self, now: float) -> bool:
+        return now >= self.until
+
+
+def with_knowledge(control: str | Tree, knowledge: KnowledgeBase | None) -> str | Tree:
+    """The control tree with ``knowledge``'s items in their placeholders (``prior`` when the
+    tree has no placeholder of an item's name): what the agent starts knowing, and teaches."""
+    if knowledge is None or not len(knowledge):
+        return control
+    tree = parse(control) if isinstance(control, str) else control
+    names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
+    for item in knowledge:
+        slot = item.segment if item.segment in names else "prior"
+        tree = merge(tree, item.subtree, slot, when=item.conditions)
+    return tree
+
+
 def run_agent(
-    name: str,
-    settings: ZenohSettings,
+    member: Member,
     sequences: Sequence[str],
     say: Say,
     *,
     control: str = DEMO_CONTROL,
+    knowledge: KnowledgeBase | None = None,
     tick_rate: float = 100.0,
     wait_ticks: int = 200,
     cooldown_ticks: int = 50,
     duration: float = 30.0,
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
-    security: Security | None = None,
-    publish_answers: bool = False,
-    overhear: Overhear = "off",
+    export_learned: str | None = None,
 ) -> int:
-    """A demo agent: meets each sequence in turn until it knows it (or time runs out), teaching
-    what it knows to whoever asks, and prints what it learned. Refusals are logged (to stderr
-    and, with a transfer log, there) and the summary counts all of them, transport ones too.
-    ``publish_answers`` and ``overhear``: spec/protocol.md section 4.3."""
-    security = security or Security()
+    """A fleet member that learns and teaches: it starts with ``knowledge`` (if any) and what
+    ``knowledge_path`` saved, meets each sequence in turn until it knows it (or time runs out),
+    asking again with a bounded backoff while it is missing, and at once when a new peer
+    appears; it teaches what it knows to whoever asks, and prints what it learned. Refusals are
+    logged (to stderr and, with a transfer log, there) and the summary counts all of them,
+    transport ones too; the network's own errors are counted apart. ``export_learned``: a
+    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1);
+    the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
+    security = member.security
+    name = member.name
     with (
         until_signalled() as stop,
-        ZenohTransport(
-            name,
-            settings,
-            query_timeout=wait_ticks / tick_rate,
-            log=security.log,
-            publish_answers=publish_answers,
-            overhear=overhear != "off",
-        ) as transport,
+        ExitStack() as stack,
+        member.transport(query_timeout=wait_ticks / tick_rate) as transport,
     ):
         robot = Agent(
             name,
-            control,
+            with_knowledge(control, knowledge),
             demo_registry(),
             transport,
             wait_ticks=wait_ticks,
@@ -436,10 +502,18 @@ def run_agent(
             identity=security.identity,
             policy=security.policy,
             trust=security.trust,
-            log=security.log,
-            overhear=overhear,
+            log=transport.log,  # with --publish-events, a log even without --log
+            overhear=member.overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        if member.groot is not None:
+            from .groot2 import Groot2Publisher
+
+            stack.enter_context(Groot2Publisher(robot, member.groot))
+            say(f"{name}: Groot2 on port {member.groot} (btview snapshot -p {member.groot})")
+        export = LearnedExport(export_learned) if export_learned is not None else None
+        if export is not None:  # what a resumed --save file holds already
+            export.sync(robot.knowledge)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
@@ -448,23 +522,35 @@ def run_agent(
         period = 1.0 / tick_rate
         say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
         announced = set(robot.metrics.learned)
+        backoff = Backoff()
+        lost, joined = robot.metrics.queries_lost, transport.joined
         while not stop.is_set() and time.monotonic() < deadline:
+            now = time.monotonic()
             while todo and robot.knows([todo[0]]):
                 todo.pop(0)
             if not todo and exit_when_done:
                 break
-            robot.encounter([todo[0]] if todo else None)
+            if transport.joined != joined:  # a new neighbour: it may know
+                joined = transport.joined
+                backoff.reset(now)
+            if robot.metrics.queries_lost != lost:
+                lost = robot.metrics.queries_lost
+                backoff.lost(now)
+            robot.encounter([todo[0]] if todo and backoff.ready(now) else None)
             robot.tick()
+            if export is not None:
+                export.sync(robot.knowledge)
             for key in robot.metrics.learned.keys() - announced:
                 tick, source = robot.metrics.learned[key]
                 say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
                 announced.add(key)
+                backoff.reset(now)
             stop.wait(period)
         m = robot.metrics
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
             f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
-            f"taught {m.responses_sent}"
+            f"taught {m.responses_sent}, network errors {m.network_errors}"
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")

@@ -13,14 +13,24 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 from .blackboard import Blackboard
-from .errors import ErrorCode, LimitError, StringBTError, ValidationError
-from .knowledge import split_item
+from .errors import ErrorCode, StringBTError
+from .items import split_item
 from .limits import DEFAULT_LIMITS, Limits
-from .merge import MergeError, conditions, find_placeholder, knowledge, merge_at, remove_at
+from .merge import (
+    MergeError,
+    building,
+    check_item,
+    conditions,
+    descend,
+    find_placeholder,
+    knowledge,
+    merge_at,
+    remove_at,
+)
 from .registry import Registry
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .syntax import parse
@@ -40,12 +50,16 @@ from .tree import (
     WaitTimer,
     as_node,
     walk,
+    with_children,
 )
 from .validate import validate
 
 Tick = Callable[[], Status]
 Halt = Callable[[], None]
 Compiled = tuple[Tick, Halt]
+Calls = tuple[tuple[list[Any], bool], ...]
+"""The lists a compiled container calls its children through, in child order; True marks a list
+of predicates (the conditions leading a sequence, called for their truth, not a status)."""
 Clock = Callable[[], float]
 TickClock = Callable[[], int]
 """The tick number TT1, TT2 and ``<w>N`` measure against (a tree's own count by default)."""
@@ -66,14 +80,11 @@ def _coerce(value: object, name: str) -> Status:
 # -- composites --------------------------------------------------------------------------------
 
 
-def _split(kids: list[Compiled]) -> tuple[tuple[Tick, ...], tuple[Halt, ...]]:
-    if not kids:
-        return (), ()
-    ticks, halts = zip(*kids, strict=True)
-    return ticks, halts
+def _split(kids: list[Compiled]) -> tuple[list[Tick], list[Halt]]:
+    return [k[0] for k in kids], [k[1] for k in kids]
 
 
-def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
+def _reactive(kids: list[Compiled], go_on: Status) -> tuple[Compiled, Calls, list[Halt]]:
     """Sequence (go on while SUCCESS) or selector (go on while FAILURE), re-evaluated from the
     left every tick; a running child to the right of where this tick stopped is halted.
 
@@ -88,7 +99,8 @@ def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
                 break
             guards.append(holds)
     rest = ticks[len(guards) :]
-    index = ticks.index
+    first = len(guards)
+    index = rest.index
     running = -1
 
     def tick() -> Status:
@@ -102,7 +114,7 @@ def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
         for child in rest:
             status = child()
             if status is not go_on:
-                i = index(child)
+                i = first + index(child)
                 if running > i:
                     halts[running]()
                 running = i if status is RUNNING else -1
@@ -116,10 +128,10 @@ def _reactive(kids: list[Compiled], go_on: Status) -> Compiled:
             i, running = running, -1
             halts[i]()
 
-    return tick, halt
+    return (tick, halt), ((guards, True), (rest, False)), halts
 
 
-def _memory(kids: list[Compiled], go_on: Status) -> Compiled:
+def _memory(kids: list[Compiled], go_on: Status) -> tuple[Compiled, Calls, list[Halt]]:
     """Sequence or selector with memory: resume at the child that was running."""
     ticks, halts = _split(kids)
     n = len(ticks)
@@ -141,10 +153,10 @@ def _memory(kids: list[Compiled], go_on: Status) -> Compiled:
             index, running = running, -1
             halts[index]()
 
-    return tick, halt
+    return (tick, halt), ((ticks, False),), halts
 
 
-def _parallel(kids: list[Compiled], threshold: int | None) -> Compiled:
+def _parallel(kids: list[Compiled], threshold: int | None) -> tuple[Compiled, Calls, list[Halt]]:
     ticks, halts = _split(kids)
     n = len(ticks)
     need = n if threshold is None else threshold
@@ -176,29 +188,32 @@ def _parallel(kids: list[Compiled], threshold: int | None) -> Compiled:
             return FAILURE
         return RUNNING
 
-    return tick, halt
+    return (tick, halt), ((ticks, False),), halts
 
 
-def _inverter(kid: Compiled) -> Compiled:
-    child = kid[0]
+def _inverter(kid: Compiled) -> tuple[Compiled, Calls, list[Halt]]:
+    child, halts = [kid[0]], [kid[1]]
 
     def tick() -> Status:
-        status = child()
+        status = child[0]()
         if status is SUCCESS:
             return FAILURE
         if status is FAILURE:
             return SUCCESS
         return status
 
-    return tick, kid[1]
+    def halt() -> None:
+        halts[0]()
+
+    return (tick, halt), ((child, False),), halts
 
 
-def _wait_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
+def _wait_timer(kid: Compiled, ticks: int, now: TickClock) -> tuple[Compiled, Calls, list[Halt]]:
     """TT1: RUNNING on ticks 1..N of an activation, then the child's status.
 
     Ticks are read off the tick clock, not counted here, so an owner that ticks the tree only
     when something can happen (at the deadline) keeps exact time."""
-    child, child_halt = kid
+    calls, halts = [kid[0]], [kid[1]]
     start: int | None = None
     child_running = False
 
@@ -209,7 +224,7 @@ def _wait_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
             start = t
         if t - start < ticks:
             return RUNNING
-        status = child()
+        status = calls[0]()
         if status is RUNNING:
             child_running = True
             return RUNNING
@@ -222,15 +237,15 @@ def _wait_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
         start = None
         if child_running:
             child_running = False
-            child_halt()
+            halts[0]()
 
-    return tick, halt
+    return (tick, halt), ((calls, False),), halts
 
 
-def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
+def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> tuple[Compiled, Calls, list[Halt]]:
     """TT2: the child's status for up to N ticks; still running after its N-th tick: FAILURE.
     (Ticks read off the tick clock, as for TT1.)"""
-    child, child_halt = kid
+    calls, halts = [kid[0]], [kid[1]]
     start: int | None = None
 
     def tick() -> Status:
@@ -240,13 +255,13 @@ def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
         t = now()
         if start is None:
             start = t
-        status = child()
+        status = calls[0]()
         if status is not RUNNING:
             start = None
             return status
         if t - start >= ticks - 1:
             start = None
-            child_halt()
+            halts[0]()
             return FAILURE
         return RUNNING
 
@@ -254,9 +269,9 @@ def _run_timer(kid: Compiled, ticks: int, now: TickClock) -> Compiled:
         nonlocal start
         if start is not None:
             start = None
-            child_halt()
+            halts[0]()
 
-    return tick, halt
+    return (tick, halt), ((calls, False),), halts
 
 
 def _index_of(items: list[Node], key: tuple[Condition, ...]) -> int | None:
@@ -266,6 +281,50 @@ def _index_of(items: list[Node], key: tuple[Condition, ...]) -> int | None:
         if split is not None and split[0] == key:
             return index
     return None
+
+
+@dataclass(eq=False, slots=True)
+class Wire:
+    """One compiled node and how its parent calls it: what a :class:`Probe` wraps.
+
+    ``tick``, ``holds`` (a condition's predicate) and ``halt`` are the node's own closures;
+    ``calls`` and ``halts`` are the lists through which the node, if it is a container, calls its
+    children (``kids``, in order). A probe goes in by writing wrappers into those lists at a tick
+    boundary and comes out by writing the originals back, so a tree without one runs exactly the
+    closures it compiled (spec/groot2.md, section 3)."""
+
+    node: Node
+    tick: Tick
+    halt: Halt
+    holds: Callable[[], object] | None = None
+    kids: list[Wire] = field(default_factory=list)
+    calls: Calls = ()
+    halts: list[Halt] | None = None
+
+
+class Probe(Protocol):
+    """What :meth:`LiveTree.probe` puts around every node of a running tree: a monitor that
+    records statuses, or hooks that replace a node's result (spec/groot2.md)."""
+
+    def rewired(self, tree: Tree) -> None:
+        """The tree as it runs from now on; index ``i`` below is its ``i``-th node in pre-order
+        (``tree.walk()``). Called in the ticking thread, before the wrappers are asked for."""
+
+    def tick(self, index: int, tick: Tick) -> Tick:
+        """What to call in place of node ``index``'s tick."""
+
+    def holds(self, index: int, holds: Callable[[], object]) -> Callable[[], object]:
+        """What to call in place of condition ``index``'s predicate (leading a sequence)."""
+
+    def halt(self, index: int, halt: Halt) -> Halt:
+        """What to call in place of node ``index``'s halt."""
+
+
+def _rebuild(wire: Wire) -> Node:
+    """The node as it runs: merges and forgets reach the compiled children before the node."""
+    if not isinstance(wire.node, Container):
+        return wire.node
+    return with_children(wire.node, tuple(_rebuild(kid) for kid in wire.kids))
 
 
 @dataclass(eq=False)
@@ -281,6 +340,8 @@ class _Slot:
     used: list[int] = field(default_factory=list)
     """The tick each child last did not fail (its conditions held: it was used), -1 never."""
     now: TickClock = lambda: 0
+    wires: list[Wire] = field(default_factory=list)
+    """The children's wires, in the order of ``ticks``."""
 
     def compiled(self) -> Compiled:
         ticks, halts, used, now = self.ticks, self.halts, self.used, self.now
@@ -388,9 +449,9 @@ def compile_node(
     blackboard: Any,
     clock: Clock,
     ticks: TickClock,
-) -> tuple[Compiled, dict[str, _Slot], int]:
+) -> tuple[Compiled, dict[str, _Slot], int, Wire]:
     """Compile a (validated) tree without recursion; returns the root's closures, the
-    placeholders by name, and the number of nodes.
+    placeholders by name, the number of nodes and the root's wire.
 
     Nodes are listed in pre-order and compiled in reverse, so every child is compiled before
     its parent and a parent finds its children, first child on top, on the result stack."""
@@ -414,23 +475,32 @@ def compile_node(
         else:
             raise TypeError(f"not a stringBT node: {node!r}")
     done: list[Compiled] = []
+    wires: list[Wire] = []
     for i in range(len(order) - 1, -1, -1):
         leaf = leaves[i]
+        node = order[i]
         if leaf is not None:
             done.append(leaf)
+            wires.append(Wire(node, *leaf, getattr(leaf[0], "holds", None)))
             continue
-        node = order[i]
         assert isinstance(node, Container)
         n = len(node.children)
         kids = done[: -n - 1 : -1] if n else []
-        del done[len(done) - n :]
-        done.append(_compile_container(node, kids, slots, ticks))
-    return done[0], slots, len(order)
+        kid_wires = wires[: -n - 1 : -1] if n else []
+        del done[len(done) - n :], wires[len(wires) - n :]
+        compiled, calls, halts = _compile_container(node, kids, kid_wires, slots, ticks)
+        done.append(compiled)
+        wires.append(Wire(node, *compiled, None, kid_wires, calls, halts))
+    return done[0], slots, len(order), wires[0]
 
 
 def _compile_container(
-    node: Container, kids: list[Compiled], slots: dict[str, _Slot], ticks: TickClock
-) -> Compiled:
+    node: Container,
+    kids: list[Compiled],
+    wires: list[Wire],
+    slots: dict[str, _Slot],
+    ticks: TickClock,
+) -> tuple[Compiled, Calls, list[Halt]]:
     if isinstance(node, Sequence):
         return (_memory if node.memory else _reactive)(kids, SUCCESS)
     if isinstance(node, Selector):
@@ -451,9 +521,10 @@ def _compile_container(
             items=[*node.children],
             used=[-1] * len(kids),
             now=ticks,
+            wires=wires,
         )
         slots[node.name] = slot
-        return slot.compiled()
+        return slot.compiled(), ((slot.ticks, False),), slot.halts
     raise TypeError(f"not a stringBT node: {node!r}")
 
 
@@ -500,16 +571,20 @@ class LiveTree:
         self.ticks = 0
         self._tick_clock: TickClock = ticks if ticks is not None else self._own_ticks
         self._tree = parsed if isinstance(parsed, Tree) else Tree(parsed)
-        (self._tick, self._halt), self._slots, self._nodes = compile_node(
+        (self._tick, self._halt), self._slots, self._nodes, self._wire = compile_node(
             self._tree.root, registry, self.blackboard, clock, self._tick_clock
         )
         self._lock = threading.Lock()
-        self._pending: list[tuple[_Slot, Compiled, Node]] = []
+        self._pending: list[tuple[_Slot, Compiled, Node, Wire]] = []
         # Forgotten items are named by their condition sequence, not by node identity: a merge
         # into a placeholder nested in an item rebuilds that item's node in the tree.
         self._forgotten: list[tuple[_Slot, tuple[Condition, ...]]] = []
         self._paths: dict[str, tuple[int, ...]] = {}
         self._running = False
+        self._dirty = False
+        """Something waits for the next tick boundary: a merge, a forget or a probe."""
+        self._probe: Probe | None = None
+        self._rewire = False
 
     def _own_ticks(self) -> int:
         return self.ticks
@@ -521,7 +596,7 @@ class LiveTree:
 
     def tick(self) -> Status:
         """Tick the root once; merges and forgetting since the last tick take effect first."""
-        if self._pending or self._forgotten:
+        if self._dirty:
             self._apply()
         self.ticks += 1
         status = self._tick()
@@ -540,15 +615,74 @@ class LiveTree:
             self._running = False
             self._halt()
 
+    def probe(self, probe: Probe | None) -> None:
+        """Put ``probe``'s wrappers around every node from the next tick boundary on, and again
+        after every merge or forget that takes effect, until ``probe(None)`` takes them out (at
+        the next boundary too). Calling it again with the same probe asks for new wrappers.
+        ``probe.rewired`` is told the running tree at once if no merge or forget is pending."""
+        with self._lock:
+            self._probe, self._rewire, self._dirty = probe, True, True
+            if probe is not None and not self._pending and not self._forgotten:
+                probe.rewired(Tree(_rebuild(self._wire)))
+
+    def _wires(self, probe: Probe | None) -> None:
+        """Write the probe's wrappers (or, without one, the compiled closures) into every list
+        the tree calls its nodes through. Only between ticks, in the ticking thread."""
+        order: list[Wire] = []
+        todo = [self._wire]
+        while todo:
+            wire = todo.pop()
+            order.append(wire)
+            todo.extend(reversed(wire.kids))
+        at = {id(wire): i for i, wire in enumerate(order)}
+        if probe is not None:
+            probe.rewired(Tree(_rebuild(self._wire)))
+        for wire in order:
+            kids = iter(wire.kids)
+            for calls, predicate in wire.calls:
+                for pos in range(len(calls)):
+                    kid = next(kids)
+                    if predicate:
+                        assert kid.holds is not None
+                        holds = kid.holds
+                        calls[pos] = holds if probe is None else probe.holds(at[id(kid)], holds)
+                    else:
+                        calls[pos] = (
+                            kid.tick if probe is None else probe.tick(at[id(kid)], kid.tick)
+                        )
+            if wire.halts is not None:
+                for pos, kid in enumerate(wire.kids):
+                    halt = kid.halt
+                    wire.halts[pos] = halt if probe is None else probe.halt(at[id(kid)], halt)
+        root = self._wire
+        self._tick = root.tick if probe is None else probe.tick(0, root.tick)
+        self._halt = root.halt if probe is None else probe.halt(0, root.halt)
+
     def _apply(self) -> None:
         with self._lock:
+            self._dirty = False
             pending, self._pending = self._pending, []
             forgotten, self._forgotten = self._forgotten, []
-        for slot, (tick, halt), item in pending:
-            slot.ticks.append(tick)
-            slot.halts.append(halt)
-            slot.items.append(item)
-            slot.used.append(-1)
+            changed, self._rewire = self._rewire, False
+            for slot, (tick, halt), item, wire in pending:
+                slot.ticks.append(tick)
+                slot.halts.append(halt)
+                slot.items.append(item)
+                slot.used.append(-1)
+                slot.wires.append(wire)
+                changed = True
+            later = self._forget_now(forgotten)
+            changed = changed or len(later) < len(forgotten)
+            if later:
+                self._forgotten[:0] = later
+                self._dirty = True
+            if changed and (self._probe is not None or self._tick is not self._wire.tick):
+                self._wires(self._probe)
+
+    def _forget_now(
+        self, forgotten: list[tuple[_Slot, tuple[Condition, ...]]]
+    ) -> list[tuple[_Slot, tuple[Condition, ...]]]:
+        """Remove the forgotten items that are not running; returns those left for later."""
         later = []
         for slot, key in forgotten:
             index = _index_of(slot.items, key)
@@ -558,11 +692,10 @@ class LiveTree:
                 later.append((slot, key))
                 continue
             del slot.ticks[index], slot.halts[index], slot.items[index], slot.used[index]
+            del slot.wires[index]
             if slot.running > index:
                 slot.running -= 1
-        if later:
-            with self._lock:
-                self._forgotten[:0] = later
+        return later
 
     def last_used(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> int | None:
         """The tick at which the item answering ``when`` in placeholder ``slot`` last did not
@@ -573,6 +706,18 @@ class LiveTree:
             return None
         index = _index_of(compiled.items, conditions(when))
         return None if index is None else compiled.used[index]
+
+    def knows(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
+        """Whether placeholder ``slot`` holds an item answering ``when`` (pending included)."""
+        with self._lock:
+            tree = self._tree
+            path = self._paths.get(slot)
+            if path is None:
+                path = find_placeholder(tree, slot)
+                if path is None:
+                    return False
+                self._paths[slot] = path
+        return _index_of(list(descend(tree, path)[1].children), conditions(when)) is not None
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder
@@ -607,6 +752,7 @@ class LiveTree:
                 self._pending.remove(pending[0])
             else:
                 self._forgotten.append((compiled, key))
+                self._dirty = True
             inner = [n for n, _ in walk(item) if isinstance(n, Placeholder)]
             for placeholder in inner:
                 self._slots.pop(placeholder.name, None)
@@ -637,23 +783,21 @@ class LiveTree:
             if merged is None:
                 return False
             # The item must fit the registry and, where it lands, the limits of the whole tree.
-            depth_left = self.limits.max_depth - len(path) - 1
-            nodes_left = self.limits.max_nodes - self._nodes
-            if depth_left < 1 or nodes_left < 1:
-                code = ErrorCode.TOO_DEEP if depth_left < 1 else ErrorCode.TOO_MANY_NODES
-                raise LimitError(code, "the tree has no room for more knowledge there")
-            room = replace(self.limits, max_depth=depth_left, max_nodes=nodes_left)
-            validate(item, self.registry, limits=room)
-            compiled, slots, item_nodes = compile_node(
-                item, self.registry, self.blackboard, self.clock, self._tick_clock
+            item_nodes, _ = check_item(
+                item,
+                self.registry,
+                self.limits,
+                depth=len(path) + 1,
+                nodes=self._nodes,
+                taken=self._slots,
             )
-            for name in slots:
-                if name in self._slots:
-                    raise ValidationError(
-                        ErrorCode.DUPLICATE_PLACEHOLDER, f"placeholder {name!r} appears twice"
-                    )
+            with building():
+                compiled, slots, _, wire = compile_node(
+                    item, self.registry, self.blackboard, self.clock, self._tick_clock
+                )
             self._slots.update(slots)
-            self._pending.append((self._slots[slot], compiled, item))
+            self._dirty = True
+            self._pending.append((self._slots[slot], compiled, item, wire))
             self._tree = merged
             self._nodes += item_nodes
         return True

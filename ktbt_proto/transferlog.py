@@ -6,6 +6,10 @@ Events: ``query-sent``, ``query-received``, ``answer-sent``, ``answer-received``
 (UTC, ISO 8601), ``event`` and ``peer`` (whose log it is); the other fields depend on the event.
 The log is append-only and written from several threads (zenoh callbacks, the agent's loop), so
 each line is written whole under a lock and flushed.
+
+A log may also have sinks (:meth:`TransferLog.add_sink`): callables that see every event as it
+is recorded, after its line is written. Events flow one way, from the log to its sinks; a peer
+publishing its fleet events (section 10) is one. A log may have sinks and no file.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ from __future__ import annotations
 import json
 import threading
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
@@ -27,23 +31,46 @@ EVENTS = (
     "merged",
     "forgotten",
     "error-received",
+    "network-error",
 )
 MAX_LINE = 1_000_000
 """A line longer than this is not read (a log is ours, but a file may be anything)."""
 
+Sink = Callable[[dict[str, Any]], None]
+"""Sees each event recorded, as the dict written (``t``, ``event``, ``peer`` and its fields)."""
+
 
 class TransferLog:
-    """Append events to a JSON-lines file (or any text stream)."""
+    """Append events to a JSON-lines file (or any text stream; ``None``: no file, sinks only)."""
 
-    def __init__(self, target: str | Path | TextIO) -> None:
+    def __init__(self, target: str | Path | TextIO | None) -> None:
         self._lock = threading.Lock()
+        self._file: TextIO | None
         if isinstance(target, str | Path):
-            self._file: TextIO = open(target, "a", encoding="utf-8")  # noqa: SIM115
+            self._file = open(target, "a", encoding="utf-8")  # noqa: SIM115
             self._owned = True
         else:
             self._file, self._owned = target, False
+        self._sinks: tuple[Sink, ...] = ()
         self.counts: Counter[str] = Counter()
         """Events recorded, by kind."""
+
+    def add_sink(self, sink: Sink) -> None:
+        """Hand every later event to ``sink`` too (called outside the log's lock, from the
+        recording thread; a sink must not raise, and must not record into this log)."""
+        with self._lock:
+            self._sinks = (*self._sinks, sink)
+
+    @property
+    def sinks(self) -> tuple[Sink, ...]:
+        """The sinks events are handed to now."""
+        return self._sinks
+
+    def remove_sink(self, sink: Sink) -> None:
+        """Stop handing events to ``sink`` (a transport closing removes its publisher, so a
+        log reused by another transport publishes once)."""
+        with self._lock:
+            self._sinks = tuple(s for s in self._sinks if s is not sink)
 
     def record(self, event: str, **fields: Any) -> None:
         entry = {"t": datetime.now(UTC).isoformat(timespec="milliseconds"), "event": event}
@@ -51,14 +78,16 @@ class TransferLog:
         line = json.dumps(entry, ensure_ascii=False, default=str)
         with self._lock:
             self.counts[event] += 1
-            if self._file.closed:
-                return
-            self._file.write(line + "\n")
-            self._file.flush()
+            if self._file is not None and not self._file.closed:
+                self._file.write(line + "\n")
+                self._file.flush()
+            sinks = self._sinks
+        for sink in sinks:
+            sink(entry)
 
     def close(self) -> None:
         with self._lock:
-            if self._owned and not self._file.closed:
+            if self._owned and self._file is not None and not self._file.closed:
                 self._file.close()
 
     def __enter__(self) -> TransferLog:

@@ -264,6 +264,10 @@ def view_command(
     iterations: Annotated[
         int, typer.Option(help="Watching: close the window after this many (0: when you quit).")
     ] = 0,
+    publish_events: Annotated[
+        str | None,
+        typer.Option(help="Stream the robots' events (ktbt monitor) from this endpoint."),
+    ] = None,
 ) -> None:
     """Watch a run: space pauses, right arrow steps, +/- change speed, q quits."""
     for option, value, least in (
@@ -288,10 +292,16 @@ def view_command(
         reason = viewer.no_display()
         if reason:
             raise _fail(f"{reason}; record the run instead: --record run.gif")
+    from ktbt_proto.events import AgentStream
+    from ktbt_proto.transport.zenoh import ZenohSettings
+
     from .world import World
 
     world = World(scenarios[0], seed=seed)
+    stream = None
     try:
+        if publish_events:
+            stream = AgentStream(world.agents, ZenohSettings(listen=[publish_events]))
         if record is not None:
             viewer.record(world, record, frames=frames, every=every)
             typer.echo(f"{record}: {frames} frames, iterations 0 to {(frames - 1) * every:,}")
@@ -299,6 +309,9 @@ def view_command(
             viewer.run(world, max_iterations=iterations or None)
     except (ValueError, OSError, RuntimeError) as exc:  # pygame.error is a RuntimeError
         raise _fail(str(exc)) from None
+    finally:
+        if stream is not None:
+            stream.close()
 
 
 def demo_command(

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import datetime
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +20,11 @@ import ktbt_proto as kp
 from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.messages import Query, Response, decode, encode
 from ktbt_proto.peer import answers
-from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
+from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport
 
-from .zenoh_helpers import ROOT, free_port
+from .zenoh_helpers import ROOT, free_port, see, wait_until
+
+pytestmark = pytest.mark.network  # a zenoh router and robots over mutual TLS on loopback
 
 PROFILE = ROOT / "examples" / "zenoh" / "acl-router.json5"
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
@@ -125,10 +126,13 @@ def test_only_the_named_robot_serves_its_name(tmp_path: Path, acl: bool) -> None
             impostor._declared.append(
                 impostor._session.declare_queryable("ktbt/v1/knowledge/t", forge)
             )
-            deadline = time.monotonic() + 15
-            while "t" not in peers(asker, 0.3) and time.monotonic() < deadline:
-                time.sleep(0.05)
-            time.sleep(0.5)  # let the impostor's declaration reach the router, or be denied
+            see(asker, "t")
+            # The router handles what one peer sends in order: once the impostor's late answer,
+            # put after its declaration, reaches the asker's inbox, the declaration has reached
+            # the router and been routed, or denied.
+            late = Response(id="after", sender="m", sequence=GREEN, subtree="<a>(Wait)")
+            impostor._session.put("ktbt/v1/inbox/r1", encode(late))
+            assert wait_until(lambda: any(m.id == "after" for m in asker.receive()))
             got = asker.ask(Query(id="q1", sender="r1", sequence=GREEN), 3)
     finally:
         session.close()
@@ -140,3 +144,44 @@ def test_only_the_named_robot_serves_its_name(tmp_path: Path, acl: bool) -> None
         # Without the profile, the impostor hears the query and answers in t's name (on the
         # `any` policy, whichever of the two comes first takes t's place).
         assert reached == ["q1"] and [a.sender for a in got] == ["t"]
+
+
+@pytest.mark.parametrize("acl", [True, False], ids=["profile", "without-access-control"])
+def test_a_robot_publishes_events_on_its_own_key_and_only_the_monitor_hears_them(
+    tmp_path: Path, acl: bool
+) -> None:
+    from ktbt_proto.transport.zenoh import open_session
+
+    make_fleet_pki(tmp_path, "r1", "m", "monitor")
+    port = free_port()
+    heard: list[str] = []
+    overheard: list[str] = []
+    inbox: list[bytes] = []
+    session = router(tmp_path, port, acl)
+    opened = []
+    try:
+        r1, impostor, monitor = (
+            open_session(robot_settings(tmp_path, name, port)) for name in ("r1", "m", "monitor")
+        )
+        opened = [r1, impostor, monitor]
+        monitor.declare_subscriber("ktbt/v1/events/*", lambda s: heard.append(str(s.key_expr)))
+        impostor.declare_subscriber("ktbt/v1/events/*", lambda s: overheard.append(str(s.key_expr)))
+        r1.declare_subscriber("ktbt/v1/inbox/r1", lambda s: inbox.append(s.payload.to_bytes()))
+        assert wait_until(lambda: (r1.put("ktbt/v1/events/r1", b"0"), heard)[1] != [])
+        impostor.put("ktbt/v1/events/t", b"forged")
+        impostor.put("ktbt/v1/inbox/r1", b"after")  # handled after the forged put
+        assert wait_until(lambda: b"after" in inbox)
+        before = heard.count("ktbt/v1/events/r1")
+        r1.put("ktbt/v1/events/r1", b"last")
+        assert wait_until(lambda: heard.count("ktbt/v1/events/r1") > before)
+        if not acl:
+            assert wait_until(
+                lambda: "ktbt/v1/events/t" in heard and "ktbt/v1/events/r1" in overheard
+            )
+    finally:
+        for opened_session in opened:
+            opened_session.close()  # type: ignore[no-untyped-call]
+        session.close()
+    if acl:
+        # The impostor hears only its own put (a session delivers to itself), never r1's.
+        assert set(heard) == {"ktbt/v1/events/r1"} and set(overheard) <= {"ktbt/v1/events/t"}

@@ -7,7 +7,6 @@ import json
 import multiprocessing
 import os
 import signal
-import time
 from pathlib import Path
 
 import networkx as nx
@@ -18,6 +17,8 @@ from ktbt_proto.agent import Agent
 from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.messages import Query, Response
 from ktbt_proto.transport import MemoryNetwork, MemoryTransport
+
+from .zenoh_helpers import wait_until
 
 CONTROL = "<sl><k>(prior)<e><k>(new)<e><a>(Walk)<e>"
 SKILL = "<sq><c>(TargetSeen, colour=2)<a>(Pick, colour=2)<e>"
@@ -250,17 +251,26 @@ def _learn_forever(path: str, ready: str) -> None:
             Path(ready).write_text("ready")
 
 
+def saved_items(path: Path) -> int:
+    """How many items the saved file holds; it is never half-written, so it always parses."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return 0
+    return len(json.loads(text)["knowledge"])
+
+
+@pytest.mark.network
 def test_knowledge_file_survives_sigkill(tmp_path: Path) -> None:
     path, ready = tmp_path / "i.json", tmp_path / "ready"
     ctx = multiprocessing.get_context("spawn")
     child = ctx.Process(target=_learn_forever, args=(str(path), str(ready)))
     child.start()
     try:
-        deadline = time.monotonic() + 60
-        while not ready.exists() and time.monotonic() < deadline and child.is_alive():
-            time.sleep(0.05)
+        assert wait_until(lambda: ready.exists() or not child.is_alive(), 60)
         assert ready.exists(), "the child never learned"
-        time.sleep(0.3)
+        # Kill it while it saves item after item; every file read meanwhile is whole.
+        assert wait_until(lambda: saved_items(path) >= 10, 60)
         os.kill(child.pid, signal.SIGKILL)  # type: ignore[arg-type]
     finally:
         child.join(timeout=30)
@@ -317,3 +327,43 @@ def test_teaching_does_not_cut_the_own_wait_short() -> None:
     assert a.metrics.queries_lost == 0  # still waiting
     run(net, [a, b], 25)
     assert a.metrics.queries_lost == 1
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_an_item_is_merged_once_whatever_the_duplicates_reordering_and_re_asks(
+    tmp_path: Path, seed: int
+) -> None:
+    """Four teachers answer every query, their answers duplicated and shuffled, and the learner
+    asks again and again (it forgets, and re-asks with the same id): each time it learns, the
+    item is merged once, its bytes the author's."""
+    import random
+
+    from ktbt_proto.transferlog import TransferLog, read
+
+    rng = random.Random(seed)
+    net = MemoryNetwork()
+    log = TransferLog(tmp_path / "i.log")
+    teachers = [agent(net, f"k{n}", KNOWER, cooldown_ticks=0) for n in range(4)]
+    learner = agent(net, "i", wait_ticks=50, cooldown_ticks=1, repeat_every=3, log=log)
+    learned = 0
+    for _ in range(3):
+        learner.encounter(SEQUENCE)
+        for _ in range(40):
+            net.step()
+            for t in rng.sample(teachers, len(teachers)):
+                t.tick()
+            inbox = learner.transport._inbox  # type: ignore[attr-defined]
+            mail = list(inbox) * 2  # every answer twice, in any order
+            rng.shuffle(mail)
+            inbox.clear()
+            inbox.extend(mail)
+            learner.tick()
+        assert learner.knows(SEQUENCE)
+        item = learner.knowledge.lookup("<c>(TargetSeen,colour=2)")
+        assert item is not None and kp.format(item.subtree, "compact") == "<a>(Pick,colour=2)"
+        learned += 1
+        learner.forget(SEQUENCE)
+    log.close()
+    merged = [e for e in read(tmp_path / "i.log") if isinstance(e, dict) and e["event"] == "merged"]
+    assert len(merged) == learned == 3  # once each time, never twice
+    assert learner.metrics.forgotten == 3

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.network  # every test runs the ktbt command as a process
+
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
@@ -199,13 +201,16 @@ def test_hostile_inputs_get_one_line_not_a_traceback(tmp_path: Path) -> None:
     assert proc.returncode == 123 and "Traceback" not in proc.stderr
 
 
-def test_fmt_writes_through_symlinks(tmp_path: Path) -> None:
+def test_fmt_writes_through_symlinks_and_keeps_permissions(tmp_path: Path) -> None:
     target = tmp_path / "t.sbt"
     target.write_text(UGLY)
     link = tmp_path / "link.sbt"
+    target.chmod(0o640)
     link.symlink_to(target)
     assert ktbt("fmt", str(link))[0] == 0
     assert link.is_symlink() and target.read_text() == PRETTY
+    assert target.stat().st_mode & 0o777 == 0o640  # the file's permissions are kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.sbt", "t.sbt"]
 
 
 def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:
@@ -217,3 +222,35 @@ def test_merge_refuses_to_write_an_invalid_tree(tmp_path: Path) -> None:
     assert code == 2 and "expected a condition before ','" in err  # usage: exit 2
     code, _, err = ktbt("merge", str(control), "-", "--when", " ", stdin=b"<a>(Z)")
     assert code == 2 and "names no condition" in err
+
+
+@pytest.mark.parametrize(
+    ("sequence", "caret", "code"),
+    [
+        ("TargetSeen(colour=100)", "                  ^", "SBT310"),  # under the value
+        ("Carrying, TargetSeen(colour = 100)", "                              ^", "SBT310"),
+        ("TargetSeen(color=2)", "           ^", "SBT311"),  # under the argument's name
+        ("Carrying, Nope", "          ^", "SBT305"),  # under the unknown condition
+    ],
+)
+def test_peer_run_refuses_at_start_a_sequence_its_own_registry_refuses(
+    sequence: str, caret: str, code: str
+) -> None:
+    """It could never accept an answer to it: exit 2 before joining any network, the error in
+    one line, a caret under the part of the argument at fault (no asking for its duration)."""
+    status, out, err = ktbt("peer", "run", "--sequence", sequence, "--duration", "600")
+    assert status == 2 and out == ""
+    lines = err.splitlines()
+    assert lines[0].startswith(f"error: --sequence {sequence!r}: {code} ")
+    assert lines[1:] == [f"    {sequence}", f"    {caret}"]
+    assert "Traceback" not in err
+
+
+def test_peer_commands_take_fixed_choices_as_choices() -> None:
+    for args in (
+        ["run", "--mode", "router"],
+        ["serve", "--knowledge", "x.sbt", "--overhear", "loud"],
+        ["ask", "--sequence", "A", "--policy", "x"],
+    ):
+        status, _, err = ktbt("peer", *args)
+        assert status == 2 and "is not one of" in err, err

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ktbt_proto.files import replacing, write_atomic
+from ktbt_proto.files import replacing, temporary_name, write_atomic
 
 
 def test_write_atomic_replaces_text_and_bytes(tmp_path: Path) -> None:
@@ -38,3 +38,24 @@ def test_a_symlink_is_written_through_and_the_mode_kept_on_request(tmp_path: Pat
     write_atomic(link, "<a>(Stop)\n", keep_mode=True)
     assert link.is_symlink() and target.read_text(encoding="utf-8") == "<a>(Stop)\n"
     assert target.stat().st_mode & 0o777 == 0o640
+
+
+def test_a_knowledge_save_is_durable_and_its_stale_temporaries_are_found(tmp_path: Path) -> None:
+    """What a save killed midway leaves (files.temporary_name) is what a restart removes, also
+    when the saved path is a symlink (the temporary lies beside the link's target)."""
+    from ktbt_proto.knowledge import KnowledgeBase, remove_stale_temporaries
+    from ktbt_proto.syntax import parse
+
+    real = tmp_path / "data" / "kb.json"
+    link = tmp_path / "kb.json"
+    kb = KnowledgeBase.from_tree(parse("<k>(new)<sq><c>(A)<a>(Go)<e><e>"))
+    kb.save(real)
+    link.symlink_to(real)
+    kb.save(link)
+    assert link.is_symlink() and KnowledgeBase.load(link).keys() == ["<c>(A)"]
+    torn = [temporary_name(real), temporary_name(real)]
+    for tmp in torn:
+        tmp.write_text("torn", encoding="utf-8")
+    (real.parent / ".kb.json.keep").write_text("not ours", encoding="utf-8")
+    assert sorted(remove_stale_temporaries(link)) == sorted(torn)
+    assert sorted(p.name for p in real.parent.iterdir()) == [".kb.json.keep", "kb.json"]

@@ -110,6 +110,7 @@ def test_unrepresentable_values_are_refused() -> None:
         kp.format(kp.Action("F"), "wide")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(), st.sampled_from(["pretty", "compact"]))
 def test_round_trip(tree: kp.Node, style: str) -> None:
@@ -119,6 +120,7 @@ def test_round_trip(tree: kp.Node, style: str) -> None:
         assert "\n" not in text
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(with_comments=True), st.sampled_from(["pretty", "compact"]))
 def test_idempotent(tree: kp.Node, style: str) -> None:
@@ -127,6 +129,7 @@ def test_idempotent(tree: kp.Node, style: str) -> None:
     assert twice == once
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(trees(with_comments=True))
 def test_pretty_keeps_every_comment(tree: kp.Node) -> None:
@@ -147,6 +150,7 @@ def test_pretty_keeps_every_comment(tree: kp.Node) -> None:
     assert sorted(t.strip() for t in found) == norm
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(trees(), trees())
 def test_compact_form_is_a_digest(a: kp.Node, b: kp.Node) -> None:

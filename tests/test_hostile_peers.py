@@ -5,11 +5,13 @@ and 7)."""
 from __future__ import annotations
 
 import json
-import time
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
@@ -22,6 +24,8 @@ from ktbt_proto.transport.zenoh import ZenohTransport
 from ktbt_proto.trust import Policy, TrustStore
 
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
+
+pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
 KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
@@ -50,6 +54,7 @@ def teacher_kb() -> KnowledgeBase:
     return KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
 
 
+@pytest.mark.slow
 def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> None:
     """The answer reaches the learner while a silent peer still holds the query (its timeout is
     30 s); a second reply on the teacher's key is refused, not taken in its place; a reply on
@@ -64,13 +69,21 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
     ):
         declare(silent, "ktbt/v1/knowledge/quiet", held.append)  # never answers
 
+        genuine_arrived = threading.Event()
+        replying: list[threading.Thread] = []
+
         def impostor(q: Any) -> None:
             asked = decode(q.payload.to_bytes())
             forged = encode(Response(id=asked.id, sender="t", sequence=GREEN, subtree=FORGED))
-            time.sleep(0.3)  # after the genuine answer
-            q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
-            q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
-            q.drop()
+
+            def after_the_genuine_answer() -> None:
+                genuine_arrived.wait(10)
+                q.reply("ktbt/v1/knowledge/t", forged)  # on the teacher's key
+                q.reply("ktbt/v1/knowledge/imp", forged)  # on its own key, naming the teacher
+                q.drop()
+
+            replying.append(threading.Thread(target=after_the_genuine_answer))
+            replying[-1].start()
 
         declare(imp, "ktbt/v1/knowledge/t", impostor)
         see(learner, "t", "silent", "imp")
@@ -81,11 +94,17 @@ def test_a_silent_peer_delays_no_one_and_an_impostor_replaces_no_answer() -> Non
             got.extend(learner.receive())
             return bool(got)
 
-        assert wait_until(arrived, 10)
-        assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
-        assert held  # the silent peer still holds the query: the answer did not wait for it
-        assert wait_until(lambda: learner.refused >= 2, 10)
-        assert learner.receive() == []
+        try:
+            assert wait_until(arrived, 10)
+            genuine_arrived.set()
+            assert [(m.sender, m.subtree) for m in got] == [("t", HONEST)]
+            assert held  # the silent peer still holds the query: the answer did not wait for it
+            assert wait_until(lambda: learner.refused >= 2, 10)
+            assert learner.receive() == []
+        finally:
+            genuine_arrived.set()
+            for thread in replying:
+                thread.join(15)
 
 
 def test_queries_come_only_through_the_queryable_and_are_not_replaced() -> None:
@@ -141,6 +160,7 @@ def trusted_learner(port: int, *connect: int, **kw: Any) -> tuple[Agent, ZenohTr
     return robot, transport
 
 
+@pytest.mark.slow
 def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_lying_ones(
     tmp_path: Path,
 ) -> None:
@@ -227,6 +247,7 @@ def test_serve_refuses_a_knowledge_file_without_end(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr and len(result.stderr.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_run_reports_refusals_and_keeps_a_damaged_save_file(tmp_path: Path) -> None:
     save = tmp_path / "kb.json"
     save.write_text('{"version": 1, "knowledge": [{"sequence": "<c>(TargetSeen,colour=9)"')
@@ -302,3 +323,67 @@ def test_peer_list_shows_who_authored_what_a_signed_server_serves(tmp_path: Path
         listed = ktbt_run("peer", "list", "--connect", endpoint(port), "--timeout", "5")
     assert listed.returncode == 0, listed.stdout + listed.stderr
     assert f"  TargetSeen(colour=2)  (author {public})" in listed.stdout  # as people type it
+
+
+def test_no_number_of_silent_peers_holds_an_asker_or_a_thread() -> None:
+    """Three silent peers hold every query for the whole query timeout (30 s). Six queries in a
+    row are still all sent and answered by the teacher while the silent peers hold them, and
+    the open gets hold no thread (spec/protocol.md section 3)."""
+    pt, pl = free_port(), free_port()
+    quiet = [free_port() for _ in range(3)]
+    kb = teacher_kb()
+    with ExitStack() as stack:
+        stack.enter_context(ZenohTransport("t", settings(pt), lookup=answers(kb)))
+        held: list[Any] = []
+        for n, port in enumerate(quiet):
+            silent, _ = stack.enter_context(hostile(f"silent{n}", port, pt))
+            declare(silent, f"ktbt/v1/knowledge/quiet{n}", held.append)  # never answers
+        learner = stack.enter_context(
+            ZenohTransport("me", settings(pl, pt, *quiet), query_timeout=30)
+        )
+        see(learner, "t", "silent0", "silent1", "silent2")
+        threads = threading.active_count()
+        for n in range(6):
+            learner.broadcast(Query(id=f"q{n}", sender="me", sequence=GREEN))
+        got: list[Any] = []
+
+        def answered() -> bool:
+            got.extend(learner.receive())
+            return len(got) >= 6
+
+        assert wait_until(answered, 15)
+        assert sorted(m.id for m in got) == [f"q{n}" for n in range(6)]
+        assert wait_until(lambda: len(held) == 18, 10)  # each silent peer holds all six
+        assert threading.active_count() == threads  # six open gets, no thread held for them
+        assert learner.network_errors == 0 and learner.refused == 0
+
+
+def test_the_networks_own_errors_are_counted_apart_not_refused(tmp_path: Path) -> None:
+    """A get that times out at the asker: zenoh sends its own reply error (``Timeout``), which
+    is the network's, not a peer's message: counted in ``network_errors`` and logged as a
+    ``network-error`` event, never decoded nor counted as a refusal."""
+    ps, pl = free_port(), free_port()
+    log = TransferLog(tmp_path / "me.log")
+    with (
+        hostile("silent", ps) as (silent, held),
+        ZenohTransport("me", settings(pl, ps), query_timeout=0.5, log=log) as transport,
+    ):
+        declare(silent, "ktbt/v1/knowledge/quiet", held.append)
+        see(transport, "silent")
+        agent = Agent("me", DEMO_CONTROL, demo_registry(), transport, wait_ticks=1000, log=log)
+        agent.encounter(["TargetSeen(colour=2)"])
+        agent.tick()  # asks
+
+        def timed_out() -> bool:
+            agent.tick()
+            return agent.metrics.network_errors >= 1
+
+        assert wait_until(timed_out, 15)
+        assert held  # the silent peer really held the query
+        assert agent.metrics.refused == 0 and transport.refused == 0
+        assert transport.network_errors == 1
+    log.close()
+    events = [e for e in read(tmp_path / "me.log") if isinstance(e, dict)]
+    errors = [e for e in events if e["event"] == "network-error"]
+    assert len(errors) == 1 and errors[0]["reason"] == "Timeout" and errors[0]["peer"] == "me"
+    assert not [e for e in events if e["event"] == "refused"]

@@ -12,12 +12,15 @@ from pathlib import Path
 from typing import Any
 
 import py_trees
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.interop import to_py_trees
-from ktbt_proto.interop.pytrees import from_py_trees_status
+from ktbt_proto.interop.pytrees import from_py_trees_status, origin
+from ktbt_proto.interop.pytrees_control import PyTreesControl
+from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.tree import Node, walk
 
 from .strategies import trees
@@ -221,6 +224,7 @@ def _anything(tree: kp.Tree) -> kp.Registry:
     return reg
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(valid=True), st.integers(0, 2**32), st.integers(1, 12))
 def test_random_trees_tick_identically(root: Node, seed: int, ticks: int) -> None:
@@ -231,3 +235,76 @@ def test_random_trees_tick_identically(root: Node, seed: int, ticks: int) -> Non
     for _ in range(ticks):
         assert live.tick() == pyt.tick()
     assert live.halt() == pyt.halt()
+
+
+# -- the user's own behaviours for leaves, and reading a built tree back ---------------------
+
+
+class _UserCondition(py_trees.behaviour.Behaviour):
+    """A condition as a py_trees user writes it, scripted as ``_condition`` is."""
+
+    def __init__(self, bb: kp.Blackboard, name: str) -> None:
+        super().__init__(name)
+        self.bb, self.leaf = bb, name
+
+    def update(self) -> py_trees.common.Status:
+        self.bb["log"].append(f"{self.leaf}?")
+        ok = _pick(self.bb, self.leaf, 2) == 0
+        return py_trees.common.Status.SUCCESS if ok else py_trees.common.Status.FAILURE
+
+
+class _UserAction(py_trees.behaviour.Behaviour):
+    """An action as a py_trees user writes it, scripted as ``_action`` is."""
+
+    def __init__(self, bb: kp.Blackboard, name: str) -> None:
+        super().__init__(name)
+        self.bb, self.leaf = bb, name
+
+    def update(self) -> py_trees.common.Status:
+        self.bb["log"].append(self.leaf)
+        status = STATUSES[_pick(self.bb, "a " + self.leaf, len(STATUSES))]
+        return py_trees.common.Status[status.name]
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if new_status == py_trees.common.Status.INVALID and self.status.name == "RUNNING":
+            self.bb["log"].append(f"~{self.leaf}")
+
+
+@settings(max_examples=100, deadline=None)
+@given(trees(valid=True), st.integers(0, 2**32), st.integers(1, 8))
+def test_the_users_own_leaves_tick_as_the_registrys(root: Node, seed: int, ticks: int) -> None:
+    tree = kp.Tree(unique_placeholders(root))
+    reg = _anything(tree)
+    live = Runner(tree, reg, "live", seed=seed)
+    mine = Runner(tree, reg, "live", seed=seed)  # replaced below: same blackboard, clock, log
+    own: dict[str, Callable[..., py_trees.behaviour.Behaviour]] = {}
+    for node, _ in walk(tree.root):
+        if isinstance(node, kp.Condition):
+            own[node.name] = lambda name=node.name, **_: _UserCondition(mine.bb, name)
+        elif isinstance(node, kp.Action):
+            own[node.name] = lambda name=node.name, **_: _UserAction(mine.bb, name)
+    for both in reg.conditions & reg.actions:  # factories go by name: these stay the registry's
+        del own[both]
+    built = to_py_trees(tree, reg, mine.bb, clock=mine.clock, behaviours=own)
+    bt = py_trees.trees.BehaviourTree(built)
+
+    def tick() -> kp.Status:
+        bt.tick()
+        return from_py_trees_status(built.status)
+
+    mine.tick_root, mine.halt_root = tick, lambda: built.stop(py_trees.common.Status.INVALID)
+    for _ in range(ticks):
+        assert live.tick() == mine.tick()
+    assert live.halt() == mine.halt()
+
+
+@settings(max_examples=150, deadline=None)
+@given(trees(valid=True))
+def test_a_built_tree_reads_back_as_itself(root: Node) -> None:
+    tree = kp.Tree(unique_placeholders(root))
+    reg = _anything(tree)
+    built = to_py_trees(tree, reg)
+    assert origin(built) == tree.root
+    control = PyTreesControl(py_trees.trees.BehaviourTree(built), reg)
+    assert control.tree == tree
+    assert KnowledgeBase.from_tree(control.tree).keys() == KnowledgeBase.from_tree(tree).keys()

@@ -16,14 +16,8 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.agent import Agent
-from ktbt_proto.knowledge import (
-    KnowledgeBase,
-    read_sequence,
-    sequence_key,
-    show_sequence,
-    split_item,
-    stray_nodes,
-)
+from ktbt_proto.items import read_sequence, sequence_key, show_sequence, split_item, stray_nodes
+from ktbt_proto.knowledge import KnowledgeBase
 from ktbt_proto.peer import load_knowledge
 from ktbt_proto.transport import MemoryNetwork
 
@@ -179,6 +173,7 @@ conditions = st.builds(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(conditions, min_size=1, max_size=4))
 def test_show_and_read_sequence_round_trip(conds: list[kp.Condition]) -> None:
@@ -220,6 +215,7 @@ def ktbt(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.network
 def test_check_warns_about_placeholder_children_that_are_not_knowledge(tmp_path: Path) -> None:
     tree = tmp_path / "stray.sbt"
     tree.write_text("<sl>\n    <k>(prior)\n        <a>(X)\n        <sq><c>(A)<a>(B)<e><e><e>")
@@ -240,6 +236,7 @@ def test_check_warns_about_placeholder_children_that_are_not_knowledge(tmp_path:
     ]
 
 
+@pytest.mark.network
 def test_check_of_nothing_is_an_error(tmp_path: Path) -> None:
     done = ktbt("check", str(tmp_path))
     assert done.returncode == 2

@@ -94,6 +94,7 @@ def control_trees(draw: st.DrawFn) -> kp.Tree:
     return kp.Tree(kp.Selector((*body, kp.Placeholder(tuple(existing), name="new"))))
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(control_trees(), trees(valid=True), st.lists(names, min_size=1, max_size=3))
 def test_merge_properties(control: kp.Tree, subtree: kp.Node, when: list[str]) -> None:
@@ -112,6 +113,7 @@ def test_merge_properties(control: kp.Tree, subtree: kp.Node, when: list[str]) -
     assert count in (0, sum(1 for _ in walk(item)))
 
 
+@pytest.mark.network
 def test_cli_merge(tmp_path: Path) -> None:
     skill = tmp_path / "skill.sbt"
     skill.write_text("<sq><a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>\n")

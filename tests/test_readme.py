@@ -86,7 +86,15 @@ def _split_comment(line: str) -> tuple[str, str, str]:
     return line.rstrip(), "", ""
 
 
-@pytest.mark.parametrize("index", range(len(SHELL)), ids=lambda k: f"block{k + 1}")
+@pytest.mark.network
+@pytest.mark.parametrize(
+    "index",
+    [
+        pytest.param(k, marks=[pytest.mark.slow] if "ktbt sim" in block else [])
+        for k, block in enumerate(SHELL)
+    ],
+    ids=lambda k: f"block{k + 1}",
+)
 def test_shell_blocks_run(index: int, clone: Path) -> None:
     ports = {"7447": str(free_port()), "7448": str(free_port())}
     script = adapt(SHELL[index], ports)

@@ -90,6 +90,7 @@ def test_vectors_cover_every_parse_error_code() -> None:
         "SBT311",
         "SBT401",
         "SBT402",
+        "SBT403",
     }
     assert {c.value for c in kp.ErrorCode} - not_in_vectors <= seen
 

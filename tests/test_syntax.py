@@ -3,7 +3,6 @@ reference (lark) parser over the normative grammar."""
 
 from __future__ import annotations
 
-import contextlib
 import time
 from pathlib import Path
 
@@ -175,6 +174,7 @@ def test_hundred_thousand_nested_sequences_are_refused_quickly() -> None:
     assert time.perf_counter() - started < 30  # a hang guard, not a benchmark
 
 
+@pytest.mark.slow
 def test_deep_trees_within_raised_limits_need_no_recursion() -> None:
     depth = 20_000
     limits = kp.Limits(max_depth=depth + 1)
@@ -225,6 +225,7 @@ def _outcome(fn: object, text: str) -> object:
         return (type(err).__name__, err.code, err.line, err.column)
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(soup())
 def test_agrees_with_reference_on_token_soup(text: str) -> None:
@@ -248,6 +249,7 @@ def mutated(draw: st.DrawFn) -> str:
     return text[:at] + token + text[at + len(token) :]
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(mutated())
 def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
@@ -257,6 +259,7 @@ def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
         assert _parse_fast(text, DEFAULT_LIMITS) is not None, "fast path refused valid text"
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(with_comments=True), st.sampled_from(["pretty", "compact"]))
 def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> None:
@@ -266,18 +269,24 @@ def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> 
     assert fast == kp.parse_reference(text) == kp.Tree(tree)
 
 
-def test_nothing_but_stringbt_errors_escape() -> None:
-    for text in [
-        "<a>(X, n=" + "9" * 5000 + ")",
-        "<w>(" + "1" * 3000 + ")",
-        '<a>(X, s="\\ud800")',
-        "\x00",
-        "<" * 1000,
-        "(" * 1000,
-        "<sq>" * 200 + "<e>" * 300,
-    ]:
-        with contextlib.suppress(kp.StringBTError):
-            kp.parse(text)
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("<a>(X, n=" + "9" * 5000 + ")", ("SBT204", 1, 10)),  # a literal over the limit
+        ("<w>(" + "1" * 3000 + ")", ("SBT204", 1, 5)),
+        ("\x00", ("SBT101", 1, 1)),
+        ("<" * 1000, ("SBT101", 1, 1)),
+        ("(" * 1000, ("SBT103", 1, 1)),
+        ("<sq>" * 200 + "<e>" * 300, ("SBT202", 1, 128 * 4 + 1)),  # deeper than the depth limit
+    ],
+    ids=["long-number", "long-wait", "nul", "angles", "parens", "deep-nesting"],
+)
+def test_hostile_text_is_one_positioned_error(text: str, expected: tuple[str, int, int]) -> None:
+    assert errors_of(text) == expected
+
+
+def test_a_lone_surrogate_escape_is_kept_escaped() -> None:
+    assert kp.format(kp.parse('<a>(X, s="\\ud800")'), "compact") == '<a>(X,s="\\ud800")'
 
 
 def test_byte_order_mark_is_not_text() -> None:

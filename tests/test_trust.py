@@ -389,6 +389,8 @@ def test_ktbt_log_reads_a_transfer_log(tmp_path: Path) -> None:
     assert "i refused reason: from x: the item is not signed" in result.output
     assert "query-sent 1, refused 1" in result.output
     assert "line 3: not a JSON object" in result.output
+    wrong = CliRunner().invoke(app, ["log", str(path), "--event", "refusd"])
+    assert wrong.exit_code == 2 and "'query-sent'" in wrong.output  # the choices are listed
 
 
 def test_keygen_writes_a_key_pair_and_a_trust_line(tmp_path: Path) -> None:

@@ -19,6 +19,9 @@ import pytest
 
 from .zenoh_helpers import endpoint, free_port
 
+# Builds the wheel and installs it into fresh virtual environments.
+pytestmark = [pytest.mark.network, pytest.mark.slow]
+
 ROOT = Path(__file__).resolve().parent.parent
 SIM_ONLY = ("numpy", "pymunk", "pyarrow", "matplotlib", "pygame")
 CORE_LIMIT = 60_000_000
@@ -89,6 +92,8 @@ def test_the_wheel_carries_types_licence_urls_and_examples(wheel: Path) -> None:
     assert "ktbt_proto/examples/sar_control.sbt" in names
     assert "ktbt_proto/examples/knowledge/colours.sbt" in names
     assert "ktbt_proto/grammar/stringbt.lark" in names
+    for page in ("index.html", "monitor.js", "monitor.css"):
+        assert f"ktbt_proto/monitor/static/{page}" in names
     assert "License-Expression: MIT" in meta
     core = [line for line in meta.splitlines() if line.startswith("Requires-Dist:")]
     unconditional = {

@@ -157,3 +157,18 @@ def see(transport: Any, *names: str) -> None:
     from ktbt_proto.transport.zenoh import peers
 
     assert wait_until(lambda: set(names) <= set(peers(transport, 0.3)), 15)
+
+
+def reached(transport: Any, name: str, seconds: float = 15) -> None:
+    """Wait until peer ``name`` has answered ``transport`` (its catalog, on ``name``'s own key).
+
+    A peer's messages on a link arrive in the order it sent them, so the answer is a round trip
+    that orders declarations both ways: what ``transport`` declared before asking (a
+    subscription, say) has reached ``name``, and what ``name`` declared before answering has
+    reached ``transport``. No fixed sleep can promise either."""
+
+    def answered() -> bool:
+        replies = transport._session.get(f"ktbt/v1/catalog/{name}", timeout=1)
+        return any(r.ok is not None for r in replies)
+
+    assert wait_until(answered, seconds), f"{name} never answered {transport.name}"

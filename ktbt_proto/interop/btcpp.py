@@ -17,20 +17,25 @@ stringBT              BT.CPP v4 XML
                       BT.CPP does not tick again a child that finished earlier in the same
                       activation; stringBT ticks every child on every tick.
 ``<neg>``             ``Inverter``
-``<c>(X, k=v)``       ``<Condition ID="X" k="v"/>``; ``<c>(!X)`` is ``<Inverter name="!X">``
-                      around it. The name marks the inverter as a negation (the same behaviour,
-                      since a condition never runs), so it imports as ``<c>(!X)``, not ``<neg>``.
-``<a>(X, k=v)``       ``<Action ID="X" k="v"/>``
+``<c>(X, k=v)``       ``<X k="v"/>``, declared ``<Condition ID="X">`` in the model; ``<c>(!X)``
+                      is ``<Inverter name="!X">`` around it. The name marks the inverter as a
+                      negation (the same behaviour, since a condition never runs), so it
+                      imports as ``<c>(!X)``, not ``<neg>``.
+``<a>(X, k=v)``       ``<X k="v"/>``, declared ``<Action ID="X">`` in the model
 ``<wt>(S)``           ``<Sleep msec="round(1000 S)"/>``. When those milliseconds do not read
                       back as exactly S (``<wt>(2.0)``, ``<wt>(0.0015)``), ``name="wt:S"`` keeps
                       the literal; import uses it only while it still agrees with ``msec``.
-``<tt1>(N)``          ``<Decorator ID="KTBT_TT1" ticks="N">``
-``<tt2>(N)``          ``<Decorator ID="KTBT_TT2" ticks="N">``
-``<w>(N)``            ``<Action ID="KTBT_WaitTicks" ticks="N"/>``
+``<tt1>(N)``          ``<KTBT_TT1 ticks="N">``
+``<tt2>(N)``          ``<KTBT_TT2 ticks="N">``
+``<w>(N)``            ``<KTBT_WaitTicks ticks="N"/>``
 ``<k>(name)``         ``<ReactiveFallback name="k:name">`` (a placeholder *is* a reactive
                       selector); empty, it holds one ``<AlwaysFailure/>``, because BT.CPP wants a
                       child under every control node and an empty placeholder fails.
 ====================  =======================================================================
+
+Every node is written by its element name, as BT.CPP 4 and Groot2 write them: BT.CPP's loader
+looks up a ``ReactiveSequence``'s children by element name, so the explicit ``<Action ID="X"/>``
+form is refused there ("Unknown node type: Action").
 
 The three ``KTBT_`` nodes are custom because stringBT's timers count ticks and BT.CPP's
 (``Delay``, ``Timeout``) count milliseconds; ``Delay`` and ``Timeout`` are therefore not used.
@@ -47,16 +52,22 @@ name used both as a condition and an action (BT.CPP has one namespace of node ID
 Values. XML attributes are strings; numbers are written as their stringBT literals and booleans
 as ``true``/``false``, which BT.CPP's converters read. A string is written as is, unless it would
 read back as something else or cannot be an XML character: if it looks like a number or boolean,
-starts with ``"``, or holds a control character, it is written as its JSON literal (quotes
-included). Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
+starts with ``"``, is ``{...}`` (spaces aside: BT.CPP would read a blackboard reference, so a
+peer's string could name a key of the robot's blackboard), or holds a control character, it is
+written as its JSON literal (quotes included). A subnormal double (``5e-324``) is refused
+(``SBT310``): BT.CPP's converter cannot read it. The ``ticks`` of the ``KTBT_`` nodes and
+``Sleep``'s ``msec`` are ``unsigned int`` ports: a larger count is refused (``SBT307``), both
+ways. Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
 anything else is a string. A ``{key}`` blackboard reference imports as that literal string, and
 port defaults declared in a TreeNodesModel are not applied.
 
-Import accepts both ``<Action ID="X"/>`` and Groot2's ``<X/>`` (when the TreeNodesModel declares
-X). Anything without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting
-attributes...) is a :class:`ParseError` whose line and column point at the element; malformed XML
-is one too, never an XML exception. DOCTYPE declarations (hence entities) are refused. Comments
-are not exported.
+Import accepts both ``<X/>`` (when the TreeNodesModel declares X) and the explicit
+``<Action ID="X"/>``, ``<Condition ID="X"/>`` and ``<Decorator ID="KTBT_TT1">`` forms; the
+explicit form of a node stringBT maps must name its BT.CPP kind (``<Action ID="Sleep"/>``, never
+``<Condition ID="Sleep"/>``). Anything
+without a stringBT meaning (``SubTree``, ``Repeat``, ``Delay``, scripting attributes...) is a
+:class:`ParseError` whose line and column point at the element; malformed XML is one too, never
+an XML exception. DOCTYPE declarations (hence entities) are refused. Comments are not exported.
 """
 
 from __future__ import annotations
@@ -65,6 +76,7 @@ import json
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -105,20 +117,26 @@ PLACEHOLDER_PREFIX = "k:"
 SECONDS_PREFIX = "wt:"
 INDENT = "  "
 
-# BT.CPP 4.6 built-in node IDs: a condition or action of the same name could not be registered.
+# BT.CPP 4.8 built-in node IDs (and 4.6's TryCatch, 3.x's SequenceStar): a condition or action
+# of the same name could not be registered. The element names BT.CPP's loader reads as document
+# structure or as the explicit form cannot name a node either.
 _BUILTIN_IDS = (
     "AlwaysFailure AlwaysSuccess AsyncFallback AsyncSequence Delay Fallback ForceFailure "
     "ForceSuccess IfThenElse Inverter KeepRunningUntilFailure LoopBool LoopDouble LoopInt "
     "LoopString Parallel ParallelAll Precondition ReactiveFallback ReactiveSequence Repeat "
     "RetryUntilSuccessful RunOnce Script ScriptCondition Sequence SequenceWithMemory "
     "SetBlackboard SkipUnlessUpdated Sleep SubTree Switch2 Switch3 Switch4 Switch5 Switch6 "
-    "Timeout TryCatch UnsetBlackboard WaitValueUpdate WasEntryUpdated WhileDoElse"
+    "Timeout TryCatch UnsetBlackboard WaitValueUpdate WasEntryUpdated WhileDoElse SequenceStar "
+    "Action Condition Control Decorator BehaviorTree TreeNodesModel root include"
 )
 BUILTINS = frozenset(_BUILTIN_IDS.split())
 
+_MAX_TICKS = 2**32 - 1
 _NUMBER = re.compile(r"-?[0-9]+(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"([^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"')
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
+# BT.CPP reads a port value as a blackboard reference when, spaces stripped, it is ``{...}``.
+_REFERENCE = re.compile(r" *\{.*\} *", re.DOTALL)
 _PORT = re.compile(r"[A-Za-z][A-Za-z0-9_]*(-[A-Za-z_][A-Za-z0-9_]*)*")
 _ATTR_ESCAPES = str.maketrans(
     {
@@ -150,6 +168,8 @@ def encode_value(value: Value) -> str:
         return format_value(value)
     if value in ("true", "false") or value.startswith('"') or _NUMBER.fullmatch(value):
         return json.dumps(value, ensure_ascii=False)
+    if _REFERENCE.fullmatch(value):
+        return json.dumps(value, ensure_ascii=False)
     if _NOT_XML.search(value):
         quoted = json.dumps(value, ensure_ascii=False)
         return quoted.replace("\ufffe", "\\ufffe").replace("\uffff", "\\uffff")
@@ -165,6 +185,11 @@ def decode_value(text: str) -> Value:
         decoded: str = json.loads(text)
         return decoded
     return text
+
+
+def btcpp_name(name: str) -> str:
+    """A stringBT name as a BT.CPP node ID or port name: ``nav.MoveTo`` -> ``nav-MoveTo``."""
+    return name.replace(".", "-")
 
 
 def _same(a: object, b: object) -> bool:
@@ -204,18 +229,29 @@ class _Exporter:
         name = node.name
         if name in BUILTINS or name.startswith(RESERVED_PREFIX):
             self._refuse(node, f"{name!r} is a BT.CPP built-in or reserved node ID")
-        ident = name.replace(".", "-")
+        ident = btcpp_name(name)
         if self.kinds.setdefault(ident, kind) != kind:
             self._refuse(node, f"{name!r} is both a condition and an action; BT.CPP has one ID")
         ports = self.ports.setdefault(ident, {})
-        attrs = [("ID", ident)]
+        attrs: list[tuple[str, str]] = []
         for key, value in node.args:
-            port = key.replace(".", "-")
+            port = btcpp_name(key)
             if not _PORT.fullmatch(port) or port in ("ID", "name"):
                 self._refuse(node, f"argument {key!r} of {name!r} cannot be a BT.CPP port name")
+            if isinstance(value, float) and 0 < abs(value) < sys.float_info.min:
+                message = f"argument {key!r}: BT.CPP cannot read the subnormal double {value!r}"
+                raise ValidationError(ErrorCode.INVALID_VALUE, message, node.line, node.column)
             ports.setdefault(port, set()).add(_PORT_TYPES[type(value)])
             attrs.append((port, encode_value(value)))
-        return _Out(kind, attrs)
+        return _Out(ident, attrs)
+
+    def _ticks(self, node: Node, ticks: int | float, unit: str = "ticks") -> str:
+        """The ``ticks`` port of a ``KTBT_`` node or ``Sleep``'s ``msec``, both an ``unsigned
+        int`` in BT.CPP."""
+        if ticks > _MAX_TICKS:
+            message = f"{ticks} {unit} is more than BT.CPP's unsigned int holds ({_MAX_TICKS})"
+            raise ValidationError(ErrorCode.INVALID_DURATION, message, node.line, node.column)
+        return format_value(ticks)
 
     def element(self, node: Node) -> _Out:
         if isinstance(node, Condition):
@@ -226,9 +262,9 @@ class _Exporter:
         if isinstance(node, Wait):
             if node.unit == "ticks":
                 self.custom.add(WAIT_TICKS)
-                return _Out("Action", [("ID", WAIT_TICKS), ("ticks", format_value(node.duration))])
+                return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
             msec = _msec(node.duration)
-            attrs = [("msec", str(msec))]
+            attrs = [("msec", self._ticks(node, msec, "msec"))]
             if not _same(_seconds(msec), node.duration):
                 attrs.insert(0, ("name", SECONDS_PREFIX + format_value(node.duration)))
             return _Out("Sleep", attrs)
@@ -252,7 +288,7 @@ class _Exporter:
         ident = TT1 if isinstance(node, WaitTimer) else TT2
         assert isinstance(node, WaitTimer | RunTimer)
         self.custom.add(ident)
-        return _Out("Decorator", [("ID", ident), ("ticks", format_value(node.ticks))], kids)
+        return _Out(ident, [("ticks", self._ticks(node, node.ticks))], kids)
 
     def model(self) -> list[_Out]:
         entries: list[tuple[str, str, list[Node | _Out | str]]] = []
@@ -274,16 +310,17 @@ def _attrs(attrs: list[tuple[str, str]]) -> str:
     return "".join(f' {k}="{v.translate(_ATTR_ESCAPES)}"' for k, v in attrs)
 
 
-def to_xml(tree: Tree | Node) -> str:
-    """The tree as a BT.CPP v4 document (indented, ending with a newline).
+def to_xml(tree: Tree | Node, *, tree_id: str = MAIN_TREE) -> str:
+    """The tree as a BT.CPP v4 document (indented, ending with a newline), as the
+    ``<BehaviorTree>`` ``tree_id`` (a learned item's file names its own, see ``sidecar``).
 
     Raises a :class:`StringBTError` for an invalid tree or for names BT.CPP cannot load.
     """
     validate(tree)
     exporter = _Exporter()
-    body = _Out("BehaviorTree", [("ID", MAIN_TREE)], [as_node(tree)])
+    body = _Out("BehaviorTree", [("ID", tree_id)], [as_node(tree)])
     lines = ['<?xml version="1.0" encoding="UTF-8"?>']
-    lines.append(f'<root BTCPP_format="4" main_tree_to_execute="{MAIN_TREE}">')
+    lines.append(f"<root{_attrs([('BTCPP_format', '4'), ('main_tree_to_execute', tree_id)])}>")
     # Convert the tree first, so the model below knows every node it used.
     _write(body, 1, exporter, lines)
     _write(_Out("TreeNodesModel", [], [*exporter.model()]), 1, exporter, lines)
@@ -345,6 +382,9 @@ _ATTRIBUTES = {
     "w": {"ticks"},
 }
 _DECORATORS = {"neg", "tt1", "tt2"}
+# The explicit form of a node stringBT maps: <Action ID="Sleep"/>, never <Condition ID="Sleep"/>.
+_EXPLICIT_TAG = {kind: "Control" for kind in ("sq", "msq", "sl", "msl", "pl")}
+_EXPLICIT_TAG.update(neg="Decorator", tt1="Decorator", tt2="Decorator", wt="Action", w="Action")
 _EXPLICIT = {"Action": "a", "Condition": "c", "Decorator": None, "Control": None}
 _HINTS = {
     "SequenceWithMemory": "it resumes at a child that failed, which stringBT cannot express",
@@ -481,6 +521,8 @@ class _Importer:
         if explicit and not ident:
             self.fail(ErrorCode.UNEXPECTED_TOKEN, f"<{tag}> needs an ID attribute", el)
         kind = _KINDS.get(ident)
+        if kind is not None and explicit and tag != _EXPLICIT_TAG[kind]:
+            self.unsupported(el, f"{ident} is BT.CPP's own {_EXPLICIT_TAG[kind]} node")
         if kind is None:
             leaf = _EXPLICIT.get(tag if explicit else self.model.get(ident, ""))
             reserved = ident in BUILTINS or ident.startswith(RESERVED_PREFIX)
@@ -518,12 +560,20 @@ class _Importer:
             self.fail(code, f"<{el.tag}> needs an integer {key}, not {text!r}", el)
         return value
 
+    def unsigned(self, el: _El, key: str) -> int:
+        """A ``ticks`` or ``msec`` port, which BT.CPP reads as an ``unsigned int``."""
+        value = self.integer(el, key)
+        if value > _MAX_TICKS:
+            message = f"<{el.tag}> {key} {value} is more than BT.CPP's unsigned int holds"
+            self.fail(ErrorCode.INVALID_DURATION, message, el)
+        return value
+
     def leaf(self, el: _El, kind: str, ident: str, negated: bool = False) -> Node:
         pos = (el.line, el.column)
         if kind == "w":
-            return Wait(self.integer(el, "ticks"), "ticks", pos=pos)
+            return Wait(self.unsigned(el, "ticks"), "ticks", pos=pos)
         if kind == "wt":
-            msec = self.integer(el, "msec")
+            msec = self.unsigned(el, "msec")
             try:
                 seconds = _seconds(msec)
             except OverflowError:
@@ -605,7 +655,7 @@ class _Importer:
             return Inverter(children, pos=pos)
         if kind in ("tt1", "tt2"):
             timer = WaitTimer if kind == "tt1" else RunTimer
-            return timer(children, self.integer(el, "ticks"), pos=pos)
+            return timer(children, self.unsigned(el, "ticks"), pos=pos)
         # BT.CPP counts a negative count from the end: -1 is all N children.
         n = len(children)
         success = self.integer(el, "success_count", "-1")

@@ -22,7 +22,7 @@ after any stop, which is where stringBT resets timers.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 try:
@@ -54,9 +54,24 @@ from ..tree import (
 )
 from ..validate import validate
 
-__all__ = ["from_py_trees_status", "to_py_trees", "to_py_trees_status"]
+__all__ = ["Behaviours", "from_py_trees_status", "origin", "to_py_trees", "to_py_trees_status"]
 
 Clock = Callable[[], float]
+Behaviours = Mapping[str, Callable[..., behaviour.Behaviour]]
+"""The user's own py_trees behaviour per leaf name, made with the leaf's arguments as keywords
+(a negated condition is its factory's behaviour under an ``Inverter``); leaves not named here
+call the registry's bound callables. Keyed by name only: a name the registry has both as a
+condition and as an action gets one factory for both."""
+ORIGIN = "ktbt_node"
+"""The attribute on every behaviour built here that holds the stringBT node it was built from."""
+
+
+def origin(made: behaviour.Behaviour) -> Node | None:
+    """The stringBT node ``made`` was built from by :func:`to_py_trees`, None if not built there."""
+    node = getattr(made, ORIGIN, None)
+    return node if isinstance(node, Node) else None
+
+
 PyStatus = common.Status
 _TO_PY = {SUCCESS: PyStatus.SUCCESS, FAILURE: PyStatus.FAILURE, RUNNING: PyStatus.RUNNING}
 _FROM_PY = {v: k for k, v in _TO_PY.items()}
@@ -221,9 +236,11 @@ def to_py_trees(
     blackboard: Any = None,
     *,
     clock: Clock = time.monotonic,
+    behaviours: Behaviours | None = None,
 ) -> behaviour.Behaviour:
     """The tree as a py_trees behaviour bound to ``registry`` and ``blackboard`` (a new
     :class:`Blackboard` if None); tick it with ``py_trees.trees.BehaviourTree(root).tick()``.
+    ``behaviours`` makes the named leaves the user's own py_trees behaviours.
 
     The tree is validated against the registry first, as :class:`LiveTree` does.
     """
@@ -233,11 +250,39 @@ def to_py_trees(
         tree = parse(tree)
     validate(tree, registry)
     bb = Blackboard() if blackboard is None else blackboard
-    return _build(as_node(tree), registry, bb, clock)
+    return build(as_node(tree), registry, bb, clock, behaviours or {})
 
 
-def _build(node: Node, registry: Registry, bb: Any, clock: Clock) -> behaviour.Behaviour:
+def build(
+    node: Node, registry: Registry, bb: Any, clock: Clock, behaviours: Behaviours
+) -> behaviour.Behaviour:
+    """A validated node as py_trees behaviours, each tagged with its stringBT node
+    (:func:`origin`)."""
+    made = _build(node, registry, bb, clock, behaviours)
+    setattr(made, ORIGIN, node)
+    return made
+
+
+def _leaf(node: Condition | Action, behaviours: Behaviours) -> behaviour.Behaviour | None:
+    factory = behaviours.get(node.name)
+    if factory is None:
+        return None
+    made = factory(**dict(node.args))
+    if not isinstance(made, behaviour.Behaviour):
+        raise TypeError(f"the factory of {node.name!r} made {made!r}, not a py_trees Behaviour")
+    if isinstance(node, Condition) and node.negated:
+        return decorators.Inverter(f"!{node.name}", made)
+    return made
+
+
+def _build(
+    node: Node, registry: Registry, bb: Any, clock: Clock, behaviours: Behaviours
+) -> behaviour.Behaviour:
     # Validation bounds the depth, so recursion is safe; py_trees ticks recursively anyway.
+    if behaviours and isinstance(node, Condition | Action):
+        own = _leaf(node, behaviours)
+        if own is not None:
+            return own
     if isinstance(node, Condition):
         holds = registry.bind_condition(node.name, bb, node.args)
         return _Condition(node.name, holds, node.negated)
@@ -250,7 +295,7 @@ def _build(node: Node, registry: Registry, bb: Any, clock: Clock) -> behaviour.B
         return _WaitSeconds(float(node.duration), clock)
     if not isinstance(node, Container):
         raise TypeError(f"not a stringBT node: {node!r}")
-    kids = [_build(child, registry, bb, clock) for child in node.children]
+    kids = [build(child, registry, bb, clock, behaviours) for child in node.children]
     if isinstance(node, Sequence):
         return composites.Sequence("Sequence*" if node.memory else "Sequence", node.memory, kids)
     if isinstance(node, Selector):

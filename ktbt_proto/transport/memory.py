@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from ..messages import Response
-from .base import Message
+from .base import Message, Received
 
 InRange = Callable[[str, str], bool]
 
@@ -130,8 +130,8 @@ class MemoryTransport:
                 if other != to:
                     network._post(self.name, other, message)
 
-    def receive(self) -> list[Message]:
-        messages = list(self._inbox)
+    def receive(self) -> list[Received]:
+        messages: list[Received] = list(self._inbox)
         self._inbox.clear()
         return messages
 

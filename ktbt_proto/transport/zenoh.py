@@ -9,10 +9,15 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
 - ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
   for the peers that overhear (``overhear``; spec section 4.3).
+- ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
+  (spec section 10).
 
-Queries are issued from a worker thread, never from a zenoh callback; every query a peer
-receives is finished (answered, refused, or dropped once its answer window passes); sessions are
-closed by :meth:`ZenohTransport.close` (use the transport as a context manager).
+A get never holds a thread: its replies are handled by a callback run where zenoh receives
+them, and the get's end by the callback's drop, so no number of silent peers or dead links slows
+an asker (spec section 3). Every query a peer receives is finished (answered, refused, or
+dropped once its answer window passes); sessions are closed by :meth:`ZenohTransport.close`
+(use the transport as a context manager). Zenoh's own errors (a get's timeout) are the
+network's, counted apart from what peers send (:class:`NetworkError`).
 
 What a hostile peer can do is bounded here (spec section 3): replies are not consolidated, so a
 silent peer delays no one and an impostor cannot replace another peer's answer; a reply counts
@@ -24,19 +29,21 @@ silently dropped.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
+from ..events import EventPublisher
 from ..messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -48,39 +55,84 @@ from ..messages import (
 )
 from ..signing import Identity, SignedItem
 from ..transferlog import TransferLog
-from .base import Message
+from .base import Message, NetworkError, Received
 
 log = logging.getLogger("ktbt.zenoh")
 
 PREFIX = "ktbt/v1"
+_M = TypeVar("_M", Query, Response, ErrorReply)
 Lookup = Callable[[str], str | SignedItem | None]
 """Sequence key -> compact subtree (signed by its author, or not), or None: answers queries
 straight from the callback."""
 
 
+RX_WORKERS = 32
+"""Zenoh's receive workers in a process (its default is 2). Closing a link that died silently
+holds a worker for the socket's linger time (10 s); with two workers, a few such links stalled
+every healthy link of the session meanwhile. With more workers the dead links are closed side by
+side and the healthy ones carry on (spec section 3)."""
+CLIENT_WAIT_MS = 10_000
+"""How long a client waits for its router at start."""
+RETRY_MAX_MS = 2_000
+"""An endpoint that does not answer is retried for ever, at most this many ms apart."""
+
+
+def stable_zid(name: str) -> str:
+    """The zenoh id a peer named ``name`` always has (16 bytes of a hash of the name, in hex,
+    never with a leading zero, which zenoh refuses): a restarted peer is the same peer to the
+    others, and their tables do not grow with every restart (spec section 3)."""
+    digest = bytearray(hashlib.sha256(b"ktbt/v1/zid\0" + name.encode()).digest()[:16])
+    digest[0] |= 0x10
+    return digest.hex()
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to reach the fleet. ``config`` is a zenoh JSON5 file (TLS, mTLS, user/password...);
-    ``listen``/``connect`` endpoints and ``mode`` are applied on top of it."""
+    ``listen``/``connect`` endpoints, ``mode``, the zenoh id ``zid`` and the connection retry
+    are applied on top of it (spec section 3)."""
 
     listen: Sequence[str] = ()
     connect: Sequence[str] = ()
     config: str | Path | None = None
     mode: str = "peer"
     multicast_scouting: bool = False
+    zid: str | None = None
+    """The session's zenoh id (``stable_zid(name)`` for a fleet member); None: a random one."""
 
     def zenoh_config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
+        if self.zid is not None:
+            conf.insert_json5("id", json.dumps(self.zid))
         if self.listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        # A peer or router tries every endpoint for ever, with a bounded period, so that one
+        # started before its neighbours, or cut off from them, finds them when they are back. A
+        # client cannot work without its router: it waits for it CLIENT_WAIT_MS at start, then
+        # fails with a message (zenoh's default is one attempt).
+        conf.insert_json5(
+            "connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": CLIENT_WAIT_MS})
+        )
+        conf.insert_json5(
+            "connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True})
+        )
+        conf.insert_json5(
+            "connect/retry",
+            json.dumps(
+                {"period_init_ms": 250, "period_max_ms": RETRY_MAX_MS, "period_increase_factor": 2}
+            ),
+        )
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         return conf
 
 
 def open_session(settings: ZenohSettings) -> zenoh.Session:
+    """A session; the first one a process opens also sizes zenoh's receive workers
+    (``RX_WORKERS``), unless ``ZENOH_RUNTIME`` says otherwise."""
+    os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_WORKERS}))")
     return zenoh.open(settings.zenoh_config())
 
 
@@ -105,8 +157,9 @@ class ZenohTransport:
     finished at once, unanswered."""
     max_pending: int = 256
     inbox_limit: int = 1024
-    max_asking: int = 8
-    """Queries waiting for the worker threads at most; a broadcast beyond is refused."""
+    max_asking: int = 32
+    """Gets of this peer's own open at once at most (each ends with its timeout at the
+    latest); a broadcast beyond is refused."""
     max_bytes: int = MAX_MESSAGE_BYTES
     identity: Identity | None = None
     """With a key pair, the replies this peer's ``lookup`` gives are hop-signed."""
@@ -124,32 +177,54 @@ class ZenohTransport:
     overheard_limit: int = 64
     """Overheard answers waiting for the agent at most; a newcomer beyond is refused, so a
     flood of published answers never takes a direct answer's place in the inbox."""
+    publish_events: bool = False
+    """Publish every event of ``log`` (one is made if there is none) on ``ktbt/v1/events/<name>``,
+    signed with ``identity`` if there is one (section 10)."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
+    network_errors: int = 0
+    """Zenoh's own errors about this peer's gets (a timeout): never a refusal."""
+    joined: int = 0
+    """Peers that appeared (their liveliness token) since this one started: a new neighbour,
+    worth asking again at once."""
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
-        self._inbox: deque[Message] = deque()
+        self._inbox: deque[Received] = deque()
         self._overheard: deque[Response] = deque()
         self._asked: deque[str] = deque(maxlen=256)
         """The ids of this peer's latest queries: a published copy of an answer to one of them
         is not overheard (the answer itself comes as a reply)."""
         self._publisher: Any = None
+        self._sink: EventPublisher | None = None
         self._asking = 0
         self._lock = threading.Lock()
         self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
-        self._workers = ThreadPoolExecutor(max_workers=2, thread_name_prefix=f"ktbt-{self.name}")
+        self.closed = False
         self._session = open_session(self.settings)
+        # Each entity's callbacks run in one Python thread of its own, for the entity's life
+        # (zenoh's default): faster than taking the GIL from zenoh's own threads.
         try:
             self._declared: list[Any] = [
                 self._session.declare_queryable(f"{PREFIX}/knowledge/{self.name}", self._on_query),
                 self._session.declare_queryable(f"{PREFIX}/catalog/{self.name}", self._on_catalog),
                 self._session.declare_subscriber(f"{PREFIX}/inbox/{self.name}", self._on_inbox),
                 self._session.liveliness().declare_token(f"{PREFIX}/peers/{self.name}"),
+                self._session.liveliness().declare_subscriber(
+                    f"{PREFIX}/peers/*", self._on_presence
+                ),
             ]
             if self.publish_answers:
                 self._publisher = self._session.declare_publisher(f"{PREFIX}/answers/{self.name}")
                 self._declared.append(self._publisher)
+            if self.publish_events:
+                self.log = self.log or TransferLog(None)
+                events, publisher = EventPublisher.on_session(
+                    self._session, self.name, identity=self.identity
+                )
+                self._declared.append(publisher)
+                self.log.add_sink(events)
+                self._sink = events
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(
@@ -161,29 +236,12 @@ class ZenohTransport:
         except BaseException:
             self._session.close()
             raise
-        self.closed = False
 
     # -- the Transport interface ----------------------------------------------------------------
 
     def broadcast(self, message: Message) -> None:
-        """Ask every reachable peer (a get from a worker thread); answers arrive in the inbox."""
-        if self.closed:
-            return
-        with self._lock:
-            full = self._asking >= self.max_asking
-            if not full:
-                self._asking += 1
-        if full:
-            self._refuse(f"query {message.id} not sent: {self.max_asking} queries already waiting")
-            return
-        self._workers.submit(self._ask_queued, message)
-
-    def _ask_queued(self, message: Message) -> None:
-        try:
-            self._ask(message)
-        finally:
-            with self._lock:
-                self._asking -= 1
+        """Ask every reachable peer; returns at once, and answers arrive in the inbox."""
+        self._get(message, self.query_timeout)
 
     def _refuse(self, reason: str, **fields: Any) -> None:
         """Count, log and record one refusal (spec section 2: every refusal is counted)."""
@@ -193,7 +251,7 @@ class ZenohTransport:
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
-    def _deliver(self, message: Message) -> None:
+    def _deliver(self, message: Received) -> None:
         """Into the inbox, unless it is full: then the newcomer is refused, and what arrived
         first (the first answer, which wins) is kept."""
         with self._lock:
@@ -201,10 +259,7 @@ class ZenohTransport:
             if not full:
                 self._inbox.append(message)
         if full:
-            self._refuse(
-                f"inbox full ({self.inbox_limit} messages): a {message.type} from "
-                f"{message.sender} is dropped"
-            )
+            self._refuse(f"inbox full ({self.inbox_limit} messages): a {message.type} is dropped")
 
     def send(self, to: str, message: Message) -> None:
         """Answer a query this peer received, or put the message in ``to``'s inbox."""
@@ -232,7 +287,7 @@ class ZenohTransport:
         if self._publisher is not None:
             self._publisher.put(payload)
 
-    def receive(self) -> list[Message]:
+    def receive(self) -> list[Received]:
         self._expire()
         with self._lock:
             messages = list(self._inbox)
@@ -245,11 +300,12 @@ class ZenohTransport:
         if self.closed:
             return
         self.closed = True
-        self._workers.shutdown(wait=True, cancel_futures=True)
         with self._lock:
             pending, self._pending = self._pending, {}
         for query, _ in pending.values():
             query.drop()
+        if self._sink is not None and self.log is not None:
+            self.log.remove_sink(self._sink)
         for entity in self._declared:
             entity.undeclare()
         self._session.close()
@@ -268,64 +324,85 @@ class ZenohTransport:
         timeout: float | None = None,
         on_answer: Callable[[Response], None] | None = None,
     ) -> list[Response]:
-        """Broadcast ``query`` and wait for the answers (blocking; for tools and tests).
-        ``on_answer`` sees each answer the moment it arrives."""
-        return self._ask(query, timeout, keep=False, on_answer=on_answer)
-
-    def _ask(
-        self,
-        message: Message,
-        timeout: float | None = None,
-        keep: bool = True,
-        on_answer: Callable[[Response], None] | None = None,
-    ) -> list[Response]:
-        """One get. Replies are not consolidated: each is handled as it arrives. A reply is an
-        answer only if it is a response to this query, on its sender's own key, and the first
-        from that key."""
+        """Broadcast ``query`` and wait until the get ends, in the caller's thread (for tools,
+        tests and benchmarks; an agent uses :meth:`broadcast`). ``on_answer`` sees each answer
+        the moment it arrives."""
         answers: list[Response] = []
         heard: set[str] = set()
         with self._lock:
-            self._asked.append(message.id)
-        try:
+            self._asked.append(query.id)
+        try:  # the caller's own thread waits, reading the replies as they arrive
             replies = self._session.get(
                 f"{PREFIX}/knowledge/*",
-                payload=encode(message),
+                payload=encode(query),
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=self.query_timeout if timeout is None else timeout,
                 allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
             )
             for reply in replies:
-                answer = self._reply(reply, message, heard)
-                if answer is None:
-                    continue
-                answers.append(answer)
-                if on_answer is not None:
-                    on_answer(answer)
-                if keep:
-                    self._deliver(answer)
+                answer = self._reply(reply, query, heard)
+                if answer is not None:
+                    answers.append(answer)
+                    if on_answer is not None:
+                        on_answer(answer)
         except Exception:  # a closing session; the query is simply lost
             log.debug("%s: query failed", self.name, exc_info=True)
         return answers
 
-    def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
-        """The answer a reply carries, or None (refused and counted, or a peer's error)."""
-        sample = reply.ok if reply.ok is not None else reply.err
-        key = str(getattr(sample, "key_expr", "")) if reply.ok is not None else ""
+    def _get(self, message: Message, timeout: float) -> None:
+        """One get, which holds no thread: each reply is handled as it arrives by a callback run
+        in zenoh's own thread (replies are not consolidated), and the get's end by the
+        callback's drop. A reply is an answer only if it is a response to this query, on its
+        sender's own key, and the first from that key; answers go to the inbox."""
+        if self.closed:
+            return
+        with self._lock:
+            full = self._asking >= self.max_asking
+            if not full:
+                self._asking += 1
+                self._asked.append(message.id)
+        if full:
+            self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
+            return
+        heard: set[str] = set()
+        ended = threading.Event()
+
+        def on_reply(reply: Any) -> None:
+            if not self.closed:
+                answer = self._reply(reply, message, heard)
+                if answer is not None:
+                    self._deliver(answer)
+
+        def on_end() -> None:
+            with self._lock:
+                self._asking -= 1
+            ended.set()
+
         try:
-            answer = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a reply to {asked.id}: {exc.reason}", key=key)
+            self._session.get(
+                f"{PREFIX}/knowledge/*",
+                zenoh.handlers.Callback(on_reply, on_end, indirect=False),
+                payload=encode(message),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=timeout,
+                allowed_destination=zenoh.Locality.REMOTE,  # not our own queryable
+            )
+        except Exception:  # a closing session: the query is simply lost
+            log.debug("%s: query failed", self.name, exc_info=True)
+            if not ended.is_set():
+                on_end()
+
+    def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
+        """The answer a reply carries, or None: refused and counted, a peer's error, or the
+        network's (section 3)."""
+        if reply.ok is None:
+            self._reply_error(reply.err.payload.to_bytes(), asked)
             return None
-        if isinstance(answer, ErrorReply):
-            log.info("%s: %s refused query %s: %s", self.name, answer.sender, asked.id, answer)
-            if self.log is not None:
-                self.log.record(
-                    "error-received", peer=self.name, sender=answer.sender, reason=answer.message
-                )
-            return None
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} sent as a reply", key=key)
+        key = str(reply.ok.key_expr)
+        answer = self._decoded(reply.ok.payload.to_bytes(), Response, f"a reply to {asked.id}", key)
+        if answer is None:
             return None
         if key != f"{PREFIX}/knowledge/{answer.sender}":
             self._refuse(f"a reply naming {answer.sender} came on {key[:80]}", key=key)
@@ -337,11 +414,56 @@ class ZenohTransport:
         if why is not None:
             self._refuse(f"from {answer.sender}: {why}", key=key)
             return None
-        if key in heard:
+        with self._lock:
+            again = key in heard
+            heard.add(key)
+        if again:
             self._refuse(f"another reply from {answer.sender} to the same query", key=key)
             return None
-        heard.add(key)
         return answer
+
+    def _reply_error(self, payload: bytes, asked: Message) -> None:
+        """A reply error. A peer's is an error message (a JSON object, section 1), logged; what
+        zenoh itself sends (``Timeout``, as text) is the network's: counted apart, handed to the
+        agent as a :class:`NetworkError`, never decoded as a peer's message nor refused."""
+        if not payload.lstrip().startswith(b"{"):
+            reason = payload[:80].decode("utf-8", "replace").strip() or "no reason given"
+            reason = "".join(c if c.isprintable() else "?" for c in reason)
+            with self._lock:
+                self.network_errors += 1
+            log.debug("%s: query %s: network error: %s", self.name, asked.id, reason)
+            self._deliver(NetworkError(asked.id, reason))
+            return
+        error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
+        if error is None:
+            return
+        log.info("%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message)
+        if self.log is not None:
+            self.log.record(
+                "error-received", peer=self.name, sender=error.sender, reason=error.message
+            )
+
+    def _decoded(self, payload: bytes, kind: type[_M], what: str, key: str = "") -> _M | None:
+        """``payload`` as a message of the ``kind`` expected where it came (``what``); anything
+        else is refused and counted, with the key it came on."""
+        fields = {"key": key[:80]} if key else {}
+        try:
+            message = decode(payload, self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"{what}: {exc.reason}", **fields)
+            return None
+        if not isinstance(message, kind):
+            self._refuse(f"{what}: a {message.type} from {message.sender}", **fields)
+            return None
+        return message
+
+    def _on_presence(self, sample: Any) -> None:
+        """A peer's liveliness token appeared (or went): a new neighbour is counted."""
+        if sample.kind == zenoh.SampleKind.PUT and not str(sample.key_expr).endswith(
+            f"/{self.name}"
+        ):
+            with self._lock:
+                self.joined += 1
 
     # -- being asked ------------------------------------------------------------------------------
 
@@ -399,13 +521,8 @@ class ZenohTransport:
         if found is None:
             return
         item = found if isinstance(found, SignedItem) else SignedItem(found)
-        response = Response(
-            id=message.id,
-            sender=self.name,
-            sequence=message.sequence,
-            subtree=item.subtree,
-            author=item.author,
-            signature=item.signature,
+        response = Response.of(
+            message.id, self.name, message.sequence, item.subtree, item.author, item.signature
         )
         if self.identity is not None:
             response = self.identity.sign_reply(response)
@@ -430,15 +547,9 @@ class ZenohTransport:
     def _on_inbox(self, sample: Any) -> None:
         """A late answer. Only a response is taken: a query arrives only through the
         queryable, where zenoh knows it came from a get."""
-        try:
-            message = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"a message in the inbox: {exc.reason}")
-            return
-        if not isinstance(message, Response):
-            self._refuse(f"a {message.type} from {message.sender} put in the inbox")
-            return
-        self._deliver(message)
+        message = self._decoded(sample.payload.to_bytes(), Response, "a message in the inbox")
+        if message is not None:
+            self._deliver(message)
 
     def _on_answer(self, sample: Any) -> None:
         """An answer another peer published (section 4.3), checked as a reply is: within the
@@ -446,13 +557,8 @@ class ZenohTransport:
         passing the trust policy; then queued for the agent, a newcomer to a full queue refused.
         A copy of an answer to this peer's own query is left to the reply."""
         key = str(sample.key_expr)
-        try:
-            answer = decode(sample.payload.to_bytes(), self.max_bytes)
-        except MessageRefused as exc:
-            self._refuse(f"an overheard answer: {exc.reason}", key=key[:80])
-            return
-        if not isinstance(answer, Response):
-            self._refuse(f"a {answer.type} from {answer.sender} published as an answer", key=key)
+        answer = self._decoded(sample.payload.to_bytes(), Response, "an overheard answer", key)
+        if answer is None:
             return
         if key != f"{PREFIX}/answers/{answer.sender}" or answer.sender == self.name:
             self._refuse(f"an answer naming {answer.sender} came on {key[:80]}", key=key[:80])
@@ -485,30 +591,43 @@ class ZenohTransport:
             query.drop()
 
 
-def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
-    """Each peer's catalog entries as ``{"sequence": ..., "author": ..., ...}``; a reply on a
-    key that is not a catalog, too large, or not a JSON array is ignored."""
-    out: dict[str, list[dict[str, str]]] = {}
-    for reply in owner._session.get(f"{PREFIX}/catalog/*", timeout=timeout):
+def catalog_replies(
+    session: zenoh.Session, timeout: float, refused: Callable[[str], None] | None = None
+) -> Iterator[tuple[str, list[dict[str, str]]]]:
+    """Each peer's catalog, as its name and its entries ``{"sequence": ..., "author": ...,
+    ...}`` (a sequence whole, other values clipped to 200 characters); a reply too large or not
+    a JSON array is skipped, and ``refused`` told why."""
+    for reply in session.get(f"{PREFIX}/catalog/*", timeout=timeout):
         if reply.ok is None:
             continue
         name = str(reply.ok.key_expr).rsplit("/", 1)[-1]
         payload = reply.ok.payload.to_bytes()
+        why = None
         if len(payload) > MAX_MESSAGE_BYTES:
-            continue
-        try:
-            value = json.loads(payload)
-        except (ValueError, RecursionError):  # a peer's garbage is its own problem
-            continue
-        if not isinstance(value, list):
+            why = f"catalog of {name[:64]!r}: {len(payload)} bytes"
+        else:
+            try:
+                value = json.loads(payload)
+            except (ValueError, RecursionError):  # a peer's garbage is its own problem
+                value = None
+            if not isinstance(value, list):
+                why = f"catalog of {name[:64]!r}: not a JSON array"
+        if why is not None:
+            if refused is not None:
+                refused(why)
             continue
         entries = []
         for v in value:
             if isinstance(v, dict) and isinstance(v.get("sequence"), str):
-                entries.append({str(k): str(x)[:200] for k, x in v.items()})
+                entry = {str(k): str(x)[:200] for k, x in v.items()}
+                entries.append({**entry, "sequence": v["sequence"]})
             elif not isinstance(v, dict | list):
                 entries.append({"sequence": str(v)})
-        out[name] = entries
+        yield name, entries
+
+
+def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
+    out = dict(catalog_replies(owner._session, timeout))
     out.pop(owner.name, None)
     return out
 

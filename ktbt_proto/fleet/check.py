@@ -1,0 +1,382 @@
+"""The properties of a fleet run, checked over its record as Jepsen's checkers read a history
+(``events.jsonl``; README section "A fleet on one machine").
+
+Each property gives a verdict: ``pass``, ``fail`` (with what broke it) or ``skipped`` (with
+why: a skipped fault is never a passed one). A fault the scenario asked for passes only when
+the record shows it happened: the proxies' counters (bytes held, connections reset, chunks
+delayed), the kernel's (packets dropped) and the peers' own events (no answer crossed a
+partition, answers came no sooner than the delay allows).
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from collections import defaultdict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+Status = Literal["pass", "fail", "skipped"]
+RSS_GROWTH = 0.20
+"""Median resident memory of the peers never killed may grow by at most this fraction from
+the end of the first churn round to the end of the run."""
+RSS_SLACK_KB = 4096
+FD_GROWTH = 16
+"""File descriptors of any peer never killed (and of the runner) may grow by at most this."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    name: str
+    status: Status
+    detail: str
+
+
+def read_record(path: Path) -> list[dict[str, Any]]:
+    events = []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            if line.strip():
+                events.append(json.loads(line))
+    return events
+
+
+class History:
+    """A record, indexed for the checks."""
+
+    def __init__(self, events: list[dict[str, Any]]) -> None:
+        self.events = events
+        run = next((e for e in events if e["kind"] == "run"), None)
+        if run is None:
+            raise ValueError("not a fleet record: no run event")
+        self.config: dict[str, Any] = run["config"]
+        self.plan: dict[str, Any] = run["plan"]
+        self.items: dict[str, str] = run["items"]
+        self.peers = [n["name"] for n in self.plan["nodes"] if n["role"] != "router"]
+        self.learners = [n["name"] for n in self.plan["nodes"] if n["role"] == "learner"]
+
+    def of(self, kind: str) -> list[dict[str, Any]]:
+        return [e for e in self.events if e["kind"] == kind]
+
+    def one(self, kind: str) -> dict[str, Any] | None:
+        found = self.of(kind)
+        return found[-1] if found else None
+
+    def lives(self) -> dict[tuple[str, int], dict[str, Any]]:
+        """(peer, life) -> its launch event, with ``up`` (time or None) added."""
+        out = {(e["peer"], e["life"]): {**e, "up": None} for e in self.of("launch")}
+        for e in self.of("up"):
+            if (e["peer"], e["life"]) in out:
+                out[(e["peer"], e["life"])]["up"] = e["t"]
+                out[(e["peer"], e["life"])]["knows"] = e.get("knows")
+        return out
+
+    def last_lives(self) -> dict[str, dict[str, Any]]:
+        last: dict[str, dict[str, Any]] = {}
+        for (peer, number), life in sorted(self.lives().items()):
+            if peer in self.peers and (peer not in last or number > last[peer]["life"]):
+                last[peer] = life
+        return last
+
+    def merges(self) -> dict[tuple[str, int], list[dict[str, Any]]]:
+        out: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
+        for e in self.of("merged"):
+            out[(e["peer"], e["life"])].append(e)
+        return out
+
+
+def check(events: list[dict[str, Any]]) -> list[Verdict]:
+    h = History(events)
+    return [
+        _completed(h),
+        _convergence(h),
+        _no_duplicates(h),
+        _saved_files(h),
+        _kills_lose_nothing(h),
+        *_faults(h),
+        _bounded(h),
+    ]
+
+
+def _completed(h: History) -> Verdict:
+    aborted = h.one("aborted")
+    if aborted is not None:
+        return Verdict("completed", "fail", aborted["reason"])
+    if h.one("end") is None:
+        return Verdict("completed", "fail", "the record stops before the run's end")
+    return Verdict("completed", "pass", "the schedule ran to its end")
+
+
+def convergence_time(h: History, among: set[str] | None = None) -> float | None:
+    """When the last peer (in its last life; of ``among``, if given) knew every item, or None
+    if one never did."""
+    merges = h.merges()
+    latest = 0.0
+    for peer, life in h.last_lives().items():
+        if among is not None and peer not in among:
+            continue
+        if life["up"] is None:
+            return None
+        known = set(life.get("known", []))
+        when = life["up"]
+        for m in sorted(merges.get((peer, life["life"]), []), key=lambda e: e["t"]):
+            if m["sequence"] in h.items and m["sequence"] not in known:
+                known.add(m["sequence"])
+                when = max(when, m["t"])
+        if not set(h.items) <= known:
+            return None
+        latest = max(latest, when)
+    return latest
+
+
+def reference_time(h: History) -> float:
+    ref = h.one("reference")
+    return float(ref["at"]) if ref is not None else 0.0
+
+
+def _convergence(h: History) -> Verdict:
+    done, ref, bound = convergence_time(h), reference_time(h), float(h.config["bound"])
+    if done is None:
+        missing = []
+        merges = h.merges()
+        for peer, life in h.last_lives().items():
+            known = set(life.get("known", [])) | {
+                m["sequence"] for m in merges.get((peer, life["life"]), [])
+            }
+            if not set(h.items) <= known:
+                missing.append(f"{peer} ({len(known & set(h.items))}/{len(h.items)})")
+        return Verdict("convergence", "fail", "never knew every item: " + ", ".join(missing))
+    took = max(0.0, done - ref)
+    status: Status = "pass" if took <= bound else "fail"
+    return Verdict("convergence", status, f"{took:.2f} s after the reference (bound {bound:g} s)")
+
+
+def _no_duplicates(h: History) -> Verdict:
+    lives, dups = h.lives(), []
+    for (peer, number), merged in h.merges().items():
+        known = set(lives.get((peer, number), {}).get("known", []))
+        for m in sorted(merged, key=lambda e: e["t"]):
+            if m["sequence"] in known:
+                dups.append(f"{peer} life {number}: {m['sequence']} at {m['t']:.2f} s")
+            known.add(m["sequence"])
+    if dups:
+        return Verdict("no duplicate merge", "fail", "; ".join(dups[:5]))
+    total = len(h.of("merged"))
+    return Verdict("no duplicate merge", "pass", f"{total} merges, each once per peer life")
+
+
+def _saved_files(h: History) -> Verdict:
+    finals, bad = h.of("final"), []
+    if not finals:
+        return Verdict("saved files", "fail", "no save file was read at the end")
+    for e in finals:
+        saved = e["saved"]
+        if isinstance(saved, str):
+            bad.append(f"{e['peer']}: {saved}")
+            continue
+        for sequence, dig in saved.items():
+            if sequence not in h.items:
+                bad.append(f"{e['peer']}: foreign item {sequence}")
+            elif dig != h.items[sequence]:
+                bad.append(f"{e['peer']}: {sequence} differs from its author's")
+    if bad:
+        return Verdict("saved files", "fail", "; ".join(bad[:5]))
+    items = sum(len(e["saved"]) for e in finals)
+    return Verdict(
+        "saved files", "pass", f"{len(finals)} files, {items} items, every digest its author's"
+    )
+
+
+def _kills_lose_nothing(h: History) -> Verdict:
+    kills = h.of("kill")
+    if not kills:
+        return Verdict("kill -9 loses nothing saved", "skipped", "no peer was killed")
+    lives, merges, lost = h.lives(), h.merges(), []
+    finals = {e["peer"]: e["saved"] for e in h.of("final")}
+    for k in kills:
+        saved = k["saved"]
+        if isinstance(saved, str):
+            lost.append(f"{k['peer']}: save file after the kill {saved}")
+            continue
+        after = lives.get((k["peer"], k["life"] + 1))
+        if after is None:
+            lost.append(f"{k['peer']}: never restarted after its kill")
+            continue
+        if after.get("knows") is not None and after["knows"] < len(saved):
+            lost.append(f"{k['peer']}: restarted knowing {after['knows']} of {len(saved)} saved")
+        again = {m["sequence"] for m in merges.get((k["peer"], k["life"] + 1), [])} & set(saved)
+        if again:
+            lost.append(f"{k['peer']}: learned again what it had saved: {sorted(again)}")
+        final = finals.get(k["peer"])
+        if isinstance(final, dict) and not set(saved) <= set(final):
+            lost.append(f"{k['peer']}: its last save lacks {sorted(set(saved) - set(final))}")
+    if lost:
+        return Verdict("kill -9 loses nothing saved", "fail", "; ".join(lost[:5]))
+    held = sum(len(k["saved"]) for k in kills)
+    return Verdict(
+        "kill -9 loses nothing saved", "pass", f"{len(kills)} kills, {held} saved items all kept"
+    )
+
+
+def _faults(h: History) -> list[Verdict]:
+    cfg, out = h.config, []
+    starts = {e["fault"]: e for e in h.of("fault") if e["phase"] == "start"}
+    ends = {e["fault"]: e for e in h.of("fault") if e["phase"] == "end"}
+    skipped = {e["fault"]: e["reason"] for e in h.of("skipped")}
+    if cfg["loss"]:
+        ev = ends.get("loss", {}).get("evidence", {})
+        if "loss" in skipped:
+            out.append(Verdict("fault: loss", "skipped", skipped["loss"]))
+        elif ev.get("dropped", 0) > 0:
+            out.append(Verdict("fault: loss", "pass", f"{ev['dropped']} packets dropped"))
+        else:
+            out.append(Verdict("fault: loss", "fail", "no packet was dropped"))
+    if cfg["delay"]:
+        ev = ends.get("delay", {}).get("evidence", {})
+        fastest = _fastest_answer(h)
+        floor = 2 * float(cfg["delay"])
+        if not ev.get("delayed_chunks"):
+            out.append(Verdict("fault: delay", "fail", "no chunk was delayed"))
+        elif fastest is not None and fastest < floor * 0.9:
+            out.append(
+                Verdict("fault: delay", "fail", f"an answer came in {fastest:.3f} s < {floor:g} s")
+            )
+        else:
+            shown = "no answer timed" if fastest is None else f"fastest answer {fastest:.3f} s"
+            out.append(
+                Verdict("fault: delay", "pass", f"{ev['delayed_chunks']} chunks delayed; {shown}")
+            )
+    if cfg["partition"] and cfg["partition_kind"] != "none":
+        out.append(_partition(h, starts, ends))
+    if cfg["churn"]:
+        kills = [k for k in h.of("kill") if k.get("returncode") == -9]
+        expected = sum(len(v) for v in h.plan["victims"])
+        if len(kills) == expected and expected:
+            out.append(Verdict("fault: churn", "pass", f"{len(kills)} peers killed by SIGKILL"))
+        else:
+            out.append(
+                Verdict("fault: churn", "fail", f"{len(kills)} of {expected} kills happened")
+            )
+    if not out:
+        out.append(Verdict("faults", "skipped", "none scheduled (a baseline)"))
+    return out
+
+
+def _fastest_answer(h: History) -> float | None:
+    sent = {(e["peer"], e.get("id")): e["t"] for e in h.of("query-sent")}
+    times = [
+        e["t"] - sent[(e["peer"], e.get("id"))]
+        for e in h.of("answer-received")
+        if (e["peer"], e.get("id")) in sent
+    ]
+    return min(times) if times else None
+
+
+def _partition(h: History, starts: dict[str, Any], ends: dict[str, Any]) -> Verdict:
+    name = f"partition-{h.config['partition_kind']}"
+    start, end = starts.get(name), ends.get(name)
+    if start is None or end is None:
+        return Verdict(f"fault: {name}", "fail", "the partition never started or never healed")
+    ev = end.get("evidence", {})
+    if name == "partition-silent":
+        injected = ev.get("chunks_held", 0) + ev.get("connections_held", 0)
+        held, waiting = ev.get("chunks_held", 0), ev.get("connections_held", 0)
+        what = f"{held} chunks and {waiting} connections held"
+    else:
+        injected = ev.get("resets", 0) + ev.get("refused", 0)
+        what = f"{ev.get('resets', 0)} connections reset, {ev.get('refused', 0)} refused"
+    if not injected:
+        return Verdict(f"fault: {name}", "fail", "nothing was held or cut on the crossing links")
+    half = start.get("half", {})
+    leaks = [
+        f"{e['peer']} heard {e['sender']} at {e['t']:.2f} s"
+        for e in h.of("answer-received")
+        if start["t"] < e["t"] < end["t"] - 0.5
+        and e.get("sender") in half
+        and half.get(e["peer"]) != half.get(e["sender"])
+    ]
+    if leaks:
+        return Verdict(f"fault: {name}", "fail", "answers crossed it: " + "; ".join(leaks[:3]))
+    return Verdict(f"fault: {name}", "pass", f"{what}; no answer crossed it")
+
+
+def _bounded(h: History) -> Verdict:
+    rounds = [e for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "start"]
+    if len(rounds) < 2:
+        return Verdict("memory and descriptors bounded", "skipped", "needs two churn rounds")
+    killed = {k["peer"] for k in h.of("kill")}
+    first = rounds[1]["t"]  # after the first round: every peer up and settled once
+    before: dict[str, dict[str, Any]] = {}
+    after: dict[str, dict[str, Any]] = {}
+    for s in h.of("sample"):
+        if s["peer"] in killed:
+            continue
+        if s["t"] <= first:
+            before[s["peer"]] = s
+        else:
+            after[s["peer"]] = s
+    both = sorted(set(before) & set(after))
+    if not both:
+        return Verdict("memory and descriptors bounded", "skipped", "no samples across rounds")
+    peers = [p for p in both if p != "runner"]
+    growth = [
+        (after[p]["rss_kb"] - before[p]["rss_kb"] - RSS_SLACK_KB) / before[p]["rss_kb"]
+        for p in peers
+    ]
+    median = statistics.median(growth) if growth else 0.0
+    fds = {p: after[p]["fds"] - before[p]["fds"] for p in both}
+    worst = max(fds, key=lambda p: fds[p])
+    detail = (
+        f"{len(rounds)} rounds: median RSS growth {max(median, 0.0) * 100:.1f} % "
+        f"(bound {RSS_GROWTH * 100:g} %), most descriptors gained {fds[worst]} ({worst})"
+    )
+    ok = median <= RSS_GROWTH and fds[worst] <= FD_GROWTH
+    return Verdict("memory and descriptors bounded", "pass" if ok else "fail", detail)
+
+
+def metrics(h: History) -> dict[str, Any]:
+    """The numbers of a run: convergence after the reference, messages per learned item..."""
+    done, ref = convergence_time(h), reference_time(h)
+    counted = [e for e in h.events if e["kind"] in ("query-sent", "answer-sent")]
+    messages = len([e for e in counted if e.get("to") != "fleet-probe"])
+    merged = len(h.of("merged"))
+    up = h.one("all-up")
+    half = {p for p, side in h.plan["half"].items() if side == 0}
+    teacher_half = convergence_time(h, half) if half and up is not None else None
+    floor = h.one("floor") or {}
+    ends = {
+        e["round"]: e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end"
+    }
+    rounds = [e["t"] - ends[e["round"]] for e in h.of("round-converged") if e["round"] in ends]
+    return {
+        "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
+        "all_up_s": None if up is None else up["t"],
+        "reference_s": ref,
+        "teacher_half_s": None
+        if teacher_half is None or up is None
+        else round(max(0.0, teacher_half - up["t"]), 3),
+        "churn_convergence_s": round(max(rounds), 3) if rounds else None,
+        "messages": messages,
+        "learned": merged,
+        "messages_per_item": round(messages / merged, 2) if merged else None,
+        "floor_s": floor.get("median_s"),
+        "refused": len(h.of("refused")),
+        "error_replies": len(h.of("error-received")),
+        "network_errors": len(h.of("network-error")),
+    }
+
+
+def check_record(folder: Path) -> dict[str, Any]:
+    """Check a run's record; the summary the runner writes to ``summary.json``."""
+    events = read_record(folder / "events.jsonl")
+    h = History(events)
+    verdicts = check(events)
+    return {
+        "name": h.config["name"],
+        "config": h.config,
+        "faults": [v.name for v in verdicts if v.name.startswith("fault")],
+        "verdicts": [asdict(v) for v in verdicts],
+        "passed": all(v.status != "fail" for v in verdicts),
+        **metrics(h),
+    }

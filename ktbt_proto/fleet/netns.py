@@ -1,0 +1,91 @@
+"""The fault layer's kernel half: a network namespace of the run's own (an isolated loopback,
+so its rules touch nothing else on the machine) and packet loss in it with nftables
+(``numgen random mod 100 < P drop``, counted). Loss applies between the proxies and the peers
+they connect to (both ends in 127.1.0.0/16), in both directions of every link.
+
+Where the machine does not allow it (not root, no ``ip``, no ``nft``) :func:`unavailable` says
+why, and the run reports loss as skipped."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+
+TABLE = "ktbt_fleet"
+
+
+def _run(*args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(list(args), input=stdin, capture_output=True, text=True, timeout=20)
+
+
+def unavailable(need_nft: bool) -> str | None:
+    """Why a namespace (with nftables, if ``need_nft``) cannot be made here; None if it can."""
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    if shutil.which("ip") is None:
+        return "no `ip` command (apt-get install -y iproute2)"
+    if need_nft and shutil.which("nft") is None:
+        return "no `nft` command (apt-get install -y nftables)"
+    return None
+
+
+def create(name: str) -> None:
+    done = _run("ip", "netns", "add", name)
+    if done.returncode != 0:
+        raise OSError(f"ip netns add {name}: {done.stderr.strip()}")
+    up = _run("ip", "-n", name, "link", "set", "lo", "up")
+    if up.returncode != 0:
+        delete(name)
+        raise OSError(f"cannot bring loopback up in {name}: {up.stderr.strip()}")
+
+
+def add_loss(name: str, fraction: float) -> None:
+    """Drop ``fraction`` of the packets between proxies and peers, counted."""
+    percent = round(fraction * 100)
+    rules = (
+        f"table inet {TABLE} {{\n"
+        "  chain out {\n"
+        "    type filter hook output priority 0; policy accept;\n"
+        f"    ip saddr 127.1.0.0/16 ip daddr 127.1.0.0/16 numgen random mod 100 < {percent}"
+        " counter drop\n"
+        "  }\n"
+        "}\n"
+    )
+    done = _run("ip", "netns", "exec", name, "nft", "-f", "-", stdin=rules)
+    if done.returncode != 0:
+        raise OSError(f"nft in {name}: {done.stderr.strip()}")
+
+
+def dropped() -> int | None:
+    """Packets the loss rule of the namespace this process runs in dropped (None: no rule)."""
+    done = _run("nft", "-j", "list", "table", "inet", TABLE)
+    if done.returncode != 0:
+        return None
+    total = 0
+    for entry in json.loads(done.stdout).get("nftables", []):
+        for expr in entry.get("rule", {}).get("expr", []):
+            if "counter" in expr:
+                total += int(expr["counter"]["packets"])
+    return total
+
+
+def pids(name: str) -> list[int]:
+    done = _run("ip", "netns", "pids", name)
+    return [int(p) for p in done.stdout.split() if p.isdigit()]
+
+
+def delete(name: str) -> None:
+    """Kill what still runs in the namespace (only ours run there) and delete it: its rules
+    go with it."""
+    for pid in pids(name):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    _run("ip", "netns", "del", name)
+
+
+def exists(name: str) -> bool:
+    return name in _run("ip", "netns", "list").stdout.split()

@@ -1,0 +1,143 @@
+"""Learning for a BehaviorTree.CPP program: each learned item as a BT.CPP document in a folder.
+
+A running BT.CPP tree cannot be edited, so a KT-BT agent beside the program learns for it and
+:class:`LearnedExport` mirrors what the agent has learned into a folder (spec/stringbt.md,
+section 12.1): one file per item, ``NNNNNN-<placeholder>-<digest>.xml``, whose one
+``<BehaviorTree ID="ktbt-<placeholder>-<digest>">`` is the item ``Sequence(conditions,
+subtree)``. ``NNNNNN`` (six digits or more) numbers the items in the order they were learned,
+so the program places them in that order; the digest names the item's placeholder, condition
+sequence and subtree, so an item learned again with another subtree gets a new file. A file is
+replaced whole (``ktbt_proto.files``), so the program never reads half of one, and it is removed
+at the first sync after the agent forgets its item. An item BT.CPP could not load (a node named
+like one of its built-ins) is refused with its reason, logged once and not written. The export
+only observes the agent's knowledge base (:meth:`LearnedExport.sync`, after each tick): it
+changes nothing in the agent.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+from ..errors import StringBTError
+from ..files import fsync_folder, write_atomic
+from ..format import format as format_tree
+from ..knowledge import Knowledge, remove_stale_temporaries
+from ..syntax import NAME_PATTERN, NAME_RE
+from .btcpp import btcpp_name, to_xml
+
+__all__ = ["LearnedExport"]
+
+log = logging.getLogger(__name__)
+
+_FILE = re.compile(
+    rf"(?P<number>[0-9]{{6,}})-(?P<slot>{NAME_PATTERN})-(?P<digest>[0-9a-f]{{16}})\.xml"
+)
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9]+\.[0-9a-f]+\.tmp")
+
+
+def item_digest(item: Knowledge) -> str:
+    """Names an item by its placeholder, condition sequence and subtree (section 12.1)."""
+    text = f"{item.segment}\n{item.key}\n{format_tree(item.subtree, 'compact')}"
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def tree_id(item: Knowledge) -> str:
+    return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item)}"
+
+
+class LearnedExport:
+    """Keeps ``folder`` holding exactly one BT.CPP file per learned item.
+
+    Files of this pattern already in the folder (a previous run's) are adopted when their item
+    is still known, with their number, and removed at the first :meth:`sync` otherwise; the
+    temporary files a write killed midway left are removed at once. Other files are left alone.
+    A file that cannot be written or removed is logged and tried again at the next sync, with
+    the number it was given, never raised into the agent's loop.
+    """
+
+    def __init__(self, folder: str | os.PathLike[str]) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.files: dict[tuple[str, str], Path] = {}  # (placeholder, digest) -> file
+        self.errors = 0
+        """Writes and removals that failed (the folder's own errors, not a peer's)."""
+        self.refused: dict[tuple[str, str], str] = {}
+        """Items BT.CPP could not load (a name it reserves, say), with the reason: logged once,
+        never written while the agent knows them. The agent may still run them; the BT.CPP
+        program does not get them."""
+        self._numbers: dict[tuple[str, str], int] = {}  # reserved, also for a failed write
+        self._next = 1
+        for path in sorted(self.folder.iterdir()):
+            match = _FILE.fullmatch(path.name)
+            if match is not None:
+                key = (match["slot"], match["digest"])
+                self.files[key] = path
+                self._numbers[key] = int(match["number"])
+                self._next = max(self._next, int(match["number"]) + 1)
+            left = _TEMPORARY.fullmatch(path.name)
+            if left is not None and _FILE.fullmatch(left["name"]):
+                for tmp in remove_stale_temporaries(self.folder / left["name"]):
+                    log.info("removed %s (left by an interrupted write)", tmp.name)
+        self._known: frozenset[tuple[str, str]] | None = None
+
+    def sync(self, knowledge: Iterable[Knowledge]) -> None:
+        """Write the learned items (``source`` set) that have no file yet, in the order given,
+        and remove the files of items no longer there. Cheap when nothing changed."""
+        learned = [item for item in knowledge if item.source is not None]
+        known = frozenset((item.segment, item_digest(item)) for item in learned)
+        if known == self._known:
+            return
+        self.refused = {key: why for key, why in self.refused.items() if key in known}
+        changed = False
+        for key in [key for key in self.files if key not in known]:
+            try:
+                self.files[key].unlink(missing_ok=True)
+            except OSError as exc:
+                self._failed(f"cannot remove {self.files[key]}: {exc}")
+                continue
+            log.info("removed %s (forgotten)", self.files.pop(key).name)
+            self._numbers.pop(key, None)
+            changed = True
+        for key in [key for key in self._numbers if key not in known]:
+            del self._numbers[key]  # a failed write of an item forgotten since
+        for item in learned:
+            key = (item.segment, item_digest(item))
+            if key in self.files or key in self.refused:
+                continue
+            try:
+                if not NAME_RE.fullmatch(item.segment):
+                    raise ValueError(f"placeholder {item.segment!r} is not a stringBT name")
+                document = to_xml(item.item(), tree_id=tree_id(item))
+            except (StringBTError, ValueError) as err:
+                why = f"{err.code.value} {err.message}" if isinstance(err, StringBTError) else err
+                self.refused[key] = str(why)
+                log.warning("not exported to BT.CPP: %s: %s", item.key, self.refused[key])
+                continue
+            if key not in self._numbers:
+                self._numbers[key] = self._next
+                self._next += 1
+            path = self.folder / f"{self._numbers[key]:06d}-{key[0]}-{key[1]}.xml"
+            try:
+                write_atomic(path, document)
+            except OSError as exc:
+                self._failed(f"cannot write {path}: {exc}")
+                continue
+            self.files[key] = path
+            log.info("wrote %s", path.name)
+        if changed:
+            try:
+                fsync_folder(self.folder)
+            except OSError as exc:
+                self._failed(f"cannot flush {self.folder}: {exc}")
+        written = set(self.files)
+        if written <= known and known <= written | self.refused.keys():  # all done: skip next time
+            self._known = known
+
+    def _failed(self, message: str) -> None:
+        self.errors += 1
+        log.warning("export of learned knowledge: %s", message)

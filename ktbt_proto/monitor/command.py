@@ -1,0 +1,133 @@
+"""``ktbt monitor``: added to the ``ktbt`` command through the ``ktbt.commands`` entry point.
+Nothing of the web stack is imported until the command runs, so ``ktbt`` works without the
+``monitor`` extra and the command says in one line how to get it."""
+
+from __future__ import annotations
+
+import ipaddress
+import socket
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ..cli import Config, Connect, Mode, ZenohMode
+
+INSTALL = "ktbt monitor needs the monitor extra: pip install 'ktbt[monitor]'"
+LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
+
+
+def _address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535 or not host:
+        raise typer.BadParameter(f"{text!r} is not HOST:PORT (127.0.0.1:8470)", param_hint="--http")
+    return host.strip("[]"), int(port)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def allowed_hosts(host: str, allow: list[str]) -> list[str]:
+    """The Host headers a page may send: the loopback names when bound to loopback, else the
+    bound address itself, and every ``--allow-host`` (a page reached by another name, as by
+    DNS rebinding, is refused)."""
+    bound = LOOPBACK_NAMES if _is_loopback(host) else [host, f"[{host}]" if ":" in host else host]
+    return [*dict.fromkeys([*bound, *allow])]
+
+
+def monitor_command(
+    connect: Connect = None,
+    http: Annotated[
+        str,
+        typer.Option(
+            "--http",
+            help="Where to serve the page, HOST:PORT; a host other than loopback is reachable "
+            "from other machines (pages must then name it or an --allow-host).",
+        ),
+    ] = "127.0.0.1:8470",
+    allow_host: Annotated[
+        list[str] | None,
+        typer.Option("--allow-host", help="Another Host name a page may use (repeatable)."),
+    ] = None,
+    config: Config = None,
+    mode: Mode = ZenohMode.peer,
+    trust: Annotated[
+        Path | None,
+        typer.Option(
+            "--trust",
+            help="Peers' keys, 'NAME KEY' a line: their events must be signed by them (others' "
+            "first key is pinned).",
+        ),
+    ] = None,
+) -> None:
+    """Serve a live view of the fleet in the browser: who is present, who knows what, each
+    transfer and refusal as it happens (spec/protocol.md section 10)."""
+    try:
+        import uvicorn
+
+        from .app import create_app
+        from .fleet import Fleet
+        from .listen import Listener
+    except ImportError:
+        typer.echo(INSTALL, err=True)
+        raise typer.Exit(2) from None
+    from ..cli import _settings
+    from ..peer import until_signalled
+    from ..signing import KeyFileError
+    from ..trust import TrustStore
+
+    if not connect:
+        typer.echo("error: --connect ENDPOINT: the fleet to listen to", err=True)
+        raise typer.Exit(2)
+    settings = _settings(None, connect, config, False, mode.value)
+    try:
+        store = TrustStore.load(trust) if trust is not None else None
+    except KeyFileError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    host, port = _address(http)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        typer.echo(f"error: cannot serve on {http}: {exc.strerror or exc}", err=True)
+        raise typer.Exit(2) from None
+    port = sock.getsockname()[1]
+    fleet = Fleet(store)
+    try:
+        listener = Listener(fleet, settings)
+    except Exception as exc:  # zenoh's own error: a bad endpoint or config
+        sock.close()
+        typer.echo(f"error: cannot join the fleet at {', '.join(connect)}: {exc}", err=True)
+        raise typer.Exit(2) from None
+    loopback = _is_loopback(host)
+    shown = f"[{host}]" if family == socket.AF_INET6 else host
+    app = create_app(fleet, allowed_hosts(host, allow_host or []))
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
+    if loopback:
+        typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")
+    else:
+        typer.echo(f"monitor: http://{shown}:{port}/ (reachable from other machines: not loopback)")
+    typer.echo(f"  listening to the fleet at {', '.join(connect)}; Ctrl-C to stop")
+    try:
+        # uvicorn handles SIGINT and SIGTERM while it runs, then raises the signal again once
+        # stopped: caught here, so the listener's session is closed below.
+        with until_signalled():
+            server.run(sockets=[sock])
+    finally:
+        listener.close()
+        sock.close()
+
+
+def register(app: typer.Typer) -> None:
+    """Entry point of ``ktbt.commands``: add ``monitor`` to the ``ktbt`` app."""
+    app.command("monitor")(monitor_command)

@@ -1,0 +1,392 @@
+"""What ``ktbt monitor`` knows of a fleet, built from fleet events (``spec/protocol.md``
+section 10), liveliness and catalogs, and handed to the page as batches of changes.
+
+Everything is bounded: peers, items, each peer's recent events, the transfers, refusals and
+changes kept. What does not fit is dropped and counted, so a flooding or hostile fleet costs
+the monitor a counter, not its memory. A page that falls behind the kept changes gets a fresh
+snapshot instead. Data flows one way: zenoh callbacks call :meth:`Fleet.peer_joined`,
+:meth:`Fleet.event` and friends; the web side reads :meth:`Fleet.changes_since` and
+:meth:`Fleet.snapshot`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+from ..errors import StringBTError
+from ..events import FleetEvent, _clip, digest
+from ..items import parse_sequence
+from ..messages import _ID
+from ..trust import TrustStore
+
+MAX_PEERS = 512
+MAX_ITEMS = 512
+RECENT = 50
+"""Events kept per peer, for its detail view."""
+KEPT = 200
+"""Transfers and refusals kept, each."""
+CHANGES = 20_000
+"""Changes kept for pages catching up; one further behind is sent a snapshot."""
+TIMELINE = 5000
+"""Points of the spreading timeline kept (one a merge or forget)."""
+REASONS = 5
+"""The last reasons kept for each kind of thing refused, shown on the page."""
+LOST_AFTER = 5.0
+"""A query sent and not answered within this many seconds is counted lost."""
+
+
+_NAME = re.compile(_ID)
+
+
+def _iso(seconds: float) -> str:
+    return datetime.fromtimestamp(seconds, UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass
+class Peer:
+    name: str
+    status: str = "heard"
+    """``present`` (its liveliness token is up), ``gone`` (it went down) or ``heard`` (events
+    only, as from a simulator)."""
+    since: float = 0.0
+    knows: dict[str, dict[str, Any]] = field(default_factory=dict)
+    recent: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=RECENT))
+    last_n: int = -1
+    lost_events: int = 0
+    dropped: int = 0
+    key: str | None = None
+    queries_lost: int = 0
+    open_queries: dict[str, float] = field(default_factory=dict)
+    heard: float = 0.0
+    """When anything last came from or about it (monotonic): the oldest idle peer goes first."""
+
+    def view(self) -> dict[str, Any]:
+        return {
+            "k": "peer",
+            "peer": self.name,
+            "status": self.status,
+            "since": self.since,
+            "signed": self.key is not None,
+            "lost_events": self.lost_events,
+            "dropped": self.dropped,
+            "queries_lost": self.queries_lost,
+        }
+
+
+class Fleet:
+    """The fleet's state, thread-safe; every change is also appended to a bounded list of
+    changes numbered from 1."""
+
+    def __init__(self, trust: TrustStore | None = None) -> None:
+        self.trust = trust
+        """Keys of peers known by name (``ktbt monitor --trust``): such a peer's events must be
+        signed by its key. Any other peer's first key is pinned."""
+        self._lock = threading.Lock()
+        self.peers: dict[str, Peer] = {}
+        self.items: dict[str, str] = {}
+        self.transfers: deque[dict[str, Any]] = deque(maxlen=KEPT)
+        self.refusals: deque[dict[str, Any]] = deque(maxlen=KEPT)
+        self.timeline: deque[dict[str, Any]] = deque(maxlen=TIMELINE)
+        self.drops: Counter[str] = Counter()
+        """What the monitor refused, by why: malformed, oversized, wrong key, forged, replayed,
+        flood, full."""
+        self.reasons: dict[str, deque[str]] = {}
+        """The last :data:`REASONS` reasons of each kind refused."""
+        self.events = 0
+        self._changes: deque[tuple[int, dict[str, Any]]] = deque(maxlen=CHANGES)
+        self._version = 0
+        self._dirty: set[str] = set()
+        """Peers whose counters changed: one view each per batch, not one per event."""
+
+    # -- input -------------------------------------------------------------------------------
+
+    def drop(self, why: str, reason: str | None = None) -> None:
+        """Count one thing refused, keeping its reason; the count goes with every batch
+        (:meth:`stats`), not as a change, so a flood of junk never pushes real changes out."""
+        with self._lock:
+            self._drop(why, reason)
+
+    def _drop(self, why: str, reason: str | None) -> None:
+        self.drops[why] += 1
+        if reason is not None:
+            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(_clip(reason, 200))
+
+    def _named(self, name: str, where: str) -> Peer | None:
+        """The peer of a name from a key expression: a peer name (section 1) or refused."""
+        if not _NAME.fullmatch(name):
+            self._drop("malformed", f"{where}: {_clip(name, 64)!r} is not a peer name")
+            return None
+        return self._peer(name)
+
+    def peer_joined(self, name: str) -> None:
+        with self._lock:
+            peer = self._named(name, "liveliness")
+            if peer is not None and peer.status != "present":
+                if peer.status == "gone":
+                    peer.last_n = -1  # it restarted: its numbering starts over
+                peer.status, peer.since = "present", time.time()
+                self._change(peer.view())
+
+    def peer_left(self, name: str) -> None:
+        with self._lock:
+            peer = self.peers.get(name)
+            if peer is not None and peer.status != "gone":
+                peer.status, peer.since = "gone", time.time()
+                self._change(peer.view())
+
+    def catalog(self, name: str, sequences: list[str]) -> None:
+        """What a peer's catalog says it knows (served or learned before we listened): each
+        entry must be a sequence of conditions (stringBT); what the peer no longer lists, and
+        did not learn in the last :data:`LOST_AFTER` seconds, it has forgotten (its forget
+        event may have been lost)."""
+        now = time.time()
+        with self._lock:
+            peer = self._named(name, "catalog")
+            if peer is None:
+                return
+            listed: set[str] = set()
+            whole = len(sequences) <= MAX_ITEMS
+            for sequence in sequences[:MAX_ITEMS]:
+                try:
+                    parse_sequence(sequence)
+                    item = digest(sequence)
+                except (StringBTError, UnicodeError, RecursionError) as exc:
+                    self._drop("malformed", f"catalog of {peer.name}: {str(exc).splitlines()[0]}")
+                    whole = False
+                    continue
+                listed.add(item)
+                if item not in peer.knows and self._item(item, sequence):
+                    peer.knows[item] = {"how": "known", "t": None, "at": now}
+                    self._change({"k": "know", "peer": peer.name, "item": item, "how": "known"})
+            if not whole:
+                return
+            for item in [i for i, k in peer.knows.items() if i not in listed]:
+                if now - peer.knows[item].get("at", 0.0) > LOST_AFTER:
+                    del peer.knows[item]
+                    self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
+                    self._spread(item, _iso(now))
+
+    def event(self, event: FleetEvent) -> None:
+        """One event, already checked (:func:`~ktbt_proto.events.decode_event`) and known to
+        have come on its peer's own key. Refused, and counted, when it is not signed by the key
+        the trust store gives its peer, or by the first key it came with, or comes unsigned
+        after signed ones ("forged"), or numbers at or below one already taken ("replayed")."""
+        now = time.time()
+        signed = event.sig is not None
+        with self._lock:
+            peer = self._peer(event.peer)
+            if peer is None:
+                return
+            refused = self._refusal(peer, event)
+            if refused is not None:
+                self._drop(*refused)
+                return
+            self.events += 1
+            if event.n > peer.last_n + 1:
+                peer.lost_events += event.n - peer.last_n - 1
+            peer.last_n = event.n
+            peer.dropped = max(peer.dropped, event.dropped)
+            peer.key = event.key if signed else peer.key
+            if peer.status == "heard" and not peer.since:
+                peer.since = now
+            seen = {
+                "k": "event",
+                "peer": peer.name,
+                "event": event.event,
+                "t": event.t,
+                "n": event.n,
+                "signed": signed,
+            }
+            for name in ("item", "sender", "to", "teacher", "reason", "where", "tick"):
+                value = getattr(event, name)
+                if value is not None:
+                    seen[name] = value
+            if event.item is not None and event.sequence is not None:
+                whole = digest(event.sequence) == event.item
+                if whole or event.sequence.endswith("..."):  # clipped (section 10)
+                    self._item(event.item, event.sequence, clipped=not whole)
+                else:
+                    self._drop(
+                        "malformed",
+                        f"event {event.n} of {peer.name}: its sequence is not of its item",
+                    )
+            peer.recent.append(seen)
+            self._change(seen)
+            self._follow(peer, event, signed, now)
+            self._expire_queries(peer, now)
+            self._dirty.add(peer.name)
+
+    def _refusal(self, peer: Peer, event: FleetEvent) -> tuple[str, str] | None:
+        bound = self.trust.names.get(peer.name) if self.trust is not None else None
+        expected = bound or peer.key
+        if expected is not None and event.key != expected:
+            how = "the trust store's" if bound else "its first"
+            what = "unsigned" if event.key is None else f"signed by {event.key}"
+            return "forged", f"event {event.n} of {peer.name}: {what}, not by {how} key"
+        if event.n <= peer.last_n:
+            return "replayed", f"event {event.n} of {peer.name}: {peer.last_n} was taken already"
+        return None
+
+    def _follow(self, peer: Peer, event: FleetEvent, signed: bool, now: float) -> None:
+        kind = event.event
+        if kind == "query-sent" and event.id is not None:
+            if len(peer.open_queries) < 64:
+                peer.open_queries[event.id] = now
+        elif kind == "answer-received" and event.id is not None:
+            peer.open_queries.pop(event.id, None)
+        elif kind == "merged" and event.item is not None and event.item in self.items:
+            peer.knows[event.item] = {
+                "how": "learned",
+                "t": event.t,
+                "teacher": event.teacher,
+                "at": now,
+            }
+            transfer = {
+                "k": "transfer",
+                "t": event.t,
+                "learner": peer.name,
+                "teacher": event.teacher,
+                "item": event.item,
+                "author": event.author,
+                "signed": signed,
+            }
+            self.transfers.append(transfer)
+            self._change(transfer)
+            self._change(
+                {"k": "know", "peer": peer.name, "item": event.item, "how": "learned", "t": event.t}
+            )
+            self._spread(event.item, event.t)
+        elif kind == "forgotten" and event.item is not None:
+            if peer.knows.pop(event.item, None) is not None:
+                self._change({"k": "know", "peer": peer.name, "item": event.item, "how": None})
+                self._spread(event.item, event.t)
+        elif kind in ("refused", "error-received"):
+            refusal = {
+                "k": "refusal",
+                "t": event.t,
+                "peer": peer.name,
+                "reason": event.reason or "",
+                "where": event.where or ("peer" if kind == "error-received" else "agent"),
+                "sender": event.sender,
+            }
+            self.refusals.append(refusal)
+            self._change(refusal)
+
+    def _spread(self, item: str, t: str) -> None:
+        """One point of the timeline: how many peers know ``item`` now."""
+        count = sum(1 for p in self.peers.values() if item in p.knows)
+        point = {"k": "spread", "item": item, "t": t, "count": count}
+        self.timeline.append(point)
+        self._change(point)
+
+    def _expire_queries(self, peer: Peer, now: float) -> None:
+        late = [q for q, sent in peer.open_queries.items() if now - sent > LOST_AFTER]
+        for q in late:
+            del peer.open_queries[q]
+        peer.queries_lost += len(late)
+
+    def tend(self) -> None:
+        """Count queries lost on peers that went quiet (called now and then)."""
+        now = time.time()
+        with self._lock:
+            for peer in self.peers.values():
+                before = peer.queries_lost
+                self._expire_queries(peer, now)
+                if peer.queries_lost != before:
+                    self._change(peer.view())
+
+    # -- bounded tables ----------------------------------------------------------------------
+
+    def _peer(self, name: str) -> Peer | None:
+        """The peer named, made if need be; when the table is full, the peer not present that
+        was heard from longest ago makes room, and only if every peer is present is the new
+        one refused."""
+        peer = self.peers.get(name)
+        if peer is None:
+            if len(self.peers) >= MAX_PEERS:
+                idle = [p for p in self.peers.values() if p.status != "present"]
+                if not idle:
+                    self.drops["full"] += 1
+                    return None
+                oldest = min(idle, key=lambda p: p.heard)
+                del self.peers[oldest.name]
+                self._dirty.discard(oldest.name)
+                self._change({"k": "unpeer", "peer": oldest.name})
+            peer = self.peers[name] = Peer(name)
+            self._change(peer.view())
+        peer.heard = time.monotonic()
+        return peer
+
+    def _item(self, item: str, sequence: str, clipped: bool = False) -> bool:
+        """Name ``item`` by ``sequence``: its whole text (whose digest it is) or, from an
+        event, its text clipped, replaced by the whole once a catalog or event says it. When
+        the table is full, the oldest item no peer knows makes room."""
+        known = self.items.get(item)
+        if known is not None:
+            if clipped or known == sequence:
+                return True
+        elif len(self.items) >= MAX_ITEMS:
+            known_by_some = set().union(*(p.knows for p in self.peers.values()))
+            unknown = next((i for i in self.items if i not in known_by_some), None)
+            if unknown is None:
+                self.drops["full"] += 1
+                return False
+            del self.items[unknown]
+            self._change({"k": "unitem", "item": unknown})
+        self.items[item] = sequence
+        self._change({"k": "item", "item": item, "sequence": sequence})
+        return True
+
+    def _change(self, change: dict[str, Any]) -> None:
+        self._version += 1
+        self._changes.append((self._version, change))
+
+    # -- output ------------------------------------------------------------------------------
+
+    def changes_since(
+        self, version: int, most: int = 5000
+    ) -> tuple[int, list[dict[str, Any]] | None]:
+        """At most ``most`` changes after ``version`` and the version they bring the page to;
+        ``None`` if some were no longer kept (send a snapshot)."""
+        with self._lock:
+            for name in self._dirty:
+                self._change(self.peers[name].view())
+            self._dirty.clear()
+            if version >= self._version:
+                return self._version, []
+            first = self._changes[0][0] if self._changes else self._version + 1
+            if version + 1 < first:
+                return self._version, None
+            skip = version + 1 - first
+            out = [c for _, c in itertools.islice(self._changes, skip, skip + most)]
+            return version + len(out), out
+
+    def stats(self) -> dict[str, Any]:
+        with self._lock:
+            reasons = {why: list(kept) for why, kept in self.reasons.items()}
+            return {"drops": dict(self.drops), "reasons": reasons, "events": self.events}
+
+    def snapshot(self) -> tuple[int, dict[str, Any]]:
+        with self._lock:
+            peers = []
+            for peer in self.peers.values():
+                view = peer.view()
+                view["knows"] = {item: k["how"] for item, k in peer.knows.items()}
+                view["recent"] = list(peer.recent)
+                peers.append(view)
+            return self._version, {
+                "peers": peers,
+                "items": dict(self.items),
+                "transfers": list(self.transfers),
+                "refusals": list(self.refusals),
+                "timeline": list(self.timeline)[-2000:],
+                "drops": dict(self.drops),
+                "events": self.events,
+            }

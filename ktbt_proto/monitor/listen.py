@@ -1,0 +1,126 @@
+"""The monitor's ear: a zenoh session that hears fleet events (``spec/protocol.md`` section
+10), liveliness tokens (section 3) and, now and then, catalogs, and feeds a :class:`Fleet`.
+
+The monitor is a listener only: it declares no liveliness token, queryable or publisher, so it
+never shows up as a peer. A hostile stream costs counters: an event is refused unless it is
+within the size limit, decodes, verifies when signed, and names the peer whose key it came on;
+the fleet may send at most :data:`RATE_ALL` events a second, and each key and signer at most
+:data:`RATE` (more are a flood, dropped and counted).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from typing import Any
+
+import zenoh
+
+from ..events import MAX_EVENT_BYTES, PREFIX, RateLimit, decode_event
+from ..messages import MessageRefused
+from ..transport import zenoh as zenoh_transport
+from ..transport.zenoh import ZenohSettings, catalog_replies, open_session
+from .fleet import MAX_PEERS, Fleet
+
+RATE = 1000.0
+"""Events a second the monitor takes from one key at most (5 times what a publisher sends)."""
+RATE_ALL = 20_000.0
+"""Events a second the monitor takes from the whole fleet at most, before decoding any."""
+BUCKETS = 4 * MAX_PEERS
+"""Buckets kept, one per key and signer."""
+CATALOG_EVERY = 3.0
+"""Seconds between two readings of the fleet's catalogs."""
+
+
+class Listener:
+    """Feeds ``fleet`` from the zenoh network described by ``settings`` until closed."""
+
+    def __init__(self, fleet: Fleet, settings: ZenohSettings) -> None:
+        self.fleet = fleet
+        self._limits: OrderedDict[tuple[str, str | None], RateLimit] = OrderedDict()
+        self._all = RateLimit(RATE_ALL, int(RATE_ALL))
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._session = open_session(settings)
+        try:
+            self._declared: list[Any] = [
+                self._session.declare_subscriber(f"{PREFIX}/*", self._on_event),
+                self._session.liveliness().declare_subscriber(
+                    f"{zenoh_transport.PREFIX}/peers/*", self._on_liveliness, history=True
+                ),
+            ]
+        except BaseException:
+            self._session.close()  # type: ignore[no-untyped-call]
+            raise
+        self._reader = threading.Thread(target=self._read_catalogs, daemon=True)
+        self._reader.start()
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).split("/", 3)[-1]
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.fleet.peer_joined(name)
+        else:
+            self.fleet.peer_left(name)
+
+    def _on_event(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            flooding = not self._all.take()
+        if flooding:
+            self.fleet.drop("flood", "the whole fleet's events beyond the monitor's rate")
+            return
+        key = str(sample.key_expr)
+        payload = sample.payload
+        if len(payload) > MAX_EVENT_BYTES:
+            self.fleet.drop("oversized", f"{len(payload)} bytes on {key[:100]}")
+            return
+        try:
+            event = decode_event(payload.to_bytes())
+        except MessageRefused as exc:
+            forged = exc.reason.endswith("does not verify")
+            self.fleet.drop("forged" if forged else "malformed", exc.reason)
+            return
+        if key != f"{PREFIX}/{event.peer}":
+            self.fleet.drop("wrong key", f"event {event.n} of {event.peer} on {key[:100]}")
+            return
+        if not self._bucket(key, event.key).take():
+            self.fleet.drop("flood", f"{event.peer} ({event.key or 'unsigned'}) beyond the rate")
+            return
+        self.fleet.event(event)
+
+    def _bucket(self, key: str, signer: str | None) -> RateLimit:
+        """The bucket of one key and signer, so a forger flooding a peer's key spends its own
+        tokens, not the peer's; the least recently used bucket goes first when too many."""
+        with self._lock:
+            limit = self._limits.pop((key, signer), None)
+            if limit is None:
+                limit = RateLimit(RATE, int(RATE))
+                while len(self._limits) >= BUCKETS:
+                    del self._limits[next(iter(self._limits))]
+            self._limits[(key, signer)] = limit
+            return limit
+
+    def _read_catalogs(self) -> None:
+        """What each peer says it knows, every few seconds, from a thread of our own (a get is
+        never issued from a zenoh callback). A reply that cannot be read is counted, never the
+        end of the loop; only closing ends it."""
+        while not self._stop.is_set():
+            try:
+                for name, entries in catalog_replies(self._session, 1.0, self._refused):
+                    try:
+                        self.fleet.catalog(name, [e["sequence"] for e in entries])
+                    except Exception as exc:  # a peer's junk that got past the checks
+                        self.fleet.drop("malformed", f"catalog of {name[:64]!r}: {exc}")
+            except zenoh.ZError:  # the network's own error (a closing session): not a peer's
+                self.fleet.drop("network", "a catalog query failed")
+            self.fleet.tend()
+            self._stop.wait(CATALOG_EVERY)
+
+    def _refused(self, reason: str) -> None:
+        self.fleet.drop("malformed", reason)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._reader.join(timeout=5)
+        for entity in self._declared:
+            entity.undeclare()
+        self._session.close()  # type: ignore[no-untyped-call]

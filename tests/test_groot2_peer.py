@@ -1,0 +1,67 @@
+"""btview watches a robot learn: ``ktbt peer run --groot`` and ``ktbt peer serve --groot``, real
+processes talking zenoh on loopback, read by btview's own ``snapshot`` (spec/groot2.md)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from .groot2_helpers import free_ports
+from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, wait_until
+
+pytest.importorskip("btview", reason="pip install -e '.[dev]'")
+pytest.importorskip("zmq", reason="pip install 'ktbt[groot]'")
+
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
+
+
+def btview(*args: str) -> str:
+    """What btview prints ('' if it failed: the publisher is not up yet)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "btview", *args, "--no-color"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    return done.stdout if done.returncode == 0 else ""
+
+
+def snapshot(port: int) -> str:
+    return btview("snapshot", "--port", str(port))
+
+
+def tree_uuid(port: int) -> str:
+    lines = btview("info", "--port", str(port), "--samples", "1").splitlines()
+    return next((line.split()[-1] for line in lines if line.startswith("tree uuid")), "")
+
+
+def test_btview_sees_the_control_tree_then_what_the_robot_learned() -> None:
+    robot_port, teacher_port = free_port(), free_port()
+    robot_groot, teacher_groot = free_ports(), free_ports()
+    with ktbt_process(
+        "peer", "run", "--id", "r1", "--listen", endpoint(robot_port),
+        "--sequence", "TargetSeen(colour=2)", "--duration", "120", "--groot", str(robot_groot),
+        ready="Groot2 on port",
+    ):  # fmt: skip
+        assert wait_until(lambda: "RandomWalk" in snapshot(robot_groot), 60)
+        before, first = snapshot(robot_groot), tree_uuid(robot_groot)
+        assert "k:new" in before and "DeliverToZone" in before and len(first) == 32
+        assert "TargetSeen" not in before and "PickTreasure" not in before
+        with ktbt_process(
+            "peer", "serve", "--id", "teacher", "--knowledge", str(KNOWLEDGE),
+            "--listen", endpoint(teacher_port), "--connect", endpoint(robot_port),
+            "--groot", str(teacher_groot), ready="Groot2 on port",
+        ):  # fmt: skip
+            taught = snapshot(teacher_groot)
+            assert all(f"TargetSeen(colour={c})" in taught for c in (1, 2, 3, 4)), taught
+            assert wait_until(lambda: "PickTreasure" in snapshot(robot_groot), 90)
+        after = snapshot(robot_groot)
+        assert tree_uuid(robot_groot) not in ("", first)  # learning gave the tree a new UUID
+    lines = after.splitlines()
+    new = next(i for i, line in enumerate(lines) if "k:new" in line)
+    item = "\n".join(lines[new : new + 6])
+    for node in ("TargetSeen(colour=2)", "PickTreasure", "AssignCollectionPoint(colour=2)"):
+        assert node in item, after
+    assert "RandomWalk" in after and "DeliverToZone" in after

@@ -43,13 +43,14 @@ bench: $(VENV)/.installed-dev
 
 # The paper's studies, our teaching-rule study and the calibration against the release's own
 # data, at full size; figures and tables land in docs/results/. RELEASE_DATA is the release's
-# SimData folder (its public repository) holding the two calibration runs.
-RELEASE_DATA ?= ../shared/reference/release-data
+# SimData folder (from its public repository) holding the two calibration runs.
+RELEASE_DATA ?= release-data
 RELEASE_NL := NL_0_0_10_10_10_10_N_45_18_19_18_200_-1
 RELEASE_RL := RL_0_0_10_10_10_10_N_100_100_100_100_200_-1
 studies: $(VENV)/.installed
 	$(BIN)/ktbt sim run all --out results/studies
 	$(BIN)/ktbt sim run teaching --out results/studies
+	$(BIN)/ktbt sim run modes --out results/studies
 	$(BIN)/ktbt sim run calibration --out results/calibration --release-csv
 	$(BIN)/ktbt sim plot results/studies
 	mkdir -p docs/results

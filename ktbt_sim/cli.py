@@ -8,12 +8,12 @@ import importlib.util
 import os
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 
 if TYPE_CHECKING:
-    from .experiment import Job
+    from .experiment import Executor, Job
     from .scenario import Scenario
 
 sim = typer.Typer(
@@ -70,7 +70,7 @@ def sweep(
     scenarios: list[Scenario],
     out: Path,
     workers: int,
-    executor: str = "local",
+    executor: Executor = "local",
     address: str | None = None,
 ) -> tuple[int, int, float]:
     """Run with a progress bar (trials done, ETA); returns the trials run now, the trials that
@@ -149,7 +149,9 @@ def run_command(
     out: Annotated[Path, typer.Option(help="Output folder (resumable).", readable=False)] = Path(
         "results"
     ),
-    executor: Annotated[str, typer.Option(help="local (process pool) or ray.")] = "local",
+    executor: Annotated[
+        Literal["local", "ray"], typer.Option(help="local (process pool) or ray.")
+    ] = "local",
     address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray).")
     ] = None,
@@ -160,12 +162,10 @@ def run_command(
 ) -> None:
     """Run a study; an interrupted run restarted with the same --out runs only what is
     missing."""
-    if executor not in ("local", "ray"):
-        raise _fail(f"--executor {executor!r}: use local or ray")
     scenarios = _scenarios(target, trials, iterations, seed)
     ran, before, seconds = sweep(scenarios, out, _workers(workers), executor, address)
     if release_csv:
-        from .records import export_release
+        from .results import export_release
 
         for scenario in scenarios:
             try:
@@ -219,8 +219,7 @@ def plot_command(
 @sim.command("list")
 def list_command() -> None:
     """Studies and presets."""
-    from .experiment import STUDIES
-    from .scenario import PRESETS
+    from .scenario import PRESETS, STUDIES
 
     typer.echo("studies:")
     for name, presets in STUDIES.items():
@@ -323,9 +322,8 @@ def demo_command(
 ) -> None:
     """The paper's main result in about a minute: KT-BT against both no-transfer baselines."""
     _need_sim()
-    from .experiment import STUDIES
     from .plots import plot
-    from .scenario import PRESETS
+    from .scenario import PRESETS, STUDIES
 
     try:
         scenarios = [

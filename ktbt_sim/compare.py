@@ -1,7 +1,7 @@
 """``ktbt sim compare OURS THEIRS``: two runs of one configuration side by side.
 
 Either side may be a scenario folder of ``ktbt sim run`` or a release ``SimData`` scenario
-folder (``…_Tr_N.csv`` files, ``records.read_release_folder``). The table gives, for each, the
+folder (``…_Tr_N.csv`` files, ``results.read_release_folder``). The table gives, for each, the
 mean and standard deviation over trials of the headline numbers the calibration is held to
 (iterations to 50 / 95 / 99 % collected, queries, answers, queries lost, robots knowing 4 / 3 / 2
 colours at the end of the shorter run) and our mean's difference from theirs; the figure draws
@@ -19,8 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from . import metrics
-from .records import read_release_folder
-from .results import Results, load_folder
+from .results import Results, load_folder, read_release_folder
 
 matplotlib.use("Agg")
 

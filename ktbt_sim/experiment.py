@@ -13,15 +13,15 @@ import json
 import multiprocessing
 import signal
 import time
-import tomllib
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import ValidationError
+
+from ktbt_proto.files import write_atomic
 
 from .results import (
     Results,
@@ -32,33 +32,7 @@ from .results import (
     trial_path,
     write_trial,
 )
-from .scenario import PRESETS, Scenario
-
-STUDIES: dict[str, tuple[str, ...]] = {
-    "transfer": ("bl1", "bl2", "ktbt", "bl1-obstacles", "bl2-obstacles", "ktbt-obstacles"),
-    "opportunities": tuple(f"opportunities-{n}" for n in (10, 25, 50, 100)),
-    "range": (*(f"range-{r}" for r in (100, 200, 500, 800, 1000)), "bl1"),
-    "heterogeneity": ("heterogeneity-39i1m", "heterogeneity-10rgyb"),
-    "demo": ("bl1", "bl2", "ktbt"),
-}
-"""The paper's studies by name, each a list of presets (``range`` includes BL1 to compare)."""
-STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name in study))
-STUDIES["calibration"] = ("calibration-nl", "calibration-rl")
-"""The release's two published runs, at their size (100,000 iterations): ``ktbt sim compare``
-holds ours against its data."""
-STUDIES["modes"] = tuple(
-    f"modes-{group}-{variant}"
-    for group in ("10rgyb", "39i1m")
-    for variant in ("nl", "rl", "el", "el-evict", "plb", "pl", "pl-answer")
-)
-"""The release's five modes and our eviction variant, on 10RGYB and 39I-1M."""
-STUDIES["teaching"] = (
-    "ktbt",
-    "ktbt-broadcast",
-    "heterogeneity-39i1m",
-    "heterogeneity-39i1m-broadcast",
-)
-"""Our finding, not the paper's: the release's first-requester rule against a broadcast rule."""
+from .scenario import PRESETS, STUDIES, Scenario
 
 Rows = dict[str, list[int]]
 
@@ -100,28 +74,13 @@ def scenarios_for(target: str) -> list[Scenario]:
         return [PRESETS[target]]
     path = Path(target)
     if path.exists():
-        return [load_scenario(path)]
+        return [Scenario.load(path)]
     known = ", ".join([*STUDIES, *sorted(PRESETS)])
     raise ValueError(f"{target!r} is neither a study, a preset nor a file; known: {known}")
 
 
-def load_scenario(path: Path) -> Scenario:
-    """A TOML or JSON scenario file; a ValueError names every problem in it, on one line, so
-    that one run of the command is enough to fix the file."""
-    try:
-        text = path.read_text(encoding="utf-8")
-        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise ValueError(f"{path}: {reason}") from None
-    try:
-        return Scenario.model_validate(data)
-    except ValidationError as exc:
-        problems = [
-            f"{'.'.join(str(p) for p in e['loc']) or 'scenario'}: {e['msg']}" for e in exc.errors()
-        ]
-        count = f"{len(problems)} problems: " if len(problems) > 1 else ""
-        raise ValueError(f"{path}: {count}{'; '.join(problems)}") from None
+Executor = Literal["local", "ray"]
+"""Where a study's trials run: a pool of local processes, or a Ray cluster (the ray extra)."""
 
 
 @dataclass(frozen=True)
@@ -170,13 +129,10 @@ def plan(scenarios: Iterable[Scenario], out: Path) -> list[Job]:
                     "choose another --out or remove it"
                 )
         else:
-            folder.mkdir(parents=True, exist_ok=True)
-            tmp = spec.with_suffix(".tmp")
-            tmp.write_text(text, encoding="utf-8")
-            tmp.replace(spec)
+            write_atomic(spec, text)
         if original[scenario.name] != scenario.name:
             continue
-        for torn in folder.glob("trial-*.tmp*"):  # left by a run that was killed mid-write
+        for torn in folder.glob(".trial-*.tmp"):  # left by a run that was killed mid-write
             torn.unlink(missing_ok=True)
         done = finished(folder)
         jobs += [Job(scenario, folder, t) for t in range(scenario.trials) if t not in done]
@@ -200,7 +156,7 @@ def run(
     out: Path,
     *,
     workers: int = 1,
-    executor: str = "local",
+    executor: Executor = "local",
     address: str | None = None,
     progress: Progress | None = None,
 ) -> dict[str, Results]:
@@ -209,10 +165,8 @@ def run(
     if jobs:
         if executor == "ray":
             _run_ray(jobs, workers, address, progress)
-        elif executor == "local":
-            _run_local(jobs, workers, progress)
         else:
-            raise ValueError(f"unknown executor {executor!r}: local or ray")
+            _run_local(jobs, workers, progress)
     original = twins(scenarios)
     results = {}
     for scenario in scenarios:

@@ -1,6 +1,6 @@
 """The arena of the authors' release: walls, obstacle blocks, zones and spawn area.
 
-Every number is ``reference/release-behaviour.md`` §2, read from the release's scene. Unity's
+Every number is ``spec/simulator.md`` §2, read from the release's scene. Unity's
 ground plane (x, z) maps to our (x, y) unchanged; angles are counter-clockwise from +x.
 """
 

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from .records import set_name
 from .results import Results
 
 Array = npt.NDArray[np.float64]
@@ -42,11 +43,6 @@ KNOWLEDGE_SCORE = 0.25
 LEVEL_COLUMNS = tuple(f"knows_{k}" for k in range(LEVELS))
 SETS = 16
 """Species: the sets of colours a robot knows, bit k-1 for colour k (red 1 .. blue 4)."""
-
-
-def set_name(bits: int) -> str:
-    """``set_RG`` for red and green, ``set_none`` for nothing."""
-    return "set_" + ("".join(c for k, c in enumerate("RGYB") if bits >> k & 1) or "none")
 
 
 SET_COLUMNS = tuple(set_name(b) for b in range(SETS))
@@ -193,25 +189,36 @@ def _stats(values: npt.ArrayLike) -> tuple[float, float]:
     return float(v.mean()), float(std(v))
 
 
-def summary(results: Results) -> dict[str, Any]:
+def summary(results: Results, at: int | None = None) -> dict[str, Any]:
     """Means and sample standard deviations across trials of what the paper's tables report.
 
     Keys: ``trials``; ``collected_pct``, ``queries``, ``responses``, ``lost``, ``knows_0`` ..
-    ``knows_4`` and ``knowledge_score`` at the last recorded row, each as ``<key>_mean`` and
-    ``<key>_std``; ``t95`` and ``t99`` as ``_mean`` and ``_std`` over the trials that reached
-    the fraction only, with ``_reached`` saying how many did.
+    ``knows_4`` and ``knowledge_score`` at the last recorded row (or the last at or before
+    iteration ``at``), each as ``<key>_mean`` and ``<key>_std``; ``t95``, ``t99`` and ``t100``
+    as ``_mean`` and ``_std`` over the trials that reached the fraction only, with
+    ``_reached`` saying how many did; ``knows_4_end`` (``_mean``, ``_std``): robots knowing
+    all four colours when collection ended, over the trials in which it did.
     """
-    out: dict[str, Any] = {"trials": len(results.trials)}
+    last = -1 if at is None else int(np.searchsorted(results.iterations, at, side="right")) - 1
+    out: dict[str, Any] = {
+        "trials": len(results.trials),
+        "iteration": int(results.iterations[last]),
+    }
     finals: dict[str, npt.ArrayLike] = {
-        "collected_pct": percent_collected(results)[:, -1],
-        **{c: results[c][:, -1] for c in ("queries", "responses", "lost", *LEVEL_COLUMNS)},
-        "knowledge_score": mean_knowledge_score(level_counts(results)[:, -1]),
+        "collected_pct": percent_collected(results)[:, last],
+        **{c: results[c][:, last] for c in ("queries", "responses", "lost", *LEVEL_COLUMNS)},
+        "knowledge_score": mean_knowledge_score(level_counts(results)[:, last]),
     }
     for key, values in finals.items():
         out[f"{key}_mean"], out[f"{key}_std"] = _stats(values)
-    for key, fraction in (("t95", 0.95), ("t99", 0.99)):
+    for key, fraction in (("t95", 0.95), ("t99", 0.99), ("t100", 1.0)):
         t = t_fraction(results["collected"], results.total_targets, results.iterations, fraction)
         reached = t[~np.isnan(t)]
         out[f"{key}_mean"], out[f"{key}_std"] = _stats(reached)
         out[f"{key}_reached"] = int(reached.size)
+    done = results["collected"] >= results.total_targets
+    ended = done.any(axis=1)
+    first = done.argmax(axis=1)
+    knows = results["knows_4"][np.flatnonzero(ended), first[ended]]
+    out["knows_4_end_mean"], out["knows_4_end_std"] = _stats(knows)
     return out

@@ -25,7 +25,8 @@ from matplotlib.patches import Patch
 
 from . import metrics
 from .results import Results, load
-from .scenario import PRESETS
+from .scenario import MODE_GROUPS, MODE_VARIANTS, PRESETS
+from .scenario import STUDIES as SCENARIOS
 
 matplotlib.use("Agg")
 
@@ -36,24 +37,14 @@ GROUP_LABELS = {
     "ktbt": "ktbt: 10RGYB, KT-BT",
 }
 OBSTACLES = tuple(f"{g}-obstacles" for g in GROUPS)
-OPPORTUNITIES = tuple(f"opportunities-{n}" for n in (10, 25, 50, 100))
-RANGES = tuple(f"range-{r}" for r in (100, 200, 500, 800, 1000))
-HETEROGENEITY = ("heterogeneity-39i1m", "heterogeneity-10rgyb")
+OPPORTUNITIES = SCENARIOS["opportunities"]
+RANGES = tuple(n for n in SCENARIOS["range"] if n.startswith("range-"))
+HETEROGENEITY = SCENARIOS["heterogeneity"]
 TEACHING = (
     ("10R-10G-10Y-10B, 25 a colour", "ktbt", "ktbt-broadcast"),
     ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
 )
 """Our finding, not the paper's: each group under the release's rule and the broadcast rule."""
-MODES = ("nl", "rl", "el", "el-evict", "plb", "pl", "pl-answer")
-MODE_LABELS = {
-    "nl": "NL: no transfer",
-    "rl": "RL: KT-BT",
-    "el": "EL: ephemeral (3 colours, 5,000 idle ticks)",
-    "el-evict": "EL, evicting the least used",
-    "plb": "PLB: overheard, buffered",
-    "pl": "PL: overheard, learned at once",
-    "pl-answer": "PL, heard only at the answer",
-}
 COLOURS = {g: f"C{i}" for i, g in enumerate(GROUPS)}
 
 STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -62,7 +53,7 @@ STUDIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "range": (("range", "queries_lost"), (*RANGES, "bl1")),
     "heterogeneity": (HETEROGENEITY, HETEROGENEITY),
     "teaching": (("teaching",), tuple(n for _, *names in TEACHING for n in names)),
-    "modes": (("modes",), tuple(f"modes-{g}-{m}" for g in ("10rgyb", "39i1m") for m in MODES)),
+    "modes": (("modes",), SCENARIOS["modes"]),
 }
 """Each study's figures and scenarios: ``plot(study=...)`` draws only those figures and tables
 only those scenarios (the range study compares against bl1, so it keeps that too)."""
@@ -315,41 +306,75 @@ def _ordered(results: Mapping[str, Results]) -> list[Results]:
     return known + [results[n] for n in sorted(results) if n not in PRESETS]
 
 
+PAPER_LENGTH = 50_000
+"""The paper's run length: longer scenarios are reported at it too."""
+
+
 def summary_table(results: Mapping[str, Results]) -> str:
-    """One Markdown row per scenario, the numbers of ``metrics.summary``."""
+    """One Markdown row per scenario, the numbers of ``metrics.summary``; then, for the
+    scenarios run longer than the paper's 50,000 iterations, the same numbers at 50,000."""
     head = (
-        "| scenario | robots | mode | targets | trials | collected % | t95 (iterations) "
-        "| t99 (iterations) | queries | responses | lost | robots knowing 4 |"
+        "| scenario | robots | mode | targets | iterations | trials | collected % "
+        "| t95 (iterations) | t99 (iterations) | t100 (iterations) | queries | responses | lost "
+        "| robots knowing 4 | robots knowing 4 when collection ended |"
     )
     lines = [
         "# Summary",
         "",
-        "Mean ± sample standard deviation over trials, at the last recorded iteration. t99 "
-        "and t95 average only the trials that collected 99 % (95 %) of targets; `reached/N` "
-        "says how many. Modes: no-transfer is the release's NL, kt-bt its RL.",
+        "Mean ± sample standard deviation over trials, at the last recorded iteration. t100, t99 "
+        "and t95 average only the trials that collected all (99 %, 95 %) of the targets; "
+        "`reached/N` says how many. The last column is read at t100, over the trials that "
+        "reached it. Modes: no-transfer is the release's NL, kt-bt its RL.",
         "",
         head,
         "|" + " --- |" * (head.count("|") - 1),
     ]
-    for res in _ordered(results):
+    ordered = _ordered(results)
+    for res in ordered:
         s, sc = metrics.summary(res), res.scenario
-        t95, t99 = (
+        t95, t99, t100 = (
             f"{_pm(s[f'{k}_mean'], s[f'{k}_std'])} ({s[f'{k}_reached']}/{s['trials']})"
-            for k in ("t95", "t99")
+            for k in ("t95", "t99", "t100")
         )
         cells = [
             sc.name,
             sc.robots.label(),
             sc.mode.value + (" (broadcast)" if sc.teaching.value == "broadcast" else ""),
             str(sc.targets.total),
+            f"{s['iteration']:,}",
             str(s["trials"]),
             _pm(s["collected_pct_mean"], s["collected_pct_std"], 1),
             t95,
             t99,
+            t100,
             *(_pm(s[f"{k}_mean"], s[f"{k}_std"]) for k in ("queries", "responses", "lost")),
             _pm(s["knows_4_mean"], s["knows_4_std"], 1),
+            f"{_pm(s['knows_4_end_mean'], s['knows_4_end_std'], 1)} ({s['t100_reached']}/"
+            f"{s['trials']})",
         ]
         lines.append("| " + " | ".join(cells) + " |")
+    longer = [res for res in ordered if res.iterations[-1] > PAPER_LENGTH]
+    if longer:
+        head = "| scenario | collected % | queries | responses | lost | robots knowing 4 |"
+        lines += [
+            "",
+            f"## At {PAPER_LENGTH:,} iterations",
+            "",
+            f"The scenarios run longer than the paper's {PAPER_LENGTH:,} iterations, read at "
+            f"{PAPER_LENGTH:,}.",
+            "",
+            head,
+            "|" + " --- |" * (head.count("|") - 1),
+        ]
+        for res in longer:
+            s = metrics.summary(res, at=PAPER_LENGTH)
+            cells = [
+                res.scenario.name,
+                _pm(s["collected_pct_mean"], s["collected_pct_std"], 1),
+                *(_pm(s[f"{k}_mean"], s[f"{k}_std"]) for k in ("queries", "responses", "lost")),
+                _pm(s["knows_4_mean"], s["knows_4_std"], 1),
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -386,10 +411,12 @@ def draw_modes(results: Mapping[str, Results]) -> Figure | None:
     messages it took, and how far knowledge spread."""
     groups = [
         (group, runs)
-        for group in ("10rgyb", "39i1m")
+        for group in MODE_GROUPS
         if (
             runs := [
-                (m, results[f"modes-{group}-{m}"]) for m in MODES if f"modes-{group}-{m}" in results
+                (m, results[f"modes-{group}-{m}"])
+                for m in MODE_VARIANTS
+                if f"modes-{group}-{m}" in results
             ]
         )
     ]
@@ -399,7 +426,7 @@ def draw_modes(results: Mapping[str, Results]) -> Figure | None:
     axes = fig.subplots(len(groups), 3, squeeze=False)
     for row, (group, runs) in zip(axes, groups, strict=True):
         for k, (mode, res) in enumerate(runs):
-            label = f"{MODE_LABELS[mode]} (n={len(res.trials)})"
+            label = f"{MODE_VARIANTS[mode].label} (n={len(res.trials)})"
             colour = f"C{k}"
             _mean_band(row[0], res.iterations, metrics.percent_collected(res), label, colour)
             if "messages" in res.data:

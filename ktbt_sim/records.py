@@ -1,4 +1,4 @@
-"""What a trial records, in our columns and in the release's 35 (``release-behaviour.md`` §10).
+"""What a trial records, in our columns and in the release's 35 (``spec/simulator.md`` §10).
 
 Ours (``COLUMNS``), every ``record_every`` iterations: targets collected per colour; robots now
 querying, teaching, with the random-walk flag, carrying, avoiding, waiting, cooling down; the
@@ -7,11 +7,11 @@ deliveries and learns (direct, buffered, passive); robots knowing exactly k colo
 knowing each colour, and robots per exact set of colours (``set_RG``: exactly red and green).
 
 The release's (``RELEASE_HEADER``), a row every 10 iterations, can be written too
-(:func:`write_release_csv`) and read (:func:`read_release_folder`), so that its own tools and
-ours read each other's runs. Its header labels the three two-colour columns after
-``Cur. 4 Cond. Known`` "RG, RY, RB", but it writes RY, RB, RG there (§10): we write the same
-header and the same order, so a file of ours reads exactly as one of theirs, and we read both
-by the order the values are really in.
+(:func:`write_release_csv`) and read (:func:`read_release_csv`; a whole folder with
+``results.read_release_folder``), so that its own tools and ours read each other's runs. Its
+header labels the three two-colour columns after ``Cur. 4 Cond. Known`` "RG, RY, RB", but it
+writes RY, RB, RG there (§10): we write the same header and the same order, so a file of ours
+reads exactly as one of theirs, and we read both by the order the values are really in.
 """
 
 from __future__ import annotations
@@ -23,12 +23,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .metrics import set_name
-from .results import Results
-from .scenario import COLOURS, Mode, Robots, Scenario, Targets, Teaching
+from ktbt_proto.files import write_atomic
+
+from .scenario import COLOURS, Mode, Robots, Scenario, Targets, TeachingRule
+from .state import total
 
 if TYPE_CHECKING:
-    from .world import World
+    from .state import Trial
+
+
+def set_name(bits: int) -> str:
+    """``set_RG`` for red and green, ``set_none`` for nothing."""
+    return "set_" + ("".join(c for k, c in enumerate("RGYB") if bits >> k & 1) or "none")
+
 
 COLUMNS = (
     "iteration",
@@ -58,9 +65,9 @@ COLUMNS = (
 SET_BITS = np.array([1, 2, 4, 8])
 
 
-def row(world: World) -> dict[str, int]:
+def row(world: Trial) -> dict[str, int]:
     """One row of ``COLUMNS`` from a world's state."""
-    from . import robot as rb
+    from .motion import AVOID
 
     call = 2 * world.iteration + 2
     known = world.known
@@ -73,19 +80,19 @@ def row(world: World) -> dict[str, int]:
         out[f"collected_{name}"] = int(world.collected[c])
     out["collected"] = int(world.collected.sum())
     out["querying"] = int(world.querying.sum())
-    out["teaching"] = int(world.teaching.sum())
+    out["teaching"] = int(world.answering.sum())
     out["walking"] = int(world.walk_flag.sum())
     out["carrying"] = int((world.carrying >= 0).sum())
-    out["avoiding"] = int((world.mode == rb.AVOID).sum())
+    out["avoiding"] = int((world.drive == AVOID).sum())
     out["waiting"] = int(waiting.sum())
     out["cooling"] = int((world.timers.busy(call) & ~waiting).sum())
-    out["queries"] = world.queries
-    out["responses"] = world.responses
-    out["lost"] = world.queries - world.responses
+    queries, responses = total(world, "queries_sent"), total(world, "responses_sent")
+    out["queries"] = queries
+    out["responses"] = responses
+    out["lost"] = queries - responses
     out["delivered"] = world.delivered
-    out["learned_direct"] = world.learned
-    out["learned_buffered"] = world.learned_buffered
-    out["learned_passive"] = world.learned_passive
+    for kind in ("direct", "buffered", "passive"):
+        out[f"learned_{kind}"] = total(world, f"learned_{kind}")
     out["forgotten"] = world.forgotten
     out["messages"] = world.network.delivered
     for level in range(5):
@@ -179,7 +186,7 @@ def write_release_csv(path: Path, rows: dict[str, list[int]]) -> None:
     ending with a comma as the release's do (without its blank lines)."""
     lines = [RELEASE_HEADER]
     lines += [",".join(str(v) for v in r) + "," for r in release_rows(rows)]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def read_release_csv(path: Path) -> dict[str, np.ndarray]:
@@ -248,34 +255,6 @@ def release_scenario(folder: Path, iterations: int) -> Scenario:
     )
 
 
-def read_release_folder(folder: str | Path) -> Results:
-    """A release ``SimData`` scenario folder (one ``…_Tr_N.csv`` per trial) as our results,
-    aligned on the iterations every trial has."""
-    folder = Path(folder)
-    files = sorted(folder.glob("*_Tr_*.csv"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))
-    if not files:
-        raise ValueError(f"{folder}: no release trial CSVs (*_Tr_N.csv)")
-    trials = [read_release_csv(p) for p in files]
-    common = set(trials[0]["iteration"].tolist())
-    for t in trials[1:]:
-        common &= set(t["iteration"].tolist())
-    iterations = np.array(sorted(common), dtype=np.int64)
-    if not len(iterations):
-        raise ValueError(f"{folder}: the trials share no recorded iteration")
-    data: dict[str, np.ndarray] = {}
-    for name in trials[0]:
-        if name == "iteration":
-            continue
-        stacked = []
-        for t in trials:
-            index = np.searchsorted(t["iteration"], iterations)
-            stacked.append(t[name][index])
-        data[name] = np.stack(stacked)
-    numbers = tuple(int(p.stem.rsplit("_", 1)[1]) for p in files)
-    scenario = release_scenario(folder, int(iterations[-1]))
-    return Results(scenario, numbers, iterations, data)
-
-
 RELEASE_MODES: dict[Mode, str] = {
     Mode.NO_TRANSFER: "NL",
     Mode.KT_BT: "RL",
@@ -292,7 +271,7 @@ def release_name(scenario: Scenario) -> str:
     A ValueError for our own variants, which the release has no name for: a folder named as
     the release's mode would pass our variant's data off as the release's."""
     variants = []
-    if scenario.teaching is not Teaching.RELEASE:
+    if scenario.teaching is not TeachingRule.RELEASE:
         variants.append(f"teaching {scenario.teaching.value}")
     if scenario.memory_when_full != "refuse":
         variants.append(f"memory_when_full {scenario.memory_when_full}")
@@ -310,28 +289,3 @@ def release_name(scenario: Scenario) -> str:
     parts += ["Y" if scenario.arena.obstacles else "N", *map(str, targets)]
     parts += [f"{scenario.comm_range:g}", str(memory)]
     return "_".join(parts)
-
-
-def export_release(folder: Path) -> Path:
-    """Every finished trial of a ``ktbt sim run`` scenario folder in the release's format: a
-    release ``SimData`` scenario folder ``<folder>/release/<release name>/`` holding
-    ``<release name>_Tr_<trial + 1>.csv`` (the release numbers trials from 1)."""
-    import json
-
-    from .results import finished, read_trial, trial_path
-
-    scenario = Scenario.model_validate(json.loads((folder / "scenario.json").read_text("utf-8")))
-    name = release_name(scenario)
-    target = folder / "release" / name
-    target.mkdir(parents=True, exist_ok=True)
-    (target / "README.txt").write_text(
-        "One CSV per trial in the release's format (a row every 10 iterations, 35 columns).\n"
-        "As in the release's own files, the three columns headed 'Known St. RG', 'Known St.\n"
-        "RY' and 'Known St. RB' hold the robots knowing red and yellow, red and blue, and red\n"
-        "and green, in that order: the release writes them in that order under that header.\n",
-        encoding="utf-8",
-    )
-    for trial in sorted(finished(folder)):
-        rows = read_trial(trial_path(folder, trial))
-        write_release_csv(target / f"{name}_Tr_{trial + 1}.csv", rows)
-    return target

@@ -10,7 +10,6 @@ every trial's rows together, with a ``trial`` column.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,9 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from ktbt_proto.files import replacing, write_atomic
+
+from .records import read_release_csv, release_name, release_scenario, write_release_csv
 from .scenario import Scenario
 
 
@@ -48,23 +50,15 @@ def trial_path(folder: Path, trial: int) -> Path:
 def write_trial(
     folder: Path, scenario: Scenario, trial: int, seed: int, rows: dict[str, list[int]]
 ) -> Path:
-    """Write one trial atomically: a temporary file, fsync, rename."""
+    """Write one trial durably (``ktbt_proto.files.replacing``): whole or absent."""
     folder.mkdir(parents=True, exist_ok=True)
     table = pa.table({name: pa.array(values, pa.int64()) for name, values in rows.items()})
     meta = {b"ktbt.scenario": scenario.dump().encode(), b"ktbt.trial": str(trial).encode()}
     meta[b"ktbt.seed"] = str(seed).encode()
     table = table.replace_schema_metadata(meta)
     final = trial_path(folder, trial)
-    tmp = final.with_suffix(f".tmp{os.getpid()}")
-    pq.write_table(table, tmp)
-    with open(tmp, "rb") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, final)
-    directory = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(directory)  # the rename itself survives a power loss
-    finally:
-        os.close(directory)
+    with replacing(final) as tmp:
+        pq.write_table(table, tmp)
     return final
 
 
@@ -112,8 +106,6 @@ def load(directory: str | Path) -> dict[str, Results]:
     """Every scenario with at least one finished trial under ``directory``, by name: our
     scenario folders, and the release's ``SimData`` scenario folders (``…_Tr_N.csv``), which
     are named ``release <folder>``. ``directory`` may itself be a release scenario folder."""
-    from .records import read_release_folder
-
     root = Path(directory)
     out: dict[str, Results] = {}
     for folder in [root, *sorted(p for p in root.iterdir() if p.is_dir())]:
@@ -138,10 +130,57 @@ def combine(folder: Path) -> None:
         {b"ktbt.scenario": (folder / "scenario.json").read_bytes()}
     )
     for suffix in (".parquet", ".csv"):
-        final = folder.with_suffix(suffix)
-        tmp = folder.parent / f".{folder.name}{suffix}.tmp"
-        if suffix == ".csv":
-            pacsv.write_csv(combined, tmp)
-        else:
-            pq.write_table(combined, tmp)
-        os.replace(tmp, final)
+        with replacing(folder.with_suffix(suffix)) as tmp:
+            if suffix == ".csv":
+                pacsv.write_csv(combined, tmp)
+            else:
+                pq.write_table(combined, tmp)
+
+
+def read_release_folder(folder: str | Path) -> Results:
+    """A release ``SimData`` scenario folder (one ``…_Tr_N.csv`` per trial) as our results,
+    aligned on the iterations every trial has."""
+    folder = Path(folder)
+    files = sorted(folder.glob("*_Tr_*.csv"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))
+    if not files:
+        raise ValueError(f"{folder}: no release trial CSVs (*_Tr_N.csv)")
+    trials = [read_release_csv(p) for p in files]
+    common = set(trials[0]["iteration"].tolist())
+    for t in trials[1:]:
+        common &= set(t["iteration"].tolist())
+    iterations = np.array(sorted(common), dtype=np.int64)
+    if not len(iterations):
+        raise ValueError(f"{folder}: the trials share no recorded iteration")
+    data: dict[str, np.ndarray] = {}
+    for name in trials[0]:
+        if name == "iteration":
+            continue
+        stacked = []
+        for t in trials:
+            index = np.searchsorted(t["iteration"], iterations)
+            stacked.append(t[name][index])
+        data[name] = np.stack(stacked)
+    numbers = tuple(int(p.stem.rsplit("_", 1)[1]) for p in files)
+    scenario = release_scenario(folder, int(iterations[-1]))
+    return Results(scenario, numbers, iterations, data)
+
+
+def export_release(folder: Path) -> Path:
+    """Every finished trial of a ``ktbt sim run`` scenario folder in the release's format: a
+    release ``SimData`` scenario folder ``<folder>/release/<release name>/`` holding
+    ``<release name>_Tr_<trial + 1>.csv`` (the release numbers trials from 1)."""
+    scenario = Scenario.model_validate(json.loads((folder / "scenario.json").read_text("utf-8")))
+    name = release_name(scenario)
+    target = folder / "release" / name
+    target.mkdir(parents=True, exist_ok=True)
+    write_atomic(
+        target / "README.txt",
+        "One CSV per trial in the release's format (a row every 10 iterations, 35 columns).\n"
+        "As in the release's own files, the three columns headed 'Known St. RG', 'Known St.\n"
+        "RY' and 'Known St. RB' hold the robots knowing red and yellow, red and blue, and red\n"
+        "and green, in that order: the release writes them in that order under that header.\n",
+    )
+    for trial in sorted(finished(folder)):
+        rows = read_trial(trial_path(folder, trial))
+        write_release_csv(target / f"{name}_Tr_{trial + 1}.csv", rows)
+    return target

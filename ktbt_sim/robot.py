@@ -14,11 +14,15 @@ from functools import cache
 from importlib.resources import files
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 import ktbt_proto as kp
 from ktbt_proto.knowledge import sequence_key
 
+from .kernel import jit
+
 if TYPE_CHECKING:
-    from .world import World
+    from .state import Trial
 
 CONTROL_TREE = files("ktbt_sim") / "trees" / "sar_control.sbt"
 """The paper's control tree with ``common``, ``prior`` and ``new`` placeholders."""
@@ -27,9 +31,8 @@ KINDS = {"I": (), "M": (1, 2, 3, 4), "R": (1,), "G": (2,), "Y": (3,), "B": (4,)}
 """Robot types of the paper's tables and the colours (1 red .. 4 blue) each knows at start."""
 
 # Motion modes an action selects; the world writes every robot's resultant velocity by its
-# mode each iteration, as the release's actions do each tick (release-behaviour.md §4).
-STOP, WALK, TO_ZONE, AVOID, IDLE = 0, 1, 2, 3, 4
-"""IDLE: the last tick ran a pick or a place, which leave the velocity as it was."""
+# mode each iteration, as the release's actions do each tick (spec/simulator.md §4).
+from .motion import AVOID, IDLE, STOP, TO_ZONE, WALK  # noqa: E402
 
 # Blackboard keys written by sensing.
 COLLISION = "_collisionDetectedF"
@@ -75,10 +78,11 @@ def control_tree(known: tuple[int, ...]) -> kp.Tree:
     return tree
 
 
-def registry(world: World) -> kp.Registry:
-    """The behaviours of ``world``'s robots; the robot is found through ``bb["index"]``."""
+def registry(trial: Trial) -> kp.Registry:
+    """The behaviours of ``trial``'s robots; the robot is found through ``bb["index"]``. Each
+    action writes its effect into the trial's arrays."""
     reg = kp.Registry()
-    set_mode = world.set_mode
+    drive = trial.drive
 
     @reg.condition("_collisionDetectedF")
     def collision(bb: kp.Blackboard) -> bool:
@@ -102,7 +106,7 @@ def registry(world: World) -> kp.Registry:
 
     def moving(name: str, value: int) -> None:
         def act(bb: kp.Blackboard) -> kp.Status:
-            set_mode(bb[INDEX], value)
+            drive[bb[INDEX]] = value
             return kp.SUCCESS
 
         reg.add_action(name, act)
@@ -113,21 +117,87 @@ def registry(world: World) -> kp.Registry:
     moving("RandomWalk", WALK)
 
     @reg.action("PickTreasure")
-    def pick(bb: kp.Blackboard, colour: int | None = None) -> kp.Status:
-        return kp.SUCCESS if world.pick(bb[INDEX], colour) else kp.FAILURE
+    def pick_up(bb: kp.Blackboard, colour: int | None = None) -> kp.Status:
+        return kp.SUCCESS if pick(trial, bb[INDEX], colour) else kp.FAILURE
 
     @reg.action("AssignCollectionPoint")
     def assign(bb: kp.Blackboard, colour: int) -> kp.Status:
-        world.set_goal(bb[INDEX], int(colour))
+        trial.goal[bb[INDEX]] = int(colour)  # AssignCPk: the zone the target goes to
         return kp.SUCCESS
 
     @reg.action("PlaceTreasure")
-    def place(bb: kp.Blackboard) -> kp.Status:
-        return kp.SUCCESS if world.place(bb[INDEX]) else kp.FAILURE
+    def put_down(bb: kp.Blackboard) -> kp.Status:
+        return kp.SUCCESS if place(trial, bb[INDEX]) else kp.FAILURE
 
     return reg
+
+
+def pick(trial: Trial, i: int, colour: int | None) -> bool:
+    """``PickTreasure`` (§4.3): take the registered target at once, wherever it is in the sensor
+    (no approach); clears the random-walk flag, disables sensing, forgets the requester. The
+    world takes the target out of the space and of every sensor after the tick."""
+    t = int(trial.sensor.tsr[i])
+    if trial.carrying[i] >= 0 or t < 0 or not trial.target_free[t]:
+        return False
+    if colour is not None and int(trial.target_colour[t]) != int(colour):
+        return False
+    trial.carrying[i] = t
+    trial.target_free[t] = False
+    trial.picked.append(t)
+    trial.walk_flag[i] = False
+    trial.requester[i] = -1
+    trial.memory_iter[i] = 0
+    trial.drive[i] = IDLE
+    return True
+
+
+def place(trial: Trial, i: int) -> bool:
+    """``PlaceTreasure`` (§4.5): the target already belongs to the zone; the robot starts a
+    wait and a cool-down (after every delivery, in every mode: §7)."""
+    if trial.carrying[i] < 0 or not trial.in_zone[i]:
+        return False
+    trial.carrying[i] = -1
+    trial.goal[i] = 0
+    trial.in_zone[i] = False
+    trial.sensor.tsr[i] = -1
+    trial.walk_flag[i] = False
+    trial.drive[i] = IDLE
+    trial.delivered += 1
+    trial.timers.start(i, 2 * trial.iteration)
+    return True
 
 
 def kinds(counts: Iterable[tuple[str, int]]) -> list[str]:
     """One type letter per robot, in the order of the paper's (I, M, R, G, Y, B) tuple."""
     return [kind for kind, n in counts for _ in range(n)]
+
+
+@jit
+def signature(
+    collision: np.ndarray,
+    wait_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    in_zone: np.ndarray,
+    colour_of: np.ndarray,
+    tsr: np.ndarray,
+    known: np.ndarray,
+) -> np.ndarray:
+    """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in its
+    zone, the registered target's colour, the colours it knows."""
+    n = collision.shape[0]
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        bits = np.int64(0)
+        for c in range(4):
+            if known[i, c]:
+                bits |= np.int64(1) << c
+        out[i] = (
+            np.int64(collision[i])
+            | np.int64(wait_end[i] >= call) << 1
+            | np.int64(carrying[i] >= 0) << 2
+            | np.int64(in_zone[i]) << 3
+            | colour_of[tsr[i]] << 4
+            | bits << 7
+        )
+    return out

@@ -5,7 +5,7 @@ Units: lengths in world units (the release's arena is 8000 by 8000), speeds per 
 iterations of ``dt`` seconds. A scenario keeps the paper's numbers (communication range 100 to
 1000, iterations, targets) and names the physical values they stand for in the release
 (``comm_radius``, ``seconds``). Every default is the release's, with its section of
-``reference/release-behaviour.md``.
+``spec/simulator.md``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import json
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -38,7 +38,7 @@ class Mode(StrEnum):
     """The release's PL: RL that also learns every answer it overhears at once (§9.4, §9.6)."""
 
 
-class Teaching(StrEnum):
+class TeachingRule(StrEnum):
     """Who answers a query (§8.2)."""
 
     RELEASE = "release"
@@ -165,7 +165,7 @@ class Scenario(_Model):
         description="the paper's and the launcher's range (100 to 1000); the radius in units is"
         " comm_radius (§5.3)",
     )
-    teaching: Teaching = Field(default=Teaching.RELEASE, description="who answers (§8.2)")
+    teaching: TeachingRule = Field(default=TeachingRule.RELEASE, description="who answers (§8.2)")
     memory_duration: int | None = Field(
         default=None,
         ge=1,
@@ -238,16 +238,24 @@ class Scenario(_Model):
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
-        """Read a TOML or JSON scenario file; raises ValueError with a one-line reason."""
+        """A TOML or JSON scenario file (the one loader). A ValueError names every problem in
+        it, on one line, so that one run of the command is enough to fix the file."""
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
             data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise ValueError(f"{path}: {reason}") from None
+        try:
             return cls.model_validate(data)
-        except (OSError, UnicodeDecodeError, ValueError, tomllib.TOMLDecodeError) as exc:
-            if isinstance(exc, ValidationError):
-                raise ValueError(f"{path}: {_one_line(exc)}") from None
-            raise ValueError(f"{path}: {exc}") from None
+        except ValidationError as exc:
+            problems = [
+                f"{'.'.join(str(p) for p in e['loc']) or 'scenario'}: {e['msg']}"
+                for e in exc.errors()
+            ]
+            count = f"{len(problems)} problems: " if len(problems) > 1 else ""
+            raise ValueError(f"{path}: {count}{'; '.join(problems)}") from None
 
     def dump(self) -> str:
         return self.model_dump_json(indent=2)
@@ -276,12 +284,19 @@ def _study_1() -> dict[str, Scenario]:
     return out
 
 
+LONG_RUN = 100_000
+"""The heterogeneity and opportunities presets' length: the paper's heterogeneity figures run
+well past 50,000 iterations (its 39I-1M curve stagnates "beyond 70k"), and with 50 or 100
+targets a colour collection has not ended by 50,000. Their tables report 50,000 beside the end."""
+
+
 def _study_2() -> dict[str, Scenario]:
-    """Opportunities (Table IV): 39 ignorant + 1 multi-target robot, 10 to 100 per colour."""
+    """Opportunities (Table IV): 39 ignorant + 1 multi-target robot, 10 to 100 per colour, run
+    until collection ends (``LONG_RUN``)."""
     robots = Robots.of(39, 1, 0, 0, 0, 0)
     return {
         f"opportunities-{n}": Scenario(
-            name=f"opportunities-{n}", robots=robots, targets=Targets.each(n)
+            name=f"opportunities-{n}", robots=robots, targets=Targets.each(n), iterations=LONG_RUN
         )
         for n in (10, 25, 50, 100)
     }
@@ -297,23 +312,25 @@ def _study_3() -> dict[str, Scenario]:
 
 
 def _heterogeneity() -> dict[str, Scenario]:
-    """Heterogeneity: 39I-1M and 10RGYB with 100 targets per colour."""
+    """Heterogeneity: 39I-1M and 10RGYB with 100 targets per colour, at the paper's length."""
     return {
         "heterogeneity-39i1m": Scenario(
             name="heterogeneity-39i1m",
             robots=Robots.of(39, 1, 0, 0, 0, 0),
             targets=Targets.each(100),
+            iterations=LONG_RUN,
         ),
         "heterogeneity-10rgyb": Scenario(
             name="heterogeneity-10rgyb",
             robots=Robots.of(0, 0, 10, 10, 10, 10),
             targets=Targets.each(100),
+            iterations=LONG_RUN,
         ),
     }
 
 
 def _calibration() -> dict[str, Scenario]:
-    """The release's two published runs (``reference/release-data``), at their size."""
+    """The release's two published runs (its public `SimData` folders), at their size."""
     rgyb = Robots.of(0, 0, 10, 10, 10, 10)
     return {
         "calibration-nl": Scenario(
@@ -332,35 +349,53 @@ def _calibration() -> dict[str, Scenario]:
 def _teaching() -> dict[str, Scenario]:
     """Our finding, not the paper's: the broadcast teaching rule beside the release's."""
     return {
-        "ktbt-broadcast": Scenario(name="ktbt-broadcast", teaching=Teaching.BROADCAST),
+        "ktbt-broadcast": Scenario(name="ktbt-broadcast", teaching=TeachingRule.BROADCAST),
         "heterogeneity-39i1m-broadcast": Scenario(
             name="heterogeneity-39i1m-broadcast",
             robots=Robots.of(39, 1, 0, 0, 0, 0),
             targets=Targets.each(100),
-            teaching=Teaching.BROADCAST,
+            teaching=TeachingRule.BROADCAST,
+            iterations=LONG_RUN,
         ),
     }
 
 
 MODE_GROUPS = {"10rgyb": Robots.of(0, 0, 10, 10, 10, 10), "39i1m": Robots.of(39, 1, 0, 0, 0, 0)}
 """The two groups the modes study compares, 25 targets a colour each."""
-MODE_VARIANTS: dict[str, dict[str, Any]] = {
-    "nl": {"mode": Mode.NO_TRANSFER},
-    "rl": {"mode": Mode.KT_BT},
-    "el": {"mode": Mode.EPHEMERAL, "memory_duration": 5_000, "memory_size": 3},
-    "el-evict": {
-        "mode": Mode.EPHEMERAL,
-        "memory_duration": 5_000,
-        "memory_size": 3,
-        "memory_when_full": "evict",
-    },
-    "plb": {"mode": Mode.PASSIVE_BUFFER},
-    "pl": {"mode": Mode.PASSIVE},
-    "pl-answer": {"mode": Mode.PASSIVE, "overhear_window": "answer"},
+
+
+class Variant(NamedTuple):
+    """One entry of the modes study: what it changes in a scenario, and its label."""
+
+    label: str
+    changes: dict[str, Any]
+
+
+MODE_VARIANTS: dict[str, Variant] = {
+    "nl": Variant("NL: no transfer", {"mode": Mode.NO_TRANSFER}),
+    "rl": Variant("RL: KT-BT", {"mode": Mode.KT_BT}),
+    "el": Variant(
+        "EL: ephemeral (3 colours, 5,000 idle ticks)",
+        {"mode": Mode.EPHEMERAL, "memory_duration": 5_000, "memory_size": 3},
+    ),
+    "el-evict": Variant(
+        "EL, evicting the least used",
+        {
+            "mode": Mode.EPHEMERAL,
+            "memory_duration": 5_000,
+            "memory_size": 3,
+            "memory_when_full": "evict",
+        },
+    ),
+    "plb": Variant("PLB: overheard, buffered", {"mode": Mode.PASSIVE_BUFFER}),
+    "pl": Variant("PL: overheard, learned at once", {"mode": Mode.PASSIVE}),
+    "pl-answer": Variant(
+        "PL, heard only at the answer", {"mode": Mode.PASSIVE, "overhear_window": "answer"}
+    ),
 }
 """The release's five modes (EL with a memory of 3 colours forgotten after 5,000 idle
 random-walk ticks), our eviction variant of EL, and our eavesdropping variant of PL (only the
-robots in range at the moment of an answer hear it)."""
+robots in range at the moment of an answer hear it): the one list of the modes study."""
 
 
 def _modes() -> dict[str, Scenario]:
@@ -370,7 +405,7 @@ def _modes() -> dict[str, Scenario]:
             name=f"modes-{group}-{variant}", robots=robots, **changes
         )
         for group, robots in MODE_GROUPS.items()
-        for variant, changes in MODE_VARIANTS.items()
+        for variant, (_, changes) in MODE_VARIANTS.items()
     }
     out["el-25i-25m"] = Scenario(
         name="el-25i-25m",
@@ -401,6 +436,31 @@ PRESETS: dict[str, Scenario] = {
     **_modes(),
 }
 """Every configuration of the paper's tables, by name."""
+
+
+STUDIES: dict[str, tuple[str, ...]] = {
+    "transfer": ("bl1", "bl2", "ktbt", "bl1-obstacles", "bl2-obstacles", "ktbt-obstacles"),
+    "opportunities": tuple(f"opportunities-{n}" for n in (10, 25, 50, 100)),
+    "range": (*(f"range-{r}" for r in (100, 200, 500, 800, 1000)), "bl1"),
+    "heterogeneity": ("heterogeneity-39i1m", "heterogeneity-10rgyb"),
+    "demo": ("bl1", "bl2", "ktbt"),
+}
+"""The paper's studies by name, each a list of presets (``range`` includes BL1 to compare)."""
+STUDIES["all"] = tuple(dict.fromkeys(name for study in STUDIES.values() for name in study))
+STUDIES["calibration"] = ("calibration-nl", "calibration-rl")
+"""The release's two published runs, at their size (100,000 iterations): ``ktbt sim compare``
+holds ours against its data."""
+STUDIES["modes"] = tuple(
+    f"modes-{group}-{variant}" for group in MODE_GROUPS for variant in MODE_VARIANTS
+)
+"""The release's five modes and our eviction variant, on 10RGYB and 39I-1M."""
+STUDIES["teaching"] = (
+    "ktbt",
+    "ktbt-broadcast",
+    "heterogeneity-39i1m",
+    "heterogeneity-39i1m-broadcast",
+)
+"""Our finding, not the paper's: the release's first-requester rule against a broadcast rule."""
 
 
 def preset(name: str) -> Scenario:

@@ -1,4 +1,4 @@
-"""Knowledge transfer as the release does it (``release-behaviour.md`` §8), over real messages.
+"""Knowledge transfer as the release does it (``spec/simulator.md`` §8), over real messages.
 
 Each iteration, after the behaviour trees and the actuators (§8.5):
 
@@ -13,7 +13,7 @@ Each iteration, after the behaviour trees and the actuators (§8.5):
    (``Agent.announce``), as if it had heard it all along.
 3. **Waits that ended** close their queries (``Agent.close_query``: a query never answered is
    lost) and clear the querying and teaching flags (§7).
-4. **Teaching** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
+4. **TeachingRule** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
    requester answers it (``Agent.answer``) if it knows what the requester asked, the requester
    is still untaught and knows fewer colours than the memory size. It answers nobody else, even
    a later neighbour it could answer. A requester a teacher still holds after it moved out of
@@ -34,13 +34,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import robot as rb
-from .scenario import Mode, Teaching
+from .kernel import jit
+from .scenario import Mode, TeachingRule
+from .sensing import first_requesters
+from .state import sync_known
 
 if TYPE_CHECKING:
-    from .world import World
+    from .state import Trial
 
 
-def step(world: World, t: int) -> None:
+def step(world: Trial, t: int) -> None:
     _scan(world)
     _ask(world, t)
     _close(world, 2 * t + 1)
@@ -52,36 +55,52 @@ def step(world: World, t: int) -> None:
             _use_buffer(world, t)
 
 
-def _scan(world: World) -> None:
+def _scan(world: Trial) -> None:
     """Step 1, the comms scan: every teacher's ``requestingRobot``."""
     prox = world.proximity
-    scans = prox.has_neighbours & ~world.querying
-    open_ = world.querying & ~world.taught
-    if not open_.any():
-        world.requester[scans] = -1
-        return
-    if world.scenario.teaching is Teaching.BROADCAST:
-        first = prox.requesters(open_, world.known, world.asked)
+    scan(
+        prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
+        prox.entered, world.known, world.asked, world.scenario.teaching is TeachingRule.BROADCAST,
+    )  # fmt: skip
+
+
+@jit
+def scan(
+    has_neighbours: np.ndarray,
+    querying: np.ndarray,
+    taught: np.ndarray,
+    requester: np.ndarray,
+    keys: np.ndarray,
+    entered: np.ndarray,
+    known: np.ndarray,
+    asked: np.ndarray,
+    broadcast: bool,
+) -> None:
+    """Every robot that is not querying and has neighbours takes as its requester the first
+    neighbour in order of entry with an open query (with ``broadcast``, only one whose
+    question it can answer), or none."""
+    n = querying.shape[0]
+    open_ = querying & ~taught
+    if open_.any():
+        first = first_requesters(keys, entered, n, open_, known, asked, broadcast)
     else:
-        first = prox.requesters(open_)
-    world.requester[scans] = first[scans]
+        first = np.full(n, -1, np.int64)
+    for i in range(n):
+        if has_neighbours[i] and not querying[i]:
+            requester[i] = first[i]
 
 
-def _ask(world: World, t: int) -> None:
+def _ask(world: Trial, t: int) -> None:
     """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
     tsr = world.sensor.tsr
-    ask = tsr >= 0
-    if not ask.any():
+    askers = _askers(
+        tsr, world.timers.cool_end, 2 * t + 1, world.carrying, world.colour_of, world.known
+    )
+    if not len(askers):
         return
-    ask &= ~world.timers.busy(2 * t + 1)
-    ask &= world.carrying < 0
-    if not ask.any():
-        return
-    colours = world.colour_of[tsr]
-    unknown = ~world.known[np.arange(world.n), colours - 1]
     buffered = world.scenario.mode is Mode.PASSIVE_BUFFER
-    for i in np.flatnonzero(ask & unknown).tolist():
-        colour = int(colours[i])
+    for i in askers.tolist():
+        colour = int(world.colour_of[tsr[i]])
         if buffered and rb.sequence_of(colour) in world.agents[i].buffered:
             continue  # PLB does not ask about what it overheard: it learns it (§9.5)
         agent = world.agents[i]
@@ -90,9 +109,8 @@ def _ask(world: World, t: int) -> None:
         # A teacher that still holds this robot as its (stale) requester reads its question in
         # the release wherever it is: send it there too.
         for teacher in np.flatnonzero(world.requester == i).tolist():
-            if not world.proximity_has(i, teacher):
+            if not world.proximity.in_range(i, teacher):
                 agent.announce(world.names[teacher])
-        world.queries += 1
         world.asked[i] = colour
         world.querying[i] = True
         world.taught[i] = False
@@ -100,32 +118,60 @@ def _ask(world: World, t: int) -> None:
         world.timers.start(i, 2 * t + 1)
 
 
-def _close(world: World, call: int) -> None:
+@jit
+def _askers(
+    tsr: np.ndarray,
+    cool_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    colour_of: np.ndarray,
+    known: np.ndarray,
+) -> np.ndarray:
+    """The free robots (not busy before ``call``) that have registered a target, carry
+    nothing and do not know the target's colour."""
+    out = np.empty(tsr.shape[0], np.int64)
+    k = 0
+    for i in range(tsr.shape[0]):
+        free = tsr[i] >= 0 and cool_end[i] < call and carrying[i] < 0
+        if free and not known[i, colour_of[tsr[i]] - 1]:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+def _close(world: Trial, call: int) -> None:
     """Step 3: waits that ended by counter call ``call`` clear their flags."""
-    active = world.querying | world.teaching
-    if not active.any():
-        return
-    ended = world.timers.wait_end <= call
-    done = world.querying & ended
-    if done.any():
-        for i in np.flatnonzero(done).tolist():
-            world.agents[i].close_query()
-        world.querying[done] = False
-    world.teaching &= ~ended
+    for i in _ended(world.querying, world.answering, world.timers.wait_end, call).tolist():
+        world.agents[i].close_query()
 
 
-def _teach(world: World, t: int) -> None:
+@jit
+def _ended(
+    querying: np.ndarray, teaching: np.ndarray, wait_end: np.ndarray, call: int
+) -> np.ndarray:
+    """Clear the querying and teaching flags of the waits that ended by ``call``; returns the
+    robots whose query closed."""
+    out = np.empty(querying.shape[0], np.int64)
+    k = 0
+    for i in range(querying.shape[0]):
+        if wait_end[i] <= call:
+            if querying[i]:
+                querying[i] = False
+                out[k] = i
+                k += 1
+            teaching[i] = False
+    return out[:k]
+
+
+def _teach(world: Trial, t: int) -> None:
     """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
-    can = world.requester >= 0
-    if not can.any():
-        return
-    can &= ~world.timers.busy(2 * t + 2)
-    can &= ~world.querying
-    can &= world.carrying < 0
-    if not can.any():
+    can = _teachers(
+        world.requester, world.timers.cool_end, 2 * t + 2, world.querying, world.carrying
+    )
+    if not len(can):
         return
     memory = world.scenario.memory_size
-    for teacher in np.flatnonzero(can).tolist():
+    for teacher in can.tolist():
         learner = int(world.requester[teacher])
         if not world.querying[learner] or world.taught[learner]:
             continue
@@ -141,21 +187,38 @@ def _teach(world: World, t: int) -> None:
             continue  # never heard this question
         if not world.agents[teacher].answer(query):
             continue
-        world.responses += 1
         world.agents[learner].now = t
-        world.teaching[teacher] = True
+        world.answering[teacher] = True
         world.walk_flag[teacher] = False
         world.timers.start(teacher, 2 * t + 2)
         world.heard_from[teacher] = set()
         world.answered_at[teacher] = t
         if world.agents[learner].receive():
-            world.learned += 1
             world.taught[learner] = True
             world.memory_iter[learner] = 0
-            world.sync_known(learner)
+            sync_known(world, learner)
 
 
-def came_into_range(world: World, pairs: np.ndarray) -> None:
+@jit
+def _teachers(
+    requester: np.ndarray,
+    cool_end: np.ndarray,
+    call: int,
+    querying: np.ndarray,
+    carrying: np.ndarray,
+) -> np.ndarray:
+    """The robots with a requester that are free before ``call``, not querying and carry
+    nothing."""
+    out = np.empty(requester.shape[0], np.int64)
+    k = 0
+    for i in range(requester.shape[0]):
+        if requester[i] >= 0 and cool_end[i] < call and not querying[i] and carrying[i] < 0:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+def came_into_range(world: Trial, pairs: np.ndarray) -> None:
     """Askers still untaught send their query to each robot that just came into range."""
     open_ = world.querying & ~world.taught
     if not open_.any():
@@ -165,12 +228,12 @@ def came_into_range(world: World, pairs: np.ndarray) -> None:
             world.agents[i].announce(world.names[j])
 
 
-def _overhear(world: World, t: int) -> None:
+def _overhear(world: Trial, t: int) -> None:
     """§9.4: every robot that is not querying hears the answer of each teaching neighbour, for
     the teacher's whole teaching wait; PLB keeps it, PL learns it at once (§9.6). With
     ``overhear_window = "answer"`` (our variant, a radio's) only the robots in range at the
     moment of the answer hear it."""
-    teachers = np.flatnonzero(world.teaching)
+    teachers = np.flatnonzero(world.answering)
     if not len(teachers):
         return
     moment = world.scenario.overhear_window == "answer"
@@ -186,14 +249,12 @@ def _overhear(world: World, t: int) -> None:
             agent = world.agents[listener]
             world.agents[teacher].transport.send(world.names[listener], answer)
             agent.now = t
-            before = agent.metrics.learned_passive
             if agent.receive():
-                world.learned_passive += agent.metrics.learned_passive - before
                 world.memory_iter[listener] = 0
-                world.sync_known(listener)
+                sync_known(world, listener)
 
 
-def _use_buffer(world: World, t: int) -> None:
+def _use_buffer(world: Trial, t: int) -> None:
     """§9.5: a robot that has registered a target of a colour it does not know, and carries
     nothing, learns that colour from its buffer at once, without a query or a wait."""
     tsr = world.sensor.tsr
@@ -210,6 +271,5 @@ def _use_buffer(world: World, t: int) -> None:
             continue
         agent.now = t
         if agent.learn_buffered(rb.sequence(colour)):
-            world.learned_buffered += 1
             world.memory_iter[i] = 0
-            world.sync_known(i)
+            sync_known(world, i)

@@ -1,4 +1,4 @@
-"""Wait and cool-down: the release's counters, in closed form (``release-behaviour.md`` §7).
+"""Wait and cool-down: the release's counters, in closed form (``spec/simulator.md`` §7).
 
 The release keeps ``waitTimeCount`` and ``coolDownCount`` per robot, and two components
 (``RegLearnBT`` then ``TeachBT``) each call ``WaitCheck`` then ``CoolDownCheck`` once per

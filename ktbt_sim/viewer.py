@@ -91,10 +91,10 @@ def _blend(colour: RGB, base: RGB, amount: float) -> RGB:
 
 
 def light_colour(world: World, i: int) -> RGB | None:
-    """Robot ``i``'s status light, or None when it is off. Teaching wins over querying (a robot
+    """Robot ``i``'s status light, or None when it is off. TeachingRule wins over querying (a robot
     does not do both, but the picture must be decided), and the walking light marks only a robot
     searching with empty hands, as in the paper."""
-    if world.teaching[i]:
+    if world.answering[i]:
         return LIGHT_TEACHING
     if world.querying[i]:
         return LIGHT_QUERYING

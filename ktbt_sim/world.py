@@ -1,6 +1,6 @@
 """The search-and-rescue world: the authors' release, mechanism by mechanism, on pymunk.
 
-One :class:`World` is one trial. Its iteration follows ``release-behaviour.md`` §8.5: every
+One :class:`World` is one trial. Its iteration follows ``spec/simulator.md`` §8.5: every
 robot's behaviour tree is ticked, the actuators turn the resultant velocities into motion, the
 comms scan chooses each teacher's requester, robots ask, teachers answer, physics advances 0.02 s,
 and the sensors fire. Each mechanism lives in its own module: ``geometry`` (§2), ``motion`` (§4),
@@ -35,11 +35,13 @@ from .sensing import (
     TARGET_SENSOR,
     WALL,
     WALL_SENSOR,
+    Proximity,
     TargetSensor,
     WallSensor,
-    proximity,
-    zone_events,
+    enable,
+    zones,
 )
+from .state import forget_learned
 from .timers import Timers
 
 RECORD_COLUMNS = records.COLUMNS
@@ -117,7 +119,7 @@ class World:
         self.heading = np.full(n, math.pi / 2)  # spawned facing Unity's +z (§3)
         self.rv = np.zeros((n, 2))
         """The resultant velocity each robot's behaviours last wrote (§4.1)."""
-        self.mode = np.full(n, rb.IDLE, dtype=np.int64)
+        self.drive = np.full(n, motion.IDLE, dtype=np.int64)
         self.walk_flag = np.ones(n, dtype=bool)  # on at start (§3)
         """The release's random-walk flag (its CSV's ``Cur. RandomWalk States``, §10)."""
         self.walk_time = np.zeros(n)
@@ -133,20 +135,24 @@ class World:
         self.delivered = 0
         self.timers = Timers(n, timing.wait_limit, timing.cooldown_limit)
         self.querying = np.zeros(n, dtype=bool)
-        self.teaching = np.zeros(n, dtype=bool)
+        self.answering = np.zeros(n, dtype=bool)
         self.taught = np.zeros(n, dtype=bool)
         self.asked = np.zeros(n, dtype=np.int64)
         """The colour each robot last asked about."""
         self.requester = np.full(n, -1, dtype=np.int64)
         """Each teacher's ``requestingRobot`` (§8.2), -1 for none."""
-        self.queries = self.responses = self.learned = 0
-        self.learned_buffered = self.learned_passive = self.forgotten = 0
+        self.forgotten = 0
+        """Learned colours forgotten at once when EL's memory timer ran out (§9.3); an eviction
+        to make room for a new colour (our variant) is not counted here."""
         self.memory_iter = np.zeros(n, dtype=np.int64)
         """EL's memory timer: random-walk ticks since the last pick-up or lesson (§9.3)."""
         self.heard_from: dict[int, set[int]] = {}
         self.answered_at: dict[int, int] = {}
         """Who has overheard each teacher's current answer (§9.4)."""
-        self.proximity = proximity(
+        self.collision = np.zeros(n, dtype=bool)
+        """Whether each robot's collision sensor holds a robot or a wall (§4.6), as the
+        sensors last fired (none before the first physics step)."""
+        self.proximity = Proximity(
             n, spec.collision_sensor, spec.contact_radius, scenario.comm_radius, self.kt_bt
         )
         self.bodies: list[pymunk.Body] = []
@@ -164,9 +170,15 @@ class World:
         self._out.set_float_buf(self._positions)
         self.pos = self._positions[: 2 * n].reshape(n, 2)
         self.actuator = motion.Actuator(
-            spec.max_speed, spec.max_turn_deg * self.dt, spec.heading_tolerance_deg
+            spec.max_speed,
+            math.radians(spec.max_turn_deg * self.dt),
+            math.radians(spec.heading_tolerance_deg),
         )
-        self.collision = np.zeros(n, dtype=bool)
+        self.walk = motion.Walk(
+            self.dt, timing.walk_goal_span, timing.walk_goal_min_s, timing.walk_goal_max_s,
+            spec.carry_jitter_deg, spec.avoid_turn_deg,
+        )  # fmt: skip
+        self._memory_duration = scenario.memory_duration or 0
         self.proximity.update(self.pos, 0)
 
         # Agents on a network whose broadcasts reach the comms neighbours; a teacher's answer
@@ -174,6 +186,7 @@ class World:
         self.network = MemoryNetwork(audience=self._audience)
         self.names = [f"r{i}" for i in range(n)]
         self.registry = rb.registry(self)
+        """The behaviours: they write their effects into this world's arrays (``state``)."""
         self.agents: list[Agent] = []
         overhear = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}.get(scenario.mode, "off")
         for i, kind in enumerate(self.kinds):
@@ -195,7 +208,8 @@ class World:
             agent.blackboard[rb.INDEX] = i
             self.agents.append(agent)
         self._signature = np.full(n, -1, dtype=np.int64)
-        self._keys = [rb.sequence_of(c) for c in range(1, 5)]
+        self.sequence_keys = [rb.sequence_of(c) for c in range(1, 5)]
+        self.picked: list[int] = []
         half_count = geometry.ZONE_OUTER * scale / 2 + geometry.TARGET_SIZE / 2
         self._zone = (half_count, geometry.ZONE_INNER * scale / 2, spec.zone_sensor)
 
@@ -232,84 +246,19 @@ class World:
         self.space.add(body, hull, eyes, bumper)
         self.bodies.append(body)
 
-    def proximity_has(self, i: int, j: int) -> bool:
-        """Whether robot ``j`` is in robot ``i``'s comms range."""
-        return bool(np.isin(j, self.proximity.neighbours(i)))
-
     def _audience(self, sender: str) -> list[str]:
         i = int(sender[1:])
         return [self.names[j] for j in self.proximity.neighbours(i).tolist()]
-
-    # -- what the behaviours do (release-behaviour.md §4.3, §4.5) ---------------------------
-
-    def set_mode(self, i: int, mode: int) -> None:
-        self.mode[i] = mode
-
-    def pick(self, i: int, colour: int | None) -> bool:
-        """``PickTreasure``: take the registered target at once, wherever it is in the sensor
-        (no approach); clears the random-walk flag, disables sensing, forgets the requester."""
-        t = int(self.sensor.tsr[i])
-        if self.carrying[i] >= 0 or t < 0 or not self.target_free[t]:
-            return False
-        if colour is not None and int(self.target_colour[t]) != int(colour):
-            return False
-        self.carrying[i] = t
-        self.target_free[t] = False
-        self.space.remove(self._target_shapes[t])
-        self.sensor.picked(t)
-        self.walk_flag[i] = False
-        self.requester[i] = -1
-        self.memory_iter[i] = 0
-        self.mode[i] = rb.IDLE
-        return True
-
-    def forget_learned(self, i: int) -> None:
-        """EL: robot ``i`` forgets everything it learned at once; its tree reverts to what it
-        was built with (§9.3)."""
-        self.forgotten += self.agents[i].forget_learned(reason="idle")
-        self.sync_known(i)
-        self.memory_iter[i] = 0
-
-    def sync_known(self, i: int) -> None:
-        """Robot ``i``'s colours, read back from its agent's knowledge base."""
-        knowledge = self.agents[i].knowledge
-        for c, key in enumerate(self._keys):
-            self.known[i, c] = key in knowledge
-
-    def set_goal(self, i: int, colour: int) -> None:
-        """``AssignCPk``: the zone the carried target goes to."""
-        self.goal[i] = colour
-
-    def place(self, i: int) -> bool:
-        """``PlaceTreasure``: the target already belongs to the zone; the robot starts a wait
-        and a cool-down (after every delivery, in every mode: §7)."""
-        if self.carrying[i] < 0 or not self.in_zone[i]:
-            return False
-        self.carrying[i] = -1
-        self.goal[i] = 0
-        self.in_zone[i] = False
-        self.sensor.tsr[i] = -1
-        self.walk_flag[i] = False
-        self.mode[i] = rb.IDLE
-        self.delivered += 1
-        self.timers.start(i, 2 * self.iteration)
-        return True
 
     # -- one iteration ----------------------------------------------------------------------
 
     def signature(self) -> np.ndarray:
         """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in
         its zone, the registered target's colour, the colours it knows."""
-        waiting = self.timers.waiting(2 * self.iteration)
-        seen = self.colour_of[self.sensor.tsr]
-        packed: np.ndarray = (
-            self.collision.astype(np.int64)
-            | waiting << 1
-            | (self.carrying >= 0) << 2
-            | self.in_zone << 3
-            | seen << 4
-            | (self.known @ np.array([1, 2, 4, 8])) << 7
-        )
+        packed: np.ndarray = rb.signature(
+            self.collision, self.timers.wait_end, 2 * self.iteration, self.carrying,
+            self.in_zone, self.colour_of, self.sensor.tsr, self.known,
+        )  # fmt: skip
         return packed
 
     def step(self) -> None:
@@ -319,7 +268,8 @@ class World:
         self._move()
         if self.kt_bt:
             teaching.step(self, t)
-        self.sensor.enabled = (self.carrying < 0) & ~self.timers.sensing_off(2 * t + 2)
+        timers = self.timers
+        enable(self.sensor.enabled, self.carrying, timers.wait_end, timers.cool_end, 2 * t + 2)
         pymunk.batch.set_space_bodies(self.space, pymunk.batch.BodyFields.VELOCITY, self._in)
         self.space.step(self.dt)
         self._out.clear()  # refills ``self._positions``, of which ``self.pos`` is a view
@@ -342,74 +292,40 @@ class World:
             bb[rb.IN_ZONE] = s >> 3 & 1
             bb[rb.SEEN] = s >> 4 & 7
             agent.control.tick()
+        for t in self.picked:  # taken away: out of the space and of every sensor it was in
+            self.space.remove(self._target_shapes[t])
+            self.sensor.picked(t)
+        self.picked.clear()
         # A pick or a place changed this robot's inputs: it ticks again next iteration.
-        self._signature[self.mode == rb.IDLE] = -1
+        self._signature[self.drive == motion.IDLE] = -1
 
     def _move(self) -> None:
         """Every behaviour writes its robot's resultant velocity, then the actuators act."""
-        mode, rv, rng = self.mode, self.rv, self.rng
-        spec, timing = self.scenario.robot, self.scenario.timing
-        present = np.bincount(mode, minlength=5)
-        if present[rb.WALK]:
-            rows = np.flatnonzero(mode == rb.WALK)
-            self.walk_flag[rows] = True
-            elapsed = self.walk_time[rows] + self.dt
-            over = elapsed > self.walk_span[rows]
-            if over.any():
-                due = rows[over]
-                k = len(due)
-                rv[due] = motion.random_goals(rng, k, timing.walk_goal_span) - self.pos[due]
-                elapsed[over] = 0.0
-                self.walk_span[due] = rng.uniform(timing.walk_goal_min_s, timing.walk_goal_max_s, k)
-            self.walk_time[rows] = elapsed
-            if self.scenario.memory_duration is not None:
-                self.memory_iter[rows] += 1
-                spent = rows[self.memory_iter[rows] >= self.scenario.memory_duration]
-                for i in spent.tolist():
-                    self.forget_learned(i)
-        if present[rb.STOP]:
-            rows = np.flatnonzero(mode == rb.STOP)
-            rv[rows] = 0.0
-            self.walk_flag[rows] = False
-        if present[rb.TO_ZONE]:
-            rows = np.flatnonzero(mode == rb.TO_ZONE)
-            self.walk_flag[rows] = False
-            to_zone = self.zone_centres[self.goal[rows] - 1] - self.pos[rows]
-            rv[rows] = motion.carry_aim(rng, to_zone, spec.carry_jitter_deg)
-        if present[rb.AVOID]:
-            rows = np.flatnonzero(mode == rb.AVOID)
-            away = self.proximity.away(self.pos, rows)
-            walls = self.wall_sensor
-            for k, i in enumerate(rows.tolist()):
-                if walls.count[i]:
-                    wx, wy = walls.away(i, float(self.pos[i, 0]), float(self.pos[i, 1]))
-                    away[k, 0] += wx
-                    away[k, 1] += wy
-            rv[rows] = motion.avoidance(rng, away, spec.avoid_turn_deg)
-        self.actuator(rv, self.heading, self._vel)
+        prox, walls, walk = self.proximity, self.wall_sensor, self.walk
+        spent = motion.behave(
+            self.drive, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
+            self.memory_iter, self._memory_duration, self.goal, self.zone_centres,
+            prox.start, prox.others, prox.weights, walls.count, walls.centres, self.rng,
+            walk.dt, walk.goal_span, walk.leg_min_s, walk.leg_max_s, *walk.carry_jitter_deg,
+            *walk.avoid_turn_deg,
+        )  # fmt: skip
+        for i in spent.tolist():
+            forget_learned(self, i)
+        motion.actuate(self.rv, self.heading, self._vel, *self.actuator)
 
     def _sense(self, t: int) -> None:
         """The trigger callbacks have run inside the physics step; now the robot-to-robot
         sensors and the zones (§4.5, §4.6, §5.3)."""
         prox = self.proximity
         prox.update(self.pos, t)
-        self.collision = (prox.count > 0) | (self.wall_sensor.count > 0)
+        np.logical_or(prox.count, self.wall_sensor.count, out=self.collision)
         if self.kt_bt and len(prox.newly):
             teaching.came_into_range(self, prox.newly)
-        carriers = np.flatnonzero(self.carrying >= 0)
-        if len(carriers):
-            count_half, place_half, reach = self._zone
-            counted, inside = zone_events(
-                self.pos[carriers], self.zone_centres, self.goal[carriers], count_half,
-                place_half, reach,
-            )  # fmt: skip
-            for k, i in enumerate(carriers.tolist()):
-                target = int(self.carrying[i])
-                if counted[k] and not self.counted[target]:
-                    self.counted[target] = True
-                    self.collected[self.target_colour[target] - 1] += 1
-                if inside[k]:
-                    self.in_zone[i] = True
+        count_half, place_half, reach = self._zone
+        zones(
+            self.pos, self.carrying, self.goal, self.zone_centres, self.counted, self.collected,
+            self.in_zone, self.target_colour, count_half, place_half, reach,
+        )  # fmt: skip
 
     # -- what an experiment reads -----------------------------------------------------------
 

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from ktbt_sim import records
 from ktbt_sim.metrics import (
     entropy,
     heterogeneity,
@@ -161,6 +162,18 @@ def test_summary_means_stds_and_reached_counts() -> None:
     assert s["knowledge_score_mean"] == pytest.approx((0.25 + 0.625 + 1.0) / 3)
 
 
+def test_summary_reads_knowledge_when_collection_ended_and_at_an_iteration() -> None:
+    res = _results([[50, 100, 100], [90, 95, 100], [10, 20, 80]], {})
+    res.data["knows_4"][:] = [[1, 2, 3], [4, 5, 6], [7, 8, 9]]
+    s = summary(res)
+    assert (s["t100_mean"], s["t100_reached"]) == (25.0, 2)  # 20 and 30; the third never
+    assert s["knows_4_end_mean"] == (2 + 6) / 2  # at each trial's first row with everything
+    early = summary(res, at=25)
+    assert early["iteration"] == 20 and s["iteration"] == 30
+    assert early["knows_4_mean"] == (2 + 5 + 8) / 3
+    assert early["collected_pct_mean"] == pytest.approx((100 + 95 + 20) / 3)
+
+
 def test_summary_of_one_trial_has_no_spread_and_nothing_reached_is_nan() -> None:
     s = summary(_results([[10, 20, 30]], {}))
     assert s["collected_pct_mean"] == 30.0 and math.isnan(s["collected_pct_std"])
@@ -180,5 +193,5 @@ def test_colour_sets_as_species_10rgyb_starts_heterogeneous() -> None:
     assert complexity == pytest.approx(math.log(4))
     assert disparity == pytest.approx(0.375)
     assert hetero == pytest.approx(math.log(4) * 0.375)
-    assert metrics.set_name(0) == "set_none" and metrics.set_name(0b1011) == "set_RGB"
+    assert records.set_name(0) == "set_none" and records.set_name(0b1011) == "set_RGB"
     assert metrics.set_distance()[0, 15] == pytest.approx(1.0)  # nothing vs all four colours

@@ -142,5 +142,5 @@ def test_results_are_loaded_from_the_directory_and_only_present_figures_drawn(
         "summary.md",
     ]
     assert written[0].read_bytes().startswith(PNG)
-    row = "| bl1 | 40M | no-transfer | 100 | 1 | 100.0 |"
+    row = f"| bl1 | 40M | no-transfer | 100 | {rows['iteration'][-1]:,} | 1 | 100.0 |"
     assert row in (tmp_path / "summary.md").read_text(encoding="utf-8")

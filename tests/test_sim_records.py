@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from ktbt_sim import compare, records
-from ktbt_sim.metrics import set_name
+from ktbt_sim import results as on_disk
+from ktbt_sim.records import set_name
 from ktbt_sim.scenario import Mode, Scenario
 from ktbt_sim.world import World
 
@@ -35,7 +36,7 @@ def test_a_release_csv_reads_as_our_columns() -> None:
 
 
 def test_a_release_folder_reads_as_results_with_its_scenario() -> None:
-    results = records.read_release_folder(RL)
+    results = on_disk.read_release_folder(RL)
     assert results.trials == (1, 2)
     assert results.scenario.mode is Mode.KT_BT
     assert results.scenario.robots.label() == "10R-10G-10Y-10B"
@@ -69,7 +70,7 @@ def test_the_two_colour_columns_hold_ry_rb_rg_under_the_header_rg_ry_rb() -> Non
 
 
 def test_compare_against_the_release_excerpt(tmp_path: Path) -> None:
-    lines = compare.lines(records.read_release_folder(RL), records.read_release_folder(RL))
+    lines = compare.lines(on_disk.read_release_folder(RL), on_disk.read_release_folder(RL))
     assert all(line.holds for line in lines if line.ours[2])
     assert [line.name.split(" at ")[0] for line in lines][3:] == [
         "queries",
@@ -141,12 +142,12 @@ def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Pa
 def test_every_preset_is_named_as_the_release_names_it_and_reads_back() -> None:
     """Each of the release's modes keeps its own name and memory duration through the folder
     name; our variants, which the release has not, get no release name at all."""
-    from ktbt_sim.scenario import PRESETS, Teaching
+    from ktbt_sim.scenario import PRESETS, TeachingRule
 
     named = set()
     for scenario in PRESETS.values():
         variant = (
-            scenario.teaching is not Teaching.RELEASE
+            scenario.teaching is not TeachingRule.RELEASE
             or scenario.memory_when_full != "refuse"
             or scenario.overhear_window != "wait"
         )

@@ -1,4 +1,4 @@
-"""The release's rules, one test each (``reference/release-behaviour.md``, section in each name).
+"""The release's rules, one test each (``spec/simulator.md``, section in each name).
 
 Each test builds the smallest real situation that shows its rule: real pymunk shapes and
 callbacks, real agents exchanging query and response messages, the world's own step.
@@ -13,7 +13,8 @@ import pymunk
 
 from ktbt_sim import motion, sensing, teaching
 from ktbt_sim import robot as rb
-from ktbt_sim.scenario import Mode, Robots, Scenario, Targets, Teaching
+from ktbt_sim.scenario import Mode, Robots, Scenario, Targets, TeachingRule
+from ktbt_sim.state import total
 from ktbt_sim.timers import Timers
 from ktbt_sim.world import World
 
@@ -69,11 +70,11 @@ def test_s7_sensing_is_off_only_between_the_end_of_the_wait_and_the_end_of_the_c
 
 
 def test_s4_1_drives_only_within_5_degrees_and_turns_4_degrees_an_iteration() -> None:
-    act = motion.Actuator(300.0, 200.0 * 0.02, 5.0)
+    act = motion.Actuator(300.0, math.radians(200.0 * 0.02), math.radians(5.0))
     rv = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
     heading = np.radians([4.9, 30.0, 90.0])
     out = np.zeros((3, 2))
-    act(rv, heading, out)
+    motion.actuate(rv, heading, out, *act)
     assert np.allclose(out[0], [300.0, 0.0])  # aligned: full speed along rv, no turn
     assert math.isclose(math.degrees(heading[0]), 4.9)
     assert np.allclose(out[1], 0.0) and math.isclose(math.degrees(heading[1]), 26.0)
@@ -176,9 +177,25 @@ def test_s5_1_an_enter_while_sensing_is_off_clears() -> None:
 def test_s4_5_a_target_counts_at_510_and_the_robot_places_at_490() -> None:
     centres = np.array([[2800.0, 2800.0]] * 4)
     xs = np.array([[2800.0 - d, 2800.0] for d in (511.0, 509.0, 491.0, 489.0)])
-    counted, inside = sensing.zone_events(xs, centres, np.array([1] * 4), 510.0, 400.0, 90.0)
+    counted, inside = zone_events(xs, centres, 510.0, 400.0, 90.0)
     assert counted.tolist() == [False, True, True, True]
     assert inside.tolist() == [False, False, False, True]
+
+
+def zone_events(
+    pos: np.ndarray, centres: np.ndarray, count_half: float, place_half: float, reach: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Four carriers at ``pos`` heading to zone 1, each carrying its own target: which count
+    and which may place, from ``sensing.zones`` on fresh state."""
+    n = len(pos)
+    counted, collected = np.zeros(n, dtype=bool), np.zeros(4, dtype=np.int64)
+    inside = np.zeros(n, dtype=bool)
+    sensing.zones(
+        pos, np.arange(n), np.ones(n, dtype=np.int64), centres, counted, collected, inside,
+        np.ones(n, dtype=np.int64), count_half, place_half, reach,
+    )  # fmt: skip
+    assert collected[0] == counted.sum()
+    return counted, inside
 
 
 # -- §4.6: collision avoidance -----------------------------------------------------------------
@@ -188,15 +205,14 @@ def test_s4_6_avoidance_starts_at_150_and_counts_a_body_inside_twice() -> None:
     prox = sensing.Proximity(3, 75.0, 36.0, 600.0, comms=False)
     pos = np.array([[0.0, 0.0], [149.0, 0.0], [0.0, 100.0]])
     prox.update(pos, 1)
-    assert prox.weight[0].tolist() == [0.0, 1.0, 2.0]
+    assert prox.weight(0).tolist() == [0.0, 1.0, 2.0]
     prox.update(np.array([[0.0, 0.0], [151.0, 0.0], [0.0, 1000.0]]), 2)
     assert prox.count[0] == 0
 
 
 def test_s4_6_avoidance_turns_sideways_70_to_79_degrees_counter_clockwise() -> None:
     rng = np.random.default_rng(0)
-    away = np.tile([[1.0, 0.0]], (2000, 1))
-    turned = motion.avoidance(rng, away, (70, 79))
+    turned = np.array([motion.turn(rng, 1.0, 0.0, 70, 79) for _ in range(2000)])
     angles = np.degrees(np.arctan2(turned[:, 1], turned[:, 0]))
     assert set(np.round(angles).astype(int).tolist()) == set(range(70, 80))
 
@@ -214,7 +230,6 @@ def rig(kinds: Robots, positions: list[tuple[float, float]], **changes: object) 
     world = World(small(robots=kinds, targets=Targets(red=1, green=1), **changes), seed=0)
     for i, (x, y) in enumerate(positions):
         place(world, i, x, y)
-    assert isinstance(world.proximity, sensing.Proximity)  # a small group: the dense search
     world.proximity.update(world.pos, 0)
     world.proximity.entered[:] = 0
     return world
@@ -226,9 +241,13 @@ def see(world: World, i: int, colour: int) -> None:
 
 
 def enter_in_order(world: World, order: list[int], at: int) -> None:
-    assert isinstance(world.proximity, sensing.Proximity)
+    """Robots ``order`` came into robot ``at``'s range in that order (and it into theirs)."""
+    prox = world.proximity
     for k, j in enumerate(order):
-        world.proximity.entered[at, j] = world.proximity.entered[j, at] = k + 1
+        for key in (at * prox.n + j, j * prox.n + at):
+            index = int(np.searchsorted(prox.keys, key))
+            assert prox.keys[index] == key, "not in range"
+            prox.entered[index] = k + 1
 
 
 def test_s8_1_a_free_robot_asks_about_an_unknown_colour_at_once() -> None:
@@ -252,14 +271,14 @@ def test_s8_2_a_teacher_answers_only_its_first_requester() -> None:
     for t in range(2, 400):
         teaching.step(world, t)
     assert world.requester[2] == 0
-    assert world.responses == 0 and not world.taught.any()
+    assert total(world, "responses_sent") == 0 and not world.taught.any()
 
 
 def test_s8_2_the_broadcast_rule_answers_the_first_question_it_can() -> None:
     world = rig(
         Robots.of(2, 0, 1, 0, 0, 0),
         [(0.0, 0.0), (100.0, 300.0), (0.0, 300.0)],
-        teaching=Teaching.BROADCAST,
+        teaching=TeachingRule.BROADCAST,
     )
     enter_in_order(world, [0, 1], at=2)
     see(world, 0, 2)
@@ -267,7 +286,7 @@ def test_s8_2_the_broadcast_rule_answers_the_first_question_it_can() -> None:
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.requester[2] == 1
-    assert world.responses == 1 and world.taught.tolist() == [False, True, False]
+    assert total(world, "responses_sent") == 1 and world.taught.tolist() == [False, True, False]
     assert world.known[1, 0] and rb.sequence_of(1) in world.agents[1].knowledge
 
 
@@ -276,7 +295,7 @@ def test_s8_2_one_teacher_per_query() -> None:
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.responses == 1
+    assert total(world, "responses_sent") == 1
     assert sum(a.metrics.responses_sent for a in world.agents) == 1
     assert world.agents[0].metrics.responses_received == 1
 
@@ -289,12 +308,12 @@ def test_s8_2_a_query_stays_answerable_for_the_whole_wait() -> None:
     teaching.step(world, 1)
     for t in range(2, 400):
         teaching.step(world, t)
-    assert world.responses == 0
+    assert total(world, "responses_sent") == 0
     place(world, 1, 300.0, 0.0)
     world.proximity.update(world.pos, 400)
     teaching.came_into_range(world, world.proximity.newly)
     teaching.step(world, 401)
-    assert world.responses == 1 and world.known[0, 0]
+    assert total(world, "responses_sent") == 1 and world.known[0, 0]
 
 
 def test_s8_2_a_query_is_not_answerable_after_the_wait() -> None:
@@ -309,7 +328,7 @@ def test_s8_2_a_query_is_not_answerable_after_the_wait() -> None:
     world.proximity.update(world.pos, 503)
     teaching.came_into_range(world, world.proximity.newly)
     teaching.step(world, 504)
-    assert world.responses == 0 and not world.known[0, 0]
+    assert total(world, "responses_sent") == 0 and not world.known[0, 0]
 
 
 def test_s8_3_a_taught_learner_keeps_waiting_and_its_teacher_waits_too() -> None:
@@ -317,7 +336,7 @@ def test_s8_3_a_taught_learner_keeps_waiting_and_its_teacher_waits_too() -> None
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.taught[0] and world.teaching[1]
+    assert world.taught[0] and world.answering[1]
     assert world.timers.waiting(2 * 400)[0] and world.timers.waiting(2 * 400)[1]
     assert world.timers.wait_end[0] == 2 * 1 + 1 + 1001  # not shortened by the answer
 
@@ -332,7 +351,7 @@ def test_s8_2_the_first_requester_is_by_order_of_entry_not_by_index() -> None:
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.requester[2] == 1
-    assert world.responses == 1 and world.taught.tolist() == [False, True, False]
+    assert total(world, "responses_sent") == 1 and world.taught.tolist() == [False, True, False]
 
 
 def test_s8_2_a_taught_querier_no_longer_holds_the_teachers_attention() -> None:
@@ -354,7 +373,7 @@ def test_s8_2_a_stale_requester_is_answered_out_of_range() -> None:
     see(world, 0, 2)  # green: T (red only) cannot answer, but L is its requester
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.requester[1] == 0 and world.responses == 0
+    assert world.requester[1] == 0 and total(world, "responses_sent") == 0
     world.sensor.tsr[0] = -1  # L loses sight of the green target
     place(world, 0, 3000.0, 3000.0)
     world.proximity.update(world.pos, 3)
@@ -363,7 +382,7 @@ def test_s8_2_a_stale_requester_is_answered_out_of_range() -> None:
     assert world.requester[1] == 0 and not world.proximity.has_neighbours[1]
     see(world, 0, 1)  # now red, from out of range
     teaching.step(world, 1200)
-    assert world.responses == 1 and world.known[0, 0]
+    assert total(world, "responses_sent") == 1 and world.known[0, 0]
 
 
 def test_s4_5_the_worlds_zone_counts_at_510_and_places_at_490() -> None:
@@ -371,9 +390,7 @@ def test_s4_5_the_worlds_zone_counts_at_510_and_places_at_490() -> None:
     count_half, place_half, reach = world._zone
     centres = world.zone_centres
     xs = np.array([[2800.0 - d, 2800.0] for d in (511.0, 509.0, 491.0, 489.0)])
-    counted, inside = sensing.zone_events(
-        xs, centres, np.array([1] * 4), count_half, place_half, reach
-    )
+    counted, inside = zone_events(xs, centres, count_half, place_half, reach)
     assert counted.tolist() == [False, True, True, True]
     assert inside.tolist() == [False, False, False, True]
 
@@ -412,7 +429,7 @@ def test_s4_2_the_walk_timer_runs_only_on_random_walk_ticks() -> None:
             if world.iteration == wait_at:
                 world.timers.start(0, 2 * (world.iteration + 1))  # as a delivery would
             world.step()
-            if not np.array_equal(world.rv, previous) and world.mode[0] == rb.WALK:
+            if not np.array_equal(world.rv, previous) and world.drive[0] == motion.WALK:
                 out.append(world.iteration)
             previous = world.rv.copy()
         return out
@@ -448,11 +465,11 @@ def test_s9_3_el_forgets_everything_learned_after_its_random_walk_ticks() -> Non
     teaching.step(world, 1)
     teaching.step(world, 2)
     assert world.known[0, 0] and world.memory_iter[0] == 0
-    world.mode[0] = rb.STOP  # waiting: the timer does not run
+    world.drive[0] = motion.STOP  # waiting: the timer does not run
     for _ in range(100):
         world._move()
     assert world.memory_iter[0] == 0 and world.known[0, 0]
-    world.mode[0] = rb.WALK
+    world.drive[0] = motion.WALK
     for _ in range(49):
         world._move()
     assert world.known[0, 0] and world.memory_iter[0] == 49
@@ -466,7 +483,7 @@ def test_s9_3_a_pick_up_resets_els_timer() -> None:
     world = rig(Robots.of(0, 1, 0, 0, 0, 0), [(0.0, 0.0)], mode=Mode.EPHEMERAL, memory_duration=50)
     world.memory_iter[0] = 30
     see(world, 0, 1)
-    assert world.pick(0, 1) and world.memory_iter[0] == 0
+    assert rb.pick(world, 0, 1) and world.memory_iter[0] == 0
 
 
 def learn_two(when_full: str) -> World:
@@ -504,7 +521,7 @@ def overhear_rig(mode: Mode) -> World:
     see(world, 0, 1)
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.teaching.tolist() == [False, False, False, True]
+    assert world.answering.tolist() == [False, False, False, True]
     return world
 
 
@@ -519,7 +536,7 @@ def test_s9_4_a_teacher_is_overheard_by_robots_not_asking_for_its_whole_teaching
     assert world.agents[2].buffered == [key]
     for t in range(301, 700):  # the teaching wait ends
         teaching.step(world, t)
-    assert not world.teaching.any()
+    assert not world.answering.any()
 
 
 def test_s9_4_a_robot_asking_does_not_overhear() -> None:
@@ -532,23 +549,23 @@ def test_s9_4_a_robot_asking_does_not_overhear() -> None:
     see(world, 1, 2)  # robot 1 asks about green at the same time
     teaching.step(world, 1)
     teaching.step(world, 2)
-    assert world.teaching[2] and world.querying[1]
+    assert world.answering[2] and world.querying[1]
     assert world.agents[1].buffered == []  # it was asking while robot 2 taught
 
 
 def test_s9_5_plb_uses_a_buffered_answer_without_a_query_or_a_wait() -> None:
     world = overhear_rig(Mode.PASSIVE_BUFFER)
-    queries = world.queries
+    queries = total(world, "queries_sent")
     see(world, 1, 1)  # the listener now registers a red target
     teaching.step(world, 3)
-    assert world.known[1, 0] and world.learned_buffered == 1
-    assert world.queries == queries and not world.querying[1]
+    assert world.known[1, 0] and total(world, "learned_buffered") == 1
+    assert total(world, "queries_sent") == queries and not world.querying[1]
     assert world.agents[1].buffered == []
 
 
 def test_s9_6_pl_learns_what_it_overhears_at_once() -> None:
     world = overhear_rig(Mode.PASSIVE)
-    assert world.known[1, 0] and world.learned_passive == 1
+    assert world.known[1, 0] and total(world, "learned_passive") == 1
     assert world.agents[1].metrics.learned_passive == 1
     assert world.agents[1].metrics.queries_sent == 0
 

@@ -31,7 +31,8 @@ def test_presets_follow_the_papers_tables() -> None:
             assert (scenario.robots.total, scenario.iterations) == (50, 20_000)
             continue
         assert scenario.robots.total == 40  # the paper keeps 40 robots in every study
-        iterations = 100_000 if name.startswith("calibration") else 50_000
+        long = name.startswith(("calibration", "heterogeneity", "opportunities"))
+        iterations = 100_000 if long else 50_000  # the heterogeneity figures run past 70k
         assert (scenario.iterations, scenario.trials, scenario.timing.dt) == (iterations, 20, 0.02)
     with pytest.raises(ValueError, match="no preset 'nope'"):
         preset("nope")

@@ -114,19 +114,19 @@ def test_status_lights_follow_the_robots_state(world: World) -> None:
     viewer = Viewer(world, SIZE)
     i = lone_robot(world, viewer)
     at = viewer.to_screen(*world.pos[i])
-    saved = (world.walk_flag[i], world.querying[i], world.teaching[i])
+    saved = (world.walk_flag[i], world.querying[i], world.answering[i])
     try:
-        world.walk_flag[i], world.querying[i], world.teaching[i] = False, False, False
+        world.walk_flag[i], world.querying[i], world.answering[i] = False, False, False
         assert pixel(viewer.draw(), at) == ROBOT  # no light
         world.querying[i] = True
         assert pixel(render(world, SIZE), at) == LIGHT_QUERYING
-        world.teaching[i] = True
+        world.answering[i] = True
         assert pixel(viewer.draw(), at) == LIGHT_TEACHING
-        world.querying[i] = world.teaching[i] = False
+        world.querying[i] = world.answering[i] = False
         world.walk_flag[i] = True
         assert pixel(viewer.draw(), at) == LIGHT_WALKING
     finally:
-        world.walk_flag[i], world.querying[i], world.teaching[i] = saved
+        world.walk_flag[i], world.querying[i], world.answering[i] = saved
 
 
 def test_a_carrying_robot_shows_its_target_and_no_walking_light(world: World) -> None:

@@ -100,9 +100,9 @@ def check(events: list[dict[str, Any]]) -> list[Verdict]:
 
 
 def _completed(h: History) -> Verdict:
-    aborted = h.one("aborted")
-    if aborted is not None:
-        return Verdict("completed", "fail", aborted["reason"])
+    aborted = h.of("aborted")
+    if aborted:
+        return Verdict("completed", "fail", "; ".join(str(e.get("reason")) for e in aborted))
     if h.one("end") is None:
         return Verdict("completed", "fail", "the record stops before the run's end")
     return Verdict("completed", "pass", "the schedule ran to its end")

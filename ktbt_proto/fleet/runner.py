@@ -168,6 +168,8 @@ class Fleet:
         )
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
+        self.bad = 0
+        """Lines of the peers' logs that were not log entries (skipped)."""
         self.converged: float | None = None
         self.reference = 0.0
 
@@ -291,15 +293,17 @@ class Fleet:
         for raw in data[:end].splitlines():
             try:
                 entry = json.loads(raw)
-            except ValueError:
+                event = entry.get("event")
+                t = datetime.fromisoformat(entry["t"]).timestamp() - self.t0
+            except (ValueError, TypeError, KeyError, AttributeError):
+                self.bad += 1  # a line that is not a log entry: counted, never fatal
                 continue
-            event = entry.get("event")
             if not isinstance(event, str):
+                self.bad += 1
                 continue
             member.counts[event] += 1
             if event not in COPIED:
                 continue
-            t = datetime.fromisoformat(entry["t"]).timestamp() - self.t0
             fields = {
                 k: entry.get(k) for k in ("sequence", "sender", "to", "id", "teacher", "where")
             }
@@ -499,6 +503,25 @@ class Fleet:
             _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", next(iter(self.items))
         )
 
+    async def _finish(self, stop: asyncio.Event, watcher: asyncio.Task[None]) -> None:
+        """The fault windows' ends, the last log lines and the save files, before the stop."""
+        cfg = self.config
+        try:
+            if cfg.delay:
+                self.fault("delay", "end", evidence=self._link_counters(list(self.layer.proxies)))
+            if cfg.loss and self.loss_note is None:
+                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
+        finally:
+            stop.set()
+            try:
+                await watcher
+            except Exception as exc:  # recorded: the run fails on it
+                self.record.emit("aborted", reason=f"the observer crashed: {exc!r}"[:300])
+        for m in self.members.values():
+            if m.node.role == "learner" or self.teacher_program == "run":
+                saved = read_saved(m.save) if m.node.role != "router" else {}
+                self.record.emit("final", peer=m.node.name, saved=saved)
+
     async def run(self) -> dict[str, Any]:
         cfg = self.config
         (self.out / "peers").mkdir(parents=True, exist_ok=True)
@@ -521,35 +544,33 @@ class Fleet:
         try:
             try:
                 problem = await self.schedule()
+                if problem is None:
+                    probe = await self.floor()
+                    self.record.emit("floor", **probe)
             except asyncio.CancelledError:  # Ctrl-C or SIGTERM: clean up, record why
                 problem = "interrupted"
-            if problem is None:
-                probe = await self.floor()
-                self.record.emit("floor", **probe)
+            except Exception as exc:  # a crash is a failed run, never a passed one
+                problem = f"crashed: {exc!r}"[:300]
         finally:
-            every = list(self.layer.proxies)
-            if cfg.delay:
-                self.fault("delay", "end", evidence=self._link_counters(every))
-            if cfg.loss and self.loss_note is None:
-                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
-            stop.set()
-            await watcher
-            for m in self.members.values():
-                if m.node.role == "learner" or self.teacher_program == "run":
-                    saved = read_saved(m.save) if m.node.role != "router" else {}
-                    self.record.emit("final", peer=m.node.name, saved=saved)
-            await self.stop_all()
-            for m in self.members.values():
-                for life in m.lives:
-                    self.record.emit(
-                        "exit", peer=m.node.name, life=life.number, returncode=life.proc.returncode
-                    )
-            self.record.emit("counters", links=self.layer.counters())
-            await self.layer.close()
-            if problem is not None:
-                self.record.emit("aborted", reason=problem)
-            self.record.emit("end")
-            self.record.close()
+            # The processes are stopped first and whatever fails after: nothing outlives the run.
+            try:
+                await asyncio.shield(self._finish(stop, watcher))
+            finally:
+                await asyncio.shield(self.stop_all())
+                try:
+                    for m in self.members.values():
+                        for life in m.lives:
+                            self.record.emit(
+                                "exit", peer=m.node.name, life=life.number,
+                                returncode=life.proc.returncode,
+                            )  # fmt: skip
+                    self.record.emit("counters", links=self.layer.counters(), bad_lines=self.bad)
+                    await asyncio.shield(self.layer.close())
+                finally:
+                    if problem is not None:
+                        self.record.emit("aborted", reason=problem)
+                    self.record.emit("end")
+                    self.record.close()
         return {"problem": problem, "floor": probe}
 
 
@@ -649,6 +670,7 @@ def run(config: FleetConfig, out: Path, say: Say, live: bool = False) -> dict[st
         result = run_inside(config, out, say, live, note)
     summary = check_record(out)
     summary["aborted"] = result.get("problem")
+    summary["passed"] = summary["passed"] and summary["aborted"] is None
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 

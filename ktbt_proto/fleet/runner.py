@@ -642,8 +642,17 @@ def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: 
         task = asyncio.current_task()
         assert task is not None
         loop = asyncio.get_running_loop()
+        stopping: list[int] = []
+
+        def interrupt(sig: int) -> None:
+            # The first signal stops the schedule; later ones would land in the cleanup and
+            # leave peers behind, so they are only counted.
+            stopping.append(sig)
+            if len(stopping) == 1:
+                task.cancel()
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, task.cancel)
+            loop.add_signal_handler(sig, interrupt, sig)
         return await fleet.run()
 
     return asyncio.run(main())
@@ -691,16 +700,18 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
             ["ip", "netns", "exec", name, sys.executable, "-m", "ktbt_proto.fleet.runner",
              str(out), "--live" if live else "--quiet"],
             env={**os.environ, "KTBT_FLEET_NETNS": name},
+            start_new_session=True,  # it hears exactly one signal: the one sent here
         )  # fmt: skip
         previous = signal.signal(signal.SIGTERM, _interrupt)
         try:
             proc.wait()
-        except KeyboardInterrupt:  # tell the inner runner (a terminal's Ctrl-C reaches it too)
+        except KeyboardInterrupt:  # tell the inner runner once; later signals are ignored
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
             with contextlib.suppress(ProcessLookupError):
                 proc.send_signal(signal.SIGINT)
             with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=30)
-            raise
+                proc.wait(timeout=60)
         finally:
             signal.signal(signal.SIGTERM, previous)
         result_file = out / "result.json"

@@ -248,3 +248,22 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
             FleetConfig(**bad)
     with pytest.raises(PlanError):
         seconds("soon")
+
+
+def test_a_peer_that_died_by_itself_or_forgot_or_saved_less_is_not_converged() -> None:
+    died = base()
+    died.insert(-1, {"t": 3.5, "kind": "stopping", "lives": {"p1": 1, "t2": 1}})
+    for peer, code in (("p0", 1), ("p1", -15), ("t2", 0)):
+        died.insert(-1, {"t": 3.9, "kind": "exit", "peer": peer, "life": 1, "returncode": code})
+    assert "convergence" in failed(died)
+    stopped = copy.deepcopy(died)
+    next(e for e in stopped if e["kind"] == "stopping")["lives"]["p0"] = 1  # all stopped by us
+    stopped = [e for e in stopped if not (e["kind"] == "exit" and e["returncode"] == 1)]
+    stopped.insert(-1, {"t": 3.9, "kind": "exit", "peer": "p0", "life": 1, "returncode": 0})
+    assert "convergence" not in failed(stopped)
+    forgot = base()
+    forgot.insert(-4, {"t": 2.0, "kind": "forgotten", "peer": "p0", "life": 1, "sequence": "A"})
+    assert "convergence" in failed(forgot)
+    short = base()
+    short[-2]["saved"] = {"A": "aaaa"}
+    assert "convergence" in failed(short)

@@ -85,6 +85,30 @@ class History:
             out[(e["peer"], e["life"])].append(e)
         return out
 
+    def changes(self) -> dict[tuple[str, int], list[dict[str, Any]]]:
+        """Merges and forgettings of each life, in the record's order."""
+        out: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
+        for e in self.events:
+            if e["kind"] in ("merged", "forgotten"):
+                out[(e["peer"], e["life"])].append(e)
+        return out
+
+    def unplanned_exits(self) -> list[str]:
+        """Lives that ended other than by the run's own SIGKILL (a churn kill) or its stop at
+        the end (SIGTERM, or SIGKILL when that did not end it)."""
+        killed = {(e["peer"], e["life"]) for e in self.of("kill")}
+        stopping = self.one("stopping")
+        stopped = set((stopping or {}).get("lives", {}).items())
+        out = []
+        for e in self.of("exit"):
+            key, code = (e["peer"], e["life"]), e.get("returncode")
+            if key in killed and code == -9:
+                continue
+            if key in stopped and code in (0, -15, -9):
+                continue
+            out.append(f"{e['peer']} life {e['life']} exited with {code}")
+        return out
+
 
 def check(events: list[dict[str, Any]]) -> list[Verdict]:
     h = History(events)
@@ -111,7 +135,7 @@ def _completed(h: History) -> Verdict:
 def convergence_time(h: History, among: set[str] | None = None) -> float | None:
     """When the last peer (in its last life; of ``among``, if given) knew every item, or None
     if one never did."""
-    merges = h.merges()
+    merges = h.changes()
     latest = 0.0
     for peer, life in h.last_lives().items():
         if among is not None and peer not in among:
@@ -121,7 +145,9 @@ def convergence_time(h: History, among: set[str] | None = None) -> float | None:
         known = set(life.get("known", []))
         when = life["up"]
         for m in sorted(merges.get((peer, life["life"]), []), key=lambda e: e["t"]):
-            if m["sequence"] in h.items and m["sequence"] not in known:
+            if m["kind"] == "forgotten":
+                known.discard(m["sequence"])
+            elif m["sequence"] in h.items and m["sequence"] not in known:
                 known.add(m["sequence"])
                 when = max(when, m["t"])
         if not set(h.items) <= known:
@@ -147,6 +173,17 @@ def _convergence(h: History) -> Verdict:
             if not set(h.items) <= known:
                 missing.append(f"{peer} ({len(known & set(h.items))}/{len(h.items)})")
         return Verdict("convergence", "fail", "never knew every item: " + ", ".join(missing))
+    dead = h.unplanned_exits()
+    if dead:
+        return Verdict("convergence", "fail", "peers died: " + "; ".join(dead[:5]))
+    short = []
+    for e in h.of("final"):
+        if e["peer"] in h.learners and isinstance(e["saved"], dict):
+            lacks = set(h.items) - set(e["saved"])
+            if lacks:
+                short.append(f"{e['peer']} saved {len(h.items) - len(lacks)}/{len(h.items)}")
+    if short:
+        return Verdict("convergence", "fail", "save files short: " + ", ".join(short[:5]))
     took = max(0.0, done - ref)
     status: Status = "pass" if took <= bound else "fail"
     return Verdict("convergence", status, f"{took:.2f} s after the reference (bound {bound:g} s)")

@@ -46,7 +46,7 @@ if not EXAMPLE_KNOWLEDGE.exists():  # a source checkout keeps the examples besid
     EXAMPLE_KNOWLEDGE = ROOT.parent / "examples" / "knowledge" / "colours.sbt"
 COPIED = (
     "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
-    "network-error",
+    "network-error", "forgotten",
 )  # fmt: skip
 """The peers' exchange events copied into the record."""
 OUTPUTS = (
@@ -255,6 +255,9 @@ class Fleet:
         """SIGTERM to every process, SIGKILL to those still up after a few seconds (a zenoh
         close can block under faults); each by its pid."""
         running = [m for m in self.members.values() if m.running]
+        self.record.emit(
+            "stopping", lives={m.node.name: m.life.number for m in running if m.life is not None}
+        )
         for m in running:
             assert m.life is not None
             with contextlib.suppress(ProcessLookupError):
@@ -312,6 +315,8 @@ class Fleet:
             life = member.life
             if event == "merged" and life is not None and entry.get("sequence"):
                 life.known.add(str(entry["sequence"]))
+            if event == "forgotten" and life is not None and entry.get("sequence"):
+                life.known.discard(str(entry["sequence"]))
             self.record.emit(
                 event, t=t, peer=member.node.name, life=life.number if life else 0,
                 **{k: v for k, v in fields.items() if v is not None},

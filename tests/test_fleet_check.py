@@ -267,3 +267,17 @@ def test_a_peer_that_died_by_itself_or_forgot_or_saved_less_is_not_converged() -
     short = base()
     short[-2]["saved"] = {"A": "aaaa"}
     assert "convergence" in failed(short)
+
+
+def test_refusals_of_what_fleet_peers_sent_are_counted_as_honest_answers_refused() -> None:
+    events = base()
+    for reason in (
+        "from t2: an answer to no open question",
+        "from p1: an answer to no open question",
+        "from t2: the subtree does not parse",
+        "from stranger: an answer to no open question",
+    ):
+        events.insert(-1, {"t": 2.0, "kind": "refused", "peer": "p0", "life": 1, "reason": reason})
+    found = metrics(History(events))
+    assert found["honest_answers_refused"] == 3
+    assert found["late_answers_refused"] == 2

@@ -98,7 +98,13 @@ class History:
         the end (SIGTERM, or SIGKILL when that did not end it)."""
         killed = {(e["peer"], e["life"]) for e in self.of("kill")}
         stopping = self.one("stopping")
-        stopped = set((stopping or {}).get("lives", {}).items())
+        if stopping is None:  # a record from before the stop was recorded: its last lives
+            last: dict[str, int] = {}
+            for e in self.of("exit"):
+                last[e["peer"]] = max(last.get(e["peer"], 0), e["life"])
+            stopped = set(last.items())
+        else:
+            stopped = set(stopping.get("lives", {}).items())
         out = []
         for e in self.of("exit"):
             key, code = (e["peer"], e["life"]), e.get("returncode")
@@ -372,6 +378,19 @@ def _bounded(h: History) -> Verdict:
     return Verdict("memory and descriptors bounded", "pass" if ok else "fail", detail)
 
 
+def honest_refusals(h: History) -> dict[str, int]:
+    """Refusals of what a fleet peer sent. Every fleet peer is honest, so each one is an honest
+    answer turned away; most are answers arriving after the question was closed (another
+    neighbour answered first), which a peer refuses as "an answer to no open question"."""
+    peers = set(h.peers)
+    honest = [
+        e for e in h.of("refused")
+        if str(e.get("reason", "")).removeprefix("from ").split(":", 1)[0] in peers
+    ]  # fmt: skip
+    late = [e for e in honest if "an answer to no open question" in str(e.get("reason", ""))]
+    return {"honest_answers_refused": len(honest), "late_answers_refused": len(late)}
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -399,6 +418,7 @@ def metrics(h: History) -> dict[str, Any]:
         "messages_per_item": round(messages / merged, 2) if merged else None,
         "floor_s": floor.get("median_s"),
         "refused": len(h.of("refused")),
+        **honest_refusals(h),
         "error_replies": len(h.of("error-received")),
         "network_errors": len(h.of("network-error")),
     }

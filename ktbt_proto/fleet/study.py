@@ -95,8 +95,9 @@ def table(summaries: list[dict[str, Any]]) -> str:
         "with other work: read them as orders of magnitude.",
         "",
         "| scenario | peers | topology | convergence (s) | target | met | floor (ms) "
-        "| convergence / floor | messages per item | checks (pass/fail/skip) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| convergence / floor | messages per item | honest answers refused (late) "
+        "| checks (pass/fail/skip) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for s in summaries:
         conv, floor = measured(s), s.get("floor_s")
@@ -108,6 +109,7 @@ def table(summaries: list[dict[str, Any]]) -> str:
             f"| {s['name']} | {s['config']['peers']} | {s['config']['topology']} "
             f"| {'-' if conv is None else f'{conv:.2f}'} | {targets.get(s['name']) or '-'} "
             f"| {met or '-'} | {_ms(floor)} | {ratio} | {s.get('messages_per_item') or '-'} "
+            f"| {s.get('honest_answers_refused', '-')} ({s.get('late_answers_refused', '-')}) "
             f"| {'/'.join(map(str, counts))} |"
         )
     dup = sum(
@@ -131,6 +133,15 @@ def table(summaries: list[dict[str, Any]]) -> str:
             f" other half silently dead, against {b:.2f} s with the same halves and no dead link"
             f" ({(a / b - 1) * 100:+.0f} %; target: within 10 %).",
         ]
+    honest = sum(int(s.get("honest_answers_refused") or 0) for s in summaries)
+    late = sum(int(s.get("late_answers_refused") or 0) for s in summaries)
+    lines += [
+        "",
+        f"Every fleet peer is honest, so every refusal of what one sent turned a good answer"
+        f" away: {honest} over the study, {late} of them answers that arrived after their"
+        f' question had closed ("an answer to no open question"). The peers count them as'
+        f" refusals; they are not faults of the network or of a peer.",
+    ]
     lines += [
         "",
         f"Over the whole study: {dup} runs with a duplicate merge, {lost} with a lost saved item,"

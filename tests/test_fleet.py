@@ -70,6 +70,9 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
     assert verdicts["fault: partition-silent"]["status"] == "pass"
     assert verdicts["fault: churn"]["status"] == "pass"
     assert verdicts["kill -9 loses nothing saved"]["status"] == "pass"
+    kills = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    saved = sum(len(e["saved"]) for e in kills if e["kind"] == "kill")
+    assert saved > 0, "the kill had nothing saved to lose"
     assert verdicts["convergence"]["status"] == "pass"
     if os.geteuid() == 0 and shutil.which("nft") and shutil.which("ip"):
         assert verdicts["fault: loss"]["status"] == "pass", verdicts["fault: loss"]

@@ -281,3 +281,9 @@ def test_refusals_of_what_fleet_peers_sent_are_counted_as_honest_answers_refused
     found = metrics(History(events))
     assert found["honest_answers_refused"] == 3
     assert found["late_answers_refused"] == 2
+
+
+def test_a_kill_with_nothing_saved_proves_nothing_and_is_skipped() -> None:
+    events = churned()
+    next(e for e in events if e["kind"] == "kill")["saved"] = {}
+    assert verdicts(events)["kill -9 loses nothing saved"] == "skipped"

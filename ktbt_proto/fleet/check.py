@@ -257,6 +257,10 @@ def _kills_lose_nothing(h: History) -> Verdict:
     if lost:
         return Verdict("kill -9 loses nothing saved", "fail", "; ".join(lost[:5]))
     held = sum(len(k["saved"]) for k in kills)
+    if held == 0:
+        return Verdict(
+            "kill -9 loses nothing saved", "skipped", f"{len(kills)} kills, nothing saved yet"
+        )
     return Verdict(
         "kill -9 loses nothing saved", "pass", f"{len(kills)} kills, {held} saved items all kept"
     )

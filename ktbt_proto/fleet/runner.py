@@ -465,6 +465,8 @@ class Fleet:
             # must come back, the rest be learned); later ones after the fleet has converged.
             await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.rng.random())
             self.fault("churn", "start", round=number, peers=victims)
+            if number == 1:
+                await self._kill_while_learning(victims, cfg.bound)
             for v in victims:
                 self.kill(self.members[v])
             await asyncio.sleep(cfg.churn_down)
@@ -489,6 +491,17 @@ class Fleet:
         await asyncio.sleep(cfg.settle)
         self._sample()  # the last samples, before the probe opens a session here
         return None
+
+    async def _kill_while_learning(self, victims: list[str], limit: float) -> None:
+        """Kill each victim once it has merged some items but not all (its log says so), so that
+        the kill has something saved to lose; those never in that state die at the limit."""
+        left, deadline = list(victims), time.monotonic() + limit
+        while left and time.monotonic() < deadline:
+            for v in list(left):
+                if 0 < len(self.knows(self.members[v])) < len(self.items):
+                    self.kill(self.members[v])
+                    left.remove(v)
+            await asyncio.sleep(0.02)
 
     async def until(self, done: Callable[[], bool], limit: float) -> bool:
         deadline = time.monotonic() + limit

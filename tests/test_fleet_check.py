@@ -287,3 +287,13 @@ def test_a_kill_with_nothing_saved_proves_nothing_and_is_skipped() -> None:
     events = churned()
     next(e for e in events if e["kind"] == "kill")["saved"] = {}
     assert verdicts(events)["kill -9 loses nothing saved"] == "skipped"
+
+
+def test_a_churn_round_that_never_converges_fails() -> None:
+    found = verdicts(churned())
+    assert found["churn rounds converge"] == "pass"
+    assert metrics(History(churned()))["churn_convergence_s"] == pytest.approx(0.3)
+    never = [e for e in churned() if not (e["kind"] == "merged" and e["peer"] == "p1")]
+    never = [e for e in never if e["kind"] != "final"]
+    assert "churn rounds converge" in failed(never)
+    assert metrics(History(never))["churn_convergence_s"] is None

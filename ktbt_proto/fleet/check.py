@@ -125,6 +125,7 @@ def check(events: list[dict[str, Any]]) -> list[Verdict]:
         _saved_files(h),
         _kills_lose_nothing(h),
         *_faults(h),
+        _rounds(h),
         _bounded(h),
     ]
 
@@ -266,6 +267,67 @@ def _kills_lose_nothing(h: History) -> Verdict:
     )
 
 
+def knows_at(h: History, peer: str, t: float) -> set[str]:
+    """What ``peer`` knew at ``t``, from its own timestamps: the life up at ``t`` (none if it
+    was down), what that life started with, and its merges and forgettings until ``t``."""
+    lives = h.lives()
+    ended = {(e["peer"], e["life"]): e["t"] for e in h.of("kill")}
+    current = None
+    for (name, number), life in sorted(lives.items()):
+        up = life["up"]
+        if name == peer and up is not None and up <= t < ended.get((name, number), float("inf")):
+            current = life
+    if current is None:
+        return set()
+    known = set(current.get("known", []))
+    for e in h.changes().get((peer, current["life"]), []):
+        if e["t"] <= t:
+            if e["kind"] == "forgotten":
+                known.discard(e["sequence"])
+            else:
+                known.add(e["sequence"])
+    return known & set(h.items)
+
+
+def round_times(h: History) -> list[float | None]:
+    """Each churn round's convergence, counted from the victims' return (the round's end) to
+    the first moment every peer knew every item, before the next round began; None for a
+    round that never converged."""
+    starts = sorted(
+        e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "start"
+    )
+    ends = sorted(e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end")
+    last = h.events[-1]["t"] if h.events else 0.0
+    moments = sorted(
+        {e["t"] for e in h.events if e["kind"] in ("merged", "up", "forgotten") and "t" in e}
+    )
+    out: list[float | None] = []
+    for i, end in enumerate(ends):
+        until = starts[i + 1] if i + 1 < len(starts) else max(last, end)
+        took = None
+        for t in [end, *(m for m in moments if end < m <= until)]:
+            if all(knows_at(h, p, t) >= set(h.items) for p in h.peers):
+                took = round(t - end, 3)
+                break
+        out.append(took)
+    return out
+
+
+def _rounds(h: History) -> Verdict:
+    times, bound = round_times(h), float(h.config["bound"])
+    if not times:
+        return Verdict("churn rounds converge", "skipped", "no churn round ended")
+    late = [
+        f"round {i}: {'never' if t is None else f'{t:.2f} s'}"
+        for i, t in enumerate(times, 1)
+        if t is None or t > bound
+    ]
+    shown = ", ".join("never" if t is None else f"{t:.2f}" for t in times)
+    if late:
+        return Verdict("churn rounds converge", "fail", f"bound {bound:g} s: " + "; ".join(late))
+    return Verdict("churn rounds converge", "pass", f"{len(times)} rounds: {shown} s")
+
+
 def _faults(h: History) -> list[Verdict]:
     cfg, out = h.config, []
     starts = {e["fault"]: e for e in h.of("fault") if e["phase"] == "start"}
@@ -405,10 +467,7 @@ def metrics(h: History) -> dict[str, Any]:
     half = {p for p, side in h.plan["half"].items() if side == 0}
     teacher_half = convergence_time(h, half) if half and up is not None else None
     floor = h.one("floor") or {}
-    ends = {
-        e["round"]: e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end"
-    }
-    rounds = [e["t"] - ends[e["round"]] for e in h.of("round-converged") if e["round"] in ends]
+    rounds = round_times(h)
     return {
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
         "all_up_s": None if up is None else up["t"],
@@ -416,7 +475,9 @@ def metrics(h: History) -> dict[str, Any]:
         "teacher_half_s": None
         if teacher_half is None or up is None
         else round(max(0.0, teacher_half - up["t"]), 3),
-        "churn_convergence_s": round(max(rounds), 3) if rounds else None,
+        "churn_convergence_s": None
+        if not rounds or None in rounds
+        else round(max(r for r in rounds if r is not None), 3),
         "messages": messages,
         "learned": merged,
         "messages_per_item": round(messages / merged, 2) if merged else None,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ktbt_proto.fleet.check import check_record
 from ktbt_proto.fleet.plan import FleetConfig
-from ktbt_proto.fleet.runner import Fleet
+from ktbt_proto.fleet.runner import Fleet, read_saved
 
 
 def _fleet(tmp_path: Path) -> Fleet:
@@ -46,3 +46,13 @@ def test_a_crash_in_the_schedule_fails_the_run_and_still_ends_the_record(tmp_pat
     assert kinds[-1] == "end" and "aborted" in kinds and "counters" in kinds
     summary = check_record(tmp_path)
     assert not summary["passed"]
+
+
+def test_a_save_file_with_an_item_twice_is_damage(tmp_path: Path) -> None:
+    path = tmp_path / "p0.json"
+    entry = {"sequence": "A", "subtree": "x"}
+    path.write_text(json.dumps({"knowledge": [entry, {"sequence": "B", "subtree": "y"}]}))
+    assert set(read_saved(path)) == {"A", "B"}
+    path.write_text(json.dumps({"knowledge": [entry, entry]}))
+    saved = read_saved(path)
+    assert isinstance(saved, str) and "twice" in saved and "A" in saved

@@ -77,13 +77,25 @@ def authored_items(path: str | Path) -> dict[str, str]:
 def read_saved(path: Path) -> dict[str, str] | str:
     """A save file's items (sequence -> digest of the subtree as stored), or why it cannot be
     read. Read as data, not through the library, so that damage shows as damage."""
+    from ..knowledge import MAX_FILE
+
     if not path.exists():
         return {}
     try:
-        data = json.loads(path.read_bytes())
-        return {str(e["sequence"]): digest(str(e["subtree"])) for e in data["knowledge"]}
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE + 1)
+        if len(raw) > MAX_FILE:
+            return f"unreadable: larger than {MAX_FILE} bytes"
+        entries = json.loads(raw)["knowledge"]
+        items = {str(e["sequence"]): digest(str(e["subtree"])) for e in entries}
     except (ValueError, KeyError, TypeError) as exc:
         return f"unreadable: {exc!r}"[:200]
+    if len(items) != len(entries):
+        twice = Counter(str(e["sequence"]) for e in entries)
+        return f"unreadable: items saved twice: {sorted(k for k, n in twice.items() if n > 1)}"[
+            :200
+        ]
+    return items
 
 
 class Record:

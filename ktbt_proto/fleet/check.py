@@ -34,11 +34,20 @@ class Verdict:
 
 
 def read_record(path: Path) -> list[dict[str, Any]]:
+    """The record's events. A last line cut short (the runner was killed while writing it) is
+    dropped, and the record then lacks its end; any other line that is not JSON is an error."""
     events = []
     with open(path, encoding="utf-8") as f:
-        for line in f:
-            if line.strip():
-                events.append(json.loads(line))
+        lines = f.read().split("\n")
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            events.append(json.loads(line))
+        except ValueError:
+            if number == len(lines):  # no newline after it: torn
+                break
+            raise ValueError(f"line {number} is not JSON") from None
     return events
 
 

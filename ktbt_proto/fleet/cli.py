@@ -67,9 +67,12 @@ def run_command(
     live: Annotated[bool, typer.Option(help="Show the live table.")] = True,
 ) -> None:
     """Run a fleet scenario, check it and draw it; exit 1 if a property failed."""
+    from ..cli import _knowledge_or_exit
     from .plan import FleetConfig, PlanError, seconds
     from .runner import run
 
+    if knowledge is not None:  # refused here, with its position, not inside the namespace
+        _knowledge_or_exit(knowledge)
     try:
         config = FleetConfig(
             peers=peers, teachers=teachers, topology=topology, routers=routers,  # type: ignore[arg-type]
@@ -108,7 +111,7 @@ def check_command(
         raise _fail(f"{folder}: no events.jsonl")
     try:
         summary = check_record(folder)
-    except (ValueError, KeyError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise _fail(f"{folder}/events.jsonl: not a fleet record ({exc})") from None
     typer.echo(f"{folder}: {'passed' if summary['passed'] else 'FAILED'}")
     _show(summary)

@@ -87,7 +87,3 @@ def delete(name: str) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     _run("ip", "netns", "del", name)
-
-
-def exists(name: str) -> bool:
-    return name in _run("ip", "netns", "list").stdout.split()

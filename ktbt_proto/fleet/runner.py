@@ -34,6 +34,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+from ..files import write_atomic
 from ..transport.zenoh import stable_zid
 from . import netns
 from .plan import FleetConfig, Node, Plan, make_plan
@@ -125,7 +126,6 @@ class Life:
     started: float
     known: set[str]
     up: float | None = None
-    read: int = 0
 
 
 @dataclass
@@ -175,9 +175,7 @@ class Fleet:
         self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
         self.record = Record(out / "events.jsonl", self.t0)
         self.rng = random.Random(config.seed + 1)
-        self.teacher_program = (
-            "run" if config.teacher == "run" and _run_takes_knowledge() else "serve"
-        )
+        self.teacher_program = "run" if config.teacher == "run" else "serve"
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
         self.bad = 0
@@ -289,7 +287,7 @@ class Fleet:
     def _tail(self, member: Member) -> None:
         life = member.life
         if life is not None and life.up is None:
-            text = life.out.read_bytes()[life.read :].decode("utf-8", "replace")
+            text = life.out.read_bytes().decode("utf-8", "replace")
             found = UP.search(text)
             if found is not None:
                 life.up = self.record.now()
@@ -622,32 +620,15 @@ def _port() -> int:
         return port
 
 
-def _run_takes_knowledge() -> bool:
-    """Whether ``ktbt peer run`` has ``--knowledge`` (teachers that are fleet members)."""
-    import typer.main
-
-    from .. import cli
-
-    peer = getattr(typer.main.get_command(cli.app), "commands", {}).get("peer")
-    run = getattr(peer, "commands", {}).get("run")
-    return any("--knowledge" in getattr(p, "opts", ()) for p in getattr(run, "params", ()))
-
-
 def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict[str, Any]:
-    import zenoh
-
     from ..messages import Query, encode
+    from ..transport.zenoh import PREFIX, ZenohSettings, open_session
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
-    session = zenoh.open(conf)
+    session = open_session(ZenohSettings(connect=[endpoint]))
     times: list[float] = []
     try:
         deadline = time.monotonic() + 10
-        key = f"ktbt/v1/knowledge/{teacher}"
+        key = f"{PREFIX}/knowledge/{teacher}"
         while len(times) < rounds and time.monotonic() < deadline:
             query = Query(id=Query.new_id(), sender="fleet-probe", sequence=sequence)
             began = time.perf_counter()
@@ -710,7 +691,7 @@ def run(config: FleetConfig, out: Path, say: Say, live: bool = False) -> dict[st
     summary = check_record(out)
     summary["aborted"] = result.get("problem")
     summary["passed"] = summary["passed"] and summary["aborted"] is None
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    write_atomic(out / "summary.json", json.dumps(summary, indent=1, default=str))
     return summary
 
 
@@ -725,7 +706,7 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
                 netns.add_loss(name, config.loss)
             except OSError as exc:
                 note = str(exc)
-        (out / "config.json").write_text(json.dumps({"config": config.to_json(), "loss": note}))
+        write_atomic(out / "config.json", json.dumps({"config": config.to_json(), "loss": note}))
         proc = subprocess.Popen(
             ["ip", "netns", "exec", name, sys.executable, "-m", "ktbt_proto.fleet.runner",
              str(out), "--live" if live else "--quiet"],
@@ -772,7 +753,7 @@ def main() -> None:
             print(text, flush=True)
 
     result = run_inside(config, out, say, live, spec["loss"])
-    (out / "result.json").write_text(json.dumps(result, default=str))
+    write_atomic(out / "result.json", json.dumps(result, default=str))
 
 
 if __name__ == "__main__":

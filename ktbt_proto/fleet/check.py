@@ -491,6 +491,7 @@ def metrics(h: History) -> dict[str, Any]:
         "learned": merged,
         "messages_per_item": round(messages / merged, 2) if merged else None,
         "floor_s": floor.get("median_s"),
+        "floor_proxied_s": (floor.get("proxied") or {}).get("median_s"),
         "refused": len(h.of("refused")),
         **honest_refusals(h),
         "error_replies": len(h.of("error-received")),

@@ -523,13 +523,25 @@ class Fleet:
 
     async def floor(self) -> dict[str, Any]:
         """One query round trip to a teacher on a direct link (no proxy, no loss, no delay):
-        the floor beside which convergence times are read."""
+        the floor beside which convergence times are read; and one through a proxied link (its
+        delay, loss and all) to the peer behind it, which knows every item by then."""
         teacher = next(n for n in self.plan.peers if n.role == "teacher")
+        sequence = next(iter(self.items))
         if self.config.topology == "router":
-            return {"skipped": "teachers are clients of routers: no direct link to probe"}
-        return await asyncio.to_thread(
-            _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", next(iter(self.items))
-        )
+            direct = {"skipped": "teachers are clients of routers: no direct link to probe"}
+        else:
+            direct = await asyncio.to_thread(
+                _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", sequence
+            )
+        roles = {n.name: n.role for n in self.plan.peers}
+        link = next((li for li in self.plan.links if li.listener in roles), None)
+        if link is None:
+            proxied: dict[str, Any] = {"skipped": "no link listens on a peer"}
+        else:
+            endpoint = f"tcp/{link.proxy}:{self.plan.port}"
+            proxied = await asyncio.to_thread(_probe, link.listener, endpoint, sequence)
+            proxied["link"] = link.index
+        return {**direct, "proxied": proxied}
 
     async def _finish(self, stop: asyncio.Event, watcher: asyncio.Task[None]) -> None:
         """The fault windows' ends, the last log lines and the save files, before the stop."""

@@ -237,6 +237,11 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
     a = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
     b = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
     assert a.to_json() == b.to_json()
+    # Each decision has its own stream: a partition does not move the victims, for any seed.
+    for seed in range(8):
+        both = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=seed), 7447)
+        churn_only = make_plan(FleetConfig(peers=10, churn=0.2, seed=seed), 7447)
+        assert both.victims == churn_only.victims
     assert len(a.links) == 45 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
     assert {a.half[n.name] for n in a.peers} == {0, 1}
     assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4

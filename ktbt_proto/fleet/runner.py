@@ -37,7 +37,7 @@ from typing import Any, TextIO
 from ..files import write_atomic
 from ..transport.zenoh import stable_zid
 from . import netns
-from .plan import FleetConfig, Node, Plan, make_plan
+from .plan import FleetConfig, Node, Plan, make_plan, stream
 from .proxy import FaultLayer
 
 Say = Callable[[str], None]
@@ -174,7 +174,7 @@ class Fleet:
         self.members = {n.name: Member(n, out / "peers") for n in self.plan.nodes}
         self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
         self.record = Record(out / "events.jsonl", self.t0)
-        self.rng = random.Random(config.seed + 1)
+        self.pause = stream(config.seed, "churn-pauses")
         self.teacher_program = "run" if config.teacher == "run" else "serve"
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
@@ -473,7 +473,7 @@ class Fleet:
         for number, victims in enumerate(plan.victims, 1):
             # The first round strikes while the victims are still learning (what they saved
             # must come back, the rest be learned); later ones after the fleet has converged.
-            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.rng.random())
+            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.pause.random())
             self.fault("churn", "start", round=number, peers=victims)
             if number == 1:
                 await self._kill_while_learning(victims, cfg.bound)

@@ -25,12 +25,17 @@ def _show(summary: dict[str, object]) -> None:
     for v in summary["verdicts"]:  # type: ignore[attr-defined]
         typer.echo(f"  {v['status']:7} {v['name']}: {v['detail']}")
     conv = summary.get("convergence_s")
-    floor = summary.get("floor_s")
+    floor, linked = summary.get("floor_s"), summary.get("floor_proxied_s")
     typer.echo(
         f"  convergence {'-' if conv is None else f'{conv:.2f} s'}, "
         f"{summary.get('messages_per_item')} messages per learned item, "
-        f"query round trip {'-' if floor is None else f'{float(floor) * 1000:.1f} ms'}"  # type: ignore[arg-type]
+        f"query round trip {_ms(floor)} direct, {_ms(linked)} through a link, "
+        f"{summary.get('honest_answers_refused')} honest answers refused"
     )
+
+
+def _ms(value: object) -> str:
+    return "-" if value is None else f"{float(value) * 1000:.1f} ms"  # type: ignore[arg-type]
 
 
 @fleet.command("run")

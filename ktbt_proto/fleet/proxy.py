@@ -23,6 +23,9 @@ from .plan import Link
 
 State = Literal["open", "held", "cut"]
 CHUNK = 65536
+FIN_WAIT = 2.0
+"""Seconds a half-closed connection may go on in the other direction before both are closed
+(a dead peer's neighbour may never close its side)."""
 QUEUED = 1 << 20
 """Bytes a delayed direction may hold in flight before it stops reading (as a slow link's
 window would)."""
@@ -126,9 +129,18 @@ class LinkProxy:
             self.counters.connections += 1
             if early:
                 up_writer.write(early)
-            await asyncio.gather(
-                self._pump(reader, up_writer, pair), self._pump(up_reader, writer, pair)
-            )
+            pumps = {
+                asyncio.ensure_future(self._pump(reader, up_writer, pair)),
+                asyncio.ensure_future(self._pump(up_reader, writer, pair)),
+            }
+            try:
+                _, left = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+                if left:  # half-closed: the other direction may finish, for a while
+                    _, left = await asyncio.wait(left, timeout=FIN_WAIT)
+            finally:
+                for pump in pumps:
+                    pump.cancel()
+                await asyncio.gather(*pumps, return_exceptions=True)
         finally:
             self._conns.discard(pair)
             for w in pair:

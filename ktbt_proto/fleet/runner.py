@@ -178,6 +178,7 @@ class Fleet:
         self.teacher_program = "run" if config.teacher == "run" else "serve"
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
+        self.sampling = True
         self.bad = 0
         """Lines of the peers' logs that were not log entries (skipped)."""
         self.converged: float | None = None
@@ -187,15 +188,13 @@ class Fleet:
 
     def _zenoh_config(self, node: Node) -> Path:
         path = self.out / "zenoh" / f"{node.name}.json5"
+        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, multicast
+        # off) do not give: no gossip (the fleet's links are the only paths) and, for routers
+        # too, the stable zenoh id (a restarted peer is the same peer).
         conf: dict[str, Any] = {
-            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-            "connect": {
-                "timeout_ms": -1,
-                "retry": {"period_init_ms": 250, "period_max_ms": 1000,
-                          "period_increase_factor": 2},
-            },
-        }  # fmt: skip
-        conf["id"] = stable_zid(node.name)  # a restarted peer is the same peer
+            "scouting": {"gossip": {"enabled": False}},
+            "id": stable_zid(node.name),
+        }
         path.write_text(json.dumps(conf, indent=1))
         return path
 
@@ -366,7 +365,7 @@ class Fleet:
                     self._tail(m)
                 if self.converged is None and self.all_know():
                     self.converged = self.record.now()
-                if time.monotonic() - self.last_sample > 2.0:
+                if self.sampling and time.monotonic() - self.last_sample > 2.0:
                     self.last_sample = time.monotonic()
                     self._sample()
                 if live is not None:
@@ -500,6 +499,7 @@ class Fleet:
             self.record.emit("round-converged", round=len(plan.victims))
         await asyncio.sleep(cfg.settle)
         self._sample()  # the last samples, before the probe opens a session here
+        self.sampling = False  # the probe's session (its threads and sockets) is not the run's
         return None
 
     async def _kill_while_learning(self, victims: list[str], limit: float) -> None:

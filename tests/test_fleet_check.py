@@ -237,6 +237,11 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
     a = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
     b = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
     assert a.to_json() == b.to_json()
+    # Each decision has its own stream: a partition does not move the victims, for any seed.
+    for seed in range(8):
+        both = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=seed), 7447)
+        churn_only = make_plan(FleetConfig(peers=10, churn=0.2, seed=seed), 7447)
+        assert both.victims == churn_only.victims
     assert len(a.links) == 45 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
     assert {a.half[n.name] for n in a.peers} == {0, 1}
     assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4
@@ -248,3 +253,52 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
             FleetConfig(**bad)
     with pytest.raises(PlanError):
         seconds("soon")
+
+
+def test_a_peer_that_died_by_itself_or_forgot_or_saved_less_is_not_converged() -> None:
+    died = base()
+    died.insert(-1, {"t": 3.5, "kind": "stopping", "lives": {"p1": 1, "t2": 1}})
+    for peer, code in (("p0", 1), ("p1", -15), ("t2", 0)):
+        died.insert(-1, {"t": 3.9, "kind": "exit", "peer": peer, "life": 1, "returncode": code})
+    assert "convergence" in failed(died)
+    stopped = copy.deepcopy(died)
+    next(e for e in stopped if e["kind"] == "stopping")["lives"]["p0"] = 1  # all stopped by us
+    stopped = [e for e in stopped if not (e["kind"] == "exit" and e["returncode"] == 1)]
+    stopped.insert(-1, {"t": 3.9, "kind": "exit", "peer": "p0", "life": 1, "returncode": 0})
+    assert "convergence" not in failed(stopped)
+    forgot = base()
+    forgot.insert(-4, {"t": 2.0, "kind": "forgotten", "peer": "p0", "life": 1, "sequence": "A"})
+    assert "convergence" in failed(forgot)
+    short = base()
+    short[-2]["saved"] = {"A": "aaaa"}
+    assert "convergence" in failed(short)
+
+
+def test_refusals_of_what_fleet_peers_sent_are_counted_as_honest_answers_refused() -> None:
+    events = base()
+    for reason in (
+        "from t2: an answer to no open question",
+        "from p1: an answer to no open question",
+        "from t2: the subtree does not parse",
+        "from stranger: an answer to no open question",
+    ):
+        events.insert(-1, {"t": 2.0, "kind": "refused", "peer": "p0", "life": 1, "reason": reason})
+    found = metrics(History(events))
+    assert found["honest_answers_refused"] == 3
+    assert found["late_answers_refused"] == 2
+
+
+def test_a_kill_with_nothing_saved_proves_nothing_and_is_skipped() -> None:
+    events = churned()
+    next(e for e in events if e["kind"] == "kill")["saved"] = {}
+    assert verdicts(events)["kill -9 loses nothing saved"] == "skipped"
+
+
+def test_a_churn_round_that_never_converges_fails() -> None:
+    found = verdicts(churned())
+    assert found["churn rounds converge"] == "pass"
+    assert metrics(History(churned()))["churn_convergence_s"] == pytest.approx(0.3)
+    never = [e for e in churned() if not (e["kind"] == "merged" and e["peer"] == "p1")]
+    never = [e for e in never if e["kind"] != "final"]
+    assert "churn rounds converge" in failed(never)
+    assert metrics(History(never))["churn_convergence_s"] is None

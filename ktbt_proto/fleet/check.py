@@ -34,11 +34,20 @@ class Verdict:
 
 
 def read_record(path: Path) -> list[dict[str, Any]]:
+    """The record's events. A last line cut short (the runner was killed while writing it) is
+    dropped, and the record then lacks its end; any other line that is not JSON is an error."""
     events = []
     with open(path, encoding="utf-8") as f:
-        for line in f:
-            if line.strip():
-                events.append(json.loads(line))
+        lines = f.read().split("\n")
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            events.append(json.loads(line))
+        except ValueError:
+            if number == len(lines):  # no newline after it: torn
+                break
+            raise ValueError(f"line {number} is not JSON") from None
     return events
 
 
@@ -85,6 +94,36 @@ class History:
             out[(e["peer"], e["life"])].append(e)
         return out
 
+    def changes(self) -> dict[tuple[str, int], list[dict[str, Any]]]:
+        """Merges and forgettings of each life, in the record's order."""
+        out: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
+        for e in self.events:
+            if e["kind"] in ("merged", "forgotten"):
+                out[(e["peer"], e["life"])].append(e)
+        return out
+
+    def unplanned_exits(self) -> list[str]:
+        """Lives that ended other than by the run's own SIGKILL (a churn kill) or its stop at
+        the end (SIGTERM, or SIGKILL when that did not end it)."""
+        killed = {(e["peer"], e["life"]) for e in self.of("kill")}
+        stopping = self.one("stopping")
+        if stopping is None:  # a record from before the stop was recorded: its last lives
+            last: dict[str, int] = {}
+            for e in self.of("exit"):
+                last[e["peer"]] = max(last.get(e["peer"], 0), e["life"])
+            stopped = set(last.items())
+        else:
+            stopped = set(stopping.get("lives", {}).items())
+        out = []
+        for e in self.of("exit"):
+            key, code = (e["peer"], e["life"]), e.get("returncode")
+            if key in killed and code == -9:
+                continue
+            if key in stopped and code in (0, -15, -9):
+                continue
+            out.append(f"{e['peer']} life {e['life']} exited with {code}")
+        return out
+
 
 def check(events: list[dict[str, Any]]) -> list[Verdict]:
     h = History(events)
@@ -95,14 +134,15 @@ def check(events: list[dict[str, Any]]) -> list[Verdict]:
         _saved_files(h),
         _kills_lose_nothing(h),
         *_faults(h),
+        _rounds(h),
         _bounded(h),
     ]
 
 
 def _completed(h: History) -> Verdict:
-    aborted = h.one("aborted")
-    if aborted is not None:
-        return Verdict("completed", "fail", aborted["reason"])
+    aborted = h.of("aborted")
+    if aborted:
+        return Verdict("completed", "fail", "; ".join(str(e.get("reason")) for e in aborted))
     if h.one("end") is None:
         return Verdict("completed", "fail", "the record stops before the run's end")
     return Verdict("completed", "pass", "the schedule ran to its end")
@@ -111,7 +151,7 @@ def _completed(h: History) -> Verdict:
 def convergence_time(h: History, among: set[str] | None = None) -> float | None:
     """When the last peer (in its last life; of ``among``, if given) knew every item, or None
     if one never did."""
-    merges = h.merges()
+    merges = h.changes()
     latest = 0.0
     for peer, life in h.last_lives().items():
         if among is not None and peer not in among:
@@ -121,7 +161,9 @@ def convergence_time(h: History, among: set[str] | None = None) -> float | None:
         known = set(life.get("known", []))
         when = life["up"]
         for m in sorted(merges.get((peer, life["life"]), []), key=lambda e: e["t"]):
-            if m["sequence"] in h.items and m["sequence"] not in known:
+            if m["kind"] == "forgotten":
+                known.discard(m["sequence"])
+            elif m["sequence"] in h.items and m["sequence"] not in known:
                 known.add(m["sequence"])
                 when = max(when, m["t"])
         if not set(h.items) <= known:
@@ -147,6 +189,17 @@ def _convergence(h: History) -> Verdict:
             if not set(h.items) <= known:
                 missing.append(f"{peer} ({len(known & set(h.items))}/{len(h.items)})")
         return Verdict("convergence", "fail", "never knew every item: " + ", ".join(missing))
+    dead = h.unplanned_exits()
+    if dead:
+        return Verdict("convergence", "fail", "peers died: " + "; ".join(dead[:5]))
+    short = []
+    for e in h.of("final"):
+        if e["peer"] in h.learners and isinstance(e["saved"], dict):
+            lacks = set(h.items) - set(e["saved"])
+            if lacks:
+                short.append(f"{e['peer']} saved {len(h.items) - len(lacks)}/{len(h.items)}")
+    if short:
+        return Verdict("convergence", "fail", "save files short: " + ", ".join(short[:5]))
     took = max(0.0, done - ref)
     status: Status = "pass" if took <= bound else "fail"
     return Verdict("convergence", status, f"{took:.2f} s after the reference (bound {bound:g} s)")
@@ -214,9 +267,74 @@ def _kills_lose_nothing(h: History) -> Verdict:
     if lost:
         return Verdict("kill -9 loses nothing saved", "fail", "; ".join(lost[:5]))
     held = sum(len(k["saved"]) for k in kills)
+    if held == 0:
+        return Verdict(
+            "kill -9 loses nothing saved", "skipped", f"{len(kills)} kills, nothing saved yet"
+        )
     return Verdict(
         "kill -9 loses nothing saved", "pass", f"{len(kills)} kills, {held} saved items all kept"
     )
+
+
+def knows_at(h: History, peer: str, t: float) -> set[str]:
+    """What ``peer`` knew at ``t``, from its own timestamps: the life up at ``t`` (none if it
+    was down), what that life started with, and its merges and forgettings until ``t``."""
+    lives = h.lives()
+    ended = {(e["peer"], e["life"]): e["t"] for e in h.of("kill")}
+    current = None
+    for (name, number), life in sorted(lives.items()):
+        up = life["up"]
+        if name == peer and up is not None and up <= t < ended.get((name, number), float("inf")):
+            current = life
+    if current is None:
+        return set()
+    known = set(current.get("known", []))
+    for e in h.changes().get((peer, current["life"]), []):
+        if e["t"] <= t:
+            if e["kind"] == "forgotten":
+                known.discard(e["sequence"])
+            else:
+                known.add(e["sequence"])
+    return known & set(h.items)
+
+
+def round_times(h: History) -> list[float | None]:
+    """Each churn round's convergence, counted from the victims' return (the round's end) to
+    the first moment every peer knew every item, before the next round began; None for a
+    round that never converged."""
+    starts = sorted(
+        e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "start"
+    )
+    ends = sorted(e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end")
+    last = h.events[-1]["t"] if h.events else 0.0
+    moments = sorted(
+        {e["t"] for e in h.events if e["kind"] in ("merged", "up", "forgotten") and "t" in e}
+    )
+    out: list[float | None] = []
+    for i, end in enumerate(ends):
+        until = starts[i + 1] if i + 1 < len(starts) else max(last, end)
+        took = None
+        for t in [end, *(m for m in moments if end < m <= until)]:
+            if all(knows_at(h, p, t) >= set(h.items) for p in h.peers):
+                took = round(t - end, 3)
+                break
+        out.append(took)
+    return out
+
+
+def _rounds(h: History) -> Verdict:
+    times, bound = round_times(h), float(h.config["bound"])
+    if not times:
+        return Verdict("churn rounds converge", "skipped", "no churn round ended")
+    late = [
+        f"round {i}: {'never' if t is None else f'{t:.2f} s'}"
+        for i, t in enumerate(times, 1)
+        if t is None or t > bound
+    ]
+    shown = ", ".join("never" if t is None else f"{t:.2f}" for t in times)
+    if late:
+        return Verdict("churn rounds converge", "fail", f"bound {bound:g} s: " + "; ".join(late))
+    return Verdict("churn rounds converge", "pass", f"{len(times)} rounds: {shown} s")
 
 
 def _faults(h: History) -> list[Verdict]:
@@ -335,6 +453,19 @@ def _bounded(h: History) -> Verdict:
     return Verdict("memory and descriptors bounded", "pass" if ok else "fail", detail)
 
 
+def honest_refusals(h: History) -> dict[str, int]:
+    """Refusals of what a fleet peer sent. Every fleet peer is honest, so each one is an honest
+    answer turned away; most are answers arriving after the question was closed (another
+    neighbour answered first), which a peer refuses as "an answer to no open question"."""
+    peers = set(h.peers)
+    honest = [
+        e for e in h.of("refused")
+        if str(e.get("reason", "")).removeprefix("from ").split(":", 1)[0] in peers
+    ]  # fmt: skip
+    late = [e for e in honest if "an answer to no open question" in str(e.get("reason", ""))]
+    return {"honest_answers_refused": len(honest), "late_answers_refused": len(late)}
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -345,10 +476,7 @@ def metrics(h: History) -> dict[str, Any]:
     half = {p for p, side in h.plan["half"].items() if side == 0}
     teacher_half = convergence_time(h, half) if half and up is not None else None
     floor = h.one("floor") or {}
-    ends = {
-        e["round"]: e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end"
-    }
-    rounds = [e["t"] - ends[e["round"]] for e in h.of("round-converged") if e["round"] in ends]
+    rounds = round_times(h)
     return {
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
         "all_up_s": None if up is None else up["t"],
@@ -356,12 +484,16 @@ def metrics(h: History) -> dict[str, Any]:
         "teacher_half_s": None
         if teacher_half is None or up is None
         else round(max(0.0, teacher_half - up["t"]), 3),
-        "churn_convergence_s": round(max(rounds), 3) if rounds else None,
+        "churn_convergence_s": None
+        if not rounds or None in rounds
+        else round(max(r for r in rounds if r is not None), 3),
         "messages": messages,
         "learned": merged,
         "messages_per_item": round(messages / merged, 2) if merged else None,
         "floor_s": floor.get("median_s"),
+        "floor_proxied_s": (floor.get("proxied") or {}).get("median_s"),
         "refused": len(h.of("refused")),
+        **honest_refusals(h),
         "error_replies": len(h.of("error-received")),
         "network_errors": len(h.of("network-error")),
     }

@@ -25,12 +25,17 @@ def _show(summary: dict[str, object]) -> None:
     for v in summary["verdicts"]:  # type: ignore[attr-defined]
         typer.echo(f"  {v['status']:7} {v['name']}: {v['detail']}")
     conv = summary.get("convergence_s")
-    floor = summary.get("floor_s")
+    floor, linked = summary.get("floor_s"), summary.get("floor_proxied_s")
     typer.echo(
         f"  convergence {'-' if conv is None else f'{conv:.2f} s'}, "
         f"{summary.get('messages_per_item')} messages per learned item, "
-        f"query round trip {'-' if floor is None else f'{float(floor) * 1000:.1f} ms'}"  # type: ignore[arg-type]
+        f"query round trip {_ms(floor)} direct, {_ms(linked)} through a link, "
+        f"{summary.get('honest_answers_refused')} honest answers refused"
     )
+
+
+def _ms(value: object) -> str:
+    return "-" if value is None else f"{float(value) * 1000:.1f} ms"  # type: ignore[arg-type]
 
 
 @fleet.command("run")
@@ -67,9 +72,12 @@ def run_command(
     live: Annotated[bool, typer.Option(help="Show the live table.")] = True,
 ) -> None:
     """Run a fleet scenario, check it and draw it; exit 1 if a property failed."""
+    from ..cli import _knowledge_or_exit
     from .plan import FleetConfig, PlanError, seconds
     from .runner import run
 
+    if knowledge is not None:  # refused here, with its position, not inside the namespace
+        _knowledge_or_exit(knowledge)
     try:
         config = FleetConfig(
             peers=peers, teachers=teachers, topology=topology, routers=routers,  # type: ignore[arg-type]
@@ -108,7 +116,7 @@ def check_command(
         raise _fail(f"{folder}: no events.jsonl")
     try:
         summary = check_record(folder)
-    except (ValueError, KeyError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise _fail(f"{folder}/events.jsonl: not a fleet record ({exc})") from None
     typer.echo(f"{folder}: {'passed' if summary['passed'] else 'FAILED'}")
     _show(summary)

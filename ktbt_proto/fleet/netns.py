@@ -44,13 +44,15 @@ def create(name: str) -> None:
 
 
 def add_loss(name: str, fraction: float) -> None:
-    """Drop ``fraction`` of the packets between proxies and peers, counted."""
+    """Drop ``fraction`` of the packets between proxies and the peers and routers behind them
+    (peers on 127.1/16, routers on 127.3/16), counted."""
     percent = round(fraction * 100)
+    ends = "{ 127.1.0.0/16, 127.3.0.0/16 }"
     rules = (
         f"table inet {TABLE} {{\n"
         "  chain out {\n"
         "    type filter hook output priority 0; policy accept;\n"
-        f"    ip saddr 127.1.0.0/16 ip daddr 127.1.0.0/16 numgen random mod 100 < {percent}"
+        f"    ip saddr {ends} ip daddr {ends} numgen random mod 100 < {percent}"
         " counter drop\n"
         "  }\n"
         "}\n"
@@ -85,7 +87,3 @@ def delete(name: str) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     _run("ip", "netns", "del", name)
-
-
-def exists(name: str) -> bool:
-    return name in _run("ip", "netns", "list").stdout.split()

@@ -187,9 +187,14 @@ def _address(prefix: int, k: int) -> str:
     return f"127.{prefix}.{k // 250}.{k % 250 + 1}"
 
 
+def stream(seed: int, decision: str) -> random.Random:
+    """The seeded random stream of one decision of a run."""
+    return random.Random(f"{seed}/{decision}")
+
+
 def make_plan(config: FleetConfig, port: int) -> Plan:
-    """Peers, links and the seeded schedule choices of ``config``."""
-    rng = random.Random(config.seed)
+    """Peers, links and the seeded schedule choices of ``config``: each decision draws from a
+    stream of its own, so that adding churn does not move the partition's halves."""
     plan = Plan(config, port)
     width = len(str(config.peers - 1))
     first_teacher = config.peers - config.teachers
@@ -229,11 +234,14 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
         if config.topology == "line":  # halves of a line are its two ends (teachers last)
             chosen = set(learners[len(learners) - max(size_a, 0) :])
         else:
-            chosen = set(rng.sample(learners, max(size_a, 0)))
+            chosen = set(stream(config.seed, "halves").sample(learners, max(size_a, 0)))
         for p in peers:
             plan.half[p.name] = 0 if p.role == "teacher" or p.name in chosen else 1
     if config.churn:
         learners = [p.name for p in peers if p.role == "learner"]
         count = max(1, round(config.churn * len(learners)))
-        plan.victims = [sorted(rng.sample(learners, count)) for _ in range(config.churn_rounds)]
+        plan.victims = [
+            sorted(stream(config.seed, f"victims-{r}").sample(learners, count))
+            for r in range(config.churn_rounds)
+        ]
     return plan

@@ -2,8 +2,9 @@
 
 A link is ``open`` (bytes pass, after the link's one-way ``delay`` in each direction, in
 order), ``held`` (a silent partition: sockets stay up, bytes read are held and nothing more is
-read, so the kernel buffers fill; new connections are accepted and never connected onwards; at
-the heal the held bytes flow on) or ``cut`` (a hard cut: every connection reset, new ones reset
+read, so the kernel buffers fill; new connections are accepted and never connected onwards,
+and closed when their dialer gives up; an end of stream is held too; at the heal the held bytes
+flow on) or ``cut`` (a hard cut: every connection reset, new ones reset
 at once, until the heal). Every link counts what it did, so a fault that did not happen shows.
 """
 
@@ -22,6 +23,12 @@ from .plan import Link
 
 State = Literal["open", "held", "cut"]
 CHUNK = 65536
+FIN_WAIT = 2.0
+"""Seconds a half-closed connection may go on in the other direction before both are closed
+(a dead peer's neighbour may never close its side)."""
+QUEUED = 1 << 20
+"""Bytes a delayed direction may hold in flight before it stops reading (as a slow link's
+window would)."""
 
 
 @dataclass
@@ -31,6 +38,7 @@ class Counters:
     chunks_held: int = 0
     bytes_held: int = 0
     connections_held: int = 0
+    closed_while_held: int = 0
     resets: int = 0
     refused: int = 0
     delayed_chunks: int = 0
@@ -49,7 +57,6 @@ class LinkProxy:
         self._open.set()
         self._server: asyncio.Server | None = None
         self._conns: set[tuple[asyncio.StreamWriter, asyncio.StreamWriter | None]] = set()
-        self._tasks: set[asyncio.Task[None]] = set()
 
     async def start(self) -> None:
         self._server = await asyncio.start_server(
@@ -83,18 +90,9 @@ class LinkProxy:
                 b.close()
         self._conns.clear()
         self._open.set()  # held connections wake, find themselves closed, and end
-        for task in list(self._tasks):
-            task.cancel()
-        if self._tasks:
-            await asyncio.gather(*self._tasks, return_exceptions=True)
         if self._server is not None:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._server.wait_closed(), 2)
-
-    def _spawn(self, coro: object) -> None:
-        task = asyncio.ensure_future(coro)  # type: ignore[call-overload]
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
 
     async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         with contextlib.suppress(asyncio.CancelledError):  # the run is ending
@@ -108,9 +106,13 @@ class LinkProxy:
         pair: tuple[asyncio.StreamWriter, asyncio.StreamWriter | None] = (writer, None)
         self._conns.add(pair)
         try:
+            early: bytes | None = b""
             if not self._open.is_set():
                 self.counters.connections_held += 1
-                await self._open.wait()
+                early = await self._wait_open(reader)
+                if early is None:  # the dialer gave up while held
+                    self.counters.closed_while_held += 1
+                    return
             if pair not in self._conns:  # cut meanwhile
                 return
             host, port = self.link.target, self.port
@@ -125,14 +127,54 @@ class LinkProxy:
             pair = (writer, up_writer)
             self._conns.add(pair)
             self.counters.connections += 1
-            await asyncio.gather(
-                self._pump(reader, up_writer, pair), self._pump(up_reader, writer, pair)
-            )
+            if early:
+                up_writer.write(early)
+            pumps = {
+                asyncio.ensure_future(self._pump(reader, up_writer, pair)),
+                asyncio.ensure_future(self._pump(up_reader, writer, pair)),
+            }
+            try:
+                _, left = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+                if left:  # half-closed: the other direction may finish, for a while
+                    _, left = await asyncio.wait(left, timeout=FIN_WAIT)
+            finally:
+                for pump in pumps:
+                    pump.cancel()
+                await asyncio.gather(*pumps, return_exceptions=True)
         finally:
             self._conns.discard(pair)
             for w in pair:
                 if w is not None:
                     w.close()
+
+    async def _wait_open(self, reader: asyncio.StreamReader) -> bytes | None:
+        """Wait for the heal on a connection accepted while held, watching for its end: what
+        the dialer sent meanwhile (up to one chunk, then nothing more is read), or None if it
+        closed first."""
+        held = b""
+        opened = asyncio.ensure_future(self._open.wait())
+        try:
+            while not self._open.is_set() and len(held) < CHUNK:
+                read = asyncio.ensure_future(reader.read(CHUNK - len(held)))
+                await asyncio.wait({opened, read}, return_when=asyncio.FIRST_COMPLETED)
+                if not read.done():
+                    read.cancel()
+                    with contextlib.suppress(asyncio.CancelledError, OSError):
+                        await read
+                    break
+                try:
+                    data = read.result()
+                except OSError:
+                    return None
+                if not data:
+                    return None
+                self.counters.chunks_held += 1
+                self.counters.bytes_held += len(data)
+                held += data
+            await opened
+        finally:
+            opened.cancel()
+        return held
 
     async def _pump(
         self,
@@ -142,10 +184,13 @@ class LinkProxy:
     ) -> None:
         """Copy one direction; with a delay, a queue of (due time, bytes) keeps the order."""
         queue: deque[tuple[float, bytes]] = deque()
-        wake = asyncio.Event()
+        wake, room = asyncio.Event(), asyncio.Event()
+        room.set()
+        queued = 0
         done = False
 
         async def send() -> None:
+            nonlocal queued
             while True:
                 while not queue:
                     if done:
@@ -158,19 +203,25 @@ class LinkProxy:
                     await asyncio.sleep(wait)
                 writer.write(data)
                 await writer.drain()
+                queued -= len(data)
+                if queued < QUEUED:
+                    room.set()
 
         sender = asyncio.ensure_future(send()) if self.delay else None
+        ended = False  # the stream ended cleanly: pass the end on, as a half-close
         try:
             while True:
                 data = await reader.read(CHUNK)
-                if not data:
-                    break
-                if not self._open.is_set():
-                    self.counters.chunks_held += 1
-                    self.counters.bytes_held += len(data)
+                if not self._open.is_set():  # held: neither bytes nor the end pass
+                    if data:
+                        self.counters.chunks_held += 1
+                        self.counters.bytes_held += len(data)
                     await self._open.wait()
                     if pair not in self._conns:
                         break
+                if not data:
+                    ended = True
+                    break
                 self.counters.bytes += len(data)
                 if sender is None:
                     writer.write(data)
@@ -178,7 +229,11 @@ class LinkProxy:
                 else:
                     self.counters.delayed_chunks += 1
                     queue.append((time.monotonic() + self.delay, data))
+                    queued += len(data)
                     wake.set()
+                    if queued >= QUEUED:
+                        room.clear()
+                        await room.wait()
         except (OSError, asyncio.IncompleteReadError):
             pass
         finally:
@@ -187,7 +242,11 @@ class LinkProxy:
             if sender is not None:
                 with contextlib.suppress(Exception):
                     await asyncio.wait_for(sender, self.delay + 1)
-            writer.close()
+            if ended and writer.can_write_eof() and not writer.is_closing():
+                with contextlib.suppress(OSError):
+                    writer.write_eof()  # the other direction goes on; both close at its end
+            else:
+                writer.close()
 
 
 def _reset(writer: asyncio.StreamWriter) -> None:

@@ -34,9 +34,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+from ..files import write_atomic
 from ..transport.zenoh import stable_zid
 from . import netns
-from .plan import FleetConfig, Node, Plan, make_plan
+from .plan import FleetConfig, Node, Plan, make_plan, stream
 from .proxy import FaultLayer
 
 Say = Callable[[str], None]
@@ -46,7 +47,7 @@ if not EXAMPLE_KNOWLEDGE.exists():  # a source checkout keeps the examples besid
     EXAMPLE_KNOWLEDGE = ROOT.parent / "examples" / "knowledge" / "colours.sbt"
 COPIED = (
     "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
-    "network-error",
+    "network-error", "forgotten",
 )  # fmt: skip
 """The peers' exchange events copied into the record."""
 OUTPUTS = (
@@ -77,13 +78,25 @@ def authored_items(path: str | Path) -> dict[str, str]:
 def read_saved(path: Path) -> dict[str, str] | str:
     """A save file's items (sequence -> digest of the subtree as stored), or why it cannot be
     read. Read as data, not through the library, so that damage shows as damage."""
+    from ..knowledge import MAX_FILE
+
     if not path.exists():
         return {}
     try:
-        data = json.loads(path.read_bytes())
-        return {str(e["sequence"]): digest(str(e["subtree"])) for e in data["knowledge"]}
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE + 1)
+        if len(raw) > MAX_FILE:
+            return f"unreadable: larger than {MAX_FILE} bytes"
+        entries = json.loads(raw)["knowledge"]
+        items = {str(e["sequence"]): digest(str(e["subtree"])) for e in entries}
     except (ValueError, KeyError, TypeError) as exc:
         return f"unreadable: {exc!r}"[:200]
+    if len(items) != len(entries):
+        twice = Counter(str(e["sequence"]) for e in entries)
+        return f"unreadable: items saved twice: {sorted(k for k, n in twice.items() if n > 1)}"[
+            :200
+        ]
+    return items
 
 
 class Record:
@@ -113,7 +126,6 @@ class Life:
     started: float
     known: set[str]
     up: float | None = None
-    read: int = 0
 
 
 @dataclass
@@ -162,12 +174,13 @@ class Fleet:
         self.members = {n.name: Member(n, out / "peers") for n in self.plan.nodes}
         self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
         self.record = Record(out / "events.jsonl", self.t0)
-        self.rng = random.Random(config.seed + 1)
-        self.teacher_program = (
-            "run" if config.teacher == "run" and _run_takes_knowledge() else "serve"
-        )
+        self.pause = stream(config.seed, "churn-pauses")
+        self.teacher_program = "run" if config.teacher == "run" else "serve"
         self.faults_open: dict[str, dict[str, Any]] = {}
         self.last_sample = 0.0
+        self.sampling = True
+        self.bad = 0
+        """Lines of the peers' logs that were not log entries (skipped)."""
         self.converged: float | None = None
         self.reference = 0.0
 
@@ -175,15 +188,13 @@ class Fleet:
 
     def _zenoh_config(self, node: Node) -> Path:
         path = self.out / "zenoh" / f"{node.name}.json5"
+        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, multicast
+        # off) do not give: no gossip (the fleet's links are the only paths) and, for routers
+        # too, the stable zenoh id (a restarted peer is the same peer).
         conf: dict[str, Any] = {
-            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-            "connect": {
-                "timeout_ms": -1,
-                "retry": {"period_init_ms": 250, "period_max_ms": 1000,
-                          "period_increase_factor": 2},
-            },
-        }  # fmt: skip
-        conf["id"] = stable_zid(node.name)  # a restarted peer is the same peer
+            "scouting": {"gossip": {"enabled": False}},
+            "id": stable_zid(node.name),
+        }
         path.write_text(json.dumps(conf, indent=1))
         return path
 
@@ -253,6 +264,9 @@ class Fleet:
         """SIGTERM to every process, SIGKILL to those still up after a few seconds (a zenoh
         close can block under faults); each by its pid."""
         running = [m for m in self.members.values() if m.running]
+        self.record.emit(
+            "stopping", lives={m.node.name: m.life.number for m in running if m.life is not None}
+        )
         for m in running:
             assert m.life is not None
             with contextlib.suppress(ProcessLookupError):
@@ -272,7 +286,7 @@ class Fleet:
     def _tail(self, member: Member) -> None:
         life = member.life
         if life is not None and life.up is None:
-            text = life.out.read_bytes()[life.read :].decode("utf-8", "replace")
+            text = life.out.read_bytes().decode("utf-8", "replace")
             found = UP.search(text)
             if found is not None:
                 life.up = self.record.now()
@@ -291,15 +305,17 @@ class Fleet:
         for raw in data[:end].splitlines():
             try:
                 entry = json.loads(raw)
-            except ValueError:
+                event = entry.get("event")
+                t = datetime.fromisoformat(entry["t"]).timestamp() - self.t0
+            except (ValueError, TypeError, KeyError, AttributeError):
+                self.bad += 1  # a line that is not a log entry: counted, never fatal
                 continue
-            event = entry.get("event")
             if not isinstance(event, str):
+                self.bad += 1
                 continue
             member.counts[event] += 1
             if event not in COPIED:
                 continue
-            t = datetime.fromisoformat(entry["t"]).timestamp() - self.t0
             fields = {
                 k: entry.get(k) for k in ("sequence", "sender", "to", "id", "teacher", "where")
             }
@@ -308,6 +324,8 @@ class Fleet:
             life = member.life
             if event == "merged" and life is not None and entry.get("sequence"):
                 life.known.add(str(entry["sequence"]))
+            if event == "forgotten" and life is not None and entry.get("sequence"):
+                life.known.discard(str(entry["sequence"]))
             self.record.emit(
                 event, t=t, peer=member.node.name, life=life.number if life else 0,
                 **{k: v for k, v in fields.items() if v is not None},
@@ -347,7 +365,7 @@ class Fleet:
                     self._tail(m)
                 if self.converged is None and self.all_know():
                     self.converged = self.record.now()
-                if time.monotonic() - self.last_sample > 2.0:
+                if self.sampling and time.monotonic() - self.last_sample > 2.0:
                     self.last_sample = time.monotonic()
                     self._sample()
                 if live is not None:
@@ -454,8 +472,10 @@ class Fleet:
         for number, victims in enumerate(plan.victims, 1):
             # The first round strikes while the victims are still learning (what they saved
             # must come back, the rest be learned); later ones after the fleet has converged.
-            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.rng.random())
+            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.pause.random())
             self.fault("churn", "start", round=number, peers=victims)
+            if number == 1:
+                await self._kill_while_learning(victims, cfg.bound)
             for v in victims:
                 self.kill(self.members[v])
             await asyncio.sleep(cfg.churn_down)
@@ -479,7 +499,19 @@ class Fleet:
             self.record.emit("round-converged", round=len(plan.victims))
         await asyncio.sleep(cfg.settle)
         self._sample()  # the last samples, before the probe opens a session here
+        self.sampling = False  # the probe's session (its threads and sockets) is not the run's
         return None
+
+    async def _kill_while_learning(self, victims: list[str], limit: float) -> None:
+        """Kill each victim once it has merged some items but not all (its log says so), so that
+        the kill has something saved to lose; those never in that state die at the limit."""
+        left, deadline = list(victims), time.monotonic() + limit
+        while left and time.monotonic() < deadline:
+            for v in list(left):
+                if 0 < len(self.knows(self.members[v])) < len(self.items):
+                    self.kill(self.members[v])
+                    left.remove(v)
+            await asyncio.sleep(0.02)
 
     async def until(self, done: Callable[[], bool], limit: float) -> bool:
         deadline = time.monotonic() + limit
@@ -491,13 +523,44 @@ class Fleet:
 
     async def floor(self) -> dict[str, Any]:
         """One query round trip to a teacher on a direct link (no proxy, no loss, no delay):
-        the floor beside which convergence times are read."""
+        the floor beside which convergence times are read; and one through a proxied link (its
+        delay, loss and all) to the peer behind it, which knows every item by then."""
         teacher = next(n for n in self.plan.peers if n.role == "teacher")
+        sequence = next(iter(self.items))
         if self.config.topology == "router":
-            return {"skipped": "teachers are clients of routers: no direct link to probe"}
-        return await asyncio.to_thread(
-            _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", next(iter(self.items))
-        )
+            direct = {"skipped": "teachers are clients of routers: no direct link to probe"}
+        else:
+            direct = await asyncio.to_thread(
+                _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", sequence
+            )
+        roles = {n.name: n.role for n in self.plan.peers}
+        link = next((li for li in self.plan.links if li.listener in roles), None)
+        if link is None:
+            proxied: dict[str, Any] = {"skipped": "no link listens on a peer"}
+        else:
+            endpoint = f"tcp/{link.proxy}:{self.plan.port}"
+            proxied = await asyncio.to_thread(_probe, link.listener, endpoint, sequence)
+            proxied["link"] = link.index
+        return {**direct, "proxied": proxied}
+
+    async def _finish(self, stop: asyncio.Event, watcher: asyncio.Task[None]) -> None:
+        """The fault windows' ends, the last log lines and the save files, before the stop."""
+        cfg = self.config
+        try:
+            if cfg.delay:
+                self.fault("delay", "end", evidence=self._link_counters(list(self.layer.proxies)))
+            if cfg.loss and self.loss_note is None:
+                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
+        finally:
+            stop.set()
+            try:
+                await watcher
+            except Exception as exc:  # recorded: the run fails on it
+                self.record.emit("aborted", reason=f"the observer crashed: {exc!r}"[:300])
+        for m in self.members.values():
+            if m.node.role == "learner" or self.teacher_program == "run":
+                saved = read_saved(m.save) if m.node.role != "router" else {}
+                self.record.emit("final", peer=m.node.name, saved=saved)
 
     async def run(self) -> dict[str, Any]:
         cfg = self.config
@@ -521,35 +584,33 @@ class Fleet:
         try:
             try:
                 problem = await self.schedule()
+                if problem is None:
+                    probe = await self.floor()
+                    self.record.emit("floor", **probe)
             except asyncio.CancelledError:  # Ctrl-C or SIGTERM: clean up, record why
                 problem = "interrupted"
-            if problem is None:
-                probe = await self.floor()
-                self.record.emit("floor", **probe)
+            except Exception as exc:  # a crash is a failed run, never a passed one
+                problem = f"crashed: {exc!r}"[:300]
         finally:
-            every = list(self.layer.proxies)
-            if cfg.delay:
-                self.fault("delay", "end", evidence=self._link_counters(every))
-            if cfg.loss and self.loss_note is None:
-                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
-            stop.set()
-            await watcher
-            for m in self.members.values():
-                if m.node.role == "learner" or self.teacher_program == "run":
-                    saved = read_saved(m.save) if m.node.role != "router" else {}
-                    self.record.emit("final", peer=m.node.name, saved=saved)
-            await self.stop_all()
-            for m in self.members.values():
-                for life in m.lives:
-                    self.record.emit(
-                        "exit", peer=m.node.name, life=life.number, returncode=life.proc.returncode
-                    )
-            self.record.emit("counters", links=self.layer.counters())
-            await self.layer.close()
-            if problem is not None:
-                self.record.emit("aborted", reason=problem)
-            self.record.emit("end")
-            self.record.close()
+            # The processes are stopped first and whatever fails after: nothing outlives the run.
+            try:
+                await asyncio.shield(self._finish(stop, watcher))
+            finally:
+                await asyncio.shield(self.stop_all())
+                try:
+                    for m in self.members.values():
+                        for life in m.lives:
+                            self.record.emit(
+                                "exit", peer=m.node.name, life=life.number,
+                                returncode=life.proc.returncode,
+                            )  # fmt: skip
+                    self.record.emit("counters", links=self.layer.counters(), bad_lines=self.bad)
+                    await asyncio.shield(self.layer.close())
+                finally:
+                    if problem is not None:
+                        self.record.emit("aborted", reason=problem)
+                    self.record.emit("end")
+                    self.record.close()
         return {"problem": problem, "floor": probe}
 
 
@@ -571,32 +632,15 @@ def _port() -> int:
         return port
 
 
-def _run_takes_knowledge() -> bool:
-    """Whether ``ktbt peer run`` has ``--knowledge`` (teachers that are fleet members)."""
-    import typer.main
-
-    from .. import cli
-
-    peer = getattr(typer.main.get_command(cli.app), "commands", {}).get("peer")
-    run = getattr(peer, "commands", {}).get("run")
-    return any("--knowledge" in getattr(p, "opts", ()) for p in getattr(run, "params", ()))
-
-
 def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict[str, Any]:
-    import zenoh
-
     from ..messages import Query, encode
+    from ..transport.zenoh import PREFIX, ZenohSettings, open_session
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
-    session = zenoh.open(conf)
+    session = open_session(ZenohSettings(connect=[endpoint]))
     times: list[float] = []
     try:
         deadline = time.monotonic() + 10
-        key = f"ktbt/v1/knowledge/{teacher}"
+        key = f"{PREFIX}/knowledge/{teacher}"
         while len(times) < rounds and time.monotonic() < deadline:
             query = Query(id=Query.new_id(), sender="fleet-probe", sequence=sequence)
             began = time.perf_counter()
@@ -621,8 +665,17 @@ def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: 
         task = asyncio.current_task()
         assert task is not None
         loop = asyncio.get_running_loop()
+        stopping: list[int] = []
+
+        def interrupt(sig: int) -> None:
+            # The first signal stops the schedule; later ones would land in the cleanup and
+            # leave peers behind, so they are only counted.
+            stopping.append(sig)
+            if len(stopping) == 1:
+                task.cancel()
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, task.cancel)
+            loop.add_signal_handler(sig, interrupt, sig)
         return await fleet.run()
 
     return asyncio.run(main())
@@ -649,7 +702,8 @@ def run(config: FleetConfig, out: Path, say: Say, live: bool = False) -> dict[st
         result = run_inside(config, out, say, live, note)
     summary = check_record(out)
     summary["aborted"] = result.get("problem")
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    summary["passed"] = summary["passed"] and summary["aborted"] is None
+    write_atomic(out / "summary.json", json.dumps(summary, indent=1, default=str))
     return summary
 
 
@@ -664,21 +718,23 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
                 netns.add_loss(name, config.loss)
             except OSError as exc:
                 note = str(exc)
-        (out / "config.json").write_text(json.dumps({"config": config.to_json(), "loss": note}))
+        write_atomic(out / "config.json", json.dumps({"config": config.to_json(), "loss": note}))
         proc = subprocess.Popen(
             ["ip", "netns", "exec", name, sys.executable, "-m", "ktbt_proto.fleet.runner",
              str(out), "--live" if live else "--quiet"],
             env={**os.environ, "KTBT_FLEET_NETNS": name},
+            start_new_session=True,  # it hears exactly one signal: the one sent here
         )  # fmt: skip
         previous = signal.signal(signal.SIGTERM, _interrupt)
         try:
             proc.wait()
-        except KeyboardInterrupt:  # tell the inner runner (a terminal's Ctrl-C reaches it too)
+        except KeyboardInterrupt:  # tell the inner runner once; later signals are ignored
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
             with contextlib.suppress(ProcessLookupError):
                 proc.send_signal(signal.SIGINT)
             with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=30)
-            raise
+                proc.wait(timeout=60)
         finally:
             signal.signal(signal.SIGTERM, previous)
         result_file = out / "result.json"
@@ -709,7 +765,7 @@ def main() -> None:
             print(text, flush=True)
 
     result = run_inside(config, out, say, live, spec["loss"])
-    (out / "result.json").write_text(json.dumps(result, default=str))
+    write_atomic(out / "result.json", json.dumps(result, default=str))
 
 
 if __name__ == "__main__":

@@ -550,7 +550,8 @@ def run_agent(
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
             f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
-            f"taught {m.responses_sent}, network errors {m.network_errors}"
+            f"taught {m.responses_sent}, late answers {m.late_answers}, "
+            f"network errors {m.network_errors}"
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")

@@ -10,6 +10,7 @@ every member takes is one field there.
 from __future__ import annotations
 
 import logging
+import random
 import signal
 import threading
 import time
@@ -430,16 +431,26 @@ BACKOFF_MOST = 2.0
 class Backoff:
     """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
     after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
-    once again when it learns something or a new peer appears."""
+    once again when it learns something or a new peer appears.
+
+    Each hold is stretched by up to ``jitter`` of itself, drawn from a generator seeded with
+    ``seed`` (the member's name): a fleet whose queries were lost together does not ask again
+    in step, and a run with the same names draws the same holds."""
 
     first: float = BACKOFF_FIRST
     most: float = BACKOFF_MOST
     hold: float = 0.0
     until: float = 0.0
+    seed: str = ""
+    jitter: float = 0.5
+    _rng: random.Random = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._rng = random.Random(f"ktbt-backoff:{self.seed}")
 
     def lost(self, now: float) -> None:
         self.hold = self.first if self.hold == 0 else min(self.hold * 2, self.most)
-        self.until = now + self.hold
+        self.until = now + self.hold * (1 + self.jitter * self._rng.random())
 
     def reset(self, now: float) -> None:
         self.hold, self.until = 0.0, now
@@ -522,7 +533,7 @@ def run_agent(
         period = 1.0 / tick_rate
         say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
         announced = set(robot.metrics.learned)
-        backoff = Backoff()
+        backoff = Backoff(seed=name)
         lost, joined = robot.metrics.queries_lost, transport.joined
         while not stop.is_set() and time.monotonic() < deadline:
             now = time.monotonic()

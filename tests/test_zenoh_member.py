@@ -147,7 +147,7 @@ def test_a_learner_started_before_any_teacher_learns_when_one_appears() -> None:
 
 
 def test_backoff_doubles_to_its_bound_and_resets() -> None:
-    backoff = Backoff(first=0.25, most=2.0)
+    backoff = Backoff(first=0.25, most=2.0, jitter=0.0)
     assert backoff.ready(0.0)
     holds = []
     for _ in range(6):
@@ -157,6 +157,21 @@ def test_backoff_doubles_to_its_bound_and_resets() -> None:
     assert not backoff.ready(11.0) and backoff.ready(12.0)
     backoff.reset(11.0)
     assert backoff.ready(11.0) and backoff.hold == 0
+
+
+def test_backoff_jitter_spreads_a_fleet_and_repeats_per_member() -> None:
+    def holds(seed: str) -> list[float]:
+        backoff = Backoff(first=0.25, most=2.0, seed=seed)
+        out = []
+        for _ in range(6):
+            backoff.lost(10.0)
+            assert backoff.hold * 1.0 <= backoff.until - 10.0 <= backoff.hold * 1.5
+            out.append(backoff.until)
+        return out
+
+    fleet = [holds(f"r{n}") for n in range(10)]
+    assert len({h[0] for h in fleet}) == 10  # lost together, they do not ask again in step
+    assert holds("r3") == fleet[3]  # the same member draws the same holds: a run repeats
 
 
 def test_zenoh_ids_are_stable_valid_and_distinct() -> None:

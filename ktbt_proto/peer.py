@@ -210,21 +210,44 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
+def _signed(item: Knowledge, identity: Identity | None) -> SignedItem:
+    """An item as a peer answers it: its author's signature kept, or, unsigned, signed by this
+    peer as its author when it has a key pair (section 7)."""
+    subtree = format_tree(item.subtree, "compact")
+    if item.author is not None:
+        return SignedItem(subtree, item.author, item.signature)
+    if identity is not None:
+        return identity.sign_item(item.key, subtree)
+    return SignedItem(subtree)
+
+
 def answers(
     knowledge: KnowledgeBase, identity: Identity | None = None
 ) -> Callable[[str], SignedItem | None]:
     """A server's lookup: every answer formatted (and, with a key pair, signed by this server
     as its author) once, so a query costs one dict lookup."""
-    table = {}
-    for item in knowledge:
-        subtree = format_tree(item.subtree, "compact")
-        if item.author is not None:
-            table[item.key] = SignedItem(subtree, item.author, item.signature)
-        elif identity is not None:
-            table[item.key] = identity.sign_item(item.key, subtree)
-        else:
-            table[item.key] = SignedItem(subtree)
-    return table.get
+    return {item.key: _signed(item, identity) for item in knowledge}.get
+
+
+def live_answers(
+    knowledge: Callable[[], KnowledgeBase], identity: Identity | None = None
+) -> Callable[[str], SignedItem | None]:
+    """A fleet member's lookup (spec/protocol.md section 4.5): what its agent knows now, learned
+    and forgotten items included, each formatted and signed as :func:`answers` does, once per
+    item. It runs in the queryable's one callback thread, the only one to touch its cache."""
+    made: dict[str, tuple[Knowledge, SignedItem]] = {}
+
+    def lookup(key: str) -> SignedItem | None:
+        item = knowledge().lookup(key)
+        if item is None:
+            made.pop(key, None)
+            return None
+        cached = made.get(key)
+        if cached is None or cached[0] is not item:
+            cached = made[key] = (item, _signed(item, identity))
+        return cached[1]
+
+    return lookup
 
 
 def catalog(
@@ -500,7 +523,9 @@ def run_agent(
     with (
         until_signalled() as stop,
         ExitStack() as stack,
-        member.transport(query_timeout=wait_ticks / tick_rate) as transport,
+        member.transport(
+            query_timeout=wait_ticks / tick_rate, identity=security.identity
+        ) as transport,
     ):
         robot = Agent(
             name,
@@ -517,6 +542,9 @@ def run_agent(
             overhear=member.overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        # Every query it can answer is answered at once from what it knows, as `peer serve`
+        # does, not one asker per cool-down through the teach tree (section 4.5).
+        transport.lookup = live_answers(lambda: robot.knowledge, security.identity)
         if member.groot is not None:
             from .groot2 import Groot2Publisher
 
@@ -561,7 +589,7 @@ def run_agent(
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
             f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
-            f"taught {m.responses_sent}, late answers {m.late_answers}, "
+            f"taught {m.responses_sent + transport.answered}, late answers {m.late_answers}, "
             f"network errors {m.network_errors}"
         )
         for item in robot.knowledge:

@@ -178,3 +178,45 @@ def test_zenoh_ids_are_stable_valid_and_distinct() -> None:
     ids = {stable_zid(f"r{n}") for n in range(200)}
     assert len(ids) == 200 and all(len(i) == 32 and i[0] != "0" for i in ids)
     assert stable_zid("r1") == stable_zid("r1")
+
+
+@pytest.mark.slow
+def test_a_member_with_knowledge_answers_every_asker_at_once_as_a_server_does() -> None:
+    """Six peers ask a ``peer run --knowledge`` member at the same moment, each waiting 1 s:
+    all six are answered (its teach tree alone answers one asker per 0.5 s cool-down)."""
+    import threading
+
+    from ktbt_proto.messages import Query
+    from ktbt_proto.transport.zenoh import ZenohTransport
+
+    from .zenoh_helpers import reached, settings
+
+    pt = free_port()
+    with (
+        ktbt_process(
+            *run("t", pt, "--knowledge", str(KNOWLEDGE), "--sequence", "TargetSeen(colour=1)"),
+            "--duration", "120", ready="will meet",
+        ),
+    ):  # fmt: skip
+        askers = [ZenohTransport(f"a{n}", settings(free_port(), pt)) for n in range(6)]
+        try:
+            for asker in askers:
+                reached(asker, "t")
+            got: dict[str, int] = {}
+
+            def ask(asker: ZenohTransport) -> None:
+                query = Query(id=Query.new_id(), sender=asker.name, sequence=SEQ)
+                got[asker.name] = len(asker.ask(query, timeout=1.0))
+
+            threads = [threading.Thread(target=ask, args=(a,)) for a in askers]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+        finally:
+            for asker in askers:
+                asker.close()
+    assert got == {f"a{n}": 1 for n in range(6)}
+
+
+SEQ = "<c>(TargetSeen,colour=2)"

@@ -117,6 +117,9 @@ class Metrics:
     """Answers to others' queries received (section 4.3)."""
     overheard_refused: int = 0
     """Of those, refused: a check failed, or the buffer was full (also counted in ``refused``)."""
+    late_answers: int = 0
+    """Answers to one of this agent's own recent queries that came after the first acceptable
+    answer or after the wait: honest, too late, discarded; not refusals (section 2)."""
     network_errors: int = 0
     """The network's own errors about this agent's queries (a get that timed out): not
     refusals, since no peer sent them (spec/protocol.md section 3)."""
@@ -207,6 +210,8 @@ class Agent:
         self._responses: deque[Response] = deque()
         self._open: Query | None = None
         self._answered = False
+        self._closed: dict[str, None] = {}
+        """The ids of this agent's latest closed queries (insertion-ordered, bounded)."""
         self._heard: dict[str, Query] = {}
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
@@ -348,10 +353,28 @@ class Agent:
 
     def close_query(self) -> None:
         """The asker's wait is over: a query nobody answered counts as lost, and answers to it
-        that arrive later are refused."""
-        if self._open is not None and not self._answered:
-            self.metrics.queries_lost += 1
+        that arrive later are late answers (section 2)."""
+        if self._open is not None:
+            if not self._answered:
+                self.metrics.queries_lost += 1
+            self._closed_query(self._open.id)
         self._open = None
+
+    RECENT_QUERIES = 256
+    """Closed queries whose late answers are told apart from refusals (oldest forgotten)."""
+
+    def _closed_query(self, id: str) -> None:
+        closed = self._closed
+        closed[id] = None
+        if len(closed) > self.RECENT_QUERIES:
+            del closed[next(iter(closed))]
+
+    def _late(self, response: Response) -> None:
+        """An answer to one of this agent's own queries, after it was answered or closed:
+        discarded, counted apart, never a refusal (spec/protocol.md section 2)."""
+        self.metrics.late_answers += 1
+        log.debug("%s: late answer from %s to query %s", self.name, response.sender, response.id)
+        self._record("late-answer", sender=response.sender, id=response.id)
 
     def heard(self, sender: str) -> Query | None:
         """The latest query received from ``sender`` by :meth:`receive`, if any."""
@@ -427,7 +450,11 @@ class Agent:
         same checks as a direct answer. Returns how many items were learned."""
         heard = self.ear.hear(response, response.sequence in self.knowledge, self._overheard)
         if heard is Heard.OFF:
-            self.refuse(f"from {response.sender}: an answer to no open question")
+            mine = self._open is not None and self._open.id == response.id
+            if mine or response.id in self._closed:
+                self._late(response)
+            else:
+                self.refuse(f"from {response.sender}: an answer to no open question")
             return 0
         self.metrics.overheard += 1
         if heard is Heard.FULL:
@@ -753,9 +780,11 @@ class _QueryAndWait:
         self._finish()
 
     def _finish(self) -> None:
-        while self.agent._responses:  # more answers to the finished query: nobody asks now
-            late = self.agent._responses.popleft()
-            self.agent.refuse(f"from {late.sender}: an answer to no open question")
+        agent = self.agent
+        while agent._responses:  # more answers to the finished query: nobody asks now
+            agent._late(agent._responses.popleft())
+        if self.query is not None:
+            agent._closed_query(self.query.id)
         self.query = None
         self.bb[QUERYING] = False
         self.agent._cool_down(self.bb)

@@ -10,6 +10,7 @@ every member takes is one field there.
 from __future__ import annotations
 
 import logging
+import random
 import signal
 import threading
 import time
@@ -209,21 +210,44 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
+def _signed(item: Knowledge, identity: Identity | None) -> SignedItem:
+    """An item as a peer answers it: its author's signature kept, or, unsigned, signed by this
+    peer as its author when it has a key pair (section 7)."""
+    subtree = format_tree(item.subtree, "compact")
+    if item.author is not None:
+        return SignedItem(subtree, item.author, item.signature)
+    if identity is not None:
+        return identity.sign_item(item.key, subtree)
+    return SignedItem(subtree)
+
+
 def answers(
     knowledge: KnowledgeBase, identity: Identity | None = None
 ) -> Callable[[str], SignedItem | None]:
     """A server's lookup: every answer formatted (and, with a key pair, signed by this server
     as its author) once, so a query costs one dict lookup."""
-    table = {}
-    for item in knowledge:
-        subtree = format_tree(item.subtree, "compact")
-        if item.author is not None:
-            table[item.key] = SignedItem(subtree, item.author, item.signature)
-        elif identity is not None:
-            table[item.key] = identity.sign_item(item.key, subtree)
-        else:
-            table[item.key] = SignedItem(subtree)
-    return table.get
+    return {item.key: _signed(item, identity) for item in knowledge}.get
+
+
+def live_answers(
+    knowledge: Callable[[], KnowledgeBase], identity: Identity | None = None
+) -> Callable[[str], SignedItem | None]:
+    """A fleet member's lookup (spec/protocol.md section 4.5): what its agent knows now, learned
+    and forgotten items included, each formatted and signed as :func:`answers` does, once per
+    item. It runs in the queryable's one callback thread, the only one to touch its cache."""
+    made: dict[str, tuple[Knowledge, SignedItem]] = {}
+
+    def lookup(key: str) -> SignedItem | None:
+        item = knowledge().lookup(key)
+        if item is None:
+            made.pop(key, None)
+            return None
+        cached = made.get(key)
+        if cached is None or cached[0] is not item:
+            cached = made[key] = (item, _signed(item, identity))
+        return cached[1]
+
+    return lookup
 
 
 def catalog(
@@ -430,16 +454,26 @@ BACKOFF_MOST = 2.0
 class Backoff:
     """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
     after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
-    once again when it learns something or a new peer appears."""
+    once again when it learns something or a new peer appears.
+
+    Each hold is stretched by up to ``jitter`` of itself, drawn from a generator seeded with
+    ``seed`` (the member's name): a fleet whose queries were lost together does not ask again
+    in step, and a run with the same names draws the same holds."""
 
     first: float = BACKOFF_FIRST
     most: float = BACKOFF_MOST
     hold: float = 0.0
     until: float = 0.0
+    seed: str = ""
+    jitter: float = 0.5
+    _rng: random.Random = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._rng = random.Random(f"ktbt-backoff:{self.seed}")
 
     def lost(self, now: float) -> None:
         self.hold = self.first if self.hold == 0 else min(self.hold * 2, self.most)
-        self.until = now + self.hold
+        self.until = now + self.hold * (1 + self.jitter * self._rng.random())
 
     def reset(self, now: float) -> None:
         self.hold, self.until = 0.0, now
@@ -489,7 +523,9 @@ def run_agent(
     with (
         until_signalled() as stop,
         ExitStack() as stack,
-        member.transport(query_timeout=wait_ticks / tick_rate) as transport,
+        member.transport(
+            query_timeout=wait_ticks / tick_rate, identity=security.identity
+        ) as transport,
     ):
         robot = Agent(
             name,
@@ -506,6 +542,9 @@ def run_agent(
             overhear=member.overhear,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
+        # Every query it can answer is answered at once from what it knows, as `peer serve`
+        # does, not one asker per cool-down through the teach tree (section 4.5).
+        transport.lookup = live_answers(lambda: robot.knowledge, security.identity)
         if member.groot is not None:
             from .groot2 import Groot2Publisher
 
@@ -522,7 +561,7 @@ def run_agent(
         period = 1.0 / tick_rate
         say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
         announced = set(robot.metrics.learned)
-        backoff = Backoff()
+        backoff = Backoff(seed=name)
         lost, joined = robot.metrics.queries_lost, transport.joined
         while not stop.is_set() and time.monotonic() < deadline:
             now = time.monotonic()
@@ -550,7 +589,8 @@ def run_agent(
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
             f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
-            f"taught {m.responses_sent}, network errors {m.network_errors}"
+            f"taught {m.responses_sent + transport.answered}, late answers {m.late_answers}, "
+            f"network errors {m.network_errors}"
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")

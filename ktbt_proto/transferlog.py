@@ -32,6 +32,7 @@ EVENTS = (
     "forgotten",
     "error-received",
     "network-error",
+    "late-answer",
 )
 MAX_LINE = 1_000_000
 """A line longer than this is not read (a log is ours, but a file may be anything)."""

@@ -367,3 +367,26 @@ def test_an_item_is_merged_once_whatever_the_duplicates_reordering_and_re_asks(
     merged = [e for e in read(tmp_path / "i.log") if isinstance(e, dict) and e["event"] == "merged"]
     assert len(merged) == learned == 3  # once each time, never twice
     assert learner.metrics.forgotten == 3
+
+
+def test_an_answer_after_the_wait_is_late_not_refused(tmp_path: Path) -> None:
+    """A slow honest teacher answers a query whose wait is over: a late answer, logged as
+    ``late-answer``, never a refusal; an answer to a query never sent stays one."""
+    from ktbt_proto.transferlog import TransferLog, read
+
+    net = MemoryNetwork()
+    log = TransferLog(tmp_path / "i.log")
+    learner = agent(net, "i", wait_ticks=3, cooldown_ticks=50, log=log)
+    slow = net.join("k")
+    learner.encounter(SEQUENCE)
+    run(net, [learner], 8)  # asked, waited, lost
+    assert learner.metrics.queries_lost == 1
+    (query,) = [m for m in slow.receive() if isinstance(m, Query)]
+    slow.send("i", Response(id=query.id, sender="k", sequence=query.sequence, subtree="<a>(Pick)"))
+    slow.send("i", Response(id="never", sender="k", sequence=query.sequence, subtree="<a>(Pick)"))
+    run(net, [learner], 2)
+    log.close()
+    assert learner.metrics.late_answers == 1
+    assert learner.metrics.refused == 1 and "no open question" in learner.metrics.refusals[0][1]
+    events = [e["event"] for e in read(tmp_path / "i.log") if isinstance(e, dict)]
+    assert events.count("late-answer") == 1 and events.count("refused") == 1

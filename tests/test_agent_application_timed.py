@@ -40,7 +40,7 @@ def test_an_answered_query_is_merged_into_the_live_tree() -> None:
     assert learner.metrics.queries_lost == 0 and learner.open_query is None
 
 
-def test_a_second_answer_and_an_answer_after_the_wait_are_refused() -> None:
+def test_a_second_answer_and_an_answer_after_the_wait_are_late_not_refused() -> None:
     learner, teacher, _ = trio()
     query = learner.ask(SEQUENCE)
     teacher.receive()
@@ -49,11 +49,28 @@ def test_a_second_answer_and_an_answer_after_the_wait_are_refused() -> None:
     teacher.answer(heard)
     teacher.answer(heard)
     assert learner.receive() == 1
-    assert learner.metrics.refused == 1  # the duplicate: the query was already answered
+    assert learner.metrics.late_answers == 1  # the duplicate: the query was already answered
     late = Response(id=query.id, sender="t", sequence=query.sequence, subtree="<a>(Pick)")
     learner.close_query()
     learner.transport.network._post("t", "l", late)  # type: ignore[attr-defined]
-    assert learner.receive() == 0 and learner.metrics.refused == 2
+    assert learner.receive() == 0 and learner.metrics.late_answers == 2
+    assert learner.metrics.refused == 0  # an honest answer, too late, is no refusal
+    never = Response(id="not-asked", sender="t", sequence=query.sequence, subtree="<a>(Pick)")
+    learner.transport.network._post("t", "l", never)  # type: ignore[attr-defined]
+    assert learner.receive() == 0 and learner.metrics.refused == 1
+    assert "no open question" in learner.metrics.refusals[0][1]
+
+
+def test_only_the_latest_closed_queries_are_remembered() -> None:
+    learner, _, _ = trio()
+    first = learner.ask(SEQUENCE)
+    for _ in range(Agent.RECENT_QUERIES):
+        learner.ask(SEQUENCE)  # each ask closes the one before
+    learner.close_query()
+    old = Response(id=first.id, sender="t", sequence=first.sequence, subtree="<a>(Pick)")
+    learner.transport.network._post("t", "l", old)  # type: ignore[attr-defined]
+    assert learner.receive() == 0
+    assert learner.metrics.refused == 1 and learner.metrics.late_answers == 0
 
 
 def test_a_query_nobody_answers_is_lost_when_closed() -> None:

@@ -147,7 +147,7 @@ def test_a_learner_started_before_any_teacher_learns_when_one_appears() -> None:
 
 
 def test_backoff_doubles_to_its_bound_and_resets() -> None:
-    backoff = Backoff(first=0.25, most=2.0)
+    backoff = Backoff(first=0.25, most=2.0, jitter=0.0)
     assert backoff.ready(0.0)
     holds = []
     for _ in range(6):
@@ -159,7 +159,64 @@ def test_backoff_doubles_to_its_bound_and_resets() -> None:
     assert backoff.ready(11.0) and backoff.hold == 0
 
 
+def test_backoff_jitter_spreads_a_fleet_and_repeats_per_member() -> None:
+    def holds(seed: str) -> list[float]:
+        backoff = Backoff(first=0.25, most=2.0, seed=seed)
+        out = []
+        for _ in range(6):
+            backoff.lost(10.0)
+            assert backoff.hold * 1.0 <= backoff.until - 10.0 <= backoff.hold * 1.5
+            out.append(backoff.until)
+        return out
+
+    fleet = [holds(f"r{n}") for n in range(10)]
+    assert len({h[0] for h in fleet}) == 10  # lost together, they do not ask again in step
+    assert holds("r3") == fleet[3]  # the same member draws the same holds: a run repeats
+
+
 def test_zenoh_ids_are_stable_valid_and_distinct() -> None:
     ids = {stable_zid(f"r{n}") for n in range(200)}
     assert len(ids) == 200 and all(len(i) == 32 and i[0] != "0" for i in ids)
     assert stable_zid("r1") == stable_zid("r1")
+
+
+@pytest.mark.slow
+def test_a_member_with_knowledge_answers_every_asker_at_once_as_a_server_does() -> None:
+    """Six peers ask a ``peer run --knowledge`` member at the same moment, each waiting 1 s:
+    all six are answered (its teach tree alone answers one asker per 0.5 s cool-down)."""
+    import threading
+
+    from ktbt_proto.messages import Query
+    from ktbt_proto.transport.zenoh import ZenohTransport
+
+    from .zenoh_helpers import reached, settings
+
+    pt = free_port()
+    with (
+        ktbt_process(
+            *run("t", pt, "--knowledge", str(KNOWLEDGE), "--sequence", "TargetSeen(colour=1)"),
+            "--duration", "120", ready="will meet",
+        ),
+    ):  # fmt: skip
+        askers = [ZenohTransport(f"a{n}", settings(free_port(), pt)) for n in range(6)]
+        try:
+            for asker in askers:
+                reached(asker, "t")
+            got: dict[str, int] = {}
+
+            def ask(asker: ZenohTransport) -> None:
+                query = Query(id=Query.new_id(), sender=asker.name, sequence=SEQ)
+                got[asker.name] = len(asker.ask(query, timeout=1.0))
+
+            threads = [threading.Thread(target=ask, args=(a,)) for a in askers]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+        finally:
+            for asker in askers:
+                asker.close()
+    assert got == {f"a{n}": 1 for n in range(6)}
+
+
+SEQ = "<c>(TargetSeen,colour=2)"

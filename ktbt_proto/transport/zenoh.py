@@ -184,6 +184,8 @@ class ZenohTransport:
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     network_errors: int = 0
     """Zenoh's own errors about this peer's gets (a timeout): never a refusal."""
+    answered: int = 0
+    """Queries this peer's ``lookup`` answered inside the callback."""
     joined: int = 0
     """Peers that appeared (their liveliness token) since this one started: a new neighbour,
     worth asking again at once."""
@@ -528,6 +530,7 @@ class ZenohTransport:
             response = self.identity.sign_reply(response)
         payload = encode(response)
         query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
+        self.answered += 1
         self._publish(payload)
         if self.log is not None:
             self.log.record(

@@ -463,7 +463,11 @@ def honest_refusals(h: History) -> dict[str, int]:
         if str(e.get("reason", "")).removeprefix("from ").split(":", 1)[0] in peers
     ]  # fmt: skip
     late = [e for e in honest if "an answer to no open question" in str(e.get("reason", ""))]
-    return {"honest_answers_refused": len(honest), "late_answers_refused": len(late)}
+    return {
+        "honest_answers_refused": len(honest),
+        "late_answers_refused": len(late),
+        "late_answers": len(h.of("late-answer")),
+    }
 
 
 def metrics(h: History) -> dict[str, Any]:

@@ -47,7 +47,7 @@ if not EXAMPLE_KNOWLEDGE.exists():  # a source checkout keeps the examples besid
     EXAMPLE_KNOWLEDGE = ROOT.parent / "examples" / "knowledge" / "colours.sbt"
 COPIED = (
     "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
-    "network-error", "forgotten",
+    "network-error", "forgotten", "late-answer",
 )  # fmt: skip
 """The peers' exchange events copied into the record."""
 OUTPUTS = (

@@ -99,8 +99,8 @@ def table(summaries: list[dict[str, Any]]) -> str:
         "",
         "| scenario | peers | topology | convergence (s) | target | met | floor (ms) "
         "| linked floor (ms) | convergence / floor | messages per item "
-        "| honest answers refused (late) | checks (pass/fail/skip) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| honest answers refused (late) | late answers, counted apart | checks (pass/fail/skip) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for s in summaries:
         conv, floor = measured(s), s.get("floor_s")
@@ -114,7 +114,7 @@ def table(summaries: list[dict[str, Any]]) -> str:
             f"| {met or '-'} | {_ms(floor)} | {_ms(s.get('floor_proxied_s'))} | {ratio} "
             f"| {s.get('messages_per_item') or '-'} "
             f"| {s.get('honest_answers_refused', '-')} ({s.get('late_answers_refused', '-')}) "
-            f"| {'/'.join(map(str, counts))} |"
+            f"| {s.get('late_answers', '-')} | {'/'.join(map(str, counts))} |"
         )
     dup = sum(
         1 for s in summaries for v in s["verdicts"]

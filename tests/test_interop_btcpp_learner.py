@@ -11,7 +11,6 @@ it and walks again.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import threading
 from collections.abc import Iterator
@@ -24,7 +23,7 @@ from ktbt_proto.interop import to_xml
 from ktbt_proto.syntax import parse
 
 from .btcpp import build
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, serving, wait_until
+from .zenoh_helpers import ROOT, end, endpoint, free_port, ktbt_process, serving, wait_until
 
 pytestmark = pytest.mark.skipif(
     not os.environ.get("KTBT_INTEROP"),
@@ -53,13 +52,7 @@ def robot(
     try:
         yield proc, lines
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=15)
+        end(proc)
         reader.join(timeout=15)
         proc.stdout.close()
 

@@ -117,24 +117,26 @@ def test_sim_plot_reads_a_release_folder(tmp_path: Path) -> None:
     assert f"release {RL.name}" in (tmp_path / "summary.md").read_text(encoding="utf-8")
 
 
-def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Path) -> None:
-    def ktbt(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "ktbt_proto", *args],
-            capture_output=True,
-            text=True,
-            timeout=300,
-            cwd=tmp_path,
-        )
+def ktbt(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """The command line, run in ``cwd`` as a user runs it."""
+    return subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=cwd,
+    )
 
-    run = ktbt("sim", "run", "calibration-rl", "--trials", "2", "--iterations", "300",
+
+def test_sim_run_writes_a_release_simdata_folder_that_compare_reads(tmp_path: Path) -> None:
+    run = ktbt(tmp_path, "sim", "run", "calibration-rl", "--trials", "2", "--iterations", "300",
                "--release-csv", "-j", "1")  # fmt: skip
     assert run.returncode == 0, run.stderr
     name = "RL_0_0_10_10_10_10_N_100_100_100_100_200_-1"
     theirs = tmp_path / "results" / "calibration-rl" / "release" / name
     assert sorted(p.name for p in theirs.glob("*.csv")) == [f"{name}_Tr_{k}.csv" for k in (1, 2)]
     assert "RY" in (theirs / "README.txt").read_text(encoding="utf-8")
-    shown = ktbt("sim", "compare", "results/calibration-rl", str(theirs))
+    shown = ktbt(tmp_path, "sim", "compare", "results/calibration-rl", str(theirs))
     assert shown.returncode == 0, shown.stderr
     assert "**no**" not in shown.stdout  # our rows, read back through the release's format
 
@@ -171,16 +173,7 @@ def test_every_preset_is_named_as_the_release_names_it_and_reads_back() -> None:
 def test_sim_run_modes_exports_each_mode_under_its_own_name_and_compare_reads_it(
     tmp_path: Path,
 ) -> None:
-    def ktbt(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "ktbt_proto", *args],
-            capture_output=True,
-            text=True,
-            timeout=600,
-            cwd=tmp_path,
-        )
-
-    run = ktbt("sim", "run", "modes", "--trials", "1", "--iterations", "100",
+    run = ktbt(tmp_path, "sim", "run", "modes", "--trials", "1", "--iterations", "100",
                "--release-csv", "-j", "2")  # fmt: skip
     assert run.returncode == 0, run.stderr
     exported = sorted(p for p in (tmp_path / "results").glob("*/release/*") if p.is_dir())
@@ -190,6 +183,6 @@ def test_sim_run_modes_exports_each_mode_under_its_own_name_and_compare_reads_it
     assert run.stderr.count("no such variant") == 4  # el-evict and pl-answer, in both groups
     for folder in exported:
         ours = folder.parent.parent
-        shown = ktbt("sim", "compare", str(ours.relative_to(tmp_path)), str(folder))
+        shown = ktbt(tmp_path, "sim", "compare", str(ours.relative_to(tmp_path)), str(folder))
         assert shown.returncode == 0, shown.stderr
         assert "**no**" not in shown.stdout

@@ -55,15 +55,20 @@ def ktbt_process(
                 raise AssertionError(f"{args[:2]} never printed {ready!r}")
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=15)
+        end(proc)
         if proc.stdout is not None:
             proc.stdout.close()
+
+
+def end(proc: subprocess.Popen[str]) -> None:
+    """End a process a test started, by its pid: SIGTERM, then SIGKILL if it does not stop."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=15)
 
 
 def make_tls(folder: Path) -> dict[str, Path]:

@@ -118,7 +118,12 @@ def sweep(
             raise _fail(str(exc)) from None
         except KeyboardInterrupt:
             bar.stop()
-            saved = total - todo + ran
+            # What is on disk, not what the workers reported: a trial whose file was renamed
+            # into place just before the interrupt is saved, though its report never came.
+            try:
+                saved = total - len(plan(scenarios, out))
+            except (ValueError, OSError):
+                saved = total - todo + ran
             typer.echo(
                 f"interrupted: {saved} of {total} trials are saved in {out}; "
                 f"run the same command again to resume with the {total - saved} missing",

@@ -24,18 +24,18 @@ import time
 import uuid
 import xml.etree.ElementTree as ET
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from .errors import StringBTError
 from .format import format_value
 from .interop.btcpp import to_xml
-from .knowledge import Knowledge
+from .knowledge import KnowledgeBase
 from .registry import Registry
 from .runtime import Halt, LiveTree, Tick
 from .status import FAILURE, RUNNING, SUCCESS, Status
-from .tree import Action, Condition, Container, Node, Placeholder, Selector, Tree, Wait, walk
+from .tree import Action, Condition, Container, Node, Placeholder, Tree, Wait, walk
 
 try:
     import msgpack
@@ -635,21 +635,18 @@ def _hook_from(entry: object) -> _Hook:
     return _Hook(uid, position, mode, bool(fields["enabled"]), bool(fields["once"]), status)
 
 
-def knowledge_tree(knowledge: Iterable[Knowledge]) -> LiveTree:
+def knowledge_tree(knowledge: KnowledgeBase) -> LiveTree:
     """What a teacher that ticks no tree (``ktbt peer serve``) shows Groot2: its items, each in a
     placeholder named for its segment, under a reactive selector, with stand-in behaviours that
     are never ticked (spec/groot2.md section 2)."""
-    segments: dict[str, list[Node]] = {}
+    tree = knowledge.tree()
     reg = Registry()
-    for item in knowledge:
-        segments.setdefault(item.segment, []).append(item.item())
-        for node, _ in walk(item.item()):
-            if isinstance(node, Condition) and not reg.has_condition(node.name):
-                reg.add_condition(node.name, _never)
-            elif isinstance(node, Action) and not reg.has_action(node.name):
-                reg.add_action(node.name, _never)
-    slots = tuple(Placeholder(tuple(items), name) for name, items in segments.items())
-    return LiveTree(Tree(Selector(slots or (Placeholder((), "new"),))), reg)
+    for node, _ in walk(tree.root):
+        if isinstance(node, Condition) and not reg.has_condition(node.name):
+            reg.add_condition(node.name, _never)
+        elif isinstance(node, Action) and not reg.has_action(node.name):
+            reg.add_action(node.name, _never)
+    return LiveTree(tree, reg)
 
 
 def _never(bb: object, **args: object) -> Status:

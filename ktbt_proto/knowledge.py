@@ -23,7 +23,7 @@ from .items import (  # re-exported: what an item and a sequence are belongs to 
 )
 from .limits import DEFAULT_LIMITS, Limits
 from .syntax import parse
-from .tree import Condition, Node, Placeholder, Sequence, Tree, as_node, walk
+from .tree import Condition, Node, Placeholder, Selector, Sequence, Tree, as_node, walk
 
 __all__ = [
     "MAX_FILE",
@@ -114,6 +114,15 @@ class KnowledgeBase:
 
     def keys(self) -> list[str]:
         return list(self._items)
+
+    def tree(self) -> Tree:
+        """The items as a tree: each in a placeholder named for its segment, under a selector
+        (what a teacher that ticks no tree shows, spec/protocol.md section 10)."""
+        segments: dict[str, list[Node]] = {}
+        for item in self:
+            segments.setdefault(item.segment, []).append(item.item())
+        slots = tuple(Placeholder(tuple(items), name) for name, items in segments.items())
+        return Tree(Selector(slots or (Placeholder((), "new"),)))
 
     # -- persistence ---------------------------------------------------------------------------
 

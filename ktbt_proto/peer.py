@@ -360,6 +360,7 @@ def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
             catalog=ear.catalog(catalog(knowledge, security.identity)),
             identity=security.identity,
             screen=lambda r: refusal(r, policy, security.trust),
+            tree=lambda: format_tree(knowledge.tree(), "compact"),
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
@@ -545,6 +546,8 @@ def run_agent(
         # Every query it can answer is answered at once from what it knows, as `peer serve`
         # does, not one asker per cool-down through the teach tree (section 4.5).
         transport.lookup = live_answers(lambda: robot.knowledge, security.identity)
+        # The tree as of the last merge: a Tree is never changed in place, only replaced.
+        transport.tree = lambda: format_tree(robot.control.tree, "compact")
         if member.groot is not None:
             from .groot2 import Groot2Publisher
 

@@ -126,24 +126,36 @@ def test_peers_transfers_refusals_and_departures_show_live(
     assert wait_until(lambda: page.status("t") == "present", 15)
     assert wait_until(lambda: (page.cell("t", digest(GREEN)) or {}).get("how") == "known", 15)
 
-    # A learner: the merge in its transfer log, and the cell's drawing in the page.
+    # A learner: the merge in its transfer log, and the cell's drawing in the page; selected,
+    # its control tree, asked of it, with the learned item merged in.
     log = tmp_path / "r1.log"
     with ktbt_process(
         "peer", "run", "--id", "r1", "--connect", endpoint(port), "--log", str(log),
-        "--sequence", "TargetSeen(colour=2)", "--exit-when-done", "--publish-events",
-    ) as robot:  # fmt: skip
-        assert robot.wait(timeout=60) == 0
-    merged = next(json.loads(line) for line in log.read_text().splitlines() if '"merged"' in line)
-    assert wait_until(lambda: (page.cell("r1", digest(GREEN)) or {}).get("how") == "learned", 5)
-    cell = page.cell("r1", digest(GREEN))
-    assert cell is not None
-    lag = cell["at"] - _ms(merged["t"])
-    assert lag <= 1000, f"shown {lag} ms after the merge"
-    whos = page.js(
-        "return [...document.querySelectorAll('#transfers li')]"
-        "  .map(li => [...li.querySelectorAll('.who')].map(e => e.textContent));"
-    )
-    assert ["t", "r1"] in whos, whos
+        "--sequence", "TargetSeen(colour=2)", "--duration", "60", "--publish-events",
+        ready="r1: learned",
+    ):  # fmt: skip
+        merged = next(
+            json.loads(line) for line in log.read_text().splitlines() if '"merged"' in line
+        )
+        assert wait_until(lambda: (page.cell("r1", digest(GREEN)) or {}).get("how") == "learned", 5)
+        cell = page.cell("r1", digest(GREEN))
+        assert cell is not None
+        lag = cell["at"] - _ms(merged["t"])
+        assert lag <= 1000, f"shown {lag} ms after the merge"
+        whos = page.js(
+            "return [...document.querySelectorAll('#transfers li')]"
+            "  .map(li => [...li.querySelectorAll('.who')].map(e => e.textContent));"
+        )
+        assert ["t", "r1"] in whos, whos
+        page.js("document.querySelector('#matrix tbody tr[data-peer=r1] th').click();")
+
+        def control() -> str:
+            return page.stat("detail-control")
+
+        assert wait_until(lambda: "TargetSeen(colour=2)" in control(), 10), control()
+        # The demo tree's placeholder, empty before the merge, holds the item now.
+        assert "Knowledge [new]" in control() and "[new] (empty)" not in control(), control()
+        assert page.js("return document.getElementById('detail-control').children.length") == 0
 
     # A teacher whose answer breaks the learner's registry: refused, with the learner's reason.
     bad = tmp_path / "bad.sbt"

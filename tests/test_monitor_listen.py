@@ -85,3 +85,58 @@ def test_a_forger_flooding_a_peers_key_does_not_silence_the_peer(
         assert wait_until(lambda: fleet.peers["r1"].last_n == 1, 10), fleet.stats()
     finally:
         publisher.undeclare()
+
+
+def test_a_hostile_tree_reply_is_refused_and_counted_and_a_large_tree_not_served() -> None:
+    from ktbt_proto.messages import MAX_MESSAGE_BYTES
+    from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session
+
+    port = free_port()
+    fleet = Fleet()
+    listener = Listener(fleet, settings(port))
+    try:
+        session = open_session(ZenohSettings(connect=[endpoint(port)]))
+        replies = {
+            "good": GREEN.encode(),
+            "junk": b"<sq><c>(A)",  # not closed: not stringBT
+            "big": b"<c>(" + b"A" * (MAX_MESSAGE_BYTES + 1) + b")",
+            "deep": b"<sq>" * 100 + b"<c>(A)" + b"<e>" * 100,  # beyond the depth limit
+        }
+
+        def answering(name: str, body: bytes) -> Any:
+            def reply(query: Any) -> None:
+                query.reply(f"ktbt/v1/tree/{name}", body)
+
+            return session.declare_queryable(f"ktbt/v1/tree/{name}", reply)
+
+        declared = [answering(name, body) for name, body in replies.items()]
+        served = ZenohTransport(
+            "huge",
+            ZenohSettings(connect=[endpoint(port)]),
+            publish_events=True,
+            tree=lambda: "<c>(" + "A" * MAX_MESSAGE_BYTES + ")",
+        )
+        silent = ZenohTransport(
+            "quiet", ZenohSettings(connect=[endpoint(port)]), tree=lambda: GREEN
+        )
+        try:
+            assert wait_until(lambda: listener.tree("good") is not None, 10)
+            assert "TargetSeen" in (listener.tree("good") or "")
+            before = fleet.drops["malformed"]
+            for name in ("junk", "big", "deep"):
+                assert listener.tree(name) is None, name
+            assert fleet.drops["malformed"] == before + 3, fleet.stats()
+            reasons = " ".join(fleet.reasons["malformed"])
+            assert "tree of junk" in reasons and "tree of big" in reasons, reasons
+            said = listener.tree("huge") or ""
+            assert "the control tree is" in said and str(MAX_MESSAGE_BYTES) in said, said
+            assert listener.tree("quiet") is None  # no --publish-events: no tree on the network
+            assert listener.tree("<b>") is None
+        finally:
+            silent.close()
+            served.close()
+            for entity in declared:
+                entity.undeclare()
+            session.close()  # type: ignore[no-untyped-call]
+    finally:
+        listener.close()

@@ -17,14 +17,14 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
-from starlette.responses import FileResponse, Response, StreamingResponse
+from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -61,10 +61,20 @@ class _Headers:
         await self.app(scope, receive, with_headers)
 
 
-def create_app(fleet: Fleet, hosts: list[str] | None = None) -> Starlette:
+def create_app(
+    fleet: Fleet,
+    hosts: list[str] | None = None,
+    tree: Callable[[str], str | None] | None = None,
+) -> Starlette:
     """The app over ``fleet``. ``hosts``: the Host headers accepted (the loopback names when
     bound to loopback, so another site's page cannot reach it by DNS rebinding); ``None``:
-    any."""
+    any. ``tree``: a peer's control tree as text (``Listener.tree``), served on
+    ``/api/tree/<peer>`` and fetched in a worker thread, never blocking the event loop."""
+
+    async def peer_tree(request: Request) -> Response:
+        name = request.path_params["peer"]
+        text = await asyncio.to_thread(tree, name) if tree is not None else None
+        return JSONResponse({"peer": name, "tree": text})
 
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html", media_type="text/html; charset=utf-8")
@@ -97,6 +107,7 @@ def create_app(fleet: Fleet, hosts: list[str] | None = None) -> Starlette:
         routes=[
             Route("/", index),
             Route("/api/stream", stream),
+            Route("/api/tree/{peer}", peer_tree),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ],
         middleware=middleware,

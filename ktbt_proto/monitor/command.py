@@ -111,7 +111,7 @@ def monitor_command(
         raise typer.Exit(2) from None
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
-    app = create_app(fleet, allowed_hosts(host, allow_host or []))
+    app = create_app(fleet, allowed_hosts(host, allow_host or []), listener.tree)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
     if loopback:
         typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")

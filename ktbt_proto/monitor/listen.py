@@ -1,5 +1,6 @@
 """The monitor's ear: a zenoh session that hears fleet events (``spec/protocol.md`` section
-10), liveliness tokens (section 3) and, now and then, catalogs, and feeds a :class:`Fleet`.
+10), liveliness tokens (section 3) and, now and then, catalogs, and feeds a :class:`Fleet`;
+on the page's asking, one peer's control tree (:meth:`Listener.tree`).
 
 The monitor is a listener only: it declares no liveliness token, queryable or publisher, so it
 never shows up as a peer. A hostile stream costs counters: an event is refused unless it is
@@ -16,11 +17,15 @@ from typing import Any
 
 import zenoh
 
+from ..errors import StringBTError
 from ..events import MAX_EVENT_BYTES, PREFIX, RateLimit, decode_event
-from ..messages import MessageRefused
+from ..limits import Limits
+from ..messages import MAX_MESSAGE_BYTES, MessageRefused
+from ..render import render
+from ..syntax import parse
 from ..transport import zenoh as zenoh_transport
 from ..transport.zenoh import ZenohSettings, catalog_replies, open_session
-from .fleet import MAX_PEERS, Fleet
+from .fleet import _NAME, MAX_PEERS, Fleet
 
 RATE = 1000.0
 """Events a second the monitor takes from one key at most (5 times what a publisher sends)."""
@@ -30,6 +35,11 @@ BUCKETS = 4 * MAX_PEERS
 """Buckets kept, one per key and signer."""
 CATALOG_EVERY = 3.0
 """Seconds between two readings of the fleet's catalogs."""
+TREE_LIMITS = Limits(max_size=MAX_MESSAGE_BYTES, max_depth=64, max_nodes=5_000, max_literal=256)
+"""What a peer's control tree may be to be shown: a message's size, and tight bounds on the
+rest."""
+TREE_TIMEOUT = 1.0
+"""Seconds a tree is waited for."""
 
 
 class Listener:
@@ -114,6 +124,36 @@ class Listener:
                 self.fleet.drop("network", "a catalog query failed")
             self.fleet.tend()
             self._stop.wait(CATALOG_EVERY)
+
+    def tree(self, name: str) -> str | None:
+        """The control tree ``name`` serves on ``ktbt/v1/tree/<name>`` (section 10), as
+        ``ktbt show``'s outline; ``None`` if it gave none within :data:`TREE_TIMEOUT`. Blocks
+        for as long: call it from a thread, never the event loop. A reply on another key, too
+        large, or not stringBT within :data:`TREE_LIMITS` is counted malformed, not shown;
+        the peer's own refusal (its reply error) is said; a network error is counted apart."""
+        if not _NAME.fullmatch(name):
+            return None
+        key = f"{zenoh_transport.PREFIX}/tree/{name}"
+        try:
+            replies = self._session.get(key, timeout=TREE_TIMEOUT)
+            for reply in replies:
+                if reply.ok is None:
+                    err = reply.err.payload.to_bytes() if reply.err is not None else b""
+                    said = err[:200].decode(errors="replace")
+                    return f"({name} gives no tree: {said})"
+                on = str(reply.ok.key_expr)
+                if on != key:
+                    self.fleet.drop("malformed", f"a tree for {name} on {on[:100]}")
+                    continue
+                payload = reply.ok.payload.to_bytes()
+                try:
+                    return render(parse(payload, limits=TREE_LIMITS))
+                except (StringBTError, RecursionError) as exc:
+                    why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                    self.fleet.drop("malformed", f"tree of {name}: {why}")
+        except zenoh.ZError:
+            self.fleet.drop("network", f"a tree query to {name} failed")
+        return None
 
     def _refused(self, reason: str) -> None:
         self.fleet.drop("malformed", reason)

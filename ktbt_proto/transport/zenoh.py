@@ -11,6 +11,8 @@ Key expressions (``spec/protocol.md``):
   for the peers that overhear (``overhear``; spec section 4.3).
 - ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
   (spec section 10).
+- ``ktbt/v1/tree/<peer>``: with ``publish_events`` and ``tree``, the peer's control tree in
+  compact stringBT, for ``ktbt monitor`` (spec section 10).
 
 A get never holds a thread: its replies are handled by a callback run where zenoh receives
 them, and the get's end by the callback's drop, so no number of silent peers or dead links slows
@@ -180,6 +182,9 @@ class ZenohTransport:
     publish_events: bool = False
     """Publish every event of ``log`` (one is made if there is none) on ``ktbt/v1/events/<name>``,
     signed with ``identity`` if there is one (section 10)."""
+    tree: Callable[[], str] | None = None
+    """The peer's control tree in compact stringBT, served on ``ktbt/v1/tree/<name>`` only with
+    ``publish_events`` (section 10); above ``max_bytes`` it is refused with a reply error."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     network_errors: int = 0
@@ -227,6 +232,9 @@ class ZenohTransport:
                 self._declared.append(publisher)
                 self.log.add_sink(events)
                 self._sink = events
+                self._declared.append(
+                    self._session.declare_queryable(f"{PREFIX}/tree/{self.name}", self._on_tree)
+                )
             if self.overhear:
                 self._declared.append(
                     self._session.declare_subscriber(
@@ -545,6 +553,21 @@ class ZenohTransport:
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
         query.reply(f"{PREFIX}/catalog/{self.name}", json.dumps(known).encode())
+        query.drop()
+
+    def _on_tree(self, query: Any) -> None:
+        """The control tree, whole or not at all: one above the message limit is refused with
+        a reply error saying its size, never clipped into text that does not parse."""
+        text = self.tree() if self.tree is not None else None
+        if text is None:
+            query.reply_err(b"no control tree")
+        else:
+            payload = text.encode()
+            if len(payload) > self.max_bytes:
+                why = f"the control tree is {len(payload)} bytes, the limit is {self.max_bytes}"
+                query.reply_err(why.encode())
+            else:
+                query.reply(f"{PREFIX}/tree/{self.name}", payload)
         query.drop()
 
     def _on_inbox(self, sample: Any) -> None:

@@ -412,6 +412,21 @@
     dirty.detail = true;
     dirty.peers = true;
     schedule();
+    fetchTree(name);
+  }
+
+  // The peer's control tree, asked of it when it is selected (spec/protocol.md section 10);
+  // shown as text only, and only if it is still the peer selected.
+  function fetchTree(name) {
+    const pre = document.getElementById("detail-control");
+    pre.textContent = "(asking " + name + " for its tree)";
+    fetch("/api/tree/" + encodeURIComponent(name))
+      .then(r => r.json())
+      .then(body => {
+        if (selected !== name) return;
+        pre.textContent = typeof body.tree === "string" ? body.tree : "(no tree from " + name + ": it publishes no events, or gave none that could be read)";
+      })
+      .catch(() => { if (selected === name) pre.textContent = "(the tree could not be fetched)"; });
   }
 
   function drawDetail() {

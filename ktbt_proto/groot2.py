@@ -197,15 +197,24 @@ class Groot2Publisher:
     for every interface (anyone who reaches the port can force the robot's nodes' results).
     Raises ``OSError`` if a port is taken. Close it (or use it as a context manager) to stop
     serving: the probe leaves the tree at its next tick boundary, and a tick waiting at a
-    breakpoint goes on.
+    breakpoint goes on. ``stop``, an event the ticking program sets to end (on SIGTERM, say),
+    releases a breakpoint too: a robot waiting for a client that never unlocks still stops.
     """
 
-    def __init__(self, tree: Any, port: int = 1667, host: str = "127.0.0.1") -> None:
+    def __init__(
+        self,
+        tree: Any,
+        port: int = 1667,
+        host: str = "127.0.0.1",
+        stop: threading.Event | None = None,
+    ) -> None:
         live = getattr(tree, "control", tree)
         if not isinstance(live, LiveTree):
             raise TypeError(f"Groot2 serves a LiveTree or an agent ticking one, not {tree!r}")
         self.live = live
         self.port = port
+        self._stop = stop if stop is not None else threading.Event()
+        """Set by whoever ticks the tree (a signal, say): a breakpoint waits no longer."""
         self.errors: Counter[str] = Counter()
         """Error replies sent, by reason (a hostile or confused client is counted, not fatal)."""
         self.requests = 0
@@ -377,7 +386,7 @@ class Groot2Publisher:
     def _run(self, hook: _Hook) -> Status | None:
         """``runHook``: announce the breakpoint, wait while it is one, then say what to return."""
         with self._lock:
-            if not hook.enabled or not self._hooks_enabled or self._closed:
+            if not hook.enabled or not self._hooks_enabled or self._closed or self._stop.is_set():
                 return None
         header = HEADER.pack(PROTOCOL_ID, ord("N"), secrets.randbits(32))
         with self._pub_lock:
@@ -387,13 +396,20 @@ class Groot2Publisher:
                 return None
         with self._lock:
             if hook.mode == BREAKPOINT:
-                self._lock.wait_for(
+                # In slices: the stop event is set from outside the lock (a signal handler).
+                while not self._lock.wait_for(
                     lambda: (
-                        hook.ready or not hook.enabled or not self._hooks_enabled or self._closed
-                    )
-                )
+                        hook.ready
+                        or not hook.enabled
+                        or not self._hooks_enabled
+                        or self._closed
+                        or self._stop.is_set()
+                    ),
+                    timeout=0.1,
+                ):
+                    pass
                 hook.ready = False
-            if not hook.enabled or not self._hooks_enabled or self._closed:
+            if not hook.enabled or not self._hooks_enabled or self._closed or self._stop.is_set():
                 return None
             forced = _FORCED.get(hook.desired_status)
             if hook.once:

@@ -537,13 +537,20 @@ class Groot2Publisher:
     def _insert(self, received: object, view: _View) -> None:
         entries = received if isinstance(received, list) else [received]
         hooks = [_hook_from(entry) for entry in entries]
+        for hook in hooks:  # every one checked before any is stored: all or nothing
+            owner = view.owner.get(hook.uid)
+            if owner is not None and not owner[1]:
+                raise Refused(f"node {hook.uid} is part of its parent's node: hook its parent")
+        try:
+            self._store(hooks, view)
+        finally:
+            self.live.probe(self)  # hooked wrappers from the next tick on
+
+    def _store(self, hooks: list[_Hook], view: _View) -> None:
         with self._lock:
             for hook in hooks:
-                owner = view.owner.get(hook.uid)
-                if owner is None:
+                if hook.uid not in view.owner:
                     continue  # as BehaviorTree.CPP: an unknown node id is ignored
-                if not owner[1]:
-                    raise Refused(f"node {hook.uid} is part of its parent's node: hook its parent")
                 old = self._hooks.get((hook.position, hook.uid))
                 if old is None:
                     self._hooks[(hook.position, hook.uid)] = hook
@@ -554,7 +561,6 @@ class Groot2Publisher:
                 if was_breakpoint and old.mode == REPLACE:
                     old.ready = True
                 self._lock.notify_all()
-        self.live.probe(self)  # hooked wrappers from the next tick on
 
     def _unlock(self, received: object) -> None:
         fields = _fields(received, uid=int, desired_status=str, position=int, remove_when_done=bool)

@@ -394,3 +394,21 @@ def test_without_the_extra_one_line_says_how_to_install() -> None:
     )
     assert command.returncode == 1
     assert command.stderr.count("\n") == 1 and "pip install 'ktbt[groot]'" in command.stderr
+
+
+def test_a_rejected_hook_array_changes_nothing(served: Served) -> None:
+    """[a valid hook, a hook on a node that is part of its parent's]: an error, and the valid
+    one is not stored either."""
+    r, c = served.robot, served.client
+    r.live.blackboard["Carrying"] = False
+    r.live.tick()
+    found = elements(c.request("T")[1])
+    inner = next(
+        (uid for uid, kind, _ in found if kind == "AlwaysFailure"), None
+    )  # an empty placeholder's inner node: not hookable
+    assert inner is not None
+    good = json.loads(hook(uid_of(c, "Walk"), "FAILURE"))
+    bad = {**good, "uid": inner}
+    assert c.json("I", [good, bad])[0] == b"error"
+    assert json.loads(c.request("D")[1]) == []
+    assert r.live.tick() is kp.RUNNING

@@ -243,7 +243,11 @@ class Groot2Publisher:
             self._context.destroy(linger=0)
             raise OSError(f"cannot serve Groot2 on {host}:{port} and {port + 1}: {err}") from None
         self._thread = threading.Thread(target=self._serve, name=f"groot2:{port}", daemon=True)
-        live.probe(self)
+        try:
+            live.probe(self)
+        except RuntimeError:
+            self._context.destroy(linger=0)
+            raise
         self._thread.start()
 
     # -- the probe (called by the live tree, in its ticking thread) ------------------------------
@@ -607,7 +611,7 @@ class Groot2Publisher:
             self._closed = True
             self._drop_hooks()
         self._thread.join()
-        self.live.probe(None)
+        self.live.unprobe(self)
         with self._pub_lock:
             self._context.destroy(linger=0)
 

@@ -412,3 +412,21 @@ def test_a_rejected_hook_array_changes_nothing(served: Served) -> None:
     assert c.json("I", [good, bad])[0] == b"error"
     assert json.loads(c.request("D")[1]) == []
     assert r.live.tick() is kp.RUNNING
+
+
+def test_a_tree_has_one_probe_and_only_its_owner_takes_it_out() -> None:
+    r = Robot()
+    first, second = free_ports(), free_ports()
+    with groot2.Groot2Publisher(r.live, first) as pub:
+        with pytest.raises(RuntimeError, match="probed already"):
+            groot2.Groot2Publisher(r.live, second)
+        r.live.unprobe(object())  # type: ignore[arg-type]  # not its probe: nothing changes
+        r.live.tick()
+        assert r.live._probe is pub and r.live._tick is not r.live._wire.tick
+        with client(first) as c:
+            assert c.request("S")[0][1] == ord("S")
+    r.live.tick()
+    assert r.live._probe is None and r.live._tick is r.live._wire.tick
+    with groot2.Groot2Publisher(r.live, second), client(second) as c:  # its ports were freed
+        r.live.tick()
+        assert c.request("S")[0][1] == ord("S")

@@ -57,6 +57,8 @@ MAX_UID = 0xFFFF
 """Node ids are 16 bits on the wire."""
 MAX_TRANSITIONS = 1000
 """Transitions kept while recording, newest last (as BehaviorTree.CPP keeps them)."""
+MAX_REQUEST = 1 << 20
+"""Bytes a request frame may hold (spec/groot2.md section 6): the largest hook array is far less."""
 HEARTBEAT = 5.0
 """Seconds without a request after which every hook is disabled (a client went away)."""
 
@@ -125,12 +127,18 @@ class _View:
         self.owner: dict[int, tuple[int, bool]] = {}  # uid -> (node index, hookable)
         self.halts: dict[int, Halt] = {}  # node index -> its compiled halt
         self.status = bytearray()
-        try:
+        try:  # built in the ticking thread: nothing may raise into LiveTree.tick()
             self._build(tree)
         except StringBTError as err:
             self.error = f"the tree cannot be written as BehaviorTree.CPP XML: {err}"
         except Refused as err:
             self.error = str(err)
+        except Exception as err:  # a bug in the XML walk: the tree runs on, unserved
+            log.exception("groot2: the tree cannot be served")
+            self.error = f"internal error: {type(err).__name__}"
+        if self.error:
+            self.spots = [[] for _ in self.spots]
+            self.owner, self.status = {}, bytearray()
 
     def _build(self, tree: Tree) -> None:
         doc = ET.fromstring(to_xml(tree))
@@ -236,6 +244,7 @@ class Groot2Publisher:
         for sock in (self._rep, self._pub):
             sock.setsockopt(zmq.LINGER, 0)
             sock.setsockopt(zmq.SNDTIMEO, 1000)
+        self._rep.setsockopt(zmq.MAXMSGSIZE, MAX_REQUEST)  # a larger one drops its sender
         try:
             self._rep.bind(f"tcp://{host}:{port}")
             self._pub.bind(f"tcp://{host}:{port + 1}")
@@ -350,7 +359,7 @@ class Groot2Publisher:
         return show
 
     def _record(self, uid: int, byte: int) -> None:
-        micros = int((time.time() - self._record_start) * 1e6)
+        micros = int((time.monotonic() - self._record_start) * 1e6)
         raw = struct.pack("<Q", max(micros, 0))[:6] + struct.pack("<HB", uid, _RAW.get(byte, 0))
         self._transitions.append(raw)
 
@@ -517,7 +526,7 @@ class Groot2Publisher:
 
     def _blackboard(self, names: bytes) -> bytes:
         dump: dict[str, object] = {}
-        for name in names.decode("utf-8", "replace").split(";"):
+        for name in dict.fromkeys(names.decode("utf-8", "replace").split(";")):  # each once
             if name == "MainTree":
                 entries = dict(self.live.blackboard)
                 dump[name] = _json_value(entries) if entries else None
@@ -527,10 +536,10 @@ class Groot2Publisher:
     def _toggle(self, command: bytes) -> list[bytes]:
         with self._lock:
             if command == b"start":
-                self._record_start = time.time()
+                self._record_start = time.monotonic()  # deltas; wall time only in the reply
                 self._transitions.clear()
                 self._recording = True
-                started = [str(int(self._record_start * 1e6)).encode()]
+                started = [str(int(time.time() * 1e6)).encode()]
             elif command == b"stop":
                 self._recording, started = False, []
             else:

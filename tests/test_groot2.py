@@ -430,3 +430,39 @@ def test_a_tree_has_one_probe_and_only_its_owner_takes_it_out() -> None:
     with groot2.Groot2Publisher(r.live, second), client(second) as c:  # its ports were freed
         r.live.tick()
         assert c.request("S")[0][1] == ord("S")
+
+
+def test_a_view_that_cannot_be_built_never_raises_into_the_tick(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The XML walk fails (an export whose elements do not match the tree): the error is
+    served, the tree ticks on unprobed."""
+    r = Robot()
+    port = free_ports()
+    monkeypatch.setattr(groot2, "to_xml", lambda tree: "<root><BehaviorTree><Sequence/>"
+                        "</BehaviorTree></root>")  # fmt: skip
+    with groot2.Groot2Publisher(r.live, port), client(port) as c:
+        assert r.live.tick() is kp.RUNNING
+        reply = c.request("T")
+        assert reply[0] == b"error" and reply[1].startswith(b"internal error")
+
+
+def test_oversized_requests_are_dropped_and_repeated_names_served_once(served: Served) -> None:
+    r, c = served.robot, served.client
+    r.live.blackboard["target"] = 2
+    r.live.tick()
+    board = msgpack.unpackb(c.request("B", b";".join([b"MainTree"] * 5000))[1])
+    assert list(board) == ["MainTree"]
+    with client(c.port, timeout=1) as big, pytest.raises(zmq.Again):
+        big.request("I", b"[" + b" " * (2 << 20) + b"]")
+    assert c.request("S")[0][1] == ord("S")
+
+
+def test_the_groot_port_is_checked() -> None:
+    from typer.testing import CliRunner
+
+    from ktbt_proto.cli import app
+
+    for port in ("0", "65535"):
+        result = CliRunner().invoke(app, ["peer", "run", "--groot", port])
+        assert result.exit_code == 2, result.output

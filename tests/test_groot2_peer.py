@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from .groot2_helpers import free_ports
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, wait_until
+from .groot2_helpers import reserve_ports
+from .zenoh_helpers import ROOT, endpoint, ktbt_process, wait_until
 
 pytest.importorskip("btview", reason="pip install -e '.[dev]'")
 pytest.importorskip("zmq", reason="pip install 'ktbt[groot]'")
@@ -38,11 +38,10 @@ def tree_uuid(port: int) -> str:
 
 
 def test_btview_sees_the_control_tree_then_what_the_robot_learned() -> None:
-    robot_port, teacher_port = free_port(), free_port()
-    robot_groot, teacher_groot = free_ports(), free_ports()
+    robot_groot, teacher_groot, robot_port, teacher_port = reserve_ports(2, 2)
     with ktbt_process(
         "peer", "run", "--id", "r1", "--listen", endpoint(robot_port),
-        "--sequence", "TargetSeen(colour=2)", "--duration", "120", "--groot", str(robot_groot),
+        "--sequence", "TargetSeen(colour=2)", "--duration", "600", "--groot", str(robot_groot),
         ready="Groot2 on port",
     ):  # fmt: skip
         assert wait_until(lambda: "RandomWalk" in snapshot(robot_groot), 60)
@@ -70,6 +69,7 @@ def test_btview_sees_the_control_tree_then_what_the_robot_learned() -> None:
 def test_sigterm_stops_a_robot_held_at_a_breakpoint() -> None:
     """A client keeps polling (so the heartbeat never releases the hook) while the tick waits
     at a breakpoint: SIGTERM still ends the robot."""
+    import contextlib
     import json
     import signal
 
@@ -77,9 +77,9 @@ def test_sigterm_stops_a_robot_held_at_a_breakpoint() -> None:
 
     from .groot2_helpers import client
 
-    port = free_ports()
+    port, listen = reserve_ports(1, 1)
     with ktbt_process(
-        "peer", "run", "--id", "r1", "--listen", endpoint(free_port()),
+        "peer", "run", "--id", "r1", "--listen", endpoint(listen),
         "--sequence", "TargetSeen(colour=2)", "--duration", "300", "--groot", str(port),
         ready="Groot2 on port",
     ) as proc, client(port, timeout=2) as c:  # fmt: skip
@@ -110,10 +110,8 @@ def test_sigterm_stops_a_robot_held_at_a_breakpoint() -> None:
         proc.send_signal(signal.SIGTERM)
 
         def ended() -> bool:
-            try:
+            with contextlib.suppress(zmq.Again):
                 c.request("S")  # the client is still there: the heartbeat is fresh
-            except zmq.Again:
-                pass
             return proc.poll() is not None
 
         try:

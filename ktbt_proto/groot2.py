@@ -31,8 +31,10 @@ from typing import Any
 from .errors import StringBTError
 from .format import format_value
 from .interop.btcpp import to_xml
+from .items import show_sequence
 from .knowledge import Knowledge
 from .registry import Registry
+from .render import call_text
 from .runtime import Halt, LiveTree, Tick
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .tree import Action, Condition, Container, Node, Placeholder, Selector, Tree, Wait, walk
@@ -178,14 +180,15 @@ class _View:
 
 
 def _leaf_name(node: Node) -> str:
-    """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``."""
-    if not isinstance(node, Condition | Action):
-        assert isinstance(node, Wait)
+    """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``
+    (the command line's own forms: ``items.show_sequence``, ``render``'s calls)."""
+    if isinstance(node, Condition):
+        return show_sequence([node])
+    if isinstance(node, Action):
+        return call_text(node.name, node.args)
+    if isinstance(node, Wait):
         return f"wait {format_value(node.duration)} {node.unit}"
-    head = ("!" if isinstance(node, Condition) and node.negated else "") + node.name
-    if not node.args:
-        return head
-    return head + "(" + ", ".join(f"{k}={format_value(v)}" for k, v in node.args) + ")"
+    raise Refused(f"a {type(node).__name__} is not a leaf")
 
 
 def _json_value(value: Any) -> Any:

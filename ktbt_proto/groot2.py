@@ -267,7 +267,7 @@ class Groot2Publisher:
     def rewired(self, tree: Tree) -> None:
         with self._lock:
             if self._view is not None and self._view.tree == tree:
-                return  # the same tree: new wrappers for new hooks, nothing else changed
+                return  # the same tree: new wrappers (recording toggled), nothing else changed
             changed = self._view is not None
             self._view = _View(tree)
             if changed:  # node ids now name other nodes: hooks on the old ones must go
@@ -290,10 +290,13 @@ class Groot2Publisher:
             show(status)
             return status
 
-        uid = spots[0].uid
-        if (PRE, uid) not in self._hooks and (POST, uid) not in self._hooks:
-            return probed
-        return self._hooked(index, probed, show, spots[0], view)
+        # Hooks are looked up at tick time: inserting or removing one needs no new wrappers.
+        hooks, hooked = self._hooks, self._hooked(index, probed, show, spots[0], view)
+
+        def entry() -> Status:
+            return hooked() if hooks else probed()
+
+        return entry
 
     def holds(self, index: int, holds: Callable[[], object]) -> Callable[[], object]:
         spots = self._spots(index)
@@ -307,17 +310,13 @@ class Groot2Publisher:
             show(SUCCESS if result else FAILURE)
             return result
 
-        uid = spots[0].uid
-        if (PRE, uid) not in self._hooks and (POST, uid) not in self._hooks:
-            return probed
-
         def as_tick() -> Status:
             return SUCCESS if probed() else FAILURE
 
-        hooked = self._hooked(index, as_tick, show, spots[0], view)
+        hooks, hooked = self._hooks, self._hooked(index, as_tick, show, spots[0], view)
 
         def predicate() -> object:
-            return hooked() is SUCCESS
+            return hooked() is SUCCESS if hooks else probed()
 
         return predicate
 
@@ -507,7 +506,6 @@ class Groot2Publisher:
         elif letter == "A":
             with self._lock:
                 self._drop_hooks()
-            self.live.probe(self)
         elif letter == "X":
             with self._lock:
                 for hook in self._hooks.values():
@@ -557,10 +555,7 @@ class Groot2Publisher:
             owner = view.owner.get(hook.uid)
             if owner is not None and not owner[1]:
                 raise Refused(f"node {hook.uid} is part of its parent's node: hook its parent")
-        try:
-            self._store(hooks, view)
-        finally:
-            self.live.probe(self)  # hooked wrappers from the next tick on
+        self._store(hooks, view)  # the wrappers look hooks up as they tick
 
     def _store(self, hooks: list[_Hook], view: _View) -> None:
         with self._lock:
@@ -599,7 +594,6 @@ class Groot2Publisher:
                 raise Refused("Node ID not found")
             hook.enabled = False
             self._lock.notify_all()
-        self.live.probe(self)
 
     def _drop_hooks(self) -> None:
         for hook in self._hooks.values():

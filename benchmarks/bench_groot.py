@@ -96,6 +96,58 @@ def _btcpp(port: int) -> Callable[[], object]:
     return lambda: (tree.tick_once(), publisher)
 
 
+def ticks(rounds: int) -> dict[str, Stats]:
+    """One tick of the same tree three ways, interleaved: unprobed (the anchor), served by a
+    publisher (its probe writes the status bytes), and served while recording transitions."""
+    import struct
+
+    import zmq
+
+    import ktbt_proto as kp
+    from ktbt_proto.groot2 import Groot2Publisher
+
+    def tree() -> kp.LiveTree:
+        reg = kp.Registry()
+        flip = [False]
+
+        def collision(bb: object) -> bool:  # alternates, so bytes change and get recorded
+            flip[0] = not flip[0]
+            return flip[0]
+
+        reg.add_condition("_collisionDetectedF", collision)
+        reg.add_condition("_inZoneF", lambda bb: True)
+        for name in ("CollisionAvoidance", "WalkToCollection"):
+            reg.add_action(name, lambda bb: kp.SUCCESS)
+        reg.add_action("RandomWalk", lambda bb: kp.RUNNING)
+        return kp.LiveTree(TREE, reg)
+
+    plain, served, recorded = tree(), tree(), tree()
+    context = zmq.Context()
+    publishers = []
+    try:
+        for live, record in ((served, False), (recorded, True)):
+            port = _free_port()
+            publishers.append(Groot2Publisher(live, port))
+            live.tick()
+            if record:
+                req = context.socket(zmq.REQ)
+                req.setsockopt(zmq.RCVTIMEO, 5000)
+                req.connect(f"tcp://127.0.0.1:{port}")
+                req.send_multipart([struct.pack("<BBI", 2, ord("r"), 1), b"start"])
+                req.recv_multipart()
+                req.close(linger=0)
+            live.tick()
+        return interleaved(
+            {"unprobed": plain.tick, "served": served.tick, "recording": recorded.tick},
+            rounds=rounds * 10,
+            warmup=200,
+        )
+    finally:
+        for publisher in publishers:
+            publisher.close()
+        context.destroy(linger=0)
+
+
 def serve(kind: str, port: int, ready: Any, stop: Any) -> None:
     """A robot: the tree ticking at TICK_HZ, served by one publisher, until ``stop`` is set."""
     tick = (_ours if kind == "ours" else _btcpp)(port)
@@ -170,7 +222,13 @@ def run(rounds: int) -> dict[str, Any]:
             "ratio": round(stats["ours"].median_ns / stats["btcpp"].median_ns, 2),
         }
 
+    tick = ticks(rounds)
     return {
+        "tick": {
+            **{k: {"median_us": round(st.median_us, 2)} for k, st in tick.items()},
+            "served_ratio": round(tick["served"].median_ns / tick["unprobed"].median_ns, 2),
+            "recording_ratio": round(tick["recording"].median_ns / tick["unprobed"].median_ns, 2),
+        },
         "machine": machine(),
         "behaviortreepy": importlib.metadata.version("behaviortreepy"),
         "btview": importlib.metadata.version("btview"),
@@ -195,11 +253,18 @@ def report(result: dict[str, Any]) -> str:
             ]
         )
     table = markdown_table(["round trip", "ours", "BehaviorTree.CPP", "ratio"], rows)
+    t = result["tick"]
+    ticking = (
+        f"One tick of the same tree: unprobed {t['unprobed']['median_us']} us, served "
+        f"{t['served']['median_us']} us ({t['served_ratio']}x), recording "
+        f"{t['recording']['median_us']} us ({t['recording_ratio']}x)."
+    )
     verdict = "meets" if result["status_poll"]["ratio"] <= TARGET_RATIO else "MISSES"
     return (
         f"## Groot2 publisher, {result['nodes']}-node tree ({result['machine']}, "
         f"behaviortreepy {result['behaviortreepy']}, btview {result['btview']})\n\n{table}\n\n"
-        f"Status poll {verdict} the target (at most {TARGET_RATIO}x BehaviorTree.CPP's)."
+        f"Status poll {verdict} the target (at most {TARGET_RATIO}x BehaviorTree.CPP's).\n\n"
+        f"{ticking}"
     )
 
 

@@ -451,7 +451,12 @@ Overhearing = Annotated[
 ]
 GrootPort = Annotated[
     int | None,
-    typer.Option("--groot", help="Serve Groot2 (btview) on this port and the next, loopback."),
+    typer.Option(
+        "--groot",
+        min=1,
+        max=65534,
+        help="Serve Groot2 (btview) on this port and the next, loopback.",
+    ),
 ]
 
 

@@ -31,8 +31,10 @@ from typing import Any
 from .errors import StringBTError
 from .format import format_value
 from .interop.btcpp import to_xml
+from .items import show_sequence
 from .knowledge import KnowledgeBase
 from .registry import Registry
+from .render import call_text
 from .runtime import Halt, LiveTree, Tick
 from .status import FAILURE, RUNNING, SUCCESS, Status
 from .tree import Action, Condition, Container, Node, Placeholder, Tree, Wait, walk
@@ -57,6 +59,8 @@ MAX_UID = 0xFFFF
 """Node ids are 16 bits on the wire."""
 MAX_TRANSITIONS = 1000
 """Transitions kept while recording, newest last (as BehaviorTree.CPP keeps them)."""
+MAX_REQUEST = 1 << 20
+"""Bytes a request frame may hold (spec/groot2.md section 6): the largest hook array is far less."""
 HEARTBEAT = 5.0
 """Seconds without a request after which every hook is disabled (a client went away)."""
 
@@ -125,12 +129,18 @@ class _View:
         self.owner: dict[int, tuple[int, bool]] = {}  # uid -> (node index, hookable)
         self.halts: dict[int, Halt] = {}  # node index -> its compiled halt
         self.status = bytearray()
-        try:
+        try:  # built in the ticking thread: nothing may raise into LiveTree.tick()
             self._build(tree)
         except StringBTError as err:
             self.error = f"the tree cannot be written as BehaviorTree.CPP XML: {err}"
         except Refused as err:
             self.error = str(err)
+        except Exception as err:  # a bug in the XML walk: the tree runs on, unserved
+            log.exception("groot2: the tree cannot be served")
+            self.error = f"internal error: {type(err).__name__}"
+        if self.error:
+            self.spots = [[] for _ in self.spots]
+            self.owner, self.status = {}, bytearray()
 
     def _build(self, tree: Tree) -> None:
         doc = ET.fromstring(to_xml(tree))
@@ -170,14 +180,15 @@ class _View:
 
 
 def _leaf_name(node: Node) -> str:
-    """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``."""
-    if not isinstance(node, Condition | Action):
-        assert isinstance(node, Wait)
+    """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``
+    (the command line's own forms: ``items.show_sequence``, ``render``'s calls)."""
+    if isinstance(node, Condition):
+        return show_sequence([node])
+    if isinstance(node, Action):
+        return call_text(node.name, node.args)
+    if isinstance(node, Wait):
         return f"wait {format_value(node.duration)} {node.unit}"
-    head = ("!" if isinstance(node, Condition) and node.negated else "") + node.name
-    if not node.args:
-        return head
-    return head + "(" + ", ".join(f"{k}={format_value(v)}" for k, v in node.args) + ")"
+    raise Refused(f"a {type(node).__name__} is not a leaf")
 
 
 def _json_value(value: Any) -> Any:
@@ -197,15 +208,24 @@ class Groot2Publisher:
     for every interface (anyone who reaches the port can force the robot's nodes' results).
     Raises ``OSError`` if a port is taken. Close it (or use it as a context manager) to stop
     serving: the probe leaves the tree at its next tick boundary, and a tick waiting at a
-    breakpoint goes on.
+    breakpoint goes on. ``stop``, an event the ticking program sets to end (on SIGTERM, say),
+    releases a breakpoint too: a robot waiting for a client that never unlocks still stops.
     """
 
-    def __init__(self, tree: Any, port: int = 1667, host: str = "127.0.0.1") -> None:
+    def __init__(
+        self,
+        tree: Any,
+        port: int = 1667,
+        host: str = "127.0.0.1",
+        stop: threading.Event | None = None,
+    ) -> None:
         live = getattr(tree, "control", tree)
         if not isinstance(live, LiveTree):
             raise TypeError(f"Groot2 serves a LiveTree or an agent ticking one, not {tree!r}")
         self.live = live
         self.port = port
+        self._stop = stop if stop is not None else threading.Event()
+        """Set by whoever ticks the tree (a signal, say): a breakpoint waits no longer."""
         self.errors: Counter[str] = Counter()
         """Error replies sent, by reason (a hostile or confused client is counted, not fatal)."""
         self.requests = 0
@@ -227,6 +247,7 @@ class Groot2Publisher:
         for sock in (self._rep, self._pub):
             sock.setsockopt(zmq.LINGER, 0)
             sock.setsockopt(zmq.SNDTIMEO, 1000)
+        self._rep.setsockopt(zmq.MAXMSGSIZE, MAX_REQUEST)  # a larger one drops its sender
         try:
             self._rep.bind(f"tcp://{host}:{port}")
             self._pub.bind(f"tcp://{host}:{port + 1}")
@@ -234,7 +255,11 @@ class Groot2Publisher:
             self._context.destroy(linger=0)
             raise OSError(f"cannot serve Groot2 on {host}:{port} and {port + 1}: {err}") from None
         self._thread = threading.Thread(target=self._serve, name=f"groot2:{port}", daemon=True)
-        live.probe(self)
+        try:
+            live.probe(self)
+        except RuntimeError:
+            self._context.destroy(linger=0)
+            raise
         self._thread.start()
 
     # -- the probe (called by the live tree, in its ticking thread) ------------------------------
@@ -242,7 +267,7 @@ class Groot2Publisher:
     def rewired(self, tree: Tree) -> None:
         with self._lock:
             if self._view is not None and self._view.tree == tree:
-                return  # the same tree: new wrappers for new hooks, nothing else changed
+                return  # the same tree: new wrappers (recording toggled), nothing else changed
             changed = self._view is not None
             self._view = _View(tree)
             if changed:  # node ids now name other nodes: hooks on the old ones must go
@@ -265,10 +290,13 @@ class Groot2Publisher:
             show(status)
             return status
 
-        uid = spots[0].uid
-        if (PRE, uid) not in self._hooks and (POST, uid) not in self._hooks:
-            return probed
-        return self._hooked(index, probed, show, spots[0], view)
+        # Hooks are looked up at tick time: inserting or removing one needs no new wrappers.
+        hooks, hooked = self._hooks, self._hooked(index, probed, show, spots[0], view)
+
+        def entry() -> Status:
+            return hooked() if hooks else probed()
+
+        return entry
 
     def holds(self, index: int, holds: Callable[[], object]) -> Callable[[], object]:
         spots = self._spots(index)
@@ -282,17 +310,13 @@ class Groot2Publisher:
             show(SUCCESS if result else FAILURE)
             return result
 
-        uid = spots[0].uid
-        if (PRE, uid) not in self._hooks and (POST, uid) not in self._hooks:
-            return probed
-
         def as_tick() -> Status:
             return SUCCESS if probed() else FAILURE
 
-        hooked = self._hooked(index, as_tick, show, spots[0], view)
+        hooks, hooked = self._hooks, self._hooked(index, as_tick, show, spots[0], view)
 
         def predicate() -> object:
-            return hooked() is SUCCESS
+            return hooked() is SUCCESS if hooks else probed()
 
         return predicate
 
@@ -337,7 +361,7 @@ class Groot2Publisher:
         return show
 
     def _record(self, uid: int, byte: int) -> None:
-        micros = int((time.time() - self._record_start) * 1e6)
+        micros = int((time.monotonic() - self._record_start) * 1e6)
         raw = struct.pack("<Q", max(micros, 0))[:6] + struct.pack("<HB", uid, _RAW.get(byte, 0))
         self._transitions.append(raw)
 
@@ -377,7 +401,7 @@ class Groot2Publisher:
     def _run(self, hook: _Hook) -> Status | None:
         """``runHook``: announce the breakpoint, wait while it is one, then say what to return."""
         with self._lock:
-            if not hook.enabled or not self._hooks_enabled or self._closed:
+            if not hook.enabled or not self._hooks_enabled or self._closed or self._stop.is_set():
                 return None
         header = HEADER.pack(PROTOCOL_ID, ord("N"), secrets.randbits(32))
         with self._pub_lock:
@@ -387,13 +411,20 @@ class Groot2Publisher:
                 return None
         with self._lock:
             if hook.mode == BREAKPOINT:
-                self._lock.wait_for(
+                # In slices: the stop event is set from outside the lock (a signal handler).
+                while not self._lock.wait_for(
                     lambda: (
-                        hook.ready or not hook.enabled or not self._hooks_enabled or self._closed
-                    )
-                )
+                        hook.ready
+                        or not hook.enabled
+                        or not self._hooks_enabled
+                        or self._closed
+                        or self._stop.is_set()
+                    ),
+                    timeout=0.1,
+                ):
+                    pass
                 hook.ready = False
-            if not hook.enabled or not self._hooks_enabled or self._closed:
+            if not hook.enabled or not self._hooks_enabled or self._closed or self._stop.is_set():
                 return None
             forced = _FORCED.get(hook.desired_status)
             if hook.once:
@@ -475,7 +506,6 @@ class Groot2Publisher:
         elif letter == "A":
             with self._lock:
                 self._drop_hooks()
-            self.live.probe(self)
         elif letter == "X":
             with self._lock:
                 for hook in self._hooks.values():
@@ -497,7 +527,7 @@ class Groot2Publisher:
 
     def _blackboard(self, names: bytes) -> bytes:
         dump: dict[str, object] = {}
-        for name in names.decode("utf-8", "replace").split(";"):
+        for name in dict.fromkeys(names.decode("utf-8", "replace").split(";")):  # each once
             if name == "MainTree":
                 entries = dict(self.live.blackboard)
                 dump[name] = _json_value(entries) if entries else None
@@ -507,10 +537,10 @@ class Groot2Publisher:
     def _toggle(self, command: bytes) -> list[bytes]:
         with self._lock:
             if command == b"start":
-                self._record_start = time.time()
+                self._record_start = time.monotonic()  # deltas; wall time only in the reply
                 self._transitions.clear()
                 self._recording = True
-                started = [str(int(self._record_start * 1e6)).encode()]
+                started = [str(int(time.time() * 1e6)).encode()]
             elif command == b"stop":
                 self._recording, started = False, []
             else:
@@ -521,13 +551,17 @@ class Groot2Publisher:
     def _insert(self, received: object, view: _View) -> None:
         entries = received if isinstance(received, list) else [received]
         hooks = [_hook_from(entry) for entry in entries]
+        for hook in hooks:  # every one checked before any is stored: all or nothing
+            owner = view.owner.get(hook.uid)
+            if owner is not None and not owner[1]:
+                raise Refused(f"node {hook.uid} is part of its parent's node: hook its parent")
+        self._store(hooks, view)  # the wrappers look hooks up as they tick
+
+    def _store(self, hooks: list[_Hook], view: _View) -> None:
         with self._lock:
             for hook in hooks:
-                owner = view.owner.get(hook.uid)
-                if owner is None:
+                if hook.uid not in view.owner:
                     continue  # as BehaviorTree.CPP: an unknown node id is ignored
-                if not owner[1]:
-                    raise Refused(f"node {hook.uid} is part of its parent's node: hook its parent")
                 old = self._hooks.get((hook.position, hook.uid))
                 if old is None:
                     self._hooks[(hook.position, hook.uid)] = hook
@@ -538,7 +572,6 @@ class Groot2Publisher:
                 if was_breakpoint and old.mode == REPLACE:
                     old.ready = True
                 self._lock.notify_all()
-        self.live.probe(self)  # hooked wrappers from the next tick on
 
     def _unlock(self, received: object) -> None:
         fields = _fields(received, uid=int, desired_status=str, position=int, remove_when_done=bool)
@@ -561,7 +594,6 @@ class Groot2Publisher:
                 raise Refused("Node ID not found")
             hook.enabled = False
             self._lock.notify_all()
-        self.live.probe(self)
 
     def _drop_hooks(self) -> None:
         for hook in self._hooks.values():
@@ -585,7 +617,7 @@ class Groot2Publisher:
             self._closed = True
             self._drop_hooks()
         self._thread.join()
-        self.live.probe(None)
+        self.live.unprobe(self)
         with self._pub_lock:
             self._context.destroy(linger=0)
 

@@ -551,7 +551,7 @@ def run_agent(
         if member.groot is not None:
             from .groot2 import Groot2Publisher
 
-            stack.enter_context(Groot2Publisher(robot, member.groot))
+            stack.enter_context(Groot2Publisher(robot, member.groot, stop=stop))
             say(f"{name}: Groot2 on port {member.groot} (btview snapshot -p {member.groot})")
         export = LearnedExport(export_learned) if export_learned is not None else None
         if export is not None:  # what a resumed --save file holds already

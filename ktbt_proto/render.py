@@ -48,7 +48,8 @@ def render(tree: Tree | Node, fmt: Format = "outline") -> str:
     raise ValueError(f"unknown format {fmt!r}; use 'outline', 'dot' or 'mermaid'")
 
 
-def _call(name: str, args: Args) -> str:
+def call_text(name: str, args: Args) -> str:
+    """A call as stringBT writes it: ``TargetSeen(colour=2)``, or the bare name."""
     if not args:
         return name
     return name + "(" + ", ".join(f"{k}={format_value(v)}" for k, v in args) + ")"
@@ -70,9 +71,9 @@ def _label(node: Node) -> str:
     if isinstance(node, Placeholder):
         return f"Knowledge [{node.name}]" + ("" if node.children else " (empty)")
     if isinstance(node, Condition):
-        return "Condition " + ("NOT " if node.negated else "") + _call(node.name, node.args)
+        return "Condition " + ("NOT " if node.negated else "") + call_text(node.name, node.args)
     if isinstance(node, Action):
-        return "Action " + _call(node.name, node.args)
+        return "Action " + call_text(node.name, node.args)
     if isinstance(node, Wait):
         return f"Wait {format_value(node.duration)} " + ("ticks" if node.unit == "ticks" else "s")
     raise TypeError(f"not a stringBT node: {node!r}")

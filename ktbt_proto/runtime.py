@@ -308,7 +308,8 @@ class Probe(Protocol):
 
     def rewired(self, tree: Tree) -> None:
         """The tree as it runs from now on; index ``i`` below is its ``i``-th node in pre-order
-        (``tree.walk()``). Called in the ticking thread, before the wrappers are asked for."""
+        (``tree.walk()``). Called before the wrappers are asked for: in the ticking thread at a
+        tick boundary, or in the thread that calls :meth:`LiveTree.probe`."""
 
     def tick(self, index: int, tick: Tick) -> Tick:
         """What to call in place of node ``index``'s tick."""
@@ -615,15 +616,27 @@ class LiveTree:
             self._running = False
             self._halt()
 
-    def probe(self, probe: Probe | None) -> None:
+    def probe(self, probe: Probe) -> None:
         """Put ``probe``'s wrappers around every node from the next tick boundary on, and again
-        after every merge or forget that takes effect, until ``probe(None)`` takes them out (at
-        the next boundary too). Calling it again with the same probe asks for new wrappers.
-        ``probe.rewired`` is told the running tree at once if no merge or forget is pending."""
+        after every merge or forget that takes effect, until :meth:`unprobe` takes them out (at
+        the next boundary too). Calling it again with the same probe asks for new wrappers; a
+        tree has one probe at a time, so another is refused with ``RuntimeError``.
+        ``probe.rewired`` is told the running tree at once, in the caller's thread, if no merge
+        or forget is pending (spec/groot2.md, section 3)."""
         with self._lock:
+            if self._probe is not None and self._probe is not probe:
+                raise RuntimeError(
+                    f"the tree is probed already (by {self._probe!r}): one probe at a time"
+                )
             self._probe, self._rewire, self._dirty = probe, True, True
             if probe is not None and not self._pending and not self._forgotten:
                 probe.rewired(Tree(_rebuild(self._wire)))
+
+    def unprobe(self, probe: Probe) -> None:
+        """Take ``probe``'s wrappers out at the next tick boundary; another probe is left alone."""
+        with self._lock:
+            if self._probe is probe:
+                self._probe, self._rewire, self._dirty = None, True, True
 
     def _wires(self, probe: Probe | None) -> None:
         """Write the probe's wrappers (or, without one, the compiled closures) into every list

@@ -32,6 +32,41 @@ PORTLESS = """<sl>
 """
 
 
+def reserve_ports(pairs: int, singles: int = 0) -> list[int]:
+    """``pairs`` Groot2 ports (each with its next port free too), then ``singles`` single ports,
+    all distinct: every one is held until all are picked, so none overlaps another."""
+    held: list[socket.socket] = []
+    taken: set[int] = set()
+    out: list[int] = []
+
+    def grab(port: int) -> bool:
+        sock = socket.socket()
+        try:
+            sock.bind(("127.0.0.1", port))
+        except OSError:
+            sock.close()
+            return False
+        held.append(sock)
+        taken.add(sock.getsockname()[1])
+        return True
+
+    try:
+        while len(out) < pairs:
+            if not grab(0):
+                raise RuntimeError("no free port")
+            port = held[-1].getsockname()[1]
+            if port < 65535 and port + 1 not in taken and grab(port + 1):
+                out.append(port)
+        for _ in range(singles):
+            if not grab(0):
+                raise RuntimeError("no free port")
+            out.append(held[-1].getsockname()[1])
+        return out
+    finally:
+        for sock in held:
+            sock.close()
+
+
 def free_ports() -> int:
     """A port p with p + 1 free as well (REP and PUB), on loopback."""
     for _ in range(50):

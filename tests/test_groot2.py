@@ -160,14 +160,15 @@ def test_a_breakpoint_stops_the_tick_until_unlocked(served: Served) -> None:
     sub.connect(f"tcp://127.0.0.1:{c.port + 1}")
     r.live.tick()
     carrying = uid_of(c, "Carrying")
+    c.request("I", hook(1, "SKIPPED"))  # a notice every tick, until the SUB has joined
+    assert wait_until(lambda: r.live.tick() is not None and notice(sub, 1))
+    c.request("R", json.dumps({"uid": 1, "position": 0}).encode())
     c.request("I", hook(carrying, "SKIPPED", mode=0))
     results: list[kp.Status] = []
     ticker = threading.Thread(target=lambda: results.append(r.live.tick()))
     ticker.start()
     try:
-        notice = sub.recv_multipart()
-        head = HEADER.unpack(notice[0])
-        assert head[:2] == (2, ord("N")) and notice[1] == str(carrying).encode()
+        assert wait_until(lambda: notice(sub, carrying))
         assert c.request("S")[0][1] == ord("S")  # the server answers while the tree waits
         assert ticker.is_alive() and results == []
         unlock = {"uid": carrying, "position": 0, "desired_status": "SUCCESS"}
@@ -183,16 +184,38 @@ def test_a_breakpoint_stops_the_tick_until_unlocked(served: Served) -> None:
     assert not ticker.is_alive()
 
 
+def notice(sub: zmq.Socket[bytes], uid: int) -> bool:
+    """A BREAKPOINT_REACHED for ``uid`` came (others are skipped)."""
+    try:
+        frames = sub.recv_multipart(zmq.NOBLOCK)
+    except zmq.Again:
+        return False
+    return HEADER.unpack(frames[0])[:2] == (2, ord("N")) and frames[1] == str(uid).encode()
+
+
 def test_a_breakpoint_is_released_when_the_client_goes_away() -> None:
     r = Robot()
     port = free_ports()
     with groot2.Groot2Publisher(r.live, port) as pub:
-        pub.heartbeat = 0.3
         with client(port) as c:
+            sub = c.context.socket(zmq.SUB)
+            sub.setsockopt(zmq.SUBSCRIBE, b"")
+            sub.connect(f"tcp://127.0.0.1:{port + 1}")
             r.live.tick()
-            c.request("I", hook(uid_of(c, "Carrying"), "SUCCESS", mode=0))
-        ticker = threading.Thread(target=r.live.tick)
-        ticker.start()
+            carrying = uid_of(c, "Carrying")
+            c.request("I", hook(1, "SKIPPED"))
+            assert wait_until(lambda: r.live.tick() is not None and notice(sub, 1))
+            c.request("R", json.dumps({"uid": 1, "position": 0}).encode())
+            c.request("I", hook(carrying, "SUCCESS", mode=0))
+            ticker = threading.Thread(target=r.live.tick)
+            ticker.start()
+            try:
+                assert wait_until(lambda: notice(sub, carrying))
+                c.request("S")
+                assert ticker.is_alive()  # held at the breakpoint while the client polls
+            finally:
+                pub.heartbeat = 0.3  # from now on, 0.3 s without a request releases it
+                sub.close(linger=0)
         ticker.join(15)  # no request for 0.3 s: every hook is disabled, the tick goes on
         assert not ticker.is_alive()
         assert r.log[-1] == "Walk"  # the breakpoint let the node tick as it was
@@ -394,3 +417,88 @@ def test_without_the_extra_one_line_says_how_to_install() -> None:
     )
     assert command.returncode == 1
     assert command.stderr.count("\n") == 1 and "pip install 'ktbt[groot]'" in command.stderr
+
+
+def test_a_rejected_hook_array_changes_nothing(served: Served) -> None:
+    """[a valid hook, a hook on a node that is part of its parent's]: an error, and the valid
+    one is not stored either."""
+    r, c = served.robot, served.client
+    r.live.blackboard["Carrying"] = False
+    r.live.tick()
+    found = elements(c.request("T")[1])
+    inner = next(
+        (uid for uid, kind, _ in found if kind == "AlwaysFailure"), None
+    )  # an empty placeholder's inner node: not hookable
+    assert inner is not None
+    good = json.loads(hook(uid_of(c, "Walk"), "FAILURE"))
+    bad = {**good, "uid": inner}
+    assert c.json("I", [good, bad])[0] == b"error"
+    assert json.loads(c.request("D")[1]) == []
+    assert r.live.tick() is kp.RUNNING
+
+
+def test_a_tree_has_one_probe_and_only_its_owner_takes_it_out() -> None:
+    r = Robot()
+    first, second = free_ports(), free_ports()
+    with groot2.Groot2Publisher(r.live, first) as pub:
+        with pytest.raises(RuntimeError, match="probed already"):
+            groot2.Groot2Publisher(r.live, second)
+        r.live.unprobe(object())  # type: ignore[arg-type]  # not its probe: nothing changes
+        r.live.tick()
+        assert r.live._probe is pub and r.live._tick is not r.live._wire.tick
+        with client(first) as c:
+            assert c.request("S")[0][1] == ord("S")
+    r.live.tick()
+    assert r.live._probe is None and r.live._tick is r.live._wire.tick
+    with groot2.Groot2Publisher(r.live, second), client(second) as c:  # its ports were freed
+        r.live.tick()
+        assert c.request("S")[0][1] == ord("S")
+
+
+def test_a_view_that_cannot_be_built_never_raises_into_the_tick(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The XML walk fails (an export whose elements do not match the tree): the error is
+    served, the tree ticks on unprobed."""
+    r = Robot()
+    port = free_ports()
+    monkeypatch.setattr(groot2, "to_xml", lambda tree: "<root><BehaviorTree><Sequence/>"
+                        "</BehaviorTree></root>")  # fmt: skip
+    with groot2.Groot2Publisher(r.live, port), client(port) as c:
+        assert r.live.tick() is kp.RUNNING
+        reply = c.request("T")
+        assert reply[0] == b"error" and reply[1].startswith(b"internal error")
+
+
+def test_oversized_requests_are_dropped_and_repeated_names_served_once(served: Served) -> None:
+    r, c = served.robot, served.client
+    r.live.blackboard["target"] = 2
+    r.live.tick()
+    board = msgpack.unpackb(c.request("B", b";".join([b"MainTree"] * 5000))[1])
+    assert list(board) == ["MainTree"]
+    with client(c.port, timeout=1) as big, pytest.raises(zmq.Again):
+        big.request("I", b"[" + b" " * (2 << 20) + b"]")
+    assert c.request("S")[0][1] == ord("S")
+
+
+def test_the_groot_port_is_checked() -> None:
+    from typer.testing import CliRunner
+
+    from ktbt_proto.cli import app
+
+    for port in ("0", "65535"):
+        result = CliRunner().invoke(app, ["peer", "run", "--groot", port])
+        assert result.exit_code == 2, result.output
+
+
+def test_hooks_disabled_by_x_stay_disabled_when_requests_come_back(served: Served) -> None:
+    """spec/groot2.md section 6: BT.CPP enables them again after a heartbeat lapse; we do not."""
+    r, pub, c = served.robot, served.pub, served.client
+    r.live.tick()
+    c.request("I", hook(uid_of(c, "Carrying"), "SUCCESS"))
+    c.request("X")
+    pub.heartbeat = 0.2
+    assert wait_until(lambda: not pub._hooks_enabled)
+    c.request("S")  # the client is back
+    assert [h["enabled"] for h in json.loads(c.request("D")[1])] == [False]
+    assert r.live.tick() is kp.RUNNING  # Carrying is not forced

@@ -6,7 +6,6 @@ requests. Replies must have the same structure, and the same bytes where the pro
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -15,7 +14,7 @@ import pytest
 import ktbt_proto as kp
 from ktbt_proto.interop.btcpp import to_xml
 
-from .groot2_helpers import PORTLESS, Client, client, elements, free_ports, is_uuid4, statuses
+from .groot2_helpers import PORTLESS, Client, client, elements, is_uuid4, reserve_ports, statuses
 
 bt = pytest.importorskip("behaviortreepy", reason="pip install 'ktbt[btcpp]'")
 groot2 = pytest.importorskip("ktbt_proto.groot2", reason="pip install 'ktbt[groot]'")
@@ -31,16 +30,9 @@ class World:
     calls: list[str] = field(default_factory=list)
 
 
-def _element_form(xml: str) -> str:
-    """Leaves in the element-name form BT.CPP 4 writes (``<_collisionDetectedF/>``): BT.CPP
-    refuses ``<Condition ID=...>`` inside reactive sequences. A no-op on an export that writes
-    that form already."""
-    return re.sub(r'<(Condition|Action) ID="([^"]+)"', r"<\2", xml)
-
-
 def _btcpp_xml() -> str:
-    """What ``ktbt convert`` writes for the tree, as BT.CPP loads it."""
-    return _element_form(to_xml(kp.parse(PORTLESS)))
+    """What ``ktbt convert`` writes for the tree, loaded by BT.CPP as it is."""
+    return to_xml(kp.parse(PORTLESS))
 
 
 class Pair:
@@ -73,7 +65,7 @@ class Pair:
         )
         self.factory = factory
         self.tree = factory.create_tree_from_text(_btcpp_xml())
-        self.ours_port, self.theirs_port = free_ports(), free_ports()
+        self.ours_port, self.theirs_port = reserve_ports(2)
         self.ours = groot2.Groot2Publisher(self.live, self.ours_port)
         self.theirs = bt.Groot2Publisher(self.tree, self.theirs_port)
         self.us = Client(self.ours_port)
@@ -238,6 +230,6 @@ def test_the_served_xml_loads_in_btcpp(pair: Pair) -> None:
     attributes) and ticks as ours does."""
     with client(pair.ours_port) as c:
         xml = c.request("T")[1].decode()
-    reloaded = pair.factory.create_tree_from_text(_element_form(xml))
+    reloaded = pair.factory.create_tree_from_text(xml)
     assert reloaded.tick_once() == bt.NodeStatus.RUNNING
     assert pair.live.tick() is kp.RUNNING

@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from .groot2_helpers import free_ports
-from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, wait_until
+from .groot2_helpers import reserve_ports
+from .zenoh_helpers import ROOT, endpoint, ktbt_process, wait_until
 
 pytest.importorskip("btview", reason="pip install -e '.[dev]'")
 pytest.importorskip("zmq", reason="pip install 'ktbt[groot]'")
@@ -38,11 +38,10 @@ def tree_uuid(port: int) -> str:
 
 
 def test_btview_sees_the_control_tree_then_what_the_robot_learned() -> None:
-    robot_port, teacher_port = free_port(), free_port()
-    robot_groot, teacher_groot = free_ports(), free_ports()
+    robot_groot, teacher_groot, robot_port, teacher_port = reserve_ports(2, 2)
     with ktbt_process(
         "peer", "run", "--id", "r1", "--listen", endpoint(robot_port),
-        "--sequence", "TargetSeen(colour=2)", "--duration", "120", "--groot", str(robot_groot),
+        "--sequence", "TargetSeen(colour=2)", "--duration", "600", "--groot", str(robot_groot),
         ready="Groot2 on port",
     ):  # fmt: skip
         assert wait_until(lambda: "RandomWalk" in snapshot(robot_groot), 60)
@@ -65,3 +64,57 @@ def test_btview_sees_the_control_tree_then_what_the_robot_learned() -> None:
     for node in ("TargetSeen(colour=2)", "PickTreasure", "AssignCollectionPoint(colour=2)"):
         assert node in item, after
     assert "RandomWalk" in after and "DeliverToZone" in after
+
+
+def test_sigterm_stops_a_robot_held_at_a_breakpoint() -> None:
+    """A client keeps polling (so the heartbeat never releases the hook) while the tick waits
+    at a breakpoint: SIGTERM still ends the robot."""
+    import contextlib
+    import json
+    import signal
+
+    import zmq
+
+    from .groot2_helpers import client
+
+    port, listen = reserve_ports(1, 1)
+    with ktbt_process(
+        "peer", "run", "--id", "r1", "--listen", endpoint(listen),
+        "--sequence", "TargetSeen(colour=2)", "--duration", "300", "--groot", str(port),
+        ready="Groot2 on port",
+    ) as proc, client(port, timeout=2) as c:  # fmt: skip
+        sub = c.context.socket(zmq.SUB)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.setsockopt(zmq.RCVTIMEO, 200)
+        sub.connect(f"tcp://127.0.0.1:{port + 1}")
+
+        def hook(uid: int, mode: int) -> bytes:
+            return json.dumps(
+                {"uid": uid, "position": 0, "enabled": True, "mode": mode, "once": False,
+                 "desired_status": "SKIPPED"}
+            ).encode()  # fmt: skip
+
+        def notice(uid: int) -> bool:
+            try:
+                return bool(sub.recv_multipart()[1] == str(uid).encode())
+            except zmq.Again:
+                return False
+
+        assert wait_until(lambda: c.request("S")[0] != b"error", 30)
+        assert c.request("I", hook(2, 1))[0] != b"error"  # a notice every tick: SUB joined
+        assert wait_until(lambda: notice(2), 30)
+        assert c.request("I", hook(1, 0))[0] != b"error"  # the root: a breakpoint
+        assert wait_until(lambda: notice(1), 30)  # the tick waits there now
+        c.request("S")
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+
+        def ended() -> bool:
+            with contextlib.suppress(zmq.Again):
+                c.request("S")  # the client is still there: the heartbeat is fresh
+            return proc.poll() is not None
+
+        try:
+            assert wait_until(ended, 20), "the robot did not stop at a breakpoint"
+        finally:
+            sub.close(linger=0)

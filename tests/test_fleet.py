@@ -35,6 +35,28 @@ def _namespaces() -> set[str]:
     return {line.split()[0] for line in listed.splitlines() if line.strip()}
 
 
+def _sweep(proc: subprocess.Popen[str], record: Path) -> tuple[list[int], list[int], set[str]]:
+    """After a run: end it if it still runs, then kill by pid every peer it launched that is
+    still alive and delete every namespace it made. Returns the peers launched, those it had
+    left running and the namespaces it had left, for the test to assert on."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+    pids = []  # every peer the run started, whatever happened to the run
+    if record.exists():
+        for line in record.read_text().splitlines():
+            event = json.loads(line)
+            if event["kind"] == "launch":
+                pids.append(event["pid"])
+    left = [pid for pid in pids if _alive(pid)]
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    ours = {n for n in _namespaces() if n.startswith(f"ktbt-fleet-{proc.pid}-")}
+    for name in ours:
+        subprocess.run(["ip", "netns", "del", name], check=False)
+    return pids, left, ours
+
+
 def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = subprocess.Popen(
@@ -46,21 +68,7 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
     try:
         output, _ = proc.communicate(timeout=90)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        pids = []  # every peer the run started, whatever happened to the run
-        if (out / "events.jsonl").exists():
-            for line in (out / "events.jsonl").read_text().splitlines():
-                event = json.loads(line)
-                if event["kind"] == "launch":
-                    pids.append(event["pid"])
-        left = [pid for pid in pids if _alive(pid)]
-        for pid in left:
-            os.kill(pid, signal.SIGKILL)
-        ours = {n for n in _namespaces() if n.startswith(f"ktbt-fleet-{proc.pid}-")}
-        for name in ours:
-            subprocess.run(["ip", "netns", "del", name], check=False)
+        _, left, ours = _sweep(proc, out / "events.jsonl")
     assert not left, f"the run left peers running: {left}"
     assert not ours, f"the run left its namespace: {ours}"
     summary = json.loads((out / "summary.json").read_text())
@@ -90,7 +98,6 @@ def test_ctrl_c_twice_mid_run_leaves_no_peer_and_no_namespace(tmp_path: Path) ->
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     record = out / "events.jsonl"
-    pids: list[int] = []
     try:
         assert wait_until(
             lambda: record.exists() and '"learners-up"' in record.read_text(), seconds=60
@@ -99,20 +106,7 @@ def test_ctrl_c_twice_mid_run_leaves_no_peer_and_no_namespace(tmp_path: Path) ->
         proc.send_signal(signal.SIGINT)  # lands in the cleanup: must change nothing
         output, _ = proc.communicate(timeout=90)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        if record.exists():
-            for line in record.read_text().splitlines():
-                event = json.loads(line)
-                if event["kind"] == "launch":
-                    pids.append(event["pid"])
-        left = [pid for pid in pids if _alive(pid)]
-        for pid in left:
-            os.kill(pid, signal.SIGKILL)
-        ours = {n for n in _namespaces() if n.startswith(f"ktbt-fleet-{proc.pid}-")}
-        for name in ours:
-            subprocess.run(["ip", "netns", "del", name], check=False)
+        pids, left, ours = _sweep(proc, record)
     assert pids, "no peer was launched"
     assert not left, f"the run left peers running: {left}"
     assert not ours, f"the run left its namespace: {ours}"

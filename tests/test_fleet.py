@@ -15,46 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.fleet_helpers import sweep
 from tests.zenoh_helpers import ROOT, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.network]  # make test-fast skips it
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-def _namespaces() -> set[str]:
-    if shutil.which("ip") is None:
-        return set()
-    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
-    return {line.split()[0] for line in listed.splitlines() if line.strip()}
-
-
-def _sweep(proc: subprocess.Popen[str], record: Path) -> tuple[list[int], list[int], set[str]]:
-    """After a run: end it if it still runs, then kill by pid every peer it launched that is
-    still alive and delete every namespace it made. Returns the peers launched, those it had
-    left running and the namespaces it had left, for the test to assert on."""
-    if proc.poll() is None:
-        proc.kill()
-        proc.communicate()
-    pids = []  # every peer the run started, whatever happened to the run
-    if record.exists():
-        for line in record.read_text().splitlines():
-            event = json.loads(line)
-            if event["kind"] == "launch":
-                pids.append(event["pid"])
-    left = [pid for pid in pids if _alive(pid)]
-    for pid in left:
-        os.kill(pid, signal.SIGKILL)
-    ours = {n for n in _namespaces() if n.startswith(f"ktbt-fleet-{proc.pid}-")}
-    for name in ours:
-        subprocess.run(["ip", "netns", "del", name], check=False)
-    return pids, left, ours
 
 
 def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: Path) -> None:
@@ -68,7 +32,7 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
     try:
         output, _ = proc.communicate(timeout=90)
     finally:
-        _, left, ours = _sweep(proc, out / "events.jsonl")
+        _, left, ours = sweep(proc, out / "events.jsonl")
     assert not left, f"the run left peers running: {left}"
     assert not ours, f"the run left its namespace: {ours}"
     summary = json.loads((out / "summary.json").read_text())
@@ -106,7 +70,7 @@ def test_ctrl_c_twice_mid_run_leaves_no_peer_and_no_namespace(tmp_path: Path) ->
         proc.send_signal(signal.SIGINT)  # lands in the cleanup: must change nothing
         output, _ = proc.communicate(timeout=90)
     finally:
-        pids, left, ours = _sweep(proc, record)
+        pids, left, ours = sweep(proc, record)
     assert pids, "no peer was launched"
     assert not left, f"the run left peers running: {left}"
     assert not ours, f"the run left its namespace: {ours}"

@@ -302,3 +302,47 @@ def test_a_churn_round_that_never_converges_fails() -> None:
     never = [e for e in never if e["kind"] != "final"]
     assert "churn rounds converge" in failed(never)
     assert metrics(History(never))["churn_convergence_s"] is None
+
+
+MONITOR = "the monitor shows what the peers know"
+
+
+def watched(knows: dict[str, list[str]] | None, t: float = 2.5) -> list[dict[str, Any]]:
+    """The base history run with ``--monitor``; ``knows``: what the monitor showed at ``t``
+    (None: no view recorded)."""
+    events = base(watch="/tmp/ktbt-watch-x")
+    if knows is not None:
+        view = {"knows": knows, "status": dict.fromkeys(knows, "present")}
+        view.update(drops={}, events=12, waited=0.1)
+        events.insert(-1, {"t": t, "kind": "monitor", **view})
+    return events
+
+
+def test_a_monitor_showing_what_every_peer_knows_passes() -> None:
+    assert verdicts(watched({"p0": ["A", "B"], "p1": ["A", "B"], "t2": ["A", "B"]}))[MONITOR] == (
+        "pass"
+    )
+    assert MONITOR not in verdicts(base())  # not watched: no verdict at all
+
+
+@pytest.mark.parametrize(
+    "knows",
+    [
+        {"p0": ["A", "B"], "p1": ["A"], "t2": ["A", "B"]},  # an item learned and not shown
+        {"p0": ["A", "B"], "p1": ["A", "B"], "t2": ["A", "B", "C"]},  # shown, never known
+        {"p0": ["A", "B"], "p1": ["A", "B"]},  # a peer not shown
+    ],
+)
+def test_a_monitor_that_shows_other_than_the_logs_say_fails(knows: dict[str, list[str]]) -> None:
+    assert MONITOR in failed(watched(knows))
+
+
+def test_a_monitor_view_older_than_a_merge_is_read_at_its_own_time() -> None:
+    # At 1.65 p1 had learned A only (its B came at 1.9): showing A alone then is right.
+    assert verdicts(watched({"p0": ["A"], "p1": ["A"], "t2": ["A", "B"]}, t=1.65))[MONITOR] == (
+        "pass"
+    )
+
+
+def test_a_watched_run_without_the_monitors_view_fails() -> None:
+    assert MONITOR in failed(watched(None))

@@ -1,10 +1,12 @@
 """``ktbt fleet check`` and ``ktbt fleet run`` on bad input, as a user runs them: a record that
 is not one is an error line and exit 2, a torn last line is a run that did not end, a bad
-``--knowledge`` file is refused with its position before anything starts."""
+``--knowledge`` file and a bad or taken ``--monitor`` address are refused before anything
+starts."""
 
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -50,3 +52,20 @@ def test_a_bad_knowledge_file_is_refused_with_its_position(tmp_path: Path) -> No
     assert done.returncode == 2, done.stdout + done.stderr
     assert "^" in done.stderr and "Traceback" not in done.stderr
     assert not (out / "events.jsonl").exists()
+
+
+def test_a_bad_or_taken_monitor_address_is_refused_before_any_peer_starts(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    done = _ktbt("fleet", "run", "--peers", "3", "--monitor", "nonsense", "--out", str(out))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "HOST:PORT" in done.stderr and "Traceback" not in done.stderr
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = _ktbt("fleet", "run", "--peers", "3", "--monitor", f"127.0.0.1:{port}",
+                     "--out", str(out))  # fmt: skip
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "ktbt monitor did not start" in done.stderr and "cannot serve" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert not (out / "events.jsonl").exists()  # no peer was launched

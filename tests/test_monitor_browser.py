@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
+import sys
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -22,6 +24,7 @@ from ktbt_proto.events import FleetEvent, digest, encode_event, signed_bytes
 from ktbt_proto.signing import Identity
 
 from .browser import chromium, unavailable
+from .fleet_helpers import sweep
 from .zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, serving, wait_until
 
 SKIP = unavailable()
@@ -278,3 +281,43 @@ def test_the_page_is_served_with_its_policy_and_only_to_its_own_host(
     with pytest.raises(urllib.error.HTTPError) as refused:
         urllib.request.urlopen(evil, timeout=5)
     assert refused.value.code == 400
+
+
+def test_a_fleet_started_by_ktbt_fleet_run_shows_in_the_page(tmp_path: Path) -> None:
+    """``ktbt fleet run --monitor``: the page shows every peer and, once the fleet has
+    converged, every item known by every peer; the run's own check agrees, and the monitor
+    goes when the run ends."""
+    out, http, printed = tmp_path / "run", free_port(), tmp_path / "printed.txt"
+    with open(printed, "w") as sink:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "5", "--seed", "2",
+             "--settle", "8", "--monitor", f"127.0.0.1:{http}", "--no-live", "--out", str(out)],
+            cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+    url = f"http://127.0.0.1:{http}/"
+    try:
+        assert wait_until(lambda: _up(url), 60), printed.read_text()
+        with chromium() as driver:
+            driver.get(url)
+            page = Page(driver)
+            record = out / "events.jsonl"
+            assert wait_until(lambda: '"run"' in record.read_text(), 30)
+            run = json.loads(record.read_text().splitlines()[0])
+            items = [digest(k) for k in run["items"]]
+            peers = [n["name"] for n in run["plan"]["nodes"]]
+
+            def everyone_knows_everything() -> bool:
+                cells = [page.cell(p, i) for p in peers for i in items]
+                return all(c is not None and c["how"] in ("learned", "known") for c in cells)
+
+            assert wait_until(everyone_knows_everything, 60), printed.read_text()
+            assert {page.status(p) for p in peers} == {"present"}
+        proc.wait(timeout=90)
+    finally:
+        _, left, ours = sweep(proc, out / "events.jsonl", printed.read_text())
+    assert not left and not ours, (left, ours)
+    summary = json.loads((out / "summary.json").read_text())
+    verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
+    assert verdicts["the monitor shows what the peers know"] == "pass", summary["verdicts"]
+    assert proc.returncode == 0, printed.read_text()
+    assert not _up(url)  # the monitor ended with the run

@@ -136,6 +136,7 @@ def check(events: list[dict[str, Any]]) -> list[Verdict]:
         *_faults(h),
         _rounds(h),
         _bounded(h),
+        *_monitor(h),
     ]
 
 
@@ -451,6 +452,35 @@ def _bounded(h: History) -> Verdict:
     )
     ok = median <= RSS_GROWTH and fds[worst] <= FD_GROWTH
     return Verdict("memory and descriptors bounded", "pass" if ok else "fail", detail)
+
+
+def _monitor(h: History) -> list[Verdict]:
+    """With ``--monitor``: what the monitor showed at the end (its ``/api/state``) is what the
+    peers' own logs say each knew then, and it saw every peer. No verdict for a run watched by
+    no monitor."""
+    if not h.config.get("watch"):
+        return []
+    name = "the monitor shows what the peers know"
+    seen = h.one("monitor")
+    if seen is None or "knows" not in seen:
+        why = "no view of the monitor recorded" if seen is None else seen.get("error")
+        return [Verdict(name, "fail", str(why))]
+    wrong = []
+    for peer in h.peers:
+        shown = set(seen["knows"].get(peer, ()))
+        known = knows_at(h, peer, seen["t"])
+        if peer not in seen["knows"]:
+            wrong.append(f"{peer} not shown")
+        elif shown != known:
+            extra, missing = sorted(shown - known), sorted(known - shown)
+            wrong.append(f"{peer}: shown but not known {extra}, known but not shown {missing}")
+    if wrong:
+        return [Verdict(name, "fail", "; ".join(wrong)[:500])]
+    detail = (
+        f"{len(h.peers)} peers and what each knows, {seen['waited']:g} s after the settle; "
+        f"{seen['events']} events, dropped {seen['drops'] or 'none'}"
+    )
+    return [Verdict(name, "pass", detail)]
 
 
 def honest_refusals(h: History) -> dict[str, int]:

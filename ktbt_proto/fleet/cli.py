@@ -70,12 +70,31 @@ def run_command(
         "fleet-run"
     ),
     live: Annotated[bool, typer.Option(help="Show the live table.")] = True,
+    monitor: Annotated[
+        str | None,
+        typer.Option(
+            help="Watch the fleet in the browser: `ktbt monitor` serves its page on HOST:PORT "
+            "(e.g. 127.0.0.1:8470) for the whole run; needs the monitor extra."
+        ),
+    ] = None,
+    settle: Annotated[
+        float, typer.Option(help="Seconds the fleet keeps running once it has converged.")
+    ] = 1.0,
 ) -> None:
     """Run a fleet scenario, check it and draw it; exit 1 if a property failed."""
     from ..cli import _knowledge_or_exit
     from .plan import FleetConfig, PlanError, seconds
-    from .runner import run
+    from .runner import MonitorFailed, run
 
+    if monitor is not None:
+        from ..monitor.command import INSTALL, _address
+
+        _address(monitor)  # a bad HOST:PORT is refused before anything starts
+        try:
+            import starlette  # noqa: F401
+            import uvicorn  # noqa: F401
+        except ImportError:
+            raise _fail(INSTALL) from None
     if knowledge is not None:  # refused here, with its position, not inside the namespace
         _knowledge_or_exit(knowledge)
     try:
@@ -83,13 +102,16 @@ def run_command(
             peers=peers, teachers=teachers, topology=topology, routers=routers,  # type: ignore[arg-type]
             loss=loss, delay=seconds(delay), partition=seconds(partition),
             partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,  # type: ignore[arg-type]
-            seed=seed, bound=bound, teacher=teacher,  # type: ignore[arg-type]
+            seed=seed, bound=bound, teacher=teacher, settle=settle,  # type: ignore[arg-type]
             knowledge=str(knowledge.resolve()) if knowledge else "",
             name=out.name,
         )  # fmt: skip
     except PlanError as exc:
         raise _fail(str(exc)) from None
-    summary = run(config, out, typer.echo, live=live and sys.stdout.isatty())
+    try:
+        summary = run(config, out, typer.echo, live=live and sys.stdout.isatty(), monitor=monitor)
+    except MonitorFailed as exc:
+        raise _fail(str(exc)) from None
     typer.echo(f"{out}: {'passed' if summary['passed'] else 'FAILED'}")
     _show(summary)
     _figure(out)

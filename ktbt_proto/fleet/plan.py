@@ -68,6 +68,9 @@ class FleetConfig:
     teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which
     answer every query at once)."""
     name: str = "fleet"
+    watch: str = ""
+    """The folder of the monitor's unix sockets (``--monitor``): every peer also listens there
+    and publishes its fleet events; empty: no monitor."""
 
     def __post_init__(self) -> None:
         if self.peers < 2 or self.peers > 200:
@@ -80,7 +83,7 @@ class FleetConfig:
             raise PlanError("--loss is a fraction: at least 0, below 1")
         if not 0 <= self.churn <= 1:
             raise PlanError("--churn is a fraction of the learners, 0 to 1")
-        if self.delay < 0 or self.partition < 0 or self.churn_down < 0:
+        if self.delay < 0 or self.partition < 0 or self.churn_down < 0 or self.settle < 0:
             raise PlanError("durations are not negative")
         if self.partition and self.topology == "router":
             raise PlanError("--partition needs --topology mesh or line (halves of peer links)")

@@ -5,7 +5,9 @@ Every batch is one JSON object: ``ts`` (the server's time, ms since the epoch), 
 fleet version it brings the page to), ``stats`` (events taken and what was dropped, by why),
 and either ``snapshot`` (the whole state: a page's first batch, or one that fell behind) or
 ``changes``. Batches go out every :data:`BATCH` seconds at most, so a busy fleet costs the
-browser one update a tenth of a second, however many events arrive.
+browser one update a tenth of a second, however many events arrive. ``/api/state`` is the
+whole state once, as JSON, for scripts (``ktbt fleet run --monitor`` reads it to check that
+what the page shows is what the peers' logs say).
 
 The page is built with text nodes only; a Content-Security-Policy allowing no inline script,
 no other origin and no framing is sent as well, so even markup that slipped into the DOM
@@ -76,6 +78,10 @@ def create_app(
         text = await asyncio.to_thread(tree, name) if tree is not None else None
         return JSONResponse({"peer": name, "tree": text})
 
+    async def whole_state(request: Request) -> Response:
+        version, snapshot = fleet.snapshot()
+        return JSONResponse({"v": version, "stats": fleet.stats(), **snapshot})
+
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html", media_type="text/html; charset=utf-8")
 
@@ -107,6 +113,7 @@ def create_app(
         routes=[
             Route("/", index),
             Route("/api/stream", stream),
+            Route("/api/state", whole_state),
             Route("/api/tree/{peer}", peer_tree),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ],

@@ -57,6 +57,14 @@ def monitor_command(
     ] = None,
     config: Config = None,
     mode: Mode = ZenohMode.peer,
+    uds: Annotated[
+        Path | None,
+        typer.Option(
+            "--uds",
+            help="Also serve on this unix socket, for tools on this machine (as in a network "
+            "namespace of their own) that cannot reach the --http address.",
+        ),
+    ] = None,
     trust: Annotated[
         Path | None,
         typer.Option(
@@ -102,11 +110,25 @@ def monitor_command(
         typer.echo(f"error: cannot serve on {http}: {exc.strerror or exc}", err=True)
         raise typer.Exit(2) from None
     port = sock.getsockname()[1]
+    sockets = [sock]
+    if uds is not None:
+        unix = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sockets.append(unix)
+        try:
+            if uds.is_socket():  # a socket left by a monitor that was killed; nothing else
+                uds.unlink()
+            unix.bind(str(uds))
+        except OSError as exc:
+            for s in sockets:
+                s.close()
+            typer.echo(f"error: cannot serve on {uds}: {exc.strerror or exc}", err=True)
+            raise typer.Exit(2) from None
     fleet = Fleet(store)
     try:
         listener = Listener(fleet, settings)
     except Exception as exc:  # zenoh's own error: a bad endpoint or config
-        sock.close()
+        for s in sockets:
+            s.close()
         typer.echo(f"error: cannot join the fleet at {', '.join(connect)}: {exc}", err=True)
         raise typer.Exit(2) from None
     loopback = _is_loopback(host)
@@ -117,15 +139,20 @@ def monitor_command(
         typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")
     else:
         typer.echo(f"monitor: http://{shown}:{port}/ (reachable from other machines: not loopback)")
+    if uds is not None:
+        typer.echo(f"  and on the unix socket {uds}")
     typer.echo(f"  listening to the fleet at {', '.join(connect)}; Ctrl-C to stop")
     try:
         # uvicorn handles SIGINT and SIGTERM while it runs, then raises the signal again once
         # stopped: caught here, so the listener's session is closed below.
         with until_signalled():
-            server.run(sockets=[sock])
+            server.run(sockets=sockets)
     finally:
         listener.close()
-        sock.close()
+        for s in sockets:
+            s.close()
+        if uds is not None and uds.is_socket():
+            uds.unlink()
 
 
 def register(app: typer.Typer) -> None:

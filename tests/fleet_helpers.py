@@ -11,7 +11,7 @@ import signal
 import subprocess
 from pathlib import Path
 
-MONITOR_PID = re.compile(r"\(ktbt monitor, pid (\d+)\)")
+MONITOR_PID = re.compile(r"ktbt monitor started, pid (\d+)")
 
 
 def alive(pid: int) -> bool:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.fleet_helpers import sweep
+from tests.fleet_helpers import MONITOR_PID, sweep
 from tests.zenoh_helpers import ROOT, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.network]  # make test-fast skips it
@@ -53,14 +54,20 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
         pytest.skip(f"packet loss skipped: {verdicts['fault: loss']['detail']}")
 
 
-def test_ctrl_c_twice_mid_run_leaves_no_peer_and_no_namespace(tmp_path: Path) -> None:
-    out = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "4", "--churn", "0.5",
-         "--churn-rounds", "3", "--seed", "5", "--bound", "60", "--teacher", "serve",
-         "--no-live", "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
+def _watch_folder(out: Path) -> Path | None:
+    found = re.search(r"unix socket (\S+)/http.sock", (out / "monitor.out").read_text())
+    return Path(found.group(1)) if found else None
+
+
+def test_ctrl_c_twice_mid_run_leaves_no_peer_no_monitor_and_no_namespace(tmp_path: Path) -> None:
+    out, printed = tmp_path / "run", tmp_path / "printed.txt"
+    with open(printed, "w") as sink:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "4", "--churn", "0.5",
+             "--churn-rounds", "3", "--seed", "5", "--bound", "60", "--teacher", "serve",
+             "--monitor", "127.0.0.1:0", "--no-live", "--out", str(out)],
+            cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
     record = out / "events.jsonl"
     try:
         assert wait_until(
@@ -68,14 +75,41 @@ def test_ctrl_c_twice_mid_run_leaves_no_peer_and_no_namespace(tmp_path: Path) ->
         ), "the learners never came up"
         proc.send_signal(signal.SIGINT)
         proc.send_signal(signal.SIGINT)  # lands in the cleanup: must change nothing
-        output, _ = proc.communicate(timeout=90)
+        proc.wait(timeout=90)
     finally:
-        pids, left, ours = sweep(proc, record)
+        pids, left, ours = sweep(proc, record, printed.read_text())
+    output = printed.read_text()
+    assert MONITOR_PID.search(output), output
     assert pids, "no peer was launched"
-    assert not left, f"the run left peers running: {left}"
+    assert not left, f"the run left peers or its monitor running: {left}"
     assert not ours, f"the run left its namespace: {ours}"
+    folder = _watch_folder(out)
+    assert folder is not None and not folder.exists(), folder
     kinds = [json.loads(line)["kind"] for line in record.read_text().splitlines()]
     assert kinds[-1] == "end", kinds[-5:]
     summary = json.loads((out / "summary.json").read_text())
     assert not summary["passed"] and summary["aborted"] == "interrupted", output
+    verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
+    assert verdicts["the monitor shows what the peers know"] == "skipped"
     assert proc.returncode == 1, output
+
+
+def test_sigterm_while_the_monitor_starts_leaves_nothing(tmp_path: Path) -> None:
+    out, printed = tmp_path / "run", tmp_path / "printed.txt"
+    with open(printed, "w") as sink:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "3",
+             "--monitor", "127.0.0.1:0", "--no-live", "--out", str(out)],
+            cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+    try:
+        assert wait_until(lambda: MONITOR_PID.search(printed.read_text()) is not None, 60)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+    finally:
+        _, left, ours = sweep(proc, out / "events.jsonl", printed.read_text())
+    assert not left and not ours, (left, ours)
+    assert proc.returncode in (1, 130), printed.read_text()  # before the run, or inside it
+    assert "Traceback" not in printed.read_text()
+    folder = _watch_folder(out)
+    assert folder is None or not folder.exists(), folder

@@ -283,25 +283,28 @@ def test_the_page_is_served_with_its_policy_and_only_to_its_own_host(
     assert refused.value.code == 400
 
 
+@pytest.mark.slow
+@pytest.mark.network
 def test_a_fleet_started_by_ktbt_fleet_run_shows_in_the_page(tmp_path: Path) -> None:
     """``ktbt fleet run --monitor``: the page shows every peer and, once the fleet has
     converged, every item known by every peer; the run's own check agrees, and the monitor
     goes when the run ends."""
     out, http, printed = tmp_path / "run", free_port(), tmp_path / "printed.txt"
-    with open(printed, "w") as sink:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "5", "--seed", "2",
-             "--settle", "8", "--monitor", f"127.0.0.1:{http}", "--no-live", "--out", str(out)],
-            cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
-        )  # fmt: skip
     url = f"http://127.0.0.1:{http}/"
-    try:
-        assert wait_until(lambda: _up(url), 60), printed.read_text()
-        with chromium() as driver:
+    record = out / "events.jsonl"
+    with chromium() as driver:  # started first: the page must be read before the run ends
+        with open(printed, "w") as sink:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "5",
+                 "--seed", "2", "--settle", "10", "--monitor", f"127.0.0.1:{http}", "--no-live",
+                 "--out", str(out)],
+                cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+            )  # fmt: skip
+        try:
+            assert wait_until(lambda: _up(url), 60), printed.read_text()
             driver.get(url)
             page = Page(driver)
-            record = out / "events.jsonl"
-            assert wait_until(lambda: '"run"' in record.read_text(), 30)
+            assert wait_until(lambda: record.exists() and '"run"' in record.read_text(), 30)
             run = json.loads(record.read_text().splitlines()[0])
             items = [digest(k) for k in run["items"]]
             peers = [n["name"] for n in run["plan"]["nodes"]]
@@ -312,9 +315,9 @@ def test_a_fleet_started_by_ktbt_fleet_run_shows_in_the_page(tmp_path: Path) -> 
 
             assert wait_until(everyone_knows_everything, 60), printed.read_text()
             assert {page.status(p) for p in peers} == {"present"}
-        proc.wait(timeout=90)
-    finally:
-        _, left, ours = sweep(proc, out / "events.jsonl", printed.read_text())
+            proc.wait(timeout=90)
+        finally:
+            _, left, ours = sweep(proc, record, printed.read_text())
     assert not left and not ours, (left, ours)
     summary = json.loads((out / "summary.json").read_text())
     verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}

@@ -22,6 +22,8 @@ RSS_GROWTH = 0.20
 """Median resident memory of the peers never killed may grow by at most this fraction from
 the end of the first churn round to the end of the run."""
 RSS_SLACK_KB = 4096
+SHOWN_WITHIN = 1.0
+"""Seconds within which the monitor must show a merge (the page's target)."""
 FD_GROWTH = 16
 """File descriptors of any peer never killed (and of the runner) may grow by at most this."""
 
@@ -455,30 +457,42 @@ def _bounded(h: History) -> Verdict:
 
 
 def _monitor(h: History) -> list[Verdict]:
-    """With ``--monitor``: what the monitor showed at the end (its ``/api/state``) is what the
-    peers' own logs say each knew then, and it saw every peer. No verdict for a run watched by
-    no monitor."""
+    """With ``--monitor``: the monitor, asked at the end, showed every peer present and what
+    the peers' own logs say each knew at some time between :data:`SHOWN_WITHIN` seconds
+    before it was asked and when it answered (a merge reaches the page within that). No
+    verdict for a run watched by no monitor; skipped for one that did not reach its end."""
     if not h.config.get("watch"):
         return []
     name = "the monitor shows what the peers know"
     seen = h.one("monitor")
+    if seen is None and h.of("aborted"):
+        return [Verdict(name, "skipped", "the run did not reach its end")]
     if seen is None or "knows" not in seen:
         why = "no view of the monitor recorded" if seen is None else seen.get("error")
         return [Verdict(name, "fail", str(why))]
+    since, until = seen.get("asked", seen["t"]) - SHOWN_WITHIN, seen["t"]
     wrong = []
     for peer in h.peers:
-        shown = set(seen["knows"].get(peer, ()))
-        known = knows_at(h, peer, seen["t"])
         if peer not in seen["knows"]:
             wrong.append(f"{peer} not shown")
-        elif shown != known:
+            continue
+        if seen["status"].get(peer) != "present":
+            wrong.append(f"{peer} shown {seen['status'].get(peer)}, not present")
+        shown = set(seen["knows"][peer])
+        moments = [since, until] + [
+            e["t"] for e in h.events
+            if e["kind"] in ("merged", "forgotten", "up", "kill") and e.get("peer") == peer
+            and since <= e["t"] <= until
+        ]  # fmt: skip
+        if not any(shown == knows_at(h, peer, t) for t in moments):
+            known = knows_at(h, peer, until)
             extra, missing = sorted(shown - known), sorted(known - shown)
             wrong.append(f"{peer}: shown but not known {extra}, known but not shown {missing}")
     if wrong:
         return [Verdict(name, "fail", "; ".join(wrong)[:500])]
     detail = (
-        f"{len(h.peers)} peers and what each knows, {seen['waited']:g} s after the settle; "
-        f"{seen['events']} events, dropped {seen['drops'] or 'none'}"
+        f"{len(h.peers)} peers present and what each knows, {seen['waited']:g} s after the "
+        f"settle; {seen['events']} events, dropped {seen['drops'] or 'none'}"
     )
     return [Verdict(name, "pass", detail)]
 

@@ -84,12 +84,13 @@ def run_command(
     """Run a fleet scenario, check it and draw it; exit 1 if a property failed."""
     from ..cli import _knowledge_or_exit
     from .plan import FleetConfig, PlanError, seconds
-    from .runner import MonitorFailed, run
+    from .runner import run
+    from .watch import MonitorFailed
 
     if monitor is not None:
         from ..monitor.command import INSTALL, _address
 
-        _address(monitor)  # a bad HOST:PORT is refused before anything starts
+        _address(monitor, "--monitor")  # a bad HOST:PORT is refused before anything starts
         try:
             import starlette  # noqa: F401
             import uvicorn  # noqa: F401
@@ -112,6 +113,9 @@ def run_command(
         summary = run(config, out, typer.echo, live=live and sys.stdout.isatty(), monitor=monitor)
     except MonitorFailed as exc:
         raise _fail(str(exc)) from None
+    except KeyboardInterrupt:  # before the schedule began, or after it ended
+        typer.echo(f"{out}: interrupted; every process it started is stopped", err=True)
+        raise typer.Exit(130) from None
     typer.echo(f"{out}: {'passed' if summary['passed'] else 'FAILED'}")
     _show(summary)
     _figure(out)

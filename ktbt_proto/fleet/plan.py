@@ -10,6 +10,7 @@ of 127.0.0.0/8 is local). A link is dialled by its higher peer to its lower one 
 
 from __future__ import annotations
 
+import math
 import random
 import re
 from dataclasses import asdict, dataclass, field
@@ -83,8 +84,9 @@ class FleetConfig:
             raise PlanError("--loss is a fraction: at least 0, below 1")
         if not 0 <= self.churn <= 1:
             raise PlanError("--churn is a fraction of the learners, 0 to 1")
-        if self.delay < 0 or self.partition < 0 or self.churn_down < 0 or self.settle < 0:
-            raise PlanError("durations are not negative")
+        durations = (self.delay, self.partition, self.churn_down, self.settle, self.bound)
+        if not all(math.isfinite(d) and d >= 0 for d in durations):
+            raise PlanError("durations are not negative, and finite")
         if self.partition and self.topology == "router":
             raise PlanError("--partition needs --topology mesh or line (halves of peer links)")
         if self.teacher not in ("run", "serve"):

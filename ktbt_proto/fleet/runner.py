@@ -26,18 +26,17 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any, TextIO
 
 from ..files import write_atomic
 from ..transport.zenoh import stable_zid
-from . import netns
+from . import netns, watch
 from .plan import FleetConfig, Node, Plan, make_plan, stream
 from .proxy import FaultLayer
 
@@ -63,8 +62,6 @@ OUTPUTS = (
 )
 """What a run writes in its folder (and removes there before it starts)."""
 UP = re.compile(r"knows (\d+), will meet|serving (\d+) skills|router listening")
-UP_URL = re.compile(r"http://\S+/")
-"""The page's address in ``ktbt monitor``'s first line."""
 
 
 def digest(subtree: str) -> str:
@@ -210,7 +207,7 @@ class Fleet:
         if node.role == "router":
             args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
             if self.config.watch:
-                args += ["--listen", watch_endpoint(self.config.watch, node.name)]
+                args += ["--listen", watch.endpoint(self.config.watch, node.name)]
             return args + [a for c in connect for a in ("--connect", c)]
         endpoints = [a for c in connect for a in ("--connect", c)]
         if self.config.topology == "router":
@@ -219,7 +216,7 @@ class Fleet:
             endpoints += ["--listen", f"tcp/{node.address}:{port}"]
         if self.config.watch:  # the monitor's own link: a unix socket, outside the fault layer
             if self.config.topology != "router":
-                endpoints += ["--listen", watch_endpoint(self.config.watch, node.name)]
+                endpoints += ["--listen", watch.endpoint(self.config.watch, node.name)]
             endpoints += ["--publish-events"]
         common = ["--id", node.name, "--log", str(member.log), *conf, *endpoints]
         knowledge = str(self.config.knowledge or EXAMPLE_KNOWLEDGE)
@@ -515,25 +512,25 @@ class Fleet:
         return None
 
     async def watched(self, limit: float = 10.0) -> None:
-        """Record what the monitor shows (``/api/state`` on its unix socket): every peer and
-        what it knows, once that agrees with what the peers' logs say or at ``limit`` seconds;
-        the checker holds the two against each other."""
+        """Record what the monitor shows (``/api/state`` on its unix socket), with when it was
+        asked and when it answered: every peer and what it knows, once that agrees with what
+        the peers' logs say or at ``limit`` seconds; the checker holds the two against each
+        other."""
         began = time.monotonic()
-        view: dict[str, Any] | None = None
         while True:
-            view = await asyncio.to_thread(monitor_view, self.config.watch)
+            asked = self.record.now()
+            view = await asyncio.to_thread(watch.view, self.config.watch)
             agreed = view is not None and all(
                 set(view["knows"].get(m.node.name, ())) == self.knows(m)
+                and view["status"].get(m.node.name) == "present"
                 for m in self.members.values()
                 if m.node.role != "router"
             )
             if agreed or time.monotonic() - began > limit:
                 break
             await asyncio.sleep(0.2)
-        self.record.emit(
-            "monitor", waited=round(time.monotonic() - began, 3),
-            **(view or {"error": "the monitor did not answer on its socket"}),
-        )  # fmt: skip
+        found = view or {"error": "the monitor did not answer on its socket (see monitor.out)"}
+        self.record.emit("monitor", asked=asked, waited=round(time.monotonic() - began, 3), **found)
 
     async def _kill_while_learning(self, victims: list[str], limit: float) -> None:
         """Kill each victim once it has merged some items but not all (its log says so), so that
@@ -657,46 +654,6 @@ def _usage(pid: int) -> tuple[int, int] | None:
     return (int(found.group(1)) if found else 0), fds
 
 
-def watch_endpoint(folder: str, name: str) -> str:
-    """Where the monitor reaches a fleet member: a unix socket in the watch folder (a
-    network namespace does not separate those)."""
-    return f"unixsock-stream/{Path(folder) / name}.sock"
-
-
-def monitor_view(folder: str) -> dict[str, Any] | None:
-    """What the monitor serving on ``<folder>/http.sock`` shows: ``knows`` (peer -> the
-    sequences it knows), ``status`` (peer -> present or gone), ``drops``; None if it does not
-    answer."""
-    import http.client
-
-    class Unix(http.client.HTTPConnection):
-        def connect(self) -> None:
-            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            self.sock.settimeout(self.timeout)
-            self.sock.connect(str(Path(folder) / "http.sock"))
-
-    connection = Unix("localhost", timeout=5)
-    try:
-        connection.request("GET", "/api/state")
-        response = connection.getresponse()
-        if response.status != 200:
-            return None
-        state = json.loads(response.read())
-    except (OSError, ValueError, http.client.HTTPException):
-        return None
-    finally:
-        connection.close()
-    items: dict[str, str] = state["items"]
-    return {
-        "knows": {
-            p["peer"]: sorted(items[i] for i in p["knows"] if i in items) for p in state["peers"]
-        },
-        "status": {p["peer"]: p["status"] for p in state["peers"]},
-        "drops": state["drops"],
-        "events": state["events"],
-    }
-
-
 def _port() -> int:
     """A port free on 127.0.0.1, used on every fleet address (each its own address)."""
     with socket.socket() as s:
@@ -771,70 +728,25 @@ def run(
         elif target.exists():
             target.unlink()
     why = netns.unavailable(need_nft=bool(config.loss))
-    with contextlib.ExitStack() as stack:
-        if monitor is not None:
-            folder = stack.enter_context(
-                # short: a unix socket's path has at most 107 bytes
-                tempfile.TemporaryDirectory(prefix="ktbt-watch-", dir=_short_tmp())
-            )
-            config = replace(config, watch=folder)
-            stack.enter_context(_monitoring(config, monitor, out, say))
-        if why is None:
-            result = _in_namespace(config, out, live)
-        else:
-            note = why if config.loss else None
-            result = run_inside(config, out, say, live, note)
+    ended: list[str] = []
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # as Ctrl-C: everything is stopped
+    try:
+        with contextlib.ExitStack() as stack:
+            if monitor is not None:
+                watching = stack.enter_context(watch.watching(config, monitor, out, say))
+                config, ended = watching.config, watching.ended
+            if why is None:
+                result = _in_namespace(config, out, live)
+            else:
+                note = why if config.loss else None
+                result = run_inside(config, out, say, live, note)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     summary = check_record(out)
-    summary["aborted"] = result.get("problem")
+    summary["aborted"] = result.get("problem") or (ended[0] if ended else None)
     summary["passed"] = summary["passed"] and summary["aborted"] is None
     write_atomic(out / "summary.json", json.dumps(summary, indent=1, default=str))
     return summary
-
-
-@contextlib.contextmanager
-def _monitoring(config: FleetConfig, http: str, out: Path, say: Say) -> Iterator[None]:
-    """``ktbt monitor`` on ``http``, connected to every member's socket in the watch folder
-    (peers in client mode have none: it reaches them through the routers'), until the run
-    ends; stopped by its pid. Its output goes to ``monitor.out`` in the run's folder."""
-    plan = make_plan(config, 0)
-    listening = [n.name for n in plan.nodes if n.role == "router" or config.topology != "router"]
-    args = [sys.executable, "-m", "ktbt_proto", "monitor", "--http", http,
-            "--uds", str(Path(config.watch) / "http.sock")]  # fmt: skip
-    for name in listening:
-        args += ["--connect", watch_endpoint(config.watch, name)]
-    sink = open(out / "monitor.out", "wb")  # noqa: SIM115
-    proc = subprocess.Popen(
-        args, stdout=sink, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True,
-    )  # fmt: skip
-    try:
-        deadline = time.monotonic() + 60
-        while monitor_view(config.watch) is None:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                text = (out / "monitor.out").read_text(errors="replace").strip()
-                raise MonitorFailed(f"ktbt monitor did not start: {text[-500:]}")
-            time.sleep(0.1)
-        url = UP_URL.search((out / "monitor.out").read_text(errors="replace"))
-        shown = url.group(0) if url else http
-        say(f"{config.name}: watch it at {shown} (ktbt monitor, pid {proc.pid})")
-        yield
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        sink.close()
-
-
-def _short_tmp() -> str | None:
-    return "/tmp" if os.path.isdir("/tmp") else None
-
-
-class MonitorFailed(RuntimeError):
-    """``ktbt monitor`` could not start (the extra is missing, or its address is taken)."""
 
 
 def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:

@@ -63,6 +63,22 @@ class _Headers:
         await self.app(scope, receive, with_headers)
 
 
+class _HostCheck:
+    """The Host check (against DNS rebinding) on connections over TCP. One over a unix socket
+    (``--uds``; no client address) comes from a process on this machine, never from a page in
+    a browser, and passes whatever Host it names."""
+
+    def __init__(self, app: ASGIApp, allowed_hosts: list[str]) -> None:
+        self.app = app
+        self.checked = TrustedHostMiddleware(app, allowed_hosts=allowed_hosts)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket") and not scope.get("client"):
+            await self.app(scope, receive, send)
+        else:
+            await self.checked(scope, receive, send)
+
+
 def create_app(
     fleet: Fleet,
     hosts: list[str] | None = None,
@@ -108,7 +124,7 @@ def create_app(
 
     middleware = [Middleware(_Headers)]
     if hosts is not None:
-        middleware.append(Middleware(TrustedHostMiddleware, allowed_hosts=hosts))
+        middleware.append(Middleware(_HostCheck, allowed_hosts=hosts))
     return Starlette(
         routes=[
             Route("/", index),

@@ -4,7 +4,10 @@ Nothing of the web stack is imported until the command runs, so ``ktbt`` works w
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import ipaddress
+import os
 import socket
 from pathlib import Path
 from typing import Annotated
@@ -17,10 +20,10 @@ INSTALL = "ktbt monitor needs the monitor extra: pip install 'ktbt[monitor]'"
 LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
 
 
-def _address(text: str) -> tuple[str, int]:
+def _address(text: str, option: str = "--http") -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or int(port) > 65535 or not host:
-        raise typer.BadParameter(f"{text!r} is not HOST:PORT (127.0.0.1:8470)", param_hint="--http")
+        raise typer.BadParameter(f"{text!r} is not HOST:PORT (127.0.0.1:8470)", param_hint=option)
     return host.strip("[]"), int(port)
 
 
@@ -111,18 +114,15 @@ def monitor_command(
         raise typer.Exit(2) from None
     port = sock.getsockname()[1]
     sockets = [sock]
+    bound: tuple[int, int] | None = None
     if uds is not None:
-        unix = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sockets.append(unix)
         try:
-            if uds.is_socket():  # a socket left by a monitor that was killed; nothing else
-                uds.unlink()
-            unix.bind(str(uds))
+            unix, bound = _unix_socket(uds)
         except OSError as exc:
-            for s in sockets:
-                s.close()
+            sock.close()
             typer.echo(f"error: cannot serve on {uds}: {exc.strerror or exc}", err=True)
             raise typer.Exit(2) from None
+        sockets.append(unix)
     fleet = Fleet(store)
     try:
         listener = Listener(fleet, settings)
@@ -134,7 +134,10 @@ def monitor_command(
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
     app = create_app(fleet, allowed_hosts(host, allow_host or []), listener.tree)
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
+    # An open page's stream never ends by itself: at a stop, give connections a second.
+    server = uvicorn.Server(
+        uvicorn.Config(app, log_level="warning", lifespan="off", timeout_graceful_shutdown=1)
+    )
     if loopback:
         typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")
     else:
@@ -151,8 +154,36 @@ def monitor_command(
         listener.close()
         for s in sockets:
             s.close()
-        if uds is not None and uds.is_socket():
-            uds.unlink()
+        if uds is not None and bound is not None:
+            with contextlib.suppress(OSError):  # ours still: not one a later monitor bound
+                if (uds.stat().st_dev, uds.stat().st_ino) == bound:
+                    uds.unlink()
+
+
+def _unix_socket(path: Path) -> tuple[socket.socket, tuple[int, int]]:
+    """A unix socket bound at ``path``, readable by its owner only, and its file's identity.
+    A socket left there by a monitor that died is replaced; one that still answers, or a
+    file that is not a socket, is refused (``OSError``)."""
+    if path.is_socket():
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(str(path))
+        except ConnectionRefusedError:
+            path.unlink()  # nobody listens: left by a monitor that died
+        else:
+            raise OSError(errno.EADDRINUSE, "another process serves on it")
+        finally:
+            probe.close()
+    unix = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        unix.bind(str(path))
+        unix.listen()  # at once: a monitor starting beside us must see this one taken
+        os.chmod(path, 0o600)
+        stat = path.stat()
+    except OSError:
+        unix.close()
+        raise
+    return unix, (stat.st_dev, stat.st_ino)
 
 
 def register(app: typer.Typer) -> None:

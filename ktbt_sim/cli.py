@@ -277,7 +277,7 @@ def view_command(
         float,
         typer.Option(
             help="With --publish-events: seconds to wait for a monitor before the first step, "
-            "so it sees the run from its start (0: start at once)."
+            "so it sees the run from its start (0: start at once; inf: wait for ever)."
         ),
     ] = 30.0,
 ) -> None:
@@ -317,9 +317,9 @@ def view_command(
         if publish_events:
             stream = AgentStream(world.agents, ZenohSettings(listen=[publish_events]))
             if wait_monitor:
+                within = f" up to {wait_monitor:g} s" if wait_monitor < float("inf") else ""
                 typer.echo(
-                    f"waiting up to {wait_monitor:g} s for a monitor: "
-                    f"ktbt monitor --connect {publish_events}"
+                    f"waiting{within} for a monitor: ktbt monitor --connect {publish_events}"
                 )
                 if not stream.wait_watched(wait_monitor):
                     typer.echo("no monitor yet: running; a monitor started now misses the start")

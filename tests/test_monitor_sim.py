@@ -60,7 +60,7 @@ def test_a_simulator_run_streams_to_the_monitor_what_its_robots_know(
     with ktbt_process(
         "sim", "view", "ktbt", "--iterations", str(ITERATIONS),
         "--publish-events", endpoint(port),
-        ready="waiting up to", timeout=120,
+        ready="for a monitor: ktbt monitor", timeout=120,
     ) as proc:  # fmt: skip
         listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
         try:

@@ -273,6 +273,13 @@ def view_command(
         str | None,
         typer.Option(help="Stream the robots' events (ktbt monitor) from this endpoint."),
     ] = None,
+    wait_monitor: Annotated[
+        float,
+        typer.Option(
+            help="With --publish-events: seconds to wait for a monitor before the first step, "
+            "so it sees the run from its start (0: start at once; inf: wait for ever)."
+        ),
+    ] = 30.0,
 ) -> None:
     """Watch a run: space pauses, right arrow steps, +/- change speed, q quits."""
     for option, value, least in (
@@ -283,6 +290,8 @@ def view_command(
     ):
         if value < least:
             raise _fail(f"{option} {value}: use a whole number of at least {least}")
+    if not wait_monitor >= 0:
+        raise _fail(f"--wait-monitor {wait_monitor}: use a number of seconds of at least 0")
     if record is not None and record.suffix and record.suffix.lower() != ".gif":
         raise _fail(
             f"--record {record}: write an animated .gif, or a folder of PNG frames "
@@ -307,6 +316,13 @@ def view_command(
     try:
         if publish_events:
             stream = AgentStream(world.agents, ZenohSettings(listen=[publish_events]))
+            if wait_monitor:
+                within = f" up to {wait_monitor:g} s" if wait_monitor < float("inf") else ""
+                typer.echo(
+                    f"waiting{within} for a monitor: ktbt monitor --connect {publish_events}"
+                )
+                if not stream.wait_watched(wait_monitor):
+                    typer.echo("no monitor yet: running; a monitor started now misses the start")
         if record is not None:
             viewer.record(world, record, frames=frames, every=every)
             typer.echo(f"{record}: {frames} frames, iterations 0 to {(frames - 1) * every:,}")
@@ -317,6 +333,11 @@ def view_command(
     finally:
         if stream is not None:
             stream.close()
+            sent = sum(p.sent for p in stream.publishers)
+            dropped = sum(p.dropped for p in stream.publishers)
+            typer.echo(
+                f"streamed {sent:,} events of {len(stream.publishers)} robots, {dropped:,} dropped"
+            )
 
 
 def demo_command(

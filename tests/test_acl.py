@@ -1,6 +1,7 @@
 """The shipped access-control profile (examples/zenoh/acl-router.json5) over mutual TLS on
-loopback: a robot answers under its own name, and a robot whose certificate names another peer
-cannot declare that peer's queryable (spec/protocol.md section 9)."""
+loopback: a robot answers, publishes events and serves its tree under its own name, a robot
+whose certificate names another peer cannot declare that peer's queryables, and only the
+monitor hears events and asks for trees (spec/protocol.md section 9)."""
 
 from __future__ import annotations
 
@@ -185,3 +186,85 @@ def test_a_robot_publishes_events_on_its_own_key_and_only_the_monitor_hears_them
     if acl:
         # The impostor hears only its own put (a session delivers to itself), never r1's.
         assert set(heard) == {"ktbt/v1/events/r1"} and set(overheard) <= {"ktbt/v1/events/t"}
+
+
+@pytest.mark.parametrize("acl", [True, False], ids=["profile", "without-access-control"])
+def test_only_the_monitor_asks_for_trees_and_each_robot_serves_its_own(
+    tmp_path: Path, acl: bool
+) -> None:
+    """The control tree of a robot publishing events (section 10) reaches the monitor; a
+    robot's queryable on another's tree key gets no query, its reply on another's tree key
+    never leaves the router, and a robot asking for a tree gets none."""
+    from ktbt_proto.format import format as format_tree
+    from ktbt_proto.monitor.fleet import Fleet
+    from ktbt_proto.monitor.listen import Listener
+    from ktbt_proto.render import render
+    from ktbt_proto.transport.zenoh import open_session
+
+    make_fleet_pki(tmp_path, "t", "r1", "monitor")
+    port = free_port()
+    kb = KnowledgeBase.from_tree(kp.parse(KNOWLEDGE.read_text()))
+    tree = format_tree(kb.tree(), "compact")
+    forged: list[str] = []  # queries that reached r1's queryable on t's tree key
+    misplaced: list[str] = []  # queries r1's own tree queryable answered on t's key
+
+    def forge(q: Any) -> None:
+        forged.append(str(q.key_expr))
+        q.reply("ktbt/v1/tree/t", b"<a>(Forged)")
+        q.drop()
+
+    def misplace(q: Any) -> None:
+        misplaced.append(str(q.key_expr))
+        q.reply("ktbt/v1/tree/t", b"<a>(Misplaced)")  # the query accepts any key
+        q.drop()
+
+    def replies(session: Any, key: str, **options: Any) -> list[tuple[str, bytes]]:
+        return [
+            (str(r.ok.key_expr), r.ok.payload.to_bytes())
+            for r in session.get(key, timeout=1.0, **options)
+            if r.ok is not None
+        ]
+
+    session = router(tmp_path, port, acl)
+    opened: list[Any] = []
+    try:
+        t = ZenohTransport(
+            "t",
+            robot_settings(tmp_path, "t", port),
+            lookup=answers(kb),
+            publish_events=True,
+            tree=lambda: tree,
+        )
+        opened.append(t)
+        r1 = open_session(robot_settings(tmp_path, "r1", port))
+        opened.append(r1)
+        r1.declare_queryable("ktbt/v1/tree/t", forge)
+        r1.declare_queryable("ktbt/v1/tree/r1", misplace)
+        # What one peer sends the router handles in order: once this late answer reaches t's
+        # inbox, both declarations have been routed, or denied.
+        late = Response(id="after", sender="r1", sequence=GREEN, subtree="<a>(Wait)")
+        r1.put("ktbt/v1/inbox/t", encode(late))
+        assert wait_until(lambda: any(m.id == "after" for m in t.receive()))
+        fleet = Fleet()
+        listener = Listener(fleet, robot_settings(tmp_path, "monitor", port))
+        opened.append(listener)
+        assert wait_until(lambda: listener.tree("t") == render(kp.parse(tree)))
+        monitor = open_session(robot_settings(tmp_path, "monitor", port))
+        opened.append(monitor)
+        everyone = replies(monitor, "ktbt/v1/tree/t", target=zenoh.QueryTarget.ALL)
+        anywhere = replies(monitor, "ktbt/v1/tree/r1", accept_replies=zenoh.ReplyKeyExpr.ANY)
+        by_robot = replies(r1, "ktbt/v1/tree/t", allowed_destination=zenoh.Locality.REMOTE)
+    finally:
+        for entity in reversed(opened):
+            entity.close()
+        session.close()
+    assert misplaced != []  # r1's own tree key is asked in either case
+    if acl:
+        # Every queryable on t's key was asked: only t's answered; r1's reply on t's key was
+        # stopped; a robot asking for a tree gets nothing.
+        assert forged == [] and everyone == [("ktbt/v1/tree/t", tree.encode())]
+        assert anywhere == [] and by_robot == []
+    else:
+        assert forged != [] and ("ktbt/v1/tree/t", b"<a>(Forged)") in everyone
+        assert anywhere == [("ktbt/v1/tree/t", b"<a>(Misplaced)")]
+        assert ("ktbt/v1/tree/t", tree.encode()) in by_robot

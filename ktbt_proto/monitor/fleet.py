@@ -3,10 +3,12 @@ section 10), liveliness and catalogs, and handed to the page as batches of chang
 
 Everything is bounded: peers, items, each peer's recent events, the transfers, refusals and
 changes kept. What does not fit is dropped and counted, so a flooding or hostile fleet costs
-the monitor a counter, not its memory. A page that falls behind the kept changes gets a fresh
-snapshot instead. Data flows one way: zenoh callbacks call :meth:`Fleet.peer_joined`,
-:meth:`Fleet.event` and friends; the web side reads :meth:`Fleet.changes_since` and
-:meth:`Fleet.snapshot`.
+the monitor a counter, not its memory. The items table is shared fairly: when it is full, the
+peers that hold the most of it give way first (:meth:`Fleet._make_room`), so one peer, or a
+few, listing junk cannot crowd out what the rest of the fleet knows. A page that falls behind
+the kept changes gets a fresh snapshot instead. Data flows one way: zenoh callbacks call
+:meth:`Fleet.peer_joined`, :meth:`Fleet.event` and friends; the web side reads
+:meth:`Fleet.changes_since` and :meth:`Fleet.snapshot`.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import itertools
 import re
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
@@ -40,6 +42,10 @@ REASONS = 5
 """The last reasons kept for each kind of thing refused, shown on the page."""
 LOST_AFTER = 5.0
 """A query sent and not answered within this many seconds is counted lost."""
+EPSILON = 1e-9
+"""Loads closer than this are equal (they are sums of fractions)."""
+LOOK_EVERY = 1.0
+"""Seconds a peer refused room in the full items table is refused again without a look."""
 
 
 _NAME = re.compile(_ID)
@@ -96,7 +102,7 @@ class Fleet:
         self.timeline: deque[dict[str, Any]] = deque(maxlen=TIMELINE)
         self.drops: Counter[str] = Counter()
         """What the monitor refused, by why: malformed, oversized, wrong key, forged, replayed,
-        flood, full."""
+        flood, full; and items some peer knew, evicted to make room (evicted)."""
         self.reasons: dict[str, deque[str]] = {}
         """The last :data:`REASONS` reasons of each kind refused."""
         self.events = 0
@@ -104,6 +110,14 @@ class Fleet:
         self._version = 0
         self._dirty: set[str] = set()
         """Peers whose counters changed: one view each per batch, not one per event."""
+        self._knowers: Counter[str] = Counter()
+        """How many peers know each item (the items no peer knows are not in it)."""
+        self._known_version = 0
+        """Counts the changes to what the peers know."""
+        self._no_room: dict[str, tuple[int, float]] = {}
+        """Peers refused room in a full table, with the known version and the time then: one
+        is refused again without a look while nothing the peers know changed, and for
+        :data:`LOOK_EVERY` seconds in any case, so a flood of new items costs a look a second."""
 
     # -- input -------------------------------------------------------------------------------
 
@@ -162,15 +176,14 @@ class Fleet:
                     whole = False
                     continue
                 listed.add(item)
-                if item not in peer.knows and self._item(item, sequence):
-                    peer.knows[item] = {"how": "known", "t": None, "at": now}
+                if item not in peer.knows and self._item(item, sequence, peer, learns=True):
+                    self._know(peer, item, {"how": "known", "t": None, "at": now})
                     self._change({"k": "know", "peer": peer.name, "item": item, "how": "known"})
             if not whole:
                 return
             for item in [i for i, k in peer.knows.items() if i not in listed]:
                 if now - peer.knows[item].get("at", 0.0) > LOST_AFTER:
-                    del peer.knows[item]
-                    self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
+                    self._unknow(peer, item)
                     self._spread(item, _iso(now))
 
     def event(self, event: FleetEvent) -> None:
@@ -211,7 +224,8 @@ class Fleet:
             if event.item is not None and event.sequence is not None:
                 whole = digest(event.sequence) == event.item
                 if whole or event.sequence.endswith("..."):  # clipped (section 10)
-                    self._item(event.item, event.sequence, clipped=not whole)
+                    learns = event.event == "merged"
+                    self._item(event.item, event.sequence, peer, clipped=not whole, learns=learns)
                 else:
                     self._drop(
                         "malformed",
@@ -242,12 +256,11 @@ class Fleet:
         elif kind == "answer-received" and event.id is not None:
             peer.open_queries.pop(event.id, None)
         elif kind == "merged" and event.item is not None and event.item in self.items:
-            peer.knows[event.item] = {
-                "how": "learned",
-                "t": event.t,
-                "teacher": event.teacher,
-                "at": now,
-            }
+            self._know(
+                peer,
+                event.item,
+                {"how": "learned", "t": event.t, "teacher": event.teacher, "at": now},
+            )
             transfer = {
                 "k": "transfer",
                 "t": event.t,
@@ -264,8 +277,7 @@ class Fleet:
             )
             self._spread(event.item, event.t)
         elif kind == "forgotten" and event.item is not None:
-            if peer.knows.pop(event.item, None) is not None:
-                self._change({"k": "know", "peer": peer.name, "item": event.item, "how": None})
+            if self._unknow(peer, event.item):
                 self._spread(event.item, event.t)
         elif kind in ("refused", "error-received"):
             refusal = {
@@ -316,6 +328,11 @@ class Fleet:
                     self.drops["full"] += 1
                     return None
                 oldest = min(idle, key=lambda p: p.heard)
+                for item in oldest.knows:  # the page forgets them with the peer
+                    self._knowers[item] -= 1
+                    if not self._knowers[item]:
+                        del self._knowers[item]
+                self._known_version += 1
                 del self.peers[oldest.name]
                 self._dirty.discard(oldest.name)
                 self._change({"k": "unpeer", "peer": oldest.name})
@@ -324,24 +341,95 @@ class Fleet:
         peer.heard = time.monotonic()
         return peer
 
-    def _item(self, item: str, sequence: str, clipped: bool = False) -> bool:
+    def _item(
+        self, item: str, sequence: str, peer: Peer, clipped: bool = False, learns: bool = False
+    ) -> bool:
         """Name ``item`` by ``sequence``: its whole text (whose digest it is) or, from an
-        event, its text clipped, replaced by the whole once a catalog or event says it. When
-        the table is full, the oldest item no peer knows makes room."""
+        event, its text clipped, replaced by the whole once a catalog or event says it.
+        ``peer`` named it; ``learns``: it is to know it (its catalog lists it, or it merged it).
+        When the table is full, room is made (:meth:`_make_room`) or the item is refused."""
         known = self.items.get(item)
         if known is not None:
             if clipped or known == sequence:
                 return True
-        elif len(self.items) >= MAX_ITEMS:
-            known_by_some = set().union(*(p.knows for p in self.peers.values()))
-            unknown = next((i for i in self.items if i not in known_by_some), None)
-            if unknown is None:
-                self.drops["full"] += 1
-                return False
-            del self.items[unknown]
-            self._change({"k": "unitem", "item": unknown})
+        elif len(self.items) >= MAX_ITEMS and not self._make_room(peer, learns):
+            return False
         self.items[item] = sequence
         self._change({"k": "item", "item": item, "sequence": sequence})
+        return True
+
+    def _make_room(self, peer: Peer, learns: bool) -> bool:
+        """Room in the full items table for an item ``peer`` named; False, counted "full", if
+        there is none for it.
+
+        The oldest item no peer knows goes first. An item a peer is only naming (a query's)
+        never takes a known item's place. For one it is to know, the table is shared as a
+        fair share: each item is charged to the peers that know it, in equal parts, and a
+        peer's load is what it is charged for. The item whose knowers' mean load is the
+        highest goes, the oldest of equals, if that is above what ``peer``'s load would be with
+        the new item alone; else the new item is refused. So a peer listing junk is charged
+        for all of it and gives way first, to its own junk only when it is the heaviest (no
+        churn); no peer, however much it lists, holds more than one item beyond the load of
+        the most loaded other peer, and an item known by many is charged to each a little."""
+        unknown = next((i for i in self.items if i not in self._knowers), None)
+        if unknown is not None:
+            del self.items[unknown]
+            self._change({"k": "unitem", "item": unknown})
+            return True
+        now = time.monotonic()
+        version, at = self._no_room.get(peer.name, (-1, -LOOK_EVERY))
+        if not learns or version == self._known_version or now - at < LOOK_EVERY:
+            self._drop("full", self._full(peer, learns))
+            return False
+        peers = list(self.peers.values())
+        load = {p.name: sum(1 / self._knowers[i] for i in p.knows) for p in peers}
+        charged: defaultdict[str, float] = defaultdict(float)
+        for p in peers:
+            for i in p.knows:
+                charged[i] += load[p.name]
+        victim, worst = None, load[peer.name] + 1 + EPSILON
+        for item in self.items:  # oldest first
+            crowding = charged[item] / self._knowers[item]
+            if crowding > worst:
+                victim, worst = item, crowding + EPSILON
+        if victim is None:
+            if len(self._no_room) >= MAX_PEERS:
+                self._no_room.clear()
+            self._no_room[peer.name] = (self._known_version, now)
+            self._drop("full", self._full(peer, learns))
+            return False
+        knowers, sequence = self._knowers[victim], self.items[victim]
+        for p in peers:
+            if victim in p.knows:
+                self._unknow(p, victim)
+        del self.items[victim]
+        self._change({"k": "unitem", "item": victim})
+        self._drop(
+            "evicted",
+            f"{_clip(sequence, 60)}, known by {knowers}, for one {_clip(peer.name, 64)} knows",
+        )
+        return True
+
+    def _full(self, peer: Peer, learns: bool) -> str:
+        if not learns:
+            return f"an item {peer.name} named: all {MAX_ITEMS} items are known"
+        return f"an item {peer.name} knows: no peer holds more of the {MAX_ITEMS} items than it"
+
+    def _know(self, peer: Peer, item: str, known: dict[str, Any]) -> None:
+        if item not in peer.knows:
+            self._knowers[item] += 1
+            self._known_version += 1
+        peer.knows[item] = known
+
+    def _unknow(self, peer: Peer, item: str) -> bool:
+        """``peer`` no longer knows ``item`` (a change for the page); False if it did not."""
+        if peer.knows.pop(item, None) is None:
+            return False
+        self._knowers[item] -= 1
+        if not self._knowers[item]:
+            del self._knowers[item]
+        self._known_version += 1
+        self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
         return True
 
     def _change(self, change: dict[str, Any]) -> None:

@@ -1,0 +1,115 @@
+"""A simulator run watched by the monitor (spec/protocol.md section 10): `ktbt sim view
+--publish-events`, headless, streams its robots' events, catalogs and trees to a real
+:class:`Listener`, whose matrix ends equal to what the robots know, learned from whom, with one
+transfer a merge. What the robots know is read off the same run replayed in this process (a
+run is set by its scenario and seed)."""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from typing import Any
+
+import pytest
+
+from ktbt_proto.events import AgentStream, digest
+from ktbt_proto.monitor.fleet import Fleet
+from ktbt_proto.monitor.listen import Listener
+from ktbt_proto.transferlog import TransferLog
+from ktbt_proto.transport.zenoh import ZenohSettings
+
+from .zenoh_helpers import endpoint, free_port, ktbt_process, wait_until
+
+pytestmark = [pytest.mark.network, pytest.mark.slow]  # a simulator process and zenoh sessions
+
+ITERATIONS = 400  # the ktbt preset's robots have merged about ten items by then (seed 0)
+
+
+def replay(iterations: int) -> tuple[Any, list[dict[str, Any]]]:
+    """The run of ``ktbt sim view ktbt`` (seed 0) in this process, and its merges."""
+    from ktbt_sim.scenario import PRESETS
+    from ktbt_sim.world import World
+
+    world = World(PRESETS["ktbt"], seed=0)
+    merges: list[dict[str, Any]] = []
+    for agent in world.agents:
+        agent.log = TransferLog(None)
+        agent.log.add_sink(lambda e: merges.append(e) if e["event"] == "merged" else None)
+    world.run(iterations)
+    return world, merges
+
+
+def matrix(fleet: Fleet) -> dict[str, dict[str, str | None]]:
+    """Who knows what on the monitor, and from whom (None: known from the start)."""
+    return {
+        name: {
+            item: known.get("teacher") if known["how"] == "learned" else None
+            for item, known in peer.knows.items()
+        }
+        for name, peer in fleet.peers.items()
+    }
+
+
+def test_a_simulator_run_streams_to_the_monitor_what_its_robots_know(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")  # headless: SDL draws into nothing
+    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
+    port = free_port()
+    fleet = Fleet()
+    with ktbt_process(
+        "sim", "view", "ktbt", "--iterations", str(ITERATIONS),
+        "--publish-events", endpoint(port),
+        ready="for a monitor: ktbt monitor", timeout=120,
+    ) as proc:  # fmt: skip
+        listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
+        try:
+            assert proc.wait(timeout=120) == 0
+            assert proc.stdout is not None
+            said = proc.stdout.read()
+            assert "no monitor yet" not in said  # the monitor saw the run from its start
+            sent = re.search(r"streamed ([\d,]+) events of 40 robots, 0 dropped", said)
+            assert sent is not None, said
+            # Every event the robots sent reaches the monitor, the last ones too.
+            assert wait_until(lambda: fleet.events == int(sent.group(1).replace(",", "")))
+        finally:
+            listener.close()
+    world, merges = replay(ITERATIONS)
+    assert len(merges) >= 5
+    truth = {
+        agent.name: {digest(k.key): k.source for k in agent.knowledge} for agent in world.agents
+    }
+    assert not fleet.drops and all(p.lost_events == 0 for p in fleet.peers.values())
+    assert matrix(fleet) == truth
+    transfers = Counter((t["learner"], t["teacher"], t["item"]) for t in fleet.transfers)
+    assert transfers == Counter((m["peer"], m["teacher"], digest(m["sequence"])) for m in merges)
+    for agent in world.agents:
+        assert agent.log is not None
+        assert (
+            sum(1 for t in fleet.transfers if t["learner"] == agent.name)
+            == (agent.log.counts["merged"])
+        )
+    assert {p.status for p in fleet.peers.values()} == {"heard"}  # no liveliness token
+
+
+def test_a_stream_waits_for_a_monitor_and_serves_the_agents_trees() -> None:
+    """In process: no monitor, no watching; a listener reads the catalogs and gets the trees,
+    and the matrix follows the run as it goes."""
+    from ktbt_proto.render import render
+
+    world, _ = replay(0)
+    port = free_port()
+    with AgentStream(world.agents, ZenohSettings(listen=[endpoint(port)])) as stream:
+        assert not stream.wait_watched(0.2)  # nobody subscribes
+        fleet = Fleet()
+        listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
+        try:
+            assert stream.wait_watched(30)
+            tree = world.agents[0].control.tree
+            assert listener.tree("r0") == render(tree)
+            world.run(ITERATIONS)
+            truth = {a.name: {digest(k.key): k.source for k in a.knowledge} for a in world.agents}
+            assert wait_until(lambda: matrix(fleet) == truth, 10)
+            assert listener.tree("r0") == render(world.agents[0].control.tree)
+        finally:
+            listener.close()

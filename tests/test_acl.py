@@ -219,9 +219,12 @@ def test_only_the_monitor_asks_for_trees_and_each_robot_serves_its_own(
         q.drop()
 
     def replies(session: Any, key: str, **options: Any) -> list[tuple[str, bytes]]:
+        # Every reply: zenoh's default consolidation keeps one a key, so a forged reply on
+        # t's key could hide behind t's own (or t's behind it).
+        none = zenoh.ConsolidationMode.NONE
         return [
             (str(r.ok.key_expr), r.ok.payload.to_bytes())
-            for r in session.get(key, timeout=1.0, **options)
+            for r in session.get(key, timeout=1.0, consolidation=none, **options)
             if r.ok is not None
         ]
 

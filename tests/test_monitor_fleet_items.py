@@ -15,6 +15,8 @@ from hypothesis import strategies as st
 from ktbt_proto.events import FleetEvent, digest
 from ktbt_proto.monitor import fleet as fleet_module
 from ktbt_proto.monitor.fleet import Fleet
+from ktbt_proto.signing import Identity
+from ktbt_proto.trust import TrustStore
 
 T = "2026-12-01T00:00:00.000+00:00"
 COLOURS = [f"<c>(TargetSeen,colour={c})" for c in range(1, 5)]
@@ -75,14 +77,22 @@ def shown(fleet: Fleet) -> tuple[dict[str, str], dict[str, dict[str, str]]]:
 
 
 def check(fleet: Fleet) -> None:
-    """The table's bounds, and nobody knows an item the table does not name; the count of
-    each item's knowers is right."""
+    """The table's bounds, and nobody knows an item the table does not name; what the fleet
+    keeps up to date as peers learn and forget (each item's knowers and their ranks, each
+    peer's load, the items nobody knows) is what it would count afresh."""
     assert len(fleet.items) <= fleet_module.MAX_ITEMS
-    counted: Counter[str] = Counter()
+    knowers: dict[str, set[str]] = {}
+    tiers: dict[str, list[int]] = {}
     for peer in fleet.peers.values():
         assert set(peer.knows) <= set(fleet.items), peer.name
-        counted.update(list(peer.knows))
-    assert counted == fleet._knowers
+        for item in peer.knows:
+            knowers.setdefault(item, set()).add(peer.name)
+            tiers.setdefault(item, [0] * fleet_module.TIERS)[fleet._tier(peer)] += 1
+    assert knowers == fleet._knowers and tiers == fleet._tiers
+    for peer in fleet.peers.values():
+        load = sum(1 / len(knowers[item]) for item in peer.knows)
+        assert peer.load == pytest.approx(load, abs=1e-6), peer.name
+    assert set(fleet._unknown) == set(fleet.items) - set(knowers)
 
 
 class Events:
@@ -229,3 +239,55 @@ def test_hostile_peers_never_crowd_out_the_honest_fleet(
     event(f"table full: {len(fleet.items) == 24}, evicted: {fleet.drops['evicted'] > 0}")
     page.catch_up()
     assert page.state() == shown(fleet)
+
+
+def test_names_that_only_sent_an_event_never_evict_a_present_peers_items() -> None:
+    """Names are free without the access control: 511 of them merging one junk item each
+    give way to one another, not to a peer whose liveliness token is up."""
+    fleet = Fleet()
+    events = Events(fleet)
+    fleet.peer_joined("teacher")
+    skills = [f"<c>(Skill{k},x={k})" for k in range(20)]
+    fleet.catalog("teacher", skills)
+    for k in range(511):
+        events.send(f"s{k}", "merged", f"<c>(J{k},x={k})", teacher="x")
+    assert set(fleet.peers["teacher"].knows) == {digest(s) for s in skills}
+    assert len(fleet.items) == fleet_module.MAX_ITEMS and fleet.drops["evicted"] == 0
+    check(fleet)
+
+
+def test_a_trusted_name_outranks_a_present_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A name the trust store binds to a key takes the place of items known only by peers
+    merely present, however light its load; theirs never take its place; when it leaves,
+    its rank stays."""
+    monkeypatch.setattr(fleet_module, "MAX_ITEMS", 4)
+    key = Identity.generate().public
+    fleet = Fleet(TrustStore(frozenset({key}), {"trusted": key}))
+    fleet.peer_joined("loud")
+    fleet.catalog("loud", junk(2, "L"))
+    fleet.peer_joined("quiet")
+    fleet.catalog("quiet", junk(2, "Q"))
+    fleet.catalog("trusted", junk(3, "T"))  # rank 2: takes items of rank 1, heaviest first
+    assert fleet.drops == {"evicted": 3}
+    assert len(fleet.peers["trusted"].knows) == 3
+    fleet.peer_left("trusted")
+    fleet.catalog("loud", junk(4, "L"))  # rank 1: none of the trusted one's, none of quiet's
+    assert len(fleet.peers["trusted"].knows) == 3 and len(fleet.peers["quiet"].knows) == 1
+    assert fleet.drops == {"evicted": 3, "full": 4}
+    check(fleet)
+
+
+def test_a_catalog_is_checked_before_the_lock_is_taken(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Parsing and digesting a catalog's entries is the costly part: done with the lock free,
+    so the page's reads and other callbacks never wait on it."""
+    fleet = Fleet()
+    held: list[bool] = []
+    parse = fleet_module.parse_sequence
+
+    def parse_watched(text: str) -> Any:
+        held.append(fleet._lock.locked())
+        return parse(text)
+
+    monkeypatch.setattr(fleet_module, "parse_sequence", parse_watched)
+    fleet.catalog("t", COLOURS)
+    assert held == [False] * len(COLOURS) and len(fleet.peers["t"].knows) == len(COLOURS)

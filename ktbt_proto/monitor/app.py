@@ -87,7 +87,9 @@ def create_app(
     """The app over ``fleet``. ``hosts``: the Host headers accepted (the loopback names when
     bound to loopback, so another site's page cannot reach it by DNS rebinding); ``None``:
     any. ``tree``: a peer's control tree as text (``Listener.tree``), served on
-    ``/api/tree/<peer>`` and fetched in a worker thread, never blocking the event loop."""
+    ``/api/tree/<peer>`` and fetched in a worker thread, never blocking the event loop. The
+    fleet is read in worker threads too: its lock is taken by zenoh's callbacks, and a page
+    must never freeze the others while one holds it."""
 
     async def peer_tree(request: Request) -> Response:
         name = request.path_params["peer"]
@@ -95,8 +97,9 @@ def create_app(
         return JSONResponse({"peer": name, "tree": text})
 
     async def whole_state(request: Request) -> Response:
-        version, snapshot = fleet.snapshot()
-        return JSONResponse({"v": version, "stats": fleet.stats(), **snapshot})
+        version, snapshot = await asyncio.to_thread(fleet.snapshot)
+        stats = await asyncio.to_thread(fleet.stats)
+        return JSONResponse({"v": version, "stats": stats, **snapshot})
 
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html", media_type="text/html; charset=utf-8")
@@ -108,15 +111,16 @@ def create_app(
             while True:
                 body: dict[str, object]
                 if version is not None:
-                    reached, changes = fleet.changes_since(version)
+                    reached, changes = await asyncio.to_thread(fleet.changes_since, version)
                 if version is None or changes is None:
-                    version, state = fleet.snapshot()
+                    version, state = await asyncio.to_thread(fleet.snapshot)
                     body = {"snapshot": state}
                 elif changes:
                     version, body = reached, {"changes": changes}
                 else:
                     body = {}
-                body.update(ts=int(time.time() * 1000), v=version, stats=fleet.stats())
+                stats = await asyncio.to_thread(fleet.stats)
+                body.update(ts=int(time.time() * 1000), v=version, stats=stats)
                 yield f"data: {json.dumps(body, separators=(',', ':'))}\n\n"
                 await asyncio.sleep(BATCH)
 

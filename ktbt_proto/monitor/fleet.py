@@ -4,8 +4,11 @@ section 10), liveliness and catalogs, and handed to the page as batches of chang
 Everything is bounded: peers, items, each peer's recent events, the transfers, refusals and
 changes kept. What does not fit is dropped and counted, so a flooding or hostile fleet costs
 the monitor a counter, not its memory. The items table is shared fairly: when it is full, the
-peers that hold the most of it give way first (:meth:`Fleet._make_room`), so one peer, or a
-few, listing junk cannot crowd out what the rest of the fleet knows. A page that falls behind
+items of peers the monitor has least reason to believe go first (a name not in the trust store
+and with no liveliness token), and among equals the peers that hold the most of it give way
+(:meth:`Fleet._make_room`), so one peer, or a few, listing junk cannot crowd out what the rest
+of the fleet knows. What each peer holds is kept up to date as peers learn and forget, so
+making room costs a look at the peers, not a sum over the table. A page that falls behind
 the kept changes gets a fresh snapshot instead. Data flows one way: zenoh callbacks call
 :meth:`Fleet.peer_joined`, :meth:`Fleet.event` and friends; the web side reads
 :meth:`Fleet.changes_since` and :meth:`Fleet.snapshot`.
@@ -17,7 +20,7 @@ import itertools
 import re
 import threading
 import time
-from collections import Counter, defaultdict, deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
@@ -44,8 +47,8 @@ LOST_AFTER = 5.0
 """A query sent and not answered within this many seconds is counted lost."""
 EPSILON = 1e-9
 """Loads closer than this are equal (they are sums of fractions)."""
-LOOK_EVERY = 1.0
-"""Seconds a peer refused room in the full items table is refused again without a look."""
+TIERS = 3
+"""How much the monitor believes a peer's name, low to high (:meth:`Fleet._tier`)."""
 
 
 _NAME = re.compile(_ID)
@@ -72,6 +75,10 @@ class Peer:
     open_queries: dict[str, float] = field(default_factory=dict)
     heard: float = 0.0
     """When anything last came from or about it (monotonic): the oldest idle peer goes first."""
+    load: float = 0.0
+    """Its share of the items table: the sum, over the items it knows, of one over the number
+    of peers that know each (:meth:`Fleet._make_room`), kept up to date as peers learn and
+    forget."""
 
     def view(self) -> dict[str, Any]:
         return {
@@ -110,14 +117,19 @@ class Fleet:
         self._version = 0
         self._dirty: set[str] = set()
         """Peers whose counters changed: one view each per batch, not one per event."""
-        self._knowers: Counter[str] = Counter()
-        """How many peers know each item (the items no peer knows are not in it)."""
+        self._knowers: dict[str, set[str]] = {}
+        """The peers that know each item (the items no peer knows are not in it)."""
+        self._tiers: dict[str, list[int]] = {}
+        """How many of each item's knowers are of each tier (:meth:`_tier`)."""
+        self._unknown: dict[str, None] = {}
+        """The items of the table no peer knows, in the order they came to be so: the first
+        makes room."""
         self._known_version = 0
-        """Counts the changes to what the peers know."""
-        self._no_room: dict[str, tuple[int, float]] = {}
-        """Peers refused room in a full table, with the known version and the time then: one
-        is refused again without a look while nothing the peers know changed, and for
-        :data:`LOOK_EVERY` seconds in any case, so a flood of new items costs a look a second."""
+        """Counts the changes to what the peers know, and to their tiers."""
+        self._no_room: dict[str, int] = {}
+        """Peers refused room in a full table, with the known version then: one is refused
+        again without a look while nothing the peers know changed (the look would find what it
+        found). A peer's entry goes with the peer, so it holds at most :data:`MAX_PEERS`."""
 
     # -- input -------------------------------------------------------------------------------
 
@@ -145,15 +157,26 @@ class Fleet:
             if peer is not None and peer.status != "present":
                 if peer.status == "gone":
                     peer.last_n = -1  # it restarted: its numbering starts over
-                peer.status, peer.since = "present", time.time()
+                self._status(peer, "present")
                 self._change(peer.view())
 
     def peer_left(self, name: str) -> None:
         with self._lock:
             peer = self.peers.get(name)
             if peer is not None and peer.status != "gone":
-                peer.status, peer.since = "gone", time.time()
+                self._status(peer, "gone")
                 self._change(peer.view())
+
+    def _status(self, peer: Peer, status: str) -> None:
+        before = self._tier(peer)
+        peer.status, peer.since = status, time.time()
+        after = self._tier(peer)
+        if after != before:
+            for item in peer.knows:
+                tiers = self._tiers[item]
+                tiers[before] -= 1
+                tiers[after] += 1
+            self._known_version += 1
 
     def catalog(self, name: str, sequences: list[str]) -> None:
         """What a peer's catalog says it knows (served or learned before we listened): each
@@ -161,20 +184,23 @@ class Fleet:
         did not learn in the last :data:`LOST_AFTER` seconds, it has forgotten (its forget
         event may have been lost)."""
         now = time.time()
+        entries: list[tuple[str, str]] = []  # checked before the lock: nobody waits on it
+        errors: list[str] = []
+        for sequence in sequences[:MAX_ITEMS]:
+            try:
+                parse_sequence(sequence)
+                entries.append((digest(sequence), sequence))
+            except (StringBTError, UnicodeError, RecursionError) as exc:
+                errors.append(str(exc).splitlines()[0])
         with self._lock:
             peer = self._named(name, "catalog")
             if peer is None:
                 return
+            for error in errors:
+                self._drop("malformed", f"catalog of {peer.name}: {error}")
             listed: set[str] = set()
-            whole = len(sequences) <= MAX_ITEMS
-            for sequence in sequences[:MAX_ITEMS]:
-                try:
-                    parse_sequence(sequence)
-                    item = digest(sequence)
-                except (StringBTError, UnicodeError, RecursionError) as exc:
-                    self._drop("malformed", f"catalog of {peer.name}: {str(exc).splitlines()[0]}")
-                    whole = False
-                    continue
+            whole = len(sequences) <= MAX_ITEMS and not errors
+            for item, sequence in entries:
                 listed.add(item)
                 if item not in peer.knows and self._item(item, sequence, peer, learns=True):
                     self._know(peer, item, {"how": "known", "t": None, "at": now})
@@ -293,7 +319,7 @@ class Fleet:
 
     def _spread(self, item: str, t: str) -> None:
         """One point of the timeline: how many peers know ``item`` now."""
-        count = sum(1 for p in self.peers.values() if item in p.knows)
+        count = len(self._knowers.get(item, ()))
         point = {"k": "spread", "item": item, "t": t, "count": count}
         self.timeline.append(point)
         self._change(point)
@@ -328,12 +354,11 @@ class Fleet:
                     self.drops["full"] += 1
                     return None
                 oldest = min(idle, key=lambda p: p.heard)
-                for item in oldest.knows:  # the page forgets them with the peer
-                    self._knowers[item] -= 1
-                    if not self._knowers[item]:
-                        del self._knowers[item]
+                for item in list(oldest.knows):  # the page forgets them with the peer
+                    self._unknow(oldest, item, tell=False)
                 self._known_version += 1
                 del self.peers[oldest.name]
+                self._no_room.pop(oldest.name, None)
                 self._dirty.discard(oldest.name)
                 self._change({"k": "unpeer", "peer": oldest.name})
             peer = self.peers[name] = Peer(name)
@@ -354,83 +379,154 @@ class Fleet:
                 return True
         elif len(self.items) >= MAX_ITEMS and not self._make_room(peer, learns):
             return False
+        if known is None and item not in self._knowers:
+            self._unknown[item] = None
         self.items[item] = sequence
         self._change({"k": "item", "item": item, "sequence": sequence})
         return True
 
     def _make_room(self, peer: Peer, learns: bool) -> bool:
         """Room in the full items table for an item ``peer`` named; False, counted "full", if
-        there is none for it.
+        there is none for it (section 10).
 
-        The oldest item no peer knows goes first. An item a peer is only naming (a query's)
-        never takes a known item's place. For one it is to know, the table is shared as a
-        fair share: each item is charged to the peers that know it, in equal parts, and a
-        peer's load is what it is charged for. The item whose knowers' mean load is the
-        highest goes, the oldest of equals, if that is above what ``peer``'s load would be with
-        the new item alone; else the new item is refused. So a peer listing junk is charged
-        for all of it and gives way first, to its own junk only when it is the heaviest (no
-        churn); no peer, however much it lists, holds more than one item beyond the load of
-        the most loaded other peer, and an item known by many is charged to each a little."""
-        unknown = next((i for i in self.items if i not in self._knowers), None)
+        The item no peer has known for longest goes first. An item a peer is only naming (a
+        query's) never takes a known item's place. For one it is to know, peers are ranked by
+        how much the monitor believes their names (:meth:`_tier`): an item known only by peers
+        ranked below ``peer`` goes before any other, the one the heaviest of them holds most
+        (below); an item known by a peer ranked above ``peer`` never goes for it. Among peers
+        of ``peer``'s rank the table is a fair share: each item is charged to the peers that
+        know it, in equal parts, and a peer's load is what it is charged for. The heaviest
+        peer of that rank gives way, with the item whose knowers' mean load is the highest
+        (the oldest of equals; one only it knows is charged it all), if that is above what
+        ``peer``'s load would be with the new item alone; else the new item is refused. So a
+        peer listing junk is charged for all of it and gives way first, to its own junk only
+        when it is the heaviest (no churn), and an item known by many is charged to each a
+        little. Loads are kept up to date as peers learn and forget (:meth:`_know`), so this
+        costs a look at the peers and at one peer's items; a refusal is remembered until what
+        the peers know changes, so a flood of new items from one peer costs one look until
+        then."""
+        unknown = next(iter(self._unknown), None)
         if unknown is not None:
-            del self.items[unknown]
-            self._change({"k": "unitem", "item": unknown})
+            self._remove(unknown)
             return True
-        now = time.monotonic()
-        version, at = self._no_room.get(peer.name, (-1, -LOOK_EVERY))
-        if not learns or version == self._known_version or now - at < LOOK_EVERY:
-            self._drop("full", self._full(peer, learns))
+        if not learns:
+            self._drop("full", f"an item {peer.name} named: all {MAX_ITEMS} items are known")
             return False
-        peers = list(self.peers.values())
-        load = {p.name: sum(1 / self._knowers[i] for i in p.knows) for p in peers}
-        charged: defaultdict[str, float] = defaultdict(float)
-        for p in peers:
-            for i in p.knows:
-                charged[i] += load[p.name]
-        victim, worst = None, load[peer.name] + 1 + EPSILON
-        for item in self.items:  # oldest first
-            crowding = charged[item] / self._knowers[item]
-            if crowding > worst:
-                victim, worst = item, crowding + EPSILON
+        if self._no_room.get(peer.name) == self._known_version:
+            self._drop("full", self._full(peer, "as at its last refusal"))
+            return False
+        victim = self._victim(peer)
         if victim is None:
-            if len(self._no_room) >= MAX_PEERS:
-                self._no_room.clear()
-            self._no_room[peer.name] = (self._known_version, now)
-            self._drop("full", self._full(peer, learns))
+            self._no_room[peer.name] = self._known_version
+            self._drop("full", self._full(peer, "it was looked at"))
             return False
         knowers, sequence = self._knowers[victim], self.items[victim]
-        for p in peers:
-            if victim in p.knows:
-                self._unknow(p, victim)
-        del self.items[victim]
-        self._change({"k": "unitem", "item": victim})
+        count = len(knowers)
+        for name in list(knowers):
+            self._unknow(self.peers[name], victim)
+        self._spread(victim, _iso(time.time()))  # nobody knows it now
+        self._remove(victim)
         self._drop(
             "evicted",
-            f"{_clip(sequence, 60)}, known by {knowers}, for one {_clip(peer.name, 64)} knows",
+            f"{_clip(sequence, 60)}, known by {count}, for one {_clip(peer.name, 64)} knows",
         )
         return True
 
-    def _full(self, peer: Peer, learns: bool) -> str:
-        if not learns:
-            return f"an item {peer.name} named: all {MAX_ITEMS} items are known"
-        return f"an item {peer.name} knows: no peer holds more of the {MAX_ITEMS} items than it"
+    def _victim(self, peer: Peer) -> str | None:
+        """The item to go for one ``peer`` is to know (:meth:`_make_room`), or None."""
+        rank = self._tier(peer)
+        bar = peer.load + 1 + EPSILON
+        for tier in range(rank + 1):
+            ranked = [p for p in self.peers.values() if p.knows and self._tier(p) == tier]
+            ranked.sort(key=lambda p: p.load, reverse=True)
+            for heaviest in ranked:
+                if tier == rank and heaviest.load <= bar:
+                    return None  # no item of its peers is charged more than it
+                item, crowding = self._heaviest_item(heaviest, tier)
+                if item is not None:
+                    return item if tier < rank or crowding > bar else None
+        return None
+
+    def _heaviest_item(self, peer: Peer, tier: int) -> tuple[str | None, float]:
+        """Of the items ``peer`` knows and only peers of ``tier`` or below know, the one whose
+        knowers' mean load is the highest, the oldest of equals, and that load. One only it
+        knows is charged its whole load, the most any can be when it is the heaviest, so the
+        first such ends the search."""
+        best, most = None, -1.0
+        for item in peer.knows:
+            if max(t for t, n in enumerate(self._tiers[item]) if n) != tier:
+                continue
+            knowers = self._knowers[item]
+            if len(knowers) == 1:
+                crowding = peer.load
+            else:
+                crowding = sum(self.peers[n].load for n in knowers) / len(knowers)
+            if crowding > most + EPSILON:
+                best, most = item, crowding
+            if most >= peer.load - EPSILON:
+                break
+        return best, most
+
+    def _tier(self, peer: Peer) -> int:
+        """How much the monitor believes ``peer``'s name: 2 if the trust store binds it to a key
+        (its events must be signed by that key), 1 if its liveliness token is up, else 0.
+        Without the router's access control (section 9) names and tokens are free, so only the
+        trust store's rank, and the fair share among equals, hold against a hostile peer."""
+        if self.trust is not None and peer.name in self.trust.names:
+            return 2
+        return 1 if peer.status == "present" else 0
+
+    def _full(self, peer: Peer, when: str) -> str:
+        return (
+            f"an item {peer.name} knows: all {MAX_ITEMS} items are known, none only by peers "
+            f"ranked below it, and no peer of its rank was charged more than its load plus one "
+            f"({when})"
+        )
+
+    def _remove(self, item: str) -> None:
+        """``item`` leaves the table (nobody knows it)."""
+        self._unknown.pop(item, None)
+        del self.items[item]
+        self._change({"k": "unitem", "item": item})
 
     def _know(self, peer: Peer, item: str, known: dict[str, Any]) -> None:
         if item not in peer.knows:
-            self._knowers[item] += 1
+            knowers = self._knowers.setdefault(item, set())
+            self._share(knowers, len(knowers), len(knowers) + 1)
+            knowers.add(peer.name)
+            peer.load += 1 / len(knowers)
+            self._tiers.setdefault(item, [0] * TIERS)[self._tier(peer)] += 1
+            self._unknown.pop(item, None)
             self._known_version += 1
         peer.knows[item] = known
 
-    def _unknow(self, peer: Peer, item: str) -> bool:
-        """``peer`` no longer knows ``item`` (a change for the page); False if it did not."""
+    def _unknow(self, peer: Peer, item: str, tell: bool = True) -> bool:
+        """``peer`` no longer knows ``item`` (a change for the page, if ``tell``); False if it
+        did not."""
         if peer.knows.pop(item, None) is None:
             return False
-        self._knowers[item] -= 1
-        if not self._knowers[item]:
-            del self._knowers[item]
+        knowers = self._knowers[item]
+        peer.load = peer.load - 1 / len(knowers) if peer.knows else 0.0
+        knowers.discard(peer.name)
+        self._tiers[item][self._tier(peer)] -= 1
+        if knowers:
+            self._share(knowers, len(knowers) + 1, len(knowers))
+        else:
+            del self._knowers[item], self._tiers[item]
+            if item in self.items:
+                self._unknown[item] = None
         self._known_version += 1
-        self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
+        if tell:
+            self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
         return True
+
+    def _share(self, knowers: set[str], before: int, after: int) -> None:
+        """The ``knowers`` of an item, ``before`` of them, are to be ``after``: each one's part
+        of it changes."""
+        if knowers:
+            delta = 1 / after - 1 / before
+            for name in knowers:
+                self.peers[name].load += delta
 
     def _change(self, change: dict[str, Any]) -> None:
         self._version += 1

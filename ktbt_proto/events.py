@@ -347,11 +347,12 @@ class AgentStream:
     def wait_watched(self, timeout: float) -> bool:
         """Wait until a monitor watches: every agent's events have a subscriber and its catalog
         was read since, so the monitor knows what the agents start with and hears what follows.
-        False if that did not happen within ``timeout`` seconds (``inf``: wait for ever)."""
+        False if that did not happen within ``timeout`` seconds (``inf``, or any longer than a
+        thread can wait, ``threading.TIMEOUT_MAX``: wait for ever)."""
         with self._watched:
             return self._watched.wait_for(
                 lambda: len(self._read) == len(self._catalogs),
-                timeout=timeout if timeout < float("inf") else None,
+                timeout=timeout if timeout < threading.TIMEOUT_MAX else None,
             )
 
     def close(self) -> None:

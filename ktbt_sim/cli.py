@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
@@ -277,7 +278,8 @@ def view_command(
         float,
         typer.Option(
             help="With --publish-events: seconds to wait for a monitor before the first step, "
-            "so it sees the run from its start (0: start at once; inf: wait for ever)."
+            "watching or recording headless alike, so it sees the run from its start "
+            "(0: start at once; inf: wait for ever)."
         ),
     ] = 30.0,
 ) -> None:
@@ -290,8 +292,10 @@ def view_command(
     ):
         if value < least:
             raise _fail(f"{option} {value}: use a whole number of at least {least}")
-    if not wait_monitor >= 0:
+    if not wait_monitor >= 0:  # negative or nan
         raise _fail(f"--wait-monitor {wait_monitor}: use a number of seconds of at least 0")
+    if wait_monitor >= threading.TIMEOUT_MAX:  # longer than a thread can wait: for ever
+        wait_monitor = float("inf")
     if record is not None and record.suffix and record.suffix.lower() != ".gif":
         raise _fail(
             f"--record {record}: write an animated .gif, or a folder of PNG frames "
@@ -319,7 +323,8 @@ def view_command(
             if wait_monitor:
                 within = f" up to {wait_monitor:g} s" if wait_monitor < float("inf") else ""
                 typer.echo(
-                    f"waiting{within} for a monitor: ktbt monitor --connect {publish_events}"
+                    f"waiting{within} for a monitor: "
+                    f"ktbt monitor --connect {_connectable(publish_events)}"
                 )
                 if not stream.wait_watched(wait_monitor):
                     typer.echo("no monitor yet: running; a monitor started now misses the start")
@@ -338,6 +343,16 @@ def view_command(
             typer.echo(
                 f"streamed {sent:,} events of {len(stream.publishers)} robots, {dropped:,} dropped"
             )
+
+
+def _connectable(endpoint: str) -> str:
+    """An endpoint a monitor on this machine connects to: one listening on any address
+    (``tcp/0.0.0.0:7450``, ``tcp/[::]:7450``) is reached on loopback."""
+    for any_address, loopback in (("0.0.0.0", "127.0.0.1"), ("[::]", "[::1]")):
+        protocol, _, rest = endpoint.partition("/")
+        if rest.startswith(any_address + ":"):
+            return f"{protocol}/{loopback}{rest[len(any_address) :]}"
+    return endpoint
 
 
 def demo_command(

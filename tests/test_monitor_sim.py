@@ -7,6 +7,9 @@ run is set by its scenario and seed)."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
+import threading
 from collections import Counter
 from typing import Any
 
@@ -57,10 +60,10 @@ def test_a_simulator_run_streams_to_the_monitor_what_its_robots_know(
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
     port = free_port()
     fleet = Fleet()
-    with ktbt_process(
+    with ktbt_process(  # on any address, and for longer than a thread can wait: for ever
         "sim", "view", "ktbt", "--iterations", str(ITERATIONS),
-        "--publish-events", endpoint(port),
-        ready="for a monitor: ktbt monitor", timeout=120,
+        "--publish-events", f"tcp/0.0.0.0:{port}", "--wait-monitor", "1e10",
+        ready=f"waiting for a monitor: ktbt monitor --connect {endpoint(port)}", timeout=120,
     ) as proc:  # fmt: skip
         listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
         try:
@@ -92,6 +95,17 @@ def test_a_simulator_run_streams_to_the_monitor_what_its_robots_know(
     assert {p.status for p in fleet.peers.values()} == {"heard"}  # no liveliness token
 
 
+@pytest.mark.parametrize("wait", ["-1", "nan"])
+def test_a_wait_for_a_monitor_is_a_number_of_seconds(wait: str) -> None:
+    run = subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", "sim", "view", "ktbt", "--record", "out.gif",
+         "--publish-events", "tcp/127.0.0.1:1", "--wait-monitor", wait],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert run.returncode == 2
+    assert f"--wait-monitor {float(wait)}: use a number of seconds of at least 0" in run.stderr
+
+
 def test_a_stream_waits_for_a_monitor_and_serves_the_agents_trees() -> None:
     """In process: no monitor, no watching; a listener reads the catalogs and gets the trees,
     and the matrix follows the run as it goes."""
@@ -101,10 +115,15 @@ def test_a_stream_waits_for_a_monitor_and_serves_the_agents_trees() -> None:
     port = free_port()
     with AgentStream(world.agents, ZenohSettings(listen=[endpoint(port)])) as stream:
         assert not stream.wait_watched(0.2)  # nobody subscribes
+        watched: list[bool] = []  # longer than a thread can wait: for ever
+        waiter = threading.Thread(target=lambda: watched.append(stream.wait_watched(1e10)))
+        waiter.daemon = True
+        waiter.start()
         fleet = Fleet()
         listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
         try:
-            assert stream.wait_watched(30)
+            waiter.join(30)
+            assert watched == [True]
             tree = world.agents[0].control.tree
             assert listener.tree("r0") == render(tree)
             world.run(ITERATIONS)

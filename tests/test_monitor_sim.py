@@ -6,6 +6,7 @@ run is set by its scenario and seed)."""
 
 from __future__ import annotations
 
+import contextlib
 import re
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from ktbt_proto.events import AgentStream, digest
 from ktbt_proto.monitor.fleet import Fleet
 from ktbt_proto.monitor.listen import Listener
 from ktbt_proto.transferlog import TransferLog
-from ktbt_proto.transport.zenoh import ZenohSettings
+from ktbt_proto.transport.zenoh import ZenohSettings, catalog_replies, open_session
 
 from .zenoh_helpers import endpoint, free_port, ktbt_process, wait_until
 
@@ -50,6 +51,14 @@ def matrix(fleet: Fleet) -> dict[str, dict[str, str | None]]:
             for item, known in peer.knows.items()
         }
         for name, peer in fleet.peers.items()
+    }
+
+
+def catalogs(session: Any) -> dict[str, set[str]]:
+    """What each agent's catalog queryable (``ktbt/v1/catalog/<name>``) answers now."""
+    return {
+        name: {entry["sequence"] for entry in entries}
+        for name, entries in catalog_replies(session, timeout=5)
     }
 
 
@@ -113,22 +122,30 @@ def test_a_stream_waits_for_a_monitor_and_serves_the_agents_trees() -> None:
 
     world, _ = replay(0)
     port = free_port()
-    with AgentStream(world.agents, ZenohSettings(listen=[endpoint(port)])) as stream:
+    with contextlib.ExitStack() as stack:
+        stream = stack.enter_context(
+            AgentStream(world.agents, ZenohSettings(listen=[endpoint(port)]))
+        )
         assert not stream.wait_watched(0.2)  # nobody subscribes
+        known_before = {a.name: {k.key for k in a.knowledge} for a in world.agents}
+        reader = open_session(ZenohSettings(connect=[endpoint(port)]))
+        stack.callback(reader.close)
         watched: list[bool] = []  # longer than a thread can wait: for ever
         waiter = threading.Thread(target=lambda: watched.append(stream.wait_watched(1e10)))
         waiter.daemon = True
         waiter.start()
         fleet = Fleet()
         listener = Listener(fleet, ZenohSettings(connect=[endpoint(port)]))
-        try:
-            waiter.join(30)
-            assert watched == [True]
-            tree = world.agents[0].control.tree
-            assert listener.tree("r0") == render(tree)
-            world.run(ITERATIONS)
-            truth = {a.name: {digest(k.key): k.source for k in a.knowledge} for a in world.agents}
-            assert wait_until(lambda: matrix(fleet) == truth, 10)
-            assert listener.tree("r0") == render(world.agents[0].control.tree)
-        finally:
-            listener.close()
+        stack.callback(listener.close)
+        waiter.join(30)
+        assert watched == [True]
+        tree = world.agents[0].control.tree
+        assert listener.tree("r0") == render(tree)
+        world.run(ITERATIONS)
+        truth = {a.name: {digest(k.key): k.source for k in a.knowledge} for a in world.agents}
+        assert wait_until(lambda: matrix(fleet) == truth, 10)
+        assert listener.tree("r0") == render(world.agents[0].control.tree)
+        # Each agent's catalog says what it knows now, its merges too.
+        known = {a.name: {k.key for k in a.knowledge} for a in world.agents}
+        assert any(len(v) > len(known_before[n]) for n, v in known.items())
+        assert wait_until(lambda: catalogs(reader) == known, 10)

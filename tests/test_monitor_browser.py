@@ -221,6 +221,12 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
         def event(n: int, **fields: Any) -> bytes:
             return encode_event(FleetEvent(peer="h", n=n, t=now, **fields))
 
+        def event_of(peer: str, n: int, sequence: str) -> bytes:
+            one = FleetEvent(
+                peer=peer, n=n, t=now, event="merged", item=digest(sequence), sequence=sequence
+            )
+            return encode_event(one)
+
         # connected, and the token's name, not a peer name, refused
         assert wait_until(lambda: "malformed" in page.dropped(), 10)
         events.put(event(0, event="merged", item=digest(item), sequence=item, teacher="t"))
@@ -266,6 +272,25 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
     assert hostile_id not in page.texts("#matrix th.peer-name")
     assert any(hostile_id in r for r in page.dropped()["malformed"])  # as text
     assert any('note="<script>' in t for t in page.texts("#matrix th.item"))
+
+    # A full items table (512): an item evicted leaves the page's timeline too.
+    session = open_session(ZenohSettings(connect=[endpoint(port)]))
+    try:
+        filler = session.declare_publisher(
+            "ktbt/v1/events/e", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        fill = [f"<c>(E{k},x={k})" for k in range(520)]
+        for n, sequence in enumerate(fill):
+            filler.put(event_of("e", n, sequence))
+        assert wait_until(lambda: page.js("return window.ktbtMonitor.itemCount()") == 512, 15)
+        assert digest(fill[0]) in page.js("return window.ktbtMonitor.timelineItems()")
+        newcomer = session.declare_publisher("ktbt/v1/events/g")
+        newcomer.put(event_of("g", 0, "<c>(G0)"))  # e is the heaviest: its oldest goes
+        lines = "return window.ktbtMonitor.timelineItems()"
+        assert wait_until(lambda: digest(fill[0]) not in page.js(lines), 10)
+        assert len(page.js(lines)) <= page.js("return window.ktbtMonitor.itemCount()") == 512
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
 
 
 def test_the_page_is_served_with_its_policy_and_only_to_its_own_host(

@@ -167,6 +167,8 @@ def test_equals_never_churn_and_the_heaviest_gives_way(monkeypatch: pytest.Monke
     fleet.catalog("c", junk(1, "C"))  # a newcomer holding nothing takes a's oldest
     assert fleet.drops == {"full": 1, "evicted": 1}
     assert digest("<c>(A0,x=0)") not in fleet.items and digest("<c>(C0,x=0)") in fleet.items
+    spread = [p["count"] for p in fleet.timeline if p["item"] == digest("<c>(A0,x=0)")]
+    assert spread[-1] == 0  # the timeline says nobody knows it now
 
 
 OPS = st.one_of(

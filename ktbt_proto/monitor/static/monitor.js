@@ -34,6 +34,8 @@
     lags: [], // ms from an event's time at its peer to its drawing here (the last 200)
     maxLag: 0,
     errors: 0,
+    timelineItems: () => [...model.timeline.keys()], // bounded by the items kept
+    itemCount: () => model.items.size,
   };
   window.ktbtMonitor = probe;
 
@@ -102,6 +104,7 @@
   }
 
   function spread(point) {
+    if (!model.items.has(point.item)) return; // an item no longer kept: its line went with it
     let line = model.timeline.get(point.item);
     if (!line) model.timeline.set(point.item, (line = []));
     const ms = Date.parse(point.t);
@@ -127,6 +130,7 @@
         break;
       case "unitem":
         model.items.delete(change.item);
+        if (model.timeline.delete(change.item)) dirty.timeline = true;
         dirty.matrix = true;
         break;
       case "know": {

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from ktbt_proto.events import FleetEvent, digest
+from ktbt_proto.items import parse_sequence
 from ktbt_proto.monitor import fleet as fleet_module
 from ktbt_proto.monitor.fleet import Fleet
 from ktbt_proto.signing import Identity
@@ -284,11 +285,10 @@ def test_a_catalog_is_checked_before_the_lock_is_taken(monkeypatch: pytest.Monke
     so the page's reads and other callbacks never wait on it."""
     fleet = Fleet()
     held: list[bool] = []
-    parse = fleet_module.parse_sequence
 
     def parse_watched(text: str) -> Any:
         held.append(fleet._lock.locked())
-        return parse(text)
+        return parse_sequence(text)
 
     monkeypatch.setattr(fleet_module, "parse_sequence", parse_watched)
     fleet.catalog("t", COLOURS)

@@ -20,7 +20,7 @@ import hashlib
 import json
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import (
@@ -44,7 +44,6 @@ from .messages import (
     _wire_fields,
 )
 from .signing import Identity, verify
-from .transferlog import TransferLog
 
 PREFIX = "ktbt/v1/events"
 MAX_EVENT_BYTES = 8192
@@ -263,112 +262,6 @@ class EventPublisher:
                 self._put(encode_event(event))
             except Exception:  # a closing session: the event is lost with it
                 self.dropped += 1
-
-
-class AgentStream:
-    """The fleet events of agents in this process (a simulator's, on the in-memory network),
-    published on one zenoh session described by ``settings``, each on its agent's own key, as
-    a peer with ``--publish-events`` publishes its own. Each agent gets a transfer log if it
-    has none (no file: sinks only). Each agent's catalog (``ktbt/v1/catalog/<name>``, section
-    3) and control tree (``ktbt/v1/tree/<name>``, section 10) are served too, so a monitor
-    shows what the agents knew before they learned anything, and their trees. The agents
-    declare no knowledge queryable and no liveliness token, since nobody answers queries for
-    them on the network; a monitor shows them as heard. Close to stop.
-
-    The agents run in the caller's thread, the queryables in zenoh's: a catalog is taken in
-    the recording thread whenever an agent merges or forgets (the log's events say so) and
-    served from that copy; a control tree is never changed in place, only replaced, so it is
-    read as it is."""
-
-    def __init__(self, agents: Iterable[Any], settings: Any, rate: float = DEFAULT_RATE) -> None:
-        from .peer import catalog  # what a peer's catalog queryable answers
-        from .transport.zenoh import open_session  # the transport publishes events too
-
-        try:
-            self._session = open_session(settings)
-        except Exception as exc:  # zenoh's own error: a bad endpoint, a port in use
-            raise ValueError(f"cannot publish events: {exc}") from None
-        self._declared: list[Any] = []
-        self._zenoh_publishers: list[Any] = []
-        self.publishers: list[EventPublisher] = []
-        self._logs: list[tuple[TransferLog, Callable[[dict[str, Any]], None]]] = []
-        self._catalogs: dict[str, bytes] = {}
-        self._read: set[str] = set()
-        """Agents whose catalog was read while their events had a subscriber."""
-        self._watched = threading.Condition()
-        try:
-            for agent in agents:
-                self._stream(agent, catalog(agent.knowledge), rate)
-        except BaseException:
-            self.close()
-            raise
-
-    def _stream(self, agent: Any, entries: Callable[[], list[Any]], rate: float) -> None:
-        from .transport.zenoh import PREFIX as KTBT
-
-        name = agent.name
-        publisher, declared = EventPublisher.on_session(self._session, name, rate=rate)
-        self._declared.append(declared)
-        self._zenoh_publishers.append(declared)
-        self.publishers.append(publisher)
-        self._catalogs[name] = json.dumps(entries()).encode()
-
-        def changed(entry: dict[str, Any]) -> None:
-            if entry.get("event") in ("merged", "forgotten"):
-                self._catalogs[name] = json.dumps(entries()).encode()
-
-        def on_catalog(query: Any) -> None:
-            query.reply(f"{KTBT}/catalog/{name}", self._catalogs[name])
-            query.drop()
-            if all(p.matching_status.matching for p in self._zenoh_publishers):
-                with self._watched:
-                    self._read.add(name)
-                    self._watched.notify_all()
-
-        def on_tree(query: Any) -> None:
-            from .format import format as format_tree
-            from .messages import MAX_MESSAGE_BYTES
-
-            payload = format_tree(agent.control.tree, "compact").encode()
-            if len(payload) > MAX_MESSAGE_BYTES:
-                why = f"the control tree is {len(payload)} bytes, the limit is {MAX_MESSAGE_BYTES}"
-                query.reply_err(why.encode())
-            else:
-                query.reply(f"{KTBT}/tree/{name}", payload)
-            query.drop()
-
-        self._declared.append(self._session.declare_queryable(f"{KTBT}/catalog/{name}", on_catalog))
-        self._declared.append(self._session.declare_queryable(f"{KTBT}/tree/{name}", on_tree))
-        agent.log = agent.log or TransferLog(None)
-        for sink in (publisher, changed):
-            agent.log.add_sink(sink)
-            self._logs.append((agent.log, sink))
-
-    def wait_watched(self, timeout: float) -> bool:
-        """Wait until a monitor watches: every agent's events have a subscriber and its catalog
-        was read since, so the monitor knows what the agents start with and hears what follows.
-        False if that did not happen within ``timeout`` seconds (``inf``, or any longer than a
-        thread can wait, ``threading.TIMEOUT_MAX``: wait for ever)."""
-        with self._watched:
-            return self._watched.wait_for(
-                lambda: len(self._read) == len(self._catalogs),
-                timeout=timeout if timeout < threading.TIMEOUT_MAX else None,
-            )
-
-    def close(self) -> None:
-        for log, sink in self._logs:
-            log.remove_sink(sink)
-        self._logs = []
-        for declared in self._declared:
-            declared.undeclare()
-        self._declared = []
-        self._session.close()  # type: ignore[no-untyped-call]
-
-    def __enter__(self) -> AgentStream:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def json_schema() -> dict[str, object]:

@@ -310,7 +310,7 @@ def view_command(
         reason = viewer.no_display()
         if reason:
             raise _fail(f"{reason}; record the run instead: --record run.gif")
-    from ktbt_proto.events import AgentStream
+    from ktbt_proto.agent_stream import AgentStream
     from ktbt_proto.transport.zenoh import ZenohSettings
 
     from .world import World

@@ -75,7 +75,7 @@ def test_in_memory_agents_stream_the_same_events() -> None:
     its agent's own key, exactly as a peer process publishes its own."""
     import ktbt_proto as kp
     from ktbt_proto.agent import Agent
-    from ktbt_proto.events import AgentStream
+    from ktbt_proto.agent_stream import AgentStream
     from ktbt_proto.knowledge import KnowledgeBase
     from ktbt_proto.peer import DEMO_CONTROL, demo_registry
     from ktbt_proto.transport import MemoryNetwork

@@ -16,7 +16,8 @@ from typing import Any
 
 import pytest
 
-from ktbt_proto.events import AgentStream, digest
+from ktbt_proto.agent_stream import AgentStream
+from ktbt_proto.events import digest
 from ktbt_proto.monitor.fleet import Fleet
 from ktbt_proto.monitor.listen import Listener
 from ktbt_proto.transferlog import TransferLog

@@ -552,23 +552,10 @@ class ZenohTransport:
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
-        query.reply(f"{PREFIX}/catalog/{self.name}", json.dumps(known).encode())
-        query.drop()
+        reply_catalog(query, self.name, json.dumps(known).encode())
 
     def _on_tree(self, query: Any) -> None:
-        """The control tree, whole or not at all: one above the message limit is refused with
-        a reply error saying its size, never clipped into text that does not parse."""
-        text = self.tree() if self.tree is not None else None
-        if text is None:
-            query.reply_err(b"no control tree")
-        else:
-            payload = text.encode()
-            if len(payload) > self.max_bytes:
-                why = f"the control tree is {len(payload)} bytes, the limit is {self.max_bytes}"
-                query.reply_err(why.encode())
-            else:
-                query.reply(f"{PREFIX}/tree/{self.name}", payload)
-        query.drop()
+        reply_tree(query, self.name, self.tree() if self.tree is not None else None, self.max_bytes)
 
     def _on_inbox(self, sample: Any) -> None:
         """A late answer. Only a response is taken: a query arrives only through the
@@ -615,6 +602,29 @@ class ZenohTransport:
             queries = [self._pending.pop(k)[0] for k in expired]
         for query in queries:
             query.drop()
+
+
+def reply_catalog(query: Any, name: str, payload: bytes) -> None:
+    """Answer a query on ``ktbt/v1/catalog/<name>`` (section 3) with ``payload``, the catalog
+    as JSON, and end it."""
+    query.reply(f"{PREFIX}/catalog/{name}", payload)
+    query.drop()
+
+
+def reply_tree(query: Any, name: str, text: str | None, max_bytes: int) -> None:
+    """Answer a query on ``ktbt/v1/tree/<name>`` (section 10) with the control tree ``text``,
+    whole or not at all: one above ``max_bytes`` is refused with a reply error saying its
+    size, never clipped into text that does not parse; ``None``: there is none."""
+    if text is None:
+        query.reply_err(b"no control tree")
+    else:
+        payload = text.encode()
+        if len(payload) > max_bytes:
+            why = f"the control tree is {len(payload)} bytes, the limit is {max_bytes}"
+            query.reply_err(why.encode())
+        else:
+            query.reply(f"{PREFIX}/tree/{name}", payload)
+    query.drop()
 
 
 def catalog_replies(

@@ -165,6 +165,7 @@ def test_equals_never_churn_and_the_heaviest_gives_way(monkeypatch: pytest.Monke
     fleet.catalog("b", junk(2, "B"))
     fleet.catalog("a", junk(3, "A"))  # a holds as much as b: its third is refused
     assert fleet.drops == {"full": 1} and len(fleet.peers["a"].knows) == 2
+    assert "(it was looked at)" in fleet.stats()["reasons"]["full"][0]
     fleet.catalog("c", junk(1, "C"))  # a newcomer holding nothing takes a's oldest
     assert fleet.drops == {"full": 1, "evicted": 1}
     assert digest("<c>(A0,x=0)") not in fleet.items and digest("<c>(C0,x=0)") in fleet.items

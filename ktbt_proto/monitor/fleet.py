@@ -479,8 +479,8 @@ class Fleet:
     def _full(self, peer: Peer, when: str) -> str:
         return (
             f"an item {peer.name} knows: all {MAX_ITEMS} items are known, none only by peers "
-            f"ranked below it, and no peer of its rank was charged more than its load plus one "
-            f"({when})"
+            f"ranked below it, and no item of the heaviest peer of its rank is charged more than "
+            f"its load would be with it ({when})"
         )
 
     def _remove(self, item: str) -> None:

@@ -396,9 +396,10 @@ class Fleet:
         (below); an item known by a peer ranked above ``peer`` never goes for it. Among peers
         of ``peer``'s rank the table is a fair share: each item is charged to the peers that
         know it, in equal parts, and a peer's load is what it is charged for. The heaviest
-        peer of that rank gives way, with the item whose knowers' mean load is the highest
-        (the oldest of equals; one only it knows is charged it all), if that is above what
-        ``peer``'s load would be with the new item alone; else the new item is refused. So a
+        peer of that rank gives way, with the item whose knowers' mean load is the highest (the
+        oldest one only it knows, charged it all, if any; else the oldest of equals), if that
+        is above what ``peer``'s load would be with the new item alone; else the new item is
+        refused. So a
         peer listing junk is charged for all of it and gives way first, to its own junk only
         when it is the heaviest (no churn), and an item known by many is charged to each a
         little. Loads are kept up to date as peers learn and forget (:meth:`_know`), so this
@@ -420,10 +421,8 @@ class Fleet:
             self._no_room[peer.name] = self._known_version
             self._drop("full", self._full(peer, "it was looked at"))
             return False
-        knowers, sequence = self._knowers[victim], self.items[victim]
-        count = len(knowers)
-        for name in list(knowers):
-            self._unknow(self.peers[name], victim)
+        sequence, count = self.items[victim], len(self._knowers[victim])
+        self._unknow_all(victim)
         self._spread(victim, _iso(time.time()))  # nobody knows it now
         self._remove(victim)
         self._drop(
@@ -451,16 +450,17 @@ class Fleet:
         """Of the items ``peer`` knows and only peers of ``tier`` or below know, the one whose
         knowers' mean load is the highest, the oldest of equals, and that load. One only it
         knows is charged its whole load, the most any can be when it is the heaviest, so the
-        first such ends the search."""
+        oldest such is taken without counting the others; and one whose knowers' mean is its
+        load ends the search."""
+        own = next((i for i in peer.knows if len(self._knowers[i]) == 1), None)
+        if own is not None:  # its rank is the peer's: no need to count the others
+            return own, peer.load
         best, most = None, -1.0
         for item in peer.knows:
             if max(t for t, n in enumerate(self._tiers[item]) if n) != tier:
                 continue
             knowers = self._knowers[item]
-            if len(knowers) == 1:
-                crowding = peer.load
-            else:
-                crowding = sum(self.peers[n].load for n in knowers) / len(knowers)
+            crowding = sum(self.peers[n].load for n in knowers) / len(knowers)
             if crowding > most + EPSILON:
                 best, most = item, crowding
             if most >= peer.load - EPSILON:
@@ -519,6 +519,20 @@ class Fleet:
         if tell:
             self._change({"k": "know", "peer": peer.name, "item": item, "how": None})
         return True
+
+    def _unknow_all(self, item: str) -> None:
+        """Nobody knows ``item`` now (its knowers forget it at once: each loses its part,
+        nobody's part grows, so this costs one step a knower)."""
+        knowers = self._knowers.pop(item)
+        part = 1 / len(knowers)
+        del self._tiers[item]
+        for name in knowers:
+            peer = self.peers[name]
+            del peer.knows[item]
+            peer.load = peer.load - part if peer.knows else 0.0
+            self._change({"k": "know", "peer": name, "item": item, "how": None})
+        self._unknown[item] = None
+        self._known_version += 1
 
     def _share(self, knowers: set[str], before: int, after: int) -> None:
         """The ``knowers`` of an item, ``before`` of them, are to be ``after``: each one's part

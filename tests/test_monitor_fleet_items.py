@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from ktbt_proto.events import FleetEvent, digest
+from ktbt_proto.events import FleetEvent, digest, signed_bytes
 from ktbt_proto.items import parse_sequence
 from ktbt_proto.monitor import fleet as fleet_module
 from ktbt_proto.monitor.fleet import Fleet
@@ -261,23 +261,28 @@ def test_names_that_only_sent_an_event_never_evict_a_present_peers_items() -> No
 
 
 def test_a_trusted_name_outranks_a_present_one(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A name the trust store binds to a key takes the place of items known only by peers
-    merely present, however light its load; theirs never take its place; when it leaves,
-    its rank stays."""
+    """A name the trust store binds to a key, once an event signed by that key came (a catalog
+    is not signed: before, it ranks as heard), takes the place of items known only by peers
+    merely present, however light its load; theirs never take its place; when it leaves, its
+    rank stays."""
     monkeypatch.setattr(fleet_module, "MAX_ITEMS", 4)
-    key = Identity.generate().public
-    fleet = Fleet(TrustStore(frozenset({key}), {"trusted": key}))
+    me = Identity.generate()
+    fleet = Fleet(TrustStore(frozenset({me.public}), {"trusted": me.public}))
     fleet.peer_joined("loud")
     fleet.catalog("loud", junk(2, "L"))
     fleet.peer_joined("quiet")
     fleet.catalog("quiet", junk(2, "Q"))
+    fleet.catalog("trusted", junk(3, "T"))  # nothing signed yet: rank 0, refused
+    assert fleet.drops == {"full": 3} and not fleet.peers["trusted"].knows
+    one = FleetEvent(peer="trusted", n=0, t=T, event="query-sent", key=me.public)
+    fleet.event(one.model_copy(update={"sig": me.sign(signed_bytes(one))}))
     fleet.catalog("trusted", junk(3, "T"))  # rank 2: takes items of rank 1, heaviest first
-    assert fleet.drops == {"evicted": 3}
+    assert fleet.drops == {"full": 3, "evicted": 3}
     assert len(fleet.peers["trusted"].knows) == 3
     fleet.peer_left("trusted")
     fleet.catalog("loud", junk(4, "L"))  # rank 1: none of the trusted one's, none of quiet's
     assert len(fleet.peers["trusted"].knows) == 3 and len(fleet.peers["quiet"].knows) == 1
-    assert fleet.drops == {"evicted": 3, "full": 4}
+    assert fleet.drops == {"evicted": 3, "full": 7}
     check(fleet)
 
 

@@ -170,6 +170,10 @@ class Fleet:
     def _status(self, peer: Peer, status: str) -> None:
         before = self._tier(peer)
         peer.status, peer.since = status, time.time()
+        self._retier(peer, before)
+
+    def _retier(self, peer: Peer, before: int) -> None:
+        """``peer``'s rank was ``before``: its items are counted at its rank now."""
         after = self._tier(peer)
         if after != before:
             for item in peer.knows:
@@ -232,7 +236,10 @@ class Fleet:
                 peer.lost_events += event.n - peer.last_n - 1
             peer.last_n = event.n
             peer.dropped = max(peer.dropped, event.dropped)
-            peer.key = event.key if signed else peer.key
+            if signed and peer.key is None:  # its first signed event: it may rank higher now
+                before = self._tier(peer)
+                peer.key = event.key
+                self._retier(peer, before)
             if peer.status == "heard" and not peer.since:
                 peer.since = now
             seen = {
@@ -469,10 +476,12 @@ class Fleet:
 
     def _tier(self, peer: Peer) -> int:
         """How much the monitor believes ``peer``'s name: 2 if the trust store binds it to a key
-        (its events must be signed by that key), 1 if its liveliness token is up, else 0.
-        Without the router's access control (section 9) names and tokens are free, so only the
-        trust store's rank, and the fair share among equals, hold against a hostile peer."""
-        if self.trust is not None and peer.name in self.trust.names:
+        and an event signed by that key came (events of its name must be), 1 if its liveliness
+        token is up, else 0. Without the router's access control (section 9) names and tokens
+        are free, and a catalog is not signed (anyone may reply on a peer's catalog key), so
+        only the trust store's rank, for what a trusted peer merged, and the fair share among
+        equals, hold against a hostile peer."""
+        if self.trust is not None and peer.key is not None and peer.name in self.trust.names:
             return 2
         return 1 if peer.status == "present" else 0
 

@@ -41,6 +41,8 @@ LEVELS = 5
 KNOWLEDGE_SCORE = 0.25
 """The paper's ``ks`` of one colour: four equally hard colours, whole ability summing to one."""
 LEVEL_COLUMNS = tuple(f"knows_{k}" for k in range(LEVELS))
+MODE_COLUMNS = ("learned_direct", "learned_buffered", "learned_passive", "forgotten", "messages")
+"""What the memory and passive modes change (spec/simulator.md §9), where a run records it."""
 SETS = 16
 """Species: the sets of colours a robot knows, bit k-1 for colour k (red 1 .. blue 4)."""
 
@@ -193,7 +195,8 @@ def summary(results: Results, at: int | None = None) -> dict[str, Any]:
     """Means and sample standard deviations across trials of what the paper's tables report.
 
     Keys: ``trials``; ``collected_pct``, ``queries``, ``responses``, ``lost``, ``knows_0`` ..
-    ``knows_4`` and ``knowledge_score`` at the last recorded row (or the last at or before
+    ``knows_4``, ``knowledge_score`` and, where recorded, the :data:`MODE_COLUMNS` at the last
+    recorded row (or the last at or before
     iteration ``at``), each as ``<key>_mean`` and ``<key>_std``; ``t95``, ``t99`` and ``t100``
     as ``_mean`` and ``_std`` over the trials that reached the fraction only, with
     ``_reached`` saying how many did; ``knows_4_end`` (``_mean``, ``_std``): robots knowing
@@ -207,6 +210,7 @@ def summary(results: Results, at: int | None = None) -> dict[str, Any]:
     finals: dict[str, npt.ArrayLike] = {
         "collected_pct": percent_collected(results)[:, last],
         **{c: results[c][:, last] for c in ("queries", "responses", "lost", *LEVEL_COLUMNS)},
+        **{c: results[c][:, last] for c in MODE_COLUMNS if c in results.data},
         "knowledge_score": mean_knowledge_score(level_counts(results)[:, last]),
     }
     for key, values in finals.items():

@@ -40,6 +40,7 @@ OBSTACLES = tuple(f"{g}-obstacles" for g in GROUPS)
 OPPORTUNITIES = SCENARIOS["opportunities"]
 RANGES = tuple(n for n in SCENARIOS["range"] if n.startswith("range-"))
 HETEROGENEITY = SCENARIOS["heterogeneity"]
+MODES = frozenset(SCENARIOS["modes"])
 TEACHING = (
     ("10R-10G-10Y-10B, 25 a colour", "ktbt", "ktbt-broadcast"),
     ("39I-1M, 100 a colour", "heterogeneity-39i1m", "heterogeneity-39i1m-broadcast"),
@@ -375,7 +376,38 @@ def summary_table(results: Mapping[str, Results]) -> str:
                 _pm(s["knows_4_mean"], s["knows_4_std"], 1),
             ]
             lines.append("| " + " | ".join(cells) + " |")
+    lines += _modes_table(ordered)
     return "\n".join(lines) + "\n"
+
+
+def _modes_table(ordered: list[Results]) -> list[str]:
+    """The modes study's own columns (how robots learned, what they forgot, the messages, who
+    knows three or four colours), for the scenarios of ``ktbt sim run modes`` present."""
+    runs = [r for r in ordered if r.scenario.name in MODES and "messages" in r.data]
+    if not runs:
+        return []
+    head = (
+        "| scenario | robots | mode | trials | collected % | t95 (iterations) | queries "
+        "| answers | learns: direct / buffered / passive | forgotten | messages (thousands) "
+        "| robots knowing 3 or 4 |"
+    )
+    lines = ["", "## Modes", "", "Means over trials at the last recorded iteration.", "", head]
+    lines.append("|" + " --- |" * (head.count("|") - 1))
+    for res in runs:
+        s, sc = metrics.summary(res), res.scenario
+        t95 = f"{s['t95_mean']:,.0f}" if s["t95_reached"] else "—"
+        learns = " / ".join(
+            f"{s[f'learned_{k}_mean']:.0f}" for k in ("direct", "buffered", "passive")
+        )
+        cells = [
+            sc.name, sc.robots.label(), sc.mode.value, str(s["trials"]),
+            f"{s['collected_pct_mean']:.1f}", f"{t95} ({s['t95_reached']}/{s['trials']})",
+            f"{s['queries_mean']:.0f}", f"{s['responses_mean']:.0f}", learns,
+            f"{s['forgotten_mean']:.0f}", f"{s['messages_mean'] / 1000:.1f}",
+            f"{s['knows_3_mean'] + s['knows_4_mean']:.1f}",
+        ]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
 
 
 def draw_teaching(results: Mapping[str, Results]) -> Figure | None:

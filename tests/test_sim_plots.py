@@ -87,7 +87,7 @@ def test_every_figure_is_written_as_png_and_svg(drawn: Path, figure: str) -> Non
 
 
 def test_summary_has_a_row_per_scenario(drawn: Path, every_study: dict[str, Results]) -> None:
-    text = (drawn / "summary.md").read_text(encoding="utf-8")
+    text = (drawn / "summary.md").read_text(encoding="utf-8").split("\n## ")[0]
     rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line]
     assert len(rows) == len(every_study) + 1  # the header, then one per scenario
     names = [row.split("|")[1].strip() for row in rows[1:]]
@@ -144,3 +144,21 @@ def test_results_are_loaded_from_the_directory_and_only_present_figures_drawn(
     assert written[0].read_bytes().startswith(PNG)
     row = f"| bl1 | 40M | no-transfer | 100 | {rows['iteration'][-1]:,} | 1 | 100.0 |"
     assert row in (tmp_path / "summary.md").read_text(encoding="utf-8")
+
+
+def test_the_modes_table_reads_how_robots_learned_and_forgot() -> None:
+    res = fake("modes-39i1m-pl")
+    res.data["learned_passive"][:, -1] = [3, 5, 7]  # TRIALS of them
+    res.data["forgotten"][:, -1] = 2
+    res.data["messages"][:, -1] = 1500
+    res.data["knows_3"][:, -1] = 4
+    text = plots.summary_table({"modes-39i1m-pl": res, "bl1": fake("bl1")})
+    modes = text.split("## Modes")[1]
+    row = next(line for line in modes.splitlines() if line.startswith("| modes-39i1m-pl |"))
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    passive = float(np.mean(res.data["learned_passive"][:, -1]))
+    assert cells[8].endswith(f"/ {passive:.0f}") and cells[9] == "2" and cells[10] == "1.5"
+    knows = float(np.mean(res.data["knows_3"][:, -1] + res.data["knows_4"][:, -1]))
+    assert cells[11] == f"{knows:.1f}"
+    assert "| bl1 |" not in modes  # only the modes study's scenarios
+    assert "## Modes" not in plots.summary_table({"bl1": fake("bl1")})

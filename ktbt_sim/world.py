@@ -28,6 +28,7 @@ from ktbt_proto.transport.memory import MemoryNetwork
 
 from . import geometry, motion, records, teaching
 from . import robot as rb
+from .kernel import generator_pointers
 from .scenario import Mode, Scenario
 from .sensing import (
     BODY,
@@ -70,6 +71,7 @@ class World:
         self.rng = np.random.default_rng(
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
         )
+        self._rng_pointers = generator_pointers(self.rng)
         self.iteration = 0
         self.kt_bt = scenario.mode is not Mode.NO_TRANSFER
         """Whether robots ask and teach: every mode but the release's NL (§9.1)."""
@@ -305,7 +307,7 @@ class World:
         spent = motion.behave(
             self.drive, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
             self.memory_iter, self._memory_duration, self.goal, self.zone_centres,
-            prox.start, prox.others, prox.weights, walls.count, walls.centres, self.rng,
+            prox.start, prox.others, prox.weights, walls.count, walls.centres, self._rng_pointers,
             walk.dt, walk.goal_span, walk.leg_min_s, walk.leg_max_s, *walk.carry_jitter_deg,
             *walk.avoid_turn_deg,
         )  # fmt: skip

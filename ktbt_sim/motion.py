@@ -156,3 +156,46 @@ def behave(
                 y += pos[i, 1] - wall_centres[i, k, 1]
             rv[i, 0], rv[i, 1] = turn(rng, x, y, avoid_lo, avoid_hi)
     return spent[:ns].copy()
+
+
+@jit
+def move(
+    mode: np.ndarray,
+    rv: np.ndarray,
+    pos: np.ndarray,
+    walk_flag: np.ndarray,
+    walk_time: np.ndarray,
+    walk_span: np.ndarray,
+    memory_iter: np.ndarray,
+    memory_duration: int,
+    goal: np.ndarray,
+    zone_centres: np.ndarray,
+    start: np.ndarray,
+    others: np.ndarray,
+    weights: np.ndarray,
+    wall_count: np.ndarray,
+    wall_centres: np.ndarray,
+    rng_pointers: np.ndarray,
+    dt: float,
+    goal_span: int,
+    leg_min: float,
+    leg_max: float,
+    jitter_lo: int,
+    jitter_hi: int,
+    avoid_lo: int,
+    avoid_hi: int,
+    heading: np.ndarray,
+    velocity: np.ndarray,
+    speed: float,
+    turn: float,
+    tolerance: float,
+) -> np.ndarray:
+    """:func:`behave` then :func:`actuate`, in one call; returns the robots whose EL memory
+    timer ran out (what they forget changes nothing the actuators read)."""
+    spent = behave(
+        mode, rv, pos, walk_flag, walk_time, walk_span, memory_iter, memory_duration, goal,
+        zone_centres, start, others, weights, wall_count, wall_centres, rng_pointers, dt,
+        goal_span, leg_min, leg_max, jitter_lo, jitter_hi, avoid_lo, avoid_hi,
+    )  # fmt: skip
+    actuate(rv, heading, velocity, speed, turn, tolerance)
+    return spent

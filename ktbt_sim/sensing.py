@@ -265,10 +265,25 @@ def find_pairs(
     talk_at = talk[:n].copy()
     _visit(near, cx, cy, height, width, first_in, order, touch2, body2, radius2, comms,
            near_at, talk_at, others, weights, heard)  # fmt: skip
+    # Each robot's pairs in index order: an insertion sort of each robot's handful, inline (a
+    # call a robot would cost more than the sorting).
+    for i in range(n):
+        for a in range(start[i] + 1, start[i + 1]):
+            j, w = others[a], weights[a]
+            b = a - 1
+            while b >= start[i] and others[b] > j:
+                others[b + 1], weights[b + 1] = others[b], weights[b]
+                b -= 1
+            others[b + 1], weights[b + 1] = j, w
     keys = np.empty(talk[n], np.int64)
-    for i in range(n):  # each robot's pairs in index order
-        _sort_pairs(others, weights, start[i], start[i + 1], True)
-        _sort_pairs(heard, weights, talk[i], talk[i + 1], False)
+    for i in range(n):
+        for a in range(talk[i] + 1, talk[i + 1]):
+            j = heard[a]
+            b = a - 1
+            while b >= talk[i] and heard[b] > j:
+                heard[b + 1] = heard[b]
+                b -= 1
+            heard[b + 1] = j
         for b in range(talk[i], talk[i + 1]):
             keys[b] = i * n + heard[b]
     return start, others, weights, keys
@@ -341,23 +356,6 @@ def _visit(
                         talk[i] += 1
                         heard[talk[j]] = i
                         talk[j] += 1
-
-
-@jit
-def _sort_pairs(others: np.ndarray, weights: np.ndarray, lo: int, hi: int, both: bool) -> None:
-    """Insertion sort of ``others[lo:hi]`` (a handful), ``weights`` alongside if ``both``."""
-    for a in range(lo + 1, hi):
-        j = others[a]
-        w = weights[a] if both else 0.0
-        b = a - 1
-        while b >= lo and others[b] > j:
-            others[b + 1] = others[b]
-            if both:
-                weights[b + 1] = weights[b]
-            b -= 1
-        others[b + 1] = j
-        if both:
-            weights[b + 1] = w
 
 
 @jit

@@ -48,16 +48,21 @@ def step(world: Trial, t: int) -> None:
     of steps 1 to 4 is one compiled call (two when a robot asks, since asking changes what
     step 3 reads); the agents' messages and merges stay in Python."""
     timers, prox = world.timers, world.proximity
+    refuse = world.scenario.memory_when_full == "refuse"
+    cap = world.scenario.memory_size if refuse else -1
     askers, closers, can = prepare(
         prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
         prox.entered, world.known, world.asked, world.scenario.teaching is TeachingRule.BROADCAST,
         world.sensor.tsr, timers.cool_end, 2 * t + 1, world.carrying, world.colour_of,
-        world.answering, timers.wait_end,
+        world.answering, timers.wait_end, cap,
     )  # fmt: skip
     if len(askers):
         _ask(world, t, askers)
         closers = _ended(world.querying, world.answering, timers.wait_end, 2 * t + 1)
-        can = _teachers(world.requester, timers.cool_end, 2 * t + 2, world.querying, world.carrying)
+        can = _teachers(
+            world.requester, timers.cool_end, 2 * t + 2, world.querying, world.carrying,
+            world.taught, world.known, world.asked, cap,
+        )  # fmt: skip
     for i in closers.tolist():  # step 3: a query never answered is lost
         world.agents[i].close_query()
     if len(can):
@@ -87,6 +92,7 @@ def prepare(
     colour_of: np.ndarray,
     answering: np.ndarray,
     wait_end: np.ndarray,
+    cap: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1 (:func:`scan`) and who asks in step 2 (:func:`_askers`, ``call`` = 2t + 1). When
     nobody asks, also step 3's flags (:func:`_ended`) and step 4's teachers (:func:`_teachers`);
@@ -97,7 +103,7 @@ def prepare(
     if len(askers):
         return askers, none, none
     closers = _ended(querying, answering, wait_end, call)
-    can = _teachers(requester, cool_end, call + 1, querying, carrying)
+    can = _teachers(requester, cool_end, call + 1, querying, carrying, taught, known, asked, cap)
     return askers, closers, can
 
 
@@ -227,13 +233,24 @@ def _teachers(
     call: int,
     querying: np.ndarray,
     carrying: np.ndarray,
+    taught: np.ndarray,
+    known: np.ndarray,
+    asked: np.ndarray,
+    cap: int,
 ) -> np.ndarray:
     """The robots with a requester that are free before ``call``, not querying and carry
-    nothing."""
+    nothing, whose requester is querying, untaught, asked a colour the robot knows and knows
+    fewer than ``cap`` colours (-1: no cap). Step 4 checks the requester again as it goes (a
+    lesson teaches it); nothing it does makes a robot left out here a teacher."""
     out = np.empty(requester.shape[0], np.int64)
     k = 0
     for i in range(requester.shape[0]):
         if requester[i] >= 0 and cool_end[i] < call and not querying[i] and carrying[i] < 0:
+            learner = requester[i]
+            if not querying[learner] or taught[learner] or not known[i, asked[learner] - 1]:
+                continue
+            if cap >= 0 and known[learner].sum() >= cap:
+                continue
             out[k] = i
             k += 1
     return out[:k]

@@ -6,7 +6,9 @@ and a step needed about sixty of them; at 4,000 robots the pairs of nearby robot
 each mechanism's step is one loop over the robots, compiled by numba on first use and cached on
 disk, so that a study's worker processes load the compiled code instead of compiling it again.
 The cache is ``NUMBA_CACHE_DIR`` if set, else ``ktbt/numba`` in the user's cache folder
-(``XDG_CACHE_HOME`` or ``~/.cache``).
+(``XDG_CACHE_HOME`` or ``~/.cache``). A call's cost is mostly its arguments' (typing and
+unboxing each): the kernels take arrays and numbers, and the trial's random generator as the
+addresses of its bit generator (:func:`generator_pointers`, :func:`generator`).
 """
 
 from __future__ import annotations

@@ -206,11 +206,10 @@ def find_pairs(
     (each robot's pairs in index order; a robot counts once when the spheres touch, twice when
     its body is inside the sphere), and the sorted keys ``i * n + j`` of the comms pairs.
 
-    Each pair is looked at once. A small group looks at every pair; a large one only at the
-    robots in the 3 x 3 cells around each (cells ``cell`` wide, so every pair in range is in
-    neighbouring cells), found by a counting sort of the robots into a grid. The pairs ``(i,
-    j)``, ``i < j``, come out in lexicographic order; written to both robots in that order,
-    every robot's list is in index order without sorting it."""
+    Each pair is looked at once (:func:`_near_pairs`). A small group looks at every pair; a
+    large one only at the robots in the 3 x 3 cells around each (cells ``cell`` wide, so every
+    pair in range is in neighbouring cells), sorted into a grid by a counting sort. Each pair
+    is then written to both robots' lists, and each list (a handful) sorted."""
     n = pos.shape[0]
     cx = np.zeros(n, np.int64)
     cy = np.zeros(n, np.int64)
@@ -249,22 +248,41 @@ def find_pairs(
     for a in range(n):
         near[a, 0] = pos[order[a], 0]
         near[a, 1] = pos[order[a], 1]
-    # Count each robot's pairs, then write them, each pair looked at once a pass.
+    # Every pair in reach, looked at once; then each robot's share of them, written to both.
+    pair_i, pair_j, pair_d2 = _near_pairs(
+        near, cx, cy, height, width, first_in, order, touch2, radius2 if comms else -1.0
+    )
     start = np.zeros(n + 1, np.int64)
     talk = np.zeros(n + 1, np.int64)
-    none_i, none_f = np.empty(0, np.int64), np.empty(0, np.float64)
-    _visit(near, cx, cy, height, width, first_in, order, touch2, body2, radius2, comms,
-           start, talk, none_i, none_f, none_i)  # fmt: skip
+    for p in range(pair_i.shape[0]):
+        i, j, d2 = pair_i[p], pair_j[p], pair_d2[p]
+        if d2 < touch2:
+            start[i + 1] += 1
+            start[j + 1] += 1
+        if comms and d2 <= radius2:
+            talk[i + 1] += 1
+            talk[j + 1] += 1
     for i in range(n):
         start[i + 1] += start[i]
         talk[i + 1] += talk[i]
     others = np.empty(start[n], np.int64)
     weights = np.empty(start[n], np.float64)
     heard = np.empty(talk[n], np.int64)
-    near_at = start[:n].copy()
+    at = start[:n].copy()
     talk_at = talk[:n].copy()
-    _visit(near, cx, cy, height, width, first_in, order, touch2, body2, radius2, comms,
-           near_at, talk_at, others, weights, heard)  # fmt: skip
+    for p in range(pair_i.shape[0]):
+        i, j, d2 = pair_i[p], pair_j[p], pair_d2[p]
+        if d2 < touch2:
+            w = 2.0 if d2 < body2 else 1.0
+            others[at[i]], weights[at[i]] = j, w
+            at[i] += 1
+            others[at[j]], weights[at[j]] = i, w
+            at[j] += 1
+        if comms and d2 <= radius2:
+            heard[talk_at[i]] = j
+            talk_at[i] += 1
+            heard[talk_at[j]] = i
+            talk_at[j] += 1
     # Each robot's pairs in index order: an insertion sort of each robot's handful, inline (a
     # call a robot would cost more than the sorting).
     for i in range(n):
@@ -290,7 +308,7 @@ def find_pairs(
 
 
 @jit
-def _visit(
+def _near_pairs(
     near: np.ndarray,
     cx: np.ndarray,
     cy: np.ndarray,
@@ -299,22 +317,27 @@ def _visit(
     first_in: np.ndarray,
     order: np.ndarray,
     touch2: float,
-    body2: float,
     radius2: float,
-    comms: bool,
-    at: np.ndarray,
-    talk: np.ndarray,
-    others: np.ndarray,
-    weights: np.ndarray,
-    heard: np.ndarray,
-) -> None:
-    """Visit every pair once, in cell order (``near``: the positions in that order): robot
-    ``a``'s later robots in its own cell and the cell above it, then the three cells of the
-    next column (two runs of the sorted robots). With empty output arrays, count both robots'
-    pairs into ``at`` and ``talk`` (at index + 1); with them, write each pair at both robots'
-    next free place (``at[i]``, ``talk[i]``)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair of robots closer than the collision sensors' touch or within ``radius2`` (-1:
+    no comms), each once, and its squared distance. The robots are visited in cell order
+    (``near``: their positions in that order): robot ``a`` with the later robots of its own
+    cell and of the cell above it, then with the three cells of the next column (two runs of
+    the sorted robots)."""
     n = near.shape[0]
-    count = others.shape[0] == 0 and heard.shape[0] == 0
+    capacity = 0
+    for a in range(n):  # how many pairs the visit looks at: room for all of them
+        i = order[a]
+        c = cx[i] * height + cy[i]
+        capacity += (first_in[c + 2] if cy[i] + 1 < height else first_in[c + 1]) - a - 1
+        if cx[i] + 1 < width:
+            lo = first_in[c + height - 1] if cy[i] > 0 else first_in[c + height]
+            hi = first_in[c + height + 2] if cy[i] + 1 < height else first_in[c + height + 1]
+            capacity += hi - lo
+    pair_i = np.empty(capacity, np.int64)
+    pair_j = np.empty(capacity, np.int64)
+    pair_d2 = np.empty(capacity, np.float64)
+    m = 0
     for a in range(n):
         i = order[a]
         gx, gy = cx[i], cy[i]
@@ -333,29 +356,12 @@ def _visit(
                 dx = xi - near[b, 0]
                 dy = yi - near[b, 1]
                 d2 = dx * dx + dy * dy
-                if d2 < touch2:
-                    j = order[b]
-                    if count:
-                        at[i + 1] += 1
-                        at[j + 1] += 1
-                    else:
-                        w = 2.0 if d2 < body2 else 1.0
-                        others[at[i]] = j
-                        weights[at[i]] = w
-                        at[i] += 1
-                        others[at[j]] = i
-                        weights[at[j]] = w
-                        at[j] += 1
-                if comms and d2 <= radius2:
-                    j = order[b]
-                    if count:
-                        talk[i + 1] += 1
-                        talk[j + 1] += 1
-                    else:
-                        heard[talk[i]] = j
-                        talk[i] += 1
-                        heard[talk[j]] = i
-                        talk[j] += 1
+                if d2 < touch2 or d2 <= radius2:
+                    pair_i[m] = i
+                    pair_j[m] = order[b]
+                    pair_d2[m] = d2
+                    m += 1
+    return pair_i[:m], pair_j[:m], pair_d2[:m]
 
 
 @jit

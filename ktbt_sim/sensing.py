@@ -356,11 +356,11 @@ def _near_pairs(
                 dx = xi - near[b, 0]
                 dy = yi - near[b, 1]
                 d2 = dx * dx + dy * dy
-                if d2 < touch2 or d2 <= radius2:
-                    pair_i[m] = i
-                    pair_j[m] = order[b]
-                    pair_d2[m] = d2
-                    m += 1
+                # Written always, kept if in reach: no branch to mispredict.
+                pair_i[m] = i
+                pair_j[m] = order[b]
+                pair_d2[m] = d2
+                m += (d2 < touch2) | (d2 <= radius2)
     return pair_i[:m], pair_j[:m], pair_d2[:m]
 
 

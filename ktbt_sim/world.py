@@ -68,10 +68,10 @@ class World:
         """Tick only the robots whose tree inputs changed; ``False`` ticks every robot every
         iteration (slow; the tests use it to show that skipping changes nothing)."""
         root = np.random.SeedSequence(scenario.seed) if seed is None else seed
-        self.rng = np.random.default_rng(
+        self._rng = np.random.default_rng(
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
         )
-        self._rng_pointers = generator_pointers(self.rng)
+        self._rng_pointers = generator_pointers(self._rng)
         self.iteration = 0
         self.kt_bt = scenario.mode is not Mode.NO_TRANSFER
         """Whether robots ask and teach: every mode but the release's NL (§9.1)."""
@@ -214,6 +214,12 @@ class World:
         self.picked: list[int] = []
         half_count = geometry.ZONE_OUTER * scale / 2 + geometry.TARGET_SIZE / 2
         self._zone = (half_count, geometry.ZONE_INNER * scale / 2, spec.zone_sensor)
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The trial's generator. Read-only: the compiled motion draws from it through its
+        addresses (``kernel.generator_pointers``), so a replaced one would not be drawn from."""
+        return self._rng
 
     # -- construction ---------------------------------------------------------------------
 

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernel import jit
+from .kernel import generator, jit
 
 STOP, WALK, TO_ZONE, AVOID, IDLE = 0, 1, 2, 3, 4
 """The motion modes an action selects. IDLE: the last tick ran a pick or a place, which leave
@@ -91,7 +91,7 @@ def behave(
     weights: np.ndarray,
     wall_count: np.ndarray,
     wall_centres: np.ndarray,
-    rng: np.random.Generator,
+    rng_pointers: np.ndarray,
     dt: float,
     goal_span: int,
     leg_min: float,
@@ -103,6 +103,7 @@ def behave(
 ) -> np.ndarray:
     """Every robot's behaviour writes its resultant velocity by its mode; returns the robots
     whose EL memory timer ran out (random-walk ticks since the last pick-up or lesson, §9.3).
+    The draws come from the trial's generator, given by its ``kernel.generator_pointers``.
 
     - ``RandomWalk`` (§4.2): sets the random-walk flag; the leg's clock runs only on its ticks;
       when the leg is over, ``rv`` aims at a new far goal and the next leg lasts U(leg_min,
@@ -113,6 +114,7 @@ def behave(
       holds (each counted once or twice, see ``sensing.Proximity``) and the wall segments'
       centres, turned sideways.
     """
+    rng = generator(rng_pointers)
     n = mode.shape[0]
     spent = np.empty(n, np.int64)
     ns = 0
@@ -154,3 +156,46 @@ def behave(
                 y += pos[i, 1] - wall_centres[i, k, 1]
             rv[i, 0], rv[i, 1] = turn(rng, x, y, avoid_lo, avoid_hi)
     return spent[:ns].copy()
+
+
+@jit
+def move(
+    mode: np.ndarray,
+    rv: np.ndarray,
+    pos: np.ndarray,
+    walk_flag: np.ndarray,
+    walk_time: np.ndarray,
+    walk_span: np.ndarray,
+    memory_iter: np.ndarray,
+    memory_duration: int,
+    goal: np.ndarray,
+    zone_centres: np.ndarray,
+    start: np.ndarray,
+    others: np.ndarray,
+    weights: np.ndarray,
+    wall_count: np.ndarray,
+    wall_centres: np.ndarray,
+    rng_pointers: np.ndarray,
+    dt: float,
+    goal_span: int,
+    leg_min: float,
+    leg_max: float,
+    jitter_lo: int,
+    jitter_hi: int,
+    avoid_lo: int,
+    avoid_hi: int,
+    heading: np.ndarray,
+    velocity: np.ndarray,
+    speed: float,
+    turn: float,
+    tolerance: float,
+) -> np.ndarray:
+    """:func:`behave` then :func:`actuate`, in one call; returns the robots whose EL memory
+    timer ran out (what they forget changes nothing the actuators read)."""
+    spent = behave(
+        mode, rv, pos, walk_flag, walk_time, walk_span, memory_iter, memory_duration, goal,
+        zone_centres, start, others, weights, wall_count, wall_centres, rng_pointers, dt,
+        goal_span, leg_min, leg_max, jitter_lo, jitter_hi, avoid_lo, avoid_hi,
+    )  # fmt: skip
+    actuate(rv, heading, velocity, speed, turn, tolerance)
+    return spent

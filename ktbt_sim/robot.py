@@ -201,3 +201,34 @@ def signature(
             | bits << 7
         )
     return out
+
+
+@jit
+def due(
+    collision: np.ndarray,
+    wait_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    in_zone: np.ndarray,
+    colour_of: np.ndarray,
+    tsr: np.ndarray,
+    known: np.ndarray,
+    drive: np.ndarray,
+    last: np.ndarray,
+    every: bool,
+) -> np.ndarray:
+    """The robots whose tree must tick (all of them with ``every``): those whose
+    :func:`signature` differs from ``last``, the one they last ticked with, and those whose last
+    tick ran a pick or a place (``drive`` IDLE), which changed their inputs. When any is due,
+    ``last`` becomes every robot's signature."""
+    now = signature(collision, wait_end, call, carrying, in_zone, colour_of, tsr, known)
+    n = now.shape[0]
+    out = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if every or now[i] != last[i] or drive[i] == IDLE:
+            out[k] = i
+            k += 1
+    if k:
+        last[:] = now
+    return out[:k]

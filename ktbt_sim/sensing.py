@@ -142,15 +142,14 @@ class Proximity:
         self.entered = empty
 
     def update(self, pos: np.ndarray, iteration: int) -> None:
-        self.start, self.others, self.weights, keys = find_pairs(
-            pos, self.cell, self.touch2, self.body2, self.radius2, self.comms
-        )
-        self.count = np.diff(self.start)
+        (
+            self.start, self.others, self.weights, self.count, keys, entered, newly, has
+        ) = sense_robots(
+            pos, self.cell, self.touch2, self.body2, self.radius2, self.comms, self.keys,
+            self.entered, iteration,
+        )  # fmt: skip
         if self.comms:
-            self.entered, self.newly, self.has_neighbours = entries(
-                self.keys, self.entered, keys, iteration, self.n
-            )
-            self.keys = keys
+            self.entered, self.newly, self.has_neighbours, self.keys = entered, newly, has, keys
 
     def weight(self, i: int) -> np.ndarray:
         """Robot ``i``'s collision weight of every robot (0, 1 or 2)."""
@@ -190,22 +189,11 @@ _NO_ASKED = np.zeros(0, dtype=np.int64)
 
 
 DENSE_UP_TO = 200
-"""Groups up to this size look at every pair, which is faster there than sorting cells."""
+"""Groups up to this size look at every pair, which is faster there than sorting into cells."""
 
-
-@jit
-def _cells(pos: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each robot's cell key (column-major: the three cells of a column are one run of the
-    sorted keys), the robots in key order and the sorted keys."""
-    n = pos.shape[0]
-    span = 1 << 21
-    keys = np.empty(n, np.int64)
-    for i in range(n):
-        cx = np.int64(np.floor(pos[i, 0] / cell)) + span // 2
-        cy = np.int64(np.floor(pos[i, 1] / cell)) + span // 2
-        keys[i] = cx * span + cy
-    order = np.argsort(keys, kind="mergesort")
-    return keys, order, keys[order]
+GRID_CELLS_PER_ROBOT = 64
+"""The cell grid has at most this many cells a robot (plus a constant): a group spread far
+beyond its arena (it cannot be, inside walls) gets wider cells, which find the same pairs."""
 
 
 @jit
@@ -216,117 +204,192 @@ def find_pairs(
 
     Returns the collision sensor's pairs as ``start`` (n + 1 offsets) and ``other``, ``weight``
     (each robot's pairs in index order; a robot counts once when the spheres touch, twice when
-    its body is inside the sphere), and the sorted keys ``i * n + j`` of the comms pairs. A
-    small group looks at every pair; a large one only at the robots in the 3 x 3 cells around
-    each, counted in one pass and written in a second."""
+    its body is inside the sphere), and the sorted keys ``i * n + j`` of the comms pairs.
+
+    Each pair is looked at once (:func:`_near_pairs`). A small group looks at every pair; a
+    large one only at the robots in the 3 x 3 cells around each (cells ``cell`` wide, so every
+    pair in range is in neighbouring cells), sorted into a grid by a counting sort. Each pair
+    is then written to both robots' lists, and each list (a handful) sorted."""
     n = pos.shape[0]
-    near = np.zeros(n + 1, np.int64)
+    cx = np.zeros(n, np.int64)
+    cy = np.zeros(n, np.int64)
+    width = 1
+    height = 1
+    x0 = np.int64(0)
+    y0 = np.int64(0)
+    if n > DENSE_UP_TO:
+        size = cell
+        while True:
+            for i in range(n):
+                cx[i] = np.int64(np.floor(pos[i, 0] / size))
+                cy[i] = np.int64(np.floor(pos[i, 1] / size))
+            x0, y0 = cx.min(), cy.min()
+            width = cx.max() - x0 + 1
+            height = cy.max() - y0 + 1
+            if width * height <= GRID_CELLS_PER_ROBOT * n + 4096:
+                break
+            size *= 2.0
+        cx -= x0
+        cy -= y0
+    # Counting sort into cells (column-major), robots in index order within a cell.
+    first_in = np.zeros(width * height + 1, np.int64)
+    for i in range(n):
+        first_in[cx[i] * height + cy[i] + 1] += 1
+    for c in range(width * height):
+        first_in[c + 1] += first_in[c]
+    order = np.empty(n, np.int64)
+    fill = first_in[:-1].copy()
+    for i in range(n):
+        c = cx[i] * height + cy[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    # The robots' positions in cell order, so that each visit reads memory in order.
+    near = np.empty((n, 2))
+    for a in range(n):
+        near[a, 0] = pos[order[a], 0]
+        near[a, 1] = pos[order[a], 1]
+    # Every pair in reach, looked at once; then each robot's share of them, written to both.
+    pair_i, pair_j, pair_d2 = _near_pairs(
+        near, cx, cy, height, width, first_in, order, touch2, radius2 if comms else -1.0
+    )
+    start = np.zeros(n + 1, np.int64)
     talk = np.zeros(n + 1, np.int64)
-    if n <= DENSE_UP_TO:
-        order = np.arange(n)
-        cells = order
-    else:
-        cells, order, _ = _cells(pos, cell)
-    none_i, none_f = np.empty(0, np.int64), np.empty(0, np.float64)
-    _sweep(pos, order, cells, touch2, body2, radius2, comms, near, talk, none_i, none_f, none_i)
-    start = np.cumsum(near)
-    first = np.cumsum(talk)
+    for p in range(pair_i.shape[0]):
+        i, j, d2 = pair_i[p], pair_j[p], pair_d2[p]
+        if d2 < touch2:
+            start[i + 1] += 1
+            start[j + 1] += 1
+        if comms and d2 <= radius2:
+            talk[i + 1] += 1
+            talk[j + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+        talk[i + 1] += talk[i]
     others = np.empty(start[n], np.int64)
     weights = np.empty(start[n], np.float64)
-    heard = np.empty(first[n], np.int64)
-    fill = start[:n].copy()
-    fill_c = first[:n].copy()
-    _sweep(pos, order, cells, touch2, body2, radius2, comms, fill, fill_c, others, weights, heard)
-    if n > DENSE_UP_TO:  # each robot's pairs in index order
-        for i in range(n):
-            _sort_pairs(others, weights, start[i], start[i + 1], True)
-            _sort_pairs(heard, weights, first[i], first[i + 1], False)
-    keys = np.empty(heard.shape[0], np.int64)
+    heard = np.empty(talk[n], np.int64)
+    at = start[:n].copy()
+    talk_at = talk[:n].copy()
+    for p in range(pair_i.shape[0]):
+        i, j, d2 = pair_i[p], pair_j[p], pair_d2[p]
+        if d2 < touch2:
+            w = 2.0 if d2 < body2 else 1.0
+            others[at[i]], weights[at[i]] = j, w
+            at[i] += 1
+            others[at[j]], weights[at[j]] = i, w
+            at[j] += 1
+        if comms and d2 <= radius2:
+            heard[talk_at[i]] = j
+            talk_at[i] += 1
+            heard[talk_at[j]] = i
+            talk_at[j] += 1
+    # Each robot's pairs in index order: an insertion sort of each robot's handful, inline (a
+    # call a robot would cost more than the sorting).
     for i in range(n):
-        for b in range(first[i], first[i + 1]):
+        for a in range(start[i] + 1, start[i + 1]):
+            j, w = others[a], weights[a]
+            b = a - 1
+            while b >= start[i] and others[b] > j:
+                others[b + 1], weights[b + 1] = others[b], weights[b]
+                b -= 1
+            others[b + 1], weights[b + 1] = j, w
+    keys = np.empty(talk[n], np.int64)
+    for i in range(n):
+        for a in range(talk[i] + 1, talk[i + 1]):
+            j = heard[a]
+            b = a - 1
+            while b >= talk[i] and heard[b] > j:
+                heard[b + 1] = heard[b]
+                b -= 1
+            heard[b + 1] = j
+        for b in range(talk[i], talk[i + 1]):
             keys[b] = i * n + heard[b]
     return start, others, weights, keys
 
 
 @jit
-def _sweep(
-    pos: np.ndarray,
+def _near_pairs(
+    near: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+    height: int,
+    width: int,
+    first_in: np.ndarray,
     order: np.ndarray,
-    cells: np.ndarray,
+    touch2: float,
+    radius2: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair of robots closer than the collision sensors' touch or within ``radius2`` (-1:
+    no comms), each once, and its squared distance. The robots are visited in cell order
+    (``near``: their positions in that order): robot ``a`` with the later robots of its own
+    cell and of the cell above it, then with the three cells of the next column (two runs of
+    the sorted robots)."""
+    n = near.shape[0]
+    capacity = 0
+    for a in range(n):  # how many pairs the visit looks at: room for all of them
+        i = order[a]
+        c = cx[i] * height + cy[i]
+        capacity += (first_in[c + 2] if cy[i] + 1 < height else first_in[c + 1]) - a - 1
+        if cx[i] + 1 < width:
+            lo = first_in[c + height - 1] if cy[i] > 0 else first_in[c + height]
+            hi = first_in[c + height + 2] if cy[i] + 1 < height else first_in[c + height + 1]
+            capacity += hi - lo
+    pair_i = np.empty(capacity, np.int64)
+    pair_j = np.empty(capacity, np.int64)
+    pair_d2 = np.empty(capacity, np.float64)
+    m = 0
+    for a in range(n):
+        i = order[a]
+        gx, gy = cx[i], cy[i]
+        c = gx * height + gy
+        xi, yi = near[a, 0], near[a, 1]
+        for run in range(2):
+            if run == 0:
+                lo = a + 1
+                hi = first_in[c + 2] if gy + 1 < height else first_in[c + 1]
+            elif gx + 1 < width:
+                lo = first_in[c + height - 1] if gy > 0 else first_in[c + height]
+                hi = first_in[c + height + 2] if gy + 1 < height else first_in[c + height + 1]
+            else:
+                break
+            for b in range(lo, hi):
+                dx = xi - near[b, 0]
+                dy = yi - near[b, 1]
+                d2 = dx * dx + dy * dy
+                # Written always, kept if in reach: no branch to mispredict.
+                pair_i[m] = i
+                pair_j[m] = order[b]
+                pair_d2[m] = d2
+                m += (d2 < touch2) | (d2 <= radius2)
+    return pair_i[:m], pair_j[:m], pair_d2[:m]
+
+
+@jit
+def sense_robots(
+    pos: np.ndarray,
+    cell: float,
     touch2: float,
     body2: float,
     radius2: float,
     comms: bool,
-    near: np.ndarray,
-    talk: np.ndarray,
-    others: np.ndarray,
-    weights: np.ndarray,
-    heard: np.ndarray,
-) -> None:
-    """Visit every pair once from each side. With empty output arrays, count each robot's pairs
-    into ``near`` and ``talk`` (at index i + 1); with them, write each pair at robot i's next
-    free place (``near[i]``, ``talk[i]``). A large group is visited in the order of its sorted
-    cell keys, so the three runs of neighbouring columns move forward only."""
+    old_keys: np.ndarray,
+    old_entered: np.ndarray,
+    iteration: int,
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]:
+    """One update of ``Proximity`` in one call: :func:`find_pairs`, each robot's collision
+    count, and with ``comms`` :func:`entries` (else the old keys and entry iterations)."""
     n = pos.shape[0]
-    dense = n <= DENSE_UP_TO
-    count = others.shape[0] == 0 and heard.shape[0] == 0
-    span = np.int64(1 << 21)
-    lo = np.zeros(3, np.int64)
-    hi = np.zeros(3, np.int64)
-    for r in range(n):
-        i = order[r]
-        if dense:
-            lo[0], hi[0] = 0, n
-            lanes = 1
-        else:
-            lanes = 3
-            for d in range(3):
-                column = cells[i] + (d - 1) * span
-                while lo[d] < n and cells[order[lo[d]]] < column - 1:
-                    lo[d] += 1
-                if hi[d] < lo[d]:
-                    hi[d] = lo[d]
-                while hi[d] < n and cells[order[hi[d]]] <= column + 1:
-                    hi[d] += 1
-        xi, yi = pos[i, 0], pos[i, 1]
-        for d in range(lanes):
-            for k in range(lo[d], hi[d]):
-                j = order[k]
-                if j == i:
-                    continue
-                dx = xi - pos[j, 0]
-                dy = yi - pos[j, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < touch2:
-                    if count:
-                        near[i + 1] += 1
-                    else:
-                        others[near[i]] = j
-                        weights[near[i]] = 2.0 if d2 < body2 else 1.0
-                        near[i] += 1
-                if comms and d2 <= radius2:
-                    if count:
-                        talk[i + 1] += 1
-                    else:
-                        heard[talk[i]] = j
-                        talk[i] += 1
-
-
-@jit
-def _sort_pairs(others: np.ndarray, weights: np.ndarray, lo: int, hi: int, both: bool) -> None:
-    """Insertion sort of ``others[lo:hi]`` (a handful), ``weights`` alongside if ``both``."""
-    for a in range(lo + 1, hi):
-        j = others[a]
-        w = weights[a] if both else 0.0
-        b = a - 1
-        while b >= lo and others[b] > j:
-            others[b + 1] = others[b]
-            if both:
-                weights[b + 1] = weights[b]
-            b -= 1
-        others[b + 1] = j
-        if both:
-            weights[b + 1] = w
+    start, others, weights, keys = find_pairs(pos, cell, touch2, body2, radius2, comms)
+    count = np.empty(n, np.int64)
+    for i in range(n):
+        count[i] = start[i + 1] - start[i]
+    if comms:
+        entered, newly, has = entries(old_keys, old_entered, keys, iteration, n)
+    else:
+        entered, newly, has = old_entered, np.zeros((0, 2), np.int64), np.zeros(n, np.bool_)
+    return start, others, weights, count, keys, entered, newly, has
 
 
 @jit
@@ -416,6 +479,48 @@ def zones(
         ey = max(dy - place_half, 0.0)
         if np.hypot(ex, ey) <= reach:
             in_zone[i] = True
+
+
+@jit
+def after_physics(
+    robots: np.ndarray,
+    walls: np.ndarray,
+    collision: np.ndarray,
+    newly: np.ndarray,
+    querying: np.ndarray,
+    taught: np.ndarray,
+    pos: np.ndarray,
+    carrying: np.ndarray,
+    goal: np.ndarray,
+    centres: np.ndarray,
+    counted: np.ndarray,
+    collected: np.ndarray,
+    in_zone: np.ndarray,
+    target_colour: np.ndarray,
+    count_half: float,
+    place_half: float,
+    reach: float,
+) -> np.ndarray:
+    """What the sensors give after the physics step, besides the trigger callbacks, in one
+    call: each robot's collision flag (a robot or a wall in its collision sensor, §4.6), the
+    zones (:func:`zones`), and of the pairs ``newly`` in comms range (§5.3) those whose first
+    robot has an open query (querying, not yet taught): it sends its query to the second
+    (§8.1)."""
+    for i in range(collision.shape[0]):
+        collision[i] = robots[i] > 0 or walls[i] > 0
+    zones(
+        pos, carrying, goal, centres, counted, collected, in_zone, target_colour, count_half,
+        place_half, reach,
+    )  # fmt: skip
+    out = np.empty((newly.shape[0], 2), np.int64)
+    k = 0
+    for m in range(newly.shape[0]):
+        i = newly[m, 0]
+        if querying[i] and not taught[i]:
+            out[k, 0] = i
+            out[k, 1] = newly[m, 1]
+            k += 1
+    return out[:k]
 
 
 @jit

@@ -44,10 +44,29 @@ if TYPE_CHECKING:
 
 
 def step(world: Trial, t: int) -> None:
-    _scan(world)
-    _ask(world, t)
-    _close(world, 2 * t + 1)
-    _teach(world, t)
+    """Steps 1 to 4 and the passive modes' listening, in the release's order. The array work
+    of steps 1 to 4 is one compiled call (two when a robot asks, since asking changes what
+    step 3 reads); the agents' messages and merges stay in Python."""
+    timers, prox = world.timers, world.proximity
+    refuse = world.scenario.memory_when_full == "refuse"
+    cap = world.scenario.memory_size if refuse else -1
+    askers, closers, can = prepare(
+        prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
+        prox.entered, world.known, world.asked, world.scenario.teaching is TeachingRule.BROADCAST,
+        world.sensor.tsr, timers.cool_end, 2 * t + 1, world.carrying, world.colour_of,
+        world.answering, timers.wait_end, cap,
+    )  # fmt: skip
+    if len(askers):
+        _ask(world, t, askers)
+        closers = _ended(world.querying, world.answering, timers.wait_end, 2 * t + 1)
+        can = _teachers(
+            world.requester, timers.cool_end, 2 * t + 2, world.querying, world.carrying,
+            world.taught, world.known, world.asked, cap,
+        )  # fmt: skip
+    for i in closers.tolist():  # step 3: a query never answered is lost
+        world.agents[i].close_query()
+    if len(can):
+        _teach(world, t, can)
     mode = world.scenario.mode
     if mode is Mode.PASSIVE_BUFFER or mode is Mode.PASSIVE:
         _overhear(world, t)
@@ -55,13 +74,37 @@ def step(world: Trial, t: int) -> None:
             _use_buffer(world, t)
 
 
-def _scan(world: Trial) -> None:
-    """Step 1, the comms scan: every teacher's ``requestingRobot``."""
-    prox = world.proximity
-    scan(
-        prox.has_neighbours, world.querying, world.taught, world.requester, prox.keys,
-        prox.entered, world.known, world.asked, world.scenario.teaching is TeachingRule.BROADCAST,
-    )  # fmt: skip
+@jit
+def prepare(
+    has_neighbours: np.ndarray,
+    querying: np.ndarray,
+    taught: np.ndarray,
+    requester: np.ndarray,
+    keys: np.ndarray,
+    entered: np.ndarray,
+    known: np.ndarray,
+    asked: np.ndarray,
+    broadcast: bool,
+    tsr: np.ndarray,
+    cool_end: np.ndarray,
+    call: int,
+    carrying: np.ndarray,
+    colour_of: np.ndarray,
+    answering: np.ndarray,
+    wait_end: np.ndarray,
+    cap: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1 (:func:`scan`) and who asks in step 2 (:func:`_askers`, ``call`` = 2t + 1). When
+    nobody asks, also step 3's flags (:func:`_ended`) and step 4's teachers (:func:`_teachers`);
+    when somebody does, those are left empty for after the questions."""
+    scan(has_neighbours, querying, taught, requester, keys, entered, known, asked, broadcast)
+    askers = _askers(tsr, cool_end, call, carrying, colour_of, known)
+    none = np.zeros(0, np.int64)
+    if len(askers):
+        return askers, none, none
+    closers = _ended(querying, answering, wait_end, call)
+    can = _teachers(requester, cool_end, call + 1, querying, carrying, taught, known, asked, cap)
+    return askers, closers, can
 
 
 @jit
@@ -90,14 +133,9 @@ def scan(
             requester[i] = first[i]
 
 
-def _ask(world: Trial, t: int) -> None:
-    """Step 2: ``RegLearnBT`` after its counter call ``2t``."""
+def _ask(world: Trial, t: int, askers: np.ndarray) -> None:
+    """Step 2: ``RegLearnBT`` after its counter call ``2t``: ``askers`` ask."""
     tsr = world.sensor.tsr
-    askers = _askers(
-        tsr, world.timers.cool_end, 2 * t + 1, world.carrying, world.colour_of, world.known
-    )
-    if not len(askers):
-        return
     buffered = world.scenario.mode is Mode.PASSIVE_BUFFER
     for i in askers.tolist():
         colour = int(world.colour_of[tsr[i]])
@@ -139,12 +177,6 @@ def _askers(
     return out[:k]
 
 
-def _close(world: Trial, call: int) -> None:
-    """Step 3: waits that ended by counter call ``call`` clear their flags."""
-    for i in _ended(world.querying, world.answering, world.timers.wait_end, call).tolist():
-        world.agents[i].close_query()
-
-
 @jit
 def _ended(
     querying: np.ndarray, teaching: np.ndarray, wait_end: np.ndarray, call: int
@@ -163,13 +195,8 @@ def _ended(
     return out[:k]
 
 
-def _teach(world: Trial, t: int) -> None:
-    """Step 4: ``TeachBT`` after its counter call ``2t + 1``."""
-    can = _teachers(
-        world.requester, world.timers.cool_end, 2 * t + 2, world.querying, world.carrying
-    )
-    if not len(can):
-        return
+def _teach(world: Trial, t: int, can: np.ndarray) -> None:
+    """Step 4: ``TeachBT`` after its counter call ``2t + 1``: the robots ``can`` may teach."""
     memory = world.scenario.memory_size
     for teacher in can.tolist():
         learner = int(world.requester[teacher])
@@ -206,13 +233,24 @@ def _teachers(
     call: int,
     querying: np.ndarray,
     carrying: np.ndarray,
+    taught: np.ndarray,
+    known: np.ndarray,
+    asked: np.ndarray,
+    cap: int,
 ) -> np.ndarray:
     """The robots with a requester that are free before ``call``, not querying and carry
-    nothing."""
+    nothing, whose requester is querying, untaught, asked a colour the robot knows and knows
+    fewer than ``cap`` colours (-1: no cap). Step 4 checks the requester again as it goes (a
+    lesson teaches it); nothing it does makes a robot left out here a teacher."""
     out = np.empty(requester.shape[0], np.int64)
     k = 0
     for i in range(requester.shape[0]):
         if requester[i] >= 0 and cool_end[i] < call and not querying[i] and carrying[i] < 0:
+            learner = requester[i]
+            if not querying[learner] or taught[learner] or not known[i, asked[learner] - 1]:
+                continue
+            if cap >= 0 and known[learner].sum() >= cap:
+                continue
             out[k] = i
             k += 1
     return out[:k]

@@ -28,6 +28,7 @@ from ktbt_proto.transport.memory import MemoryNetwork
 
 from . import geometry, motion, records, teaching
 from . import robot as rb
+from .kernel import generator_pointers
 from .scenario import Mode, Scenario
 from .sensing import (
     BODY,
@@ -38,8 +39,8 @@ from .sensing import (
     Proximity,
     TargetSensor,
     WallSensor,
+    after_physics,
     enable,
-    zones,
 )
 from .state import forget_learned
 from .timers import Timers
@@ -67,9 +68,10 @@ class World:
         """Tick only the robots whose tree inputs changed; ``False`` ticks every robot every
         iteration (slow; the tests use it to show that skipping changes nothing)."""
         root = np.random.SeedSequence(scenario.seed) if seed is None else seed
-        self.rng = np.random.default_rng(
+        self._rng = np.random.default_rng(
             root if isinstance(root, np.random.SeedSequence) else np.random.SeedSequence(root)
         )
+        self._rng_pointers = generator_pointers(self._rng)
         self.iteration = 0
         self.kt_bt = scenario.mode is not Mode.NO_TRANSFER
         """Whether robots ask and teach: every mode but the release's NL (§9.1)."""
@@ -213,6 +215,12 @@ class World:
         half_count = geometry.ZONE_OUTER * scale / 2 + geometry.TARGET_SIZE / 2
         self._zone = (half_count, geometry.ZONE_INNER * scale / 2, spec.zone_sensor)
 
+    @property
+    def rng(self) -> np.random.Generator:
+        """The trial's generator. Read-only: the compiled motion draws from it through its
+        addresses (``kernel.generator_pointers``), so a replaced one would not be drawn from."""
+        return self._rng
+
     # -- construction ---------------------------------------------------------------------
 
     def _build_walls(self) -> None:
@@ -277,12 +285,15 @@ class World:
         self._sense(t)
 
     def _tick_trees(self) -> None:
-        signature = self.signature()
-        due = signature != self._signature if self.lazy else np.ones(self.n, dtype=bool)
-        if not due.any():
+        timers, sensor = self.timers, self.sensor
+        due = rb.due(
+            self.collision, timers.wait_end, 2 * self.iteration, self.carrying, self.in_zone,
+            self.colour_of, sensor.tsr, self.known, self.drive, self._signature, not self.lazy,
+        )  # fmt: skip
+        if not len(due):
             return
-        self._signature = signature
-        for i in np.flatnonzero(due).tolist():
+        signature = self._signature
+        for i in due.tolist():
             s = int(signature[i])
             agent = self.agents[i]
             bb = agent.blackboard
@@ -294,38 +305,35 @@ class World:
             agent.control.tick()
         for t in self.picked:  # taken away: out of the space and of every sensor it was in
             self.space.remove(self._target_shapes[t])
-            self.sensor.picked(t)
+            sensor.picked(t)
         self.picked.clear()
-        # A pick or a place changed this robot's inputs: it ticks again next iteration.
-        self._signature[self.drive == motion.IDLE] = -1
 
     def _move(self) -> None:
         """Every behaviour writes its robot's resultant velocity, then the actuators act."""
         prox, walls, walk = self.proximity, self.wall_sensor, self.walk
-        spent = motion.behave(
+        spent = motion.move(
             self.drive, self.rv, self.pos, self.walk_flag, self.walk_time, self.walk_span,
             self.memory_iter, self._memory_duration, self.goal, self.zone_centres,
-            prox.start, prox.others, prox.weights, walls.count, walls.centres, self.rng,
+            prox.start, prox.others, prox.weights, walls.count, walls.centres, self._rng_pointers,
             walk.dt, walk.goal_span, walk.leg_min_s, walk.leg_max_s, *walk.carry_jitter_deg,
-            *walk.avoid_turn_deg,
+            *walk.avoid_turn_deg, self.heading, self._vel, *self.actuator,
         )  # fmt: skip
         for i in spent.tolist():
             forget_learned(self, i)
-        motion.actuate(self.rv, self.heading, self._vel, *self.actuator)
 
     def _sense(self, t: int) -> None:
         """The trigger callbacks have run inside the physics step; now the robot-to-robot
         sensors and the zones (§4.5, §4.6, §5.3)."""
         prox = self.proximity
         prox.update(self.pos, t)
-        np.logical_or(prox.count, self.wall_sensor.count, out=self.collision)
-        if self.kt_bt and len(prox.newly):
-            teaching.came_into_range(self, prox.newly)
         count_half, place_half, reach = self._zone
-        zones(
-            self.pos, self.carrying, self.goal, self.zone_centres, self.counted, self.collected,
-            self.in_zone, self.target_colour, count_half, place_half, reach,
+        heard = after_physics(
+            prox.count, self.wall_sensor.count, self.collision, prox.newly, self.querying,
+            self.taught, self.pos, self.carrying, self.goal, self.zone_centres, self.counted,
+            self.collected, self.in_zone, self.target_colour, count_half, place_half, reach,
         )  # fmt: skip
+        if self.kt_bt and len(heard):
+            teaching.came_into_range(self, heard)
 
     # -- what an experiment reads -----------------------------------------------------------
 

@@ -80,3 +80,22 @@ def test_compiled_search_agrees_with_the_distance_matrix(
         assert prox.requesters(open_, knows, asked).tolist() == matrix.requesters(
             open_, knows, asked
         )
+
+
+def test_a_group_spread_far_beyond_its_grid_gets_wider_cells_and_the_same_pairs() -> None:
+    """One robot very far from the others would make the grid of cells huge
+    (``GRID_CELLS_PER_ROBOT``): the search widens its cells instead and finds the same pairs."""
+    rng = np.random.default_rng(3)
+    n = DENSE_UP_TO + 20
+    pos = rng.uniform(-1500.0, 1500.0, (n, 2))
+    pos[7] = (4.0e7, -4.0e7)
+    pos[8] = pos[7] + (100.0, 0.0)  # and it has a neighbour out there
+    matrix = Matrix(n, 75.0, 36.0, 336.0)
+    prox = Proximity(n, 75.0, 36.0, 336.0, comms=True)
+    matrix.update(pos, 1)
+    prox.update(pos, 1)
+    assert prox.count.tolist() == (matrix.weight > 0).sum(axis=1).tolist()
+    assert prox.neighbours(7).tolist() == [8]
+    for i in range(n):
+        assert prox.weight(i).tolist() == matrix.weight[i].tolist()
+        assert prox.neighbours(i).tolist() == np.flatnonzero(matrix.in_range[i]).tolist()

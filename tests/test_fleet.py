@@ -67,6 +67,9 @@ def test_ctrl_c_twice_mid_run_leaves_no_peer_no_monitor_and_no_namespace(tmp_pat
              "--churn-rounds", "3", "--seed", "5", "--bound", "60", "--teacher", "serve",
              "--monitor", "127.0.0.1:0", "--no-live", "--out", str(out)],
             cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+            # Ctrl-C as a terminal gives it (a test run in the background starts with SIGINT
+            # ignored, and Python keeps it ignored)
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )  # fmt: skip
     record = out / "events.jsonl"
     try:

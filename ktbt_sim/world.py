@@ -260,15 +260,6 @@ class World:
 
     # -- one iteration ----------------------------------------------------------------------
 
-    def signature(self) -> np.ndarray:
-        """Every robot's tree inputs packed in one integer: collision, waiting, carrying, in
-        its zone, the registered target's colour, the colours it knows."""
-        packed: np.ndarray = rb.signature(
-            self.collision, self.timers.wait_end, 2 * self.iteration, self.carrying,
-            self.in_zone, self.colour_of, self.sensor.tsr, self.known,
-        )  # fmt: skip
-        return packed
-
     def step(self) -> None:
         self.iteration += 1
         t = self.iteration

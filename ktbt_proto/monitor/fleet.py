@@ -363,7 +363,6 @@ class Fleet:
                 oldest = min(idle, key=lambda p: p.heard)
                 for item in list(oldest.knows):  # the page forgets them with the peer
                     self._unknow(oldest, item, tell=False)
-                self._known_version += 1
                 del self.peers[oldest.name]
                 self._no_room.pop(oldest.name, None)
                 self._dirty.discard(oldest.name)
@@ -454,11 +453,12 @@ class Fleet:
         return None
 
     def _heaviest_item(self, peer: Peer, tier: int) -> tuple[str | None, float]:
-        """Of the items ``peer`` knows and only peers of ``tier`` or below know, the one whose
-        knowers' mean load is the highest, the oldest of equals, and that load. One only it
-        knows is charged its whole load, the most any can be when it is the heaviest, so the
-        oldest such is taken without counting the others; and one whose knowers' mean is its
-        load ends the search."""
+        """The item ``peer`` gives way with, and its load: the oldest item only it knows, if it
+        has one (charged its whole load: among knowers of one rank, the most any item can be
+        when the peer is the heaviest, though knowers of a lower rank may carry more); else,
+        of the items only peers of ``tier`` or below know, the one whose knowers' mean load is
+        the highest, the oldest of equals (one whose mean is the peer's load ends the
+        search)."""
         own = next((i for i in peer.knows if len(self._knowers[i]) == 1), None)
         if own is not None:  # its rank is the peer's: no need to count the others
             return own, peer.load

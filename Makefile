@@ -23,6 +23,7 @@ demo: $(VENV)/.installed
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/ruff format --check ktbt_proto ktbt_sim tests benchmarks
 
 typecheck: $(VENV)/.installed-dev
@@ -63,14 +64,14 @@ studies: $(VENV)/.installed
 FUZZ_INPUTS ?= 1000000
 FUZZ_SEED ?=
 fuzz: $(VENV)/.installed-dev
-	$(BIN)/python -m ktbt_proto.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+	$(BIN)/python -m ktbt_proto.tools.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
 
 # BehaviorTree.CPP itself as the judge of our XML, and a C++ robot learning beside a KT-BT agent
 # (not part of `make test`): the library is built from source once per version and compiler into
 # ~/.cache/ktbt (minutes the first time), then the differential and sidecar tests run against it.
 interop: $(VENV)/.installed-dev
 	$(BIN)/python -m tests.btcpp.build
-	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/test_interop_btcpp_engine.py tests/test_interop_btcpp_learner.py
+	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/interop/test_btcpp_engine.py tests/interop/test_btcpp_learner.py
 
 # The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
 # and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,

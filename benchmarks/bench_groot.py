@@ -7,7 +7,7 @@ The same port-less tree (11 nodes: a reactive fallback over a collision branch, 
 knowledge placeholder, a negated-condition branch and a running walk) runs in two processes of
 its own, each ticking it at 100 Hz as a robot would:
 
-* ours: a ``LiveTree`` served by ``ktbt_proto.groot2.Groot2Publisher``;
+* ours: a ``LiveTree`` served by ``ktbt_proto.interop.groot2.Groot2Publisher``;
 * the anchor: the same tree, as the XML ``ktbt convert`` writes, loaded into BehaviorTree.CPP
   4.8 through ``behaviortreepy`` and served by its own ``Groot2Publisher``.
 
@@ -60,7 +60,7 @@ def _free_port() -> int:
 
 def _ours(port: int) -> Callable[[], object]:
     import ktbt_proto as kp
-    from ktbt_proto.groot2 import Groot2Publisher
+    from ktbt_proto.interop.groot2 import Groot2Publisher
 
     reg = kp.Registry()
     reg.add_condition("_collisionDetectedF", lambda bb: False)
@@ -104,7 +104,7 @@ def ticks(rounds: int) -> dict[str, Stats]:
     import zmq
 
     import ktbt_proto as kp
-    from ktbt_proto.groot2 import Groot2Publisher
+    from ktbt_proto.interop.groot2 import Groot2Publisher
 
     def tree() -> kp.LiveTree:
         reg = kp.Registry()

@@ -120,8 +120,8 @@ def _ms(t: str) -> float:
 def generate(port: int, peers: int, rate: float, seconds: float, signed: bool = False) -> int:
     """Listen on ``port`` and publish ``rate`` events a second, spread over ``peers`` peers
     (each signing its events with a key pair of its own if ``signed``)."""
-    from ktbt_proto.events import EventPublisher
-    from ktbt_proto.signing import Identity
+    from ktbt_proto.exchange.events import EventPublisher
+    from ktbt_proto.exchange.signing import Identity
     from ktbt_proto.transport.zenoh import ZenohSettings, open_session
 
     session = open_session(ZenohSettings(listen=[f"tcp/127.0.0.1:{port}"]))
@@ -172,7 +172,7 @@ def generate(port: int, peers: int, rate: float, seconds: float, signed: bool = 
 
 
 def bench(peers: int, rate: float, seconds: float, signed: bool = False) -> dict[str, Any]:
-    from ktbt_proto.events import decode_event
+    from ktbt_proto.exchange.events import decode_event
     from ktbt_proto.transport.zenoh import ZenohSettings, open_session
     from tests.browser import chromium, unavailable
 
@@ -328,7 +328,7 @@ def screenshot(path: Path, peers: int = 20) -> None:
 
     fleet, http = _port(), _port()
     work = Path(tempfile.mkdtemp(prefix="ktbt-shot-"))
-    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
+    knowledge = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
     (work / "bad.sbt").write_text(BAD)
     for c in (1, 2):
         (work / f"c{c}.sbt").write_text(ONE.format(c=c))
@@ -391,8 +391,8 @@ def publish_cost(rounds: int) -> dict[str, Any]:
     import ktbt_proto as kp
     from benchmarks import bench_transfer as bt
     from benchmarks.timing import gc_paused
-    from ktbt_proto.peer import DEMO_CONTROL, demo_registry, load_knowledge
-    from ktbt_proto.signing import Identity
+    from ktbt_proto.exchange.signing import Identity
+    from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry, load_knowledge
     from ktbt_proto.transport.zenoh import ZenohTransport, peers
 
     kb = load_knowledge(bt.KNOWLEDGE_PATH)

@@ -11,7 +11,8 @@ to it):
   replies with a fixed payload; the time covers the get and reading every reply's bytes. Its
   payloads have exactly the sizes of ours' query and response.
 * ours: a learner ``ZenohTransport`` asks a teacher ``ZenohTransport`` serving
-  ``examples/knowledge/colours.sbt`` through ``lookup=`` (as ``ktbt peer serve`` does). The time
+  ``ktbt_proto/examples/knowledge/colours.sbt`` through ``lookup=`` (as ``ktbt peer serve`` does).
+  The time
   covers building the ``Query``, ``learner.ask(query, timeout)`` (encode, get, the teacher's
   lookup and reply, decode), the checks of ``Agent.accept`` (the answer is to the question, the
   sequence and the subtree parsed with ``RECEIVE_LIMITS``), ``live.merge(subtree, "new",
@@ -41,13 +42,14 @@ from typing import Any
 import zenoh
 
 import ktbt_proto as kp
-from ktbt_proto.agent import RECEIVE_LIMITS
-from ktbt_proto.knowledge import KnowledgeBase, parse_sequence
-from ktbt_proto.messages import Query, Response, decode, encode
-from ktbt_proto.peer import DEMO_CONTROL, answers, demo_registry, load_knowledge
-from ktbt_proto.signing import Identity, SignedItem
+from ktbt_proto.exchange.agent import RECEIVE_LIMITS
+from ktbt_proto.exchange.answers import answers
+from ktbt_proto.exchange.knowledge import KnowledgeBase, parse_sequence
+from ktbt_proto.exchange.messages import Query, Response, decode, encode
+from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
+from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry, load_knowledge
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
-from ktbt_proto.trust import Policy, TrustStore, refusal
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
 
@@ -61,7 +63,9 @@ GET_TIMEOUT = 2.0
 """Seconds a get may wait; the replies end it long before."""
 CONNECT_TIMEOUT = 10.0
 """Seconds to wait for each pair of sessions to see each other."""
-KNOWLEDGE_PATH = Path(__file__).resolve().parents[1] / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE_PATH = (
+    Path(__file__).resolve().parents[1] / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+)
 TEACHER, LEARNER = "teacher", "learner"
 COLOURS = (1, 2, 3, 4)
 RAW_SELECTOR = "bench/raw/*"

@@ -4,17 +4,17 @@ The public names below are a contract (``ARCHITECTURE.md`` at the repository roo
 each layer holds); everything else may move.
 """
 
-from .blackboard import Blackboard
-from .errors import ErrorCode, LimitError, ParseError, StringBTError, ValidationError
-from .format import format
-from .limits import DEFAULT_LIMITS, Limits
-from .merge import MergeError, merge, remove
-from .registry import Registry, StatefulAction
-from .render import render
-from .runtime import LiveTree
-from .status import FAILURE, RUNNING, SUCCESS, Status
-from .syntax import parse, parse_reference
-from .tree import (
+from ktbt_proto.blackboard import Blackboard
+from ktbt_proto.errors import ErrorCode, LimitError, ParseError, StringBTError, ValidationError
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.merge import MergeError, merge, remove
+from ktbt_proto.registry import Registry, StatefulAction
+from ktbt_proto.render import render
+from ktbt_proto.runtime import LiveTree
+from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
+from ktbt_proto.syntax import parse, parse_reference
+from ktbt_proto.tree import (
     Action,
     Comments,
     Condition,
@@ -25,12 +25,12 @@ from .tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Wait,
     WaitTimer,
 )
-from .validate import SupportsNames, Vocabulary, check, validate
+from ktbt_proto.validate import SupportsNames, Vocabulary, find_problems, validate
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -55,7 +55,7 @@ __all__ = [
     "Registry",
     "RunTimer",
     "Selector",
-    "Sequence",
+    "SequenceNode",
     "StatefulAction",
     "Status",
     "StringBTError",
@@ -65,8 +65,8 @@ __all__ = [
     "Vocabulary",
     "Wait",
     "WaitTimer",
-    "check",
-    "format",
+    "find_problems",
+    "format_tree",
     "merge",
     "parse",
     "parse_reference",

@@ -1,5 +1,5 @@
 """``python -m ktbt_proto`` is the ``ktbt`` command."""
 
-from .cli import main
+from ktbt_proto.tools.cli import main
 
 main()

@@ -1,6 +1,6 @@
 """What an agent needs from the control tree it learns into and teaches from.
 
-An :class:`~ktbt_proto.agent.Agent` merges answers into a placeholder of its control tree,
+An :class:`~ktbt_proto.exchange.agent.Agent` merges answers into a placeholder of its control tree,
 forgets them again, asks when each item last ran (its memory policy, ``spec/protocol.md``
 section 4.2), ticks the tree, and reads the knowledge its placeholders already hold from the
 tree's stringBT form (section 4). :class:`ControlTree` is that contract, and nothing more: the
@@ -17,10 +17,10 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any, Protocol, runtime_checkable
 
-from .registry import Registry
-from .runtime import TickClock
-from .status import Status
-from .tree import Condition, Node, Tree
+from ktbt_proto.registry import Registry
+from ktbt_proto.runtime import TickClock
+from ktbt_proto.status import Status
+from ktbt_proto.tree import Condition, Node, Tree
 
 __all__ = ["ControlFactory", "ControlTree", "TickClock"]
 

@@ -1,4 +1,9 @@
-"""Durable file replacement: the one way the project writes a file that must survive a crash.
+"""Files: the package's own data, bounded reads, and the one durable write.
+
+Packaged data (the grammar, the examples) is found one way, :func:`packaged`, through
+``importlib.resources``, so a wheel and a source checkout read the same files.
+
+Durable file replacement is the one way the project writes a file that must survive a crash.
 
 A knowledge base, a formatted source file, a trial's results and a fleet's records are all
 replaced the same way (spec/protocol.md section 5, persistence): the new contents go to a
@@ -12,10 +17,18 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import importlib.resources
 import os
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
+
+
+def packaged(*parts: str) -> Path:
+    """A file or folder shipped inside the package: ``packaged("examples", "sar_control.sbt")``,
+    ``packaged("grammar", "stringbt.lark")``. The package is installed as files (a wheel or a
+    source checkout), so the resource is a real path other processes can be handed."""
+    return Path(str(importlib.resources.files("ktbt_proto").joinpath(*parts)))
 
 
 def temporary_name(final: Path) -> Path:

@@ -15,12 +15,11 @@ from collections.abc import Iterable
 from dataclasses import replace
 from functools import lru_cache
 
-from .errors import ErrorCode, ParseError, StringBTError
-from .format import format as format_tree
-from .format import format_value
-from .limits import DEFAULT_LIMITS, Limits
-from .syntax import parse
-from .tree import Condition, Node, Placeholder, Sequence, Tree, as_node, walk
+from ktbt_proto.errors import ErrorCode, ParseError, StringBTError
+from ktbt_proto.formatter import format_tree, format_value
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.syntax import parse
+from ktbt_proto.tree import Condition, Node, Placeholder, SequenceNode, Tree, as_node, walk
 
 __all__ = [
     "parse_sequence",
@@ -42,7 +41,7 @@ def parse_sequence(key: str, limits: Limits = DEFAULT_LIMITS) -> tuple[Condition
     """The conditions of a sequence key (``<c>(A)<c>(!B)``); raises StringBTError. Cached:
     a robot asks and is asked about the same few sequences again and again."""
     root = parse(f"<sq>{key}<e>", limits=limits).root
-    assert isinstance(root, Sequence)
+    assert isinstance(root, SequenceNode)
     conds = root.children
     if not conds or not all(isinstance(c, Condition) for c in conds):
         raise ParseError(ErrorCode.UNEXPECTED_TOKEN, "a sequence holds conditions only")
@@ -189,7 +188,7 @@ def split_item(node: Node) -> tuple[tuple[Condition, ...], Node] | None:
     subtree itself, several are ``Sequence(children)``. So the paper's flat form
     ``<sq><c>(A)<a>(X)<a>(Y)<e>`` and the nested ``<sq><c>(A)<sq><a>(X)<a>(Y)<e><e>`` are the
     same item, and tick the same way."""
-    if not isinstance(node, Sequence) or node.memory:
+    if not isinstance(node, SequenceNode) or node.memory:
         return None
     children = node.children
     n = 0
@@ -199,7 +198,7 @@ def split_item(node: Node) -> tuple[tuple[Condition, ...], Node] | None:
         return None
     conds = tuple(c for c in children[:n] if isinstance(c, Condition))
     rest = children[n:]
-    return conds, rest[0] if len(rest) == 1 else Sequence(rest)
+    return conds, rest[0] if len(rest) == 1 else SequenceNode(rest)
 
 
 def stray_nodes(tree: Tree | Node) -> list[StringBTError]:

@@ -12,21 +12,21 @@ from collections.abc import Sequence as Items
 from contextlib import contextmanager
 from dataclasses import replace
 
-from .errors import ErrorCode, LimitError, StringBTError, ValidationError
-from .items import read_sequence, split_item
-from .limits import Limits
-from .tree import (
+from ktbt_proto.errors import ErrorCode, LimitError, StringBTError, ValidationError
+from ktbt_proto.items import read_sequence, split_item
+from ktbt_proto.limits import Limits
+from ktbt_proto.tree import (
     Condition,
     Container,
     Node,
     Placeholder,
-    Sequence,
+    SequenceNode,
     Tree,
     as_node,
     walk,
     with_children,
 )
-from .validate import SupportsNames, validate
+from ktbt_proto.validate import SupportsNames, validate
 
 
 class MergeError(StringBTError):
@@ -68,7 +68,7 @@ def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
 
 def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:
     """The knowledge item ``Sequence(s_q, T_ka)``: the condition sequence, then the subtree."""
-    return Sequence((*conditions(when), as_node(subtree)))
+    return SequenceNode((*conditions(when), as_node(subtree)))
 
 
 def find_placeholder(tree: Tree | Node, slot: str) -> tuple[int, ...] | None:

@@ -16,8 +16,8 @@ from typing import Any, Literal, Protocol, TypeVar, runtime_checkable
 from pydantic import TypeAdapter
 from pydantic import ValidationError as PydanticError
 
-from .status import Status
-from .tree import Args
+from ktbt_proto.status import Status
+from ktbt_proto.tree import Args
 
 F = TypeVar("F", bound=Callable[..., Any])
 Kind = Literal["condition", "action"]

@@ -11,8 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Literal
 
-from .format import format_value
-from .tree import (
+from ktbt_proto.formatter import format_value
+from ktbt_proto.tree import (
     Action,
     Args,
     Condition,
@@ -23,7 +23,7 @@ from .tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Wait,
     WaitTimer,
@@ -57,8 +57,8 @@ def call_text(name: str, args: Args) -> str:
 
 def _label(node: Node) -> str:
     """A short human label: readers of a picture should not need to know stringBT tags."""
-    if isinstance(node, Sequence | Selector):
-        kind = type(node).__name__
+    if isinstance(node, SequenceNode | Selector):
+        kind = "Sequence" if isinstance(node, SequenceNode) else "Selector"
         return kind + " (memory)" if node.memory else kind
     if isinstance(node, Parallel):
         return "Parallel (all)" if node.threshold is None else f"Parallel (≥{node.threshold})"

@@ -16,11 +16,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from .blackboard import Blackboard
-from .errors import ErrorCode, StringBTError
-from .items import split_item
-from .limits import DEFAULT_LIMITS, Limits
-from .merge import (
+from ktbt_proto.blackboard import Blackboard
+from ktbt_proto.errors import ErrorCode, StringBTError
+from ktbt_proto.items import split_item
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.merge import (
     MergeError,
     building,
     check_item,
@@ -31,10 +31,10 @@ from .merge import (
     merge_at,
     remove_at,
 )
-from .registry import Registry
-from .status import FAILURE, RUNNING, SUCCESS, Status
-from .syntax import parse
-from .tree import (
+from ktbt_proto.registry import Registry
+from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
+from ktbt_proto.syntax import parse
+from ktbt_proto.tree import (
     Action,
     Condition,
     Container,
@@ -44,7 +44,7 @@ from .tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Wait,
     WaitTimer,
@@ -52,7 +52,7 @@ from .tree import (
     walk,
     with_children,
 )
-from .validate import validate
+from ktbt_proto.validate import validate
 
 Tick = Callable[[], Status]
 Halt = Callable[[], None]
@@ -502,7 +502,7 @@ def _compile_container(
     slots: dict[str, _Slot],
     ticks: TickClock,
 ) -> tuple[Compiled, Calls, list[Halt]]:
-    if isinstance(node, Sequence):
+    if isinstance(node, SequenceNode):
         return (_memory if node.memory else _reactive)(kids, SUCCESS)
     if isinstance(node, Selector):
         return (_memory if node.memory else _reactive)(kids, FAILURE)

@@ -29,9 +29,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from .errors import ErrorCode, LimitError, ParseError, StringBTError
-from .limits import DEFAULT_LIMITS, Limits
-from .tree import (
+from ktbt_proto.errors import ErrorCode, LimitError, ParseError, StringBTError
+from ktbt_proto.files import packaged
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.tree import (
     Action,
     Comments,
     Condition,
@@ -42,7 +43,7 @@ from .tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Value,
     Wait,
@@ -241,8 +242,8 @@ def parse(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
 
 _new = object.__new__
 _KINDS: dict[str, tuple[type[Container], dict[str, Any]]] = {
-    "<sq>": (Sequence, {}),
-    "<msq>": (Sequence, {"memory": True}),
+    "<sq>": (SequenceNode, {}),
+    "<msq>": (SequenceNode, {"memory": True}),
     "<sl>": (Selector, {}),
     "<msl>": (Selector, {"memory": True}),
     "<pl>": (Parallel, {}),
@@ -468,11 +469,9 @@ def _with_comments(node: Node, **changes: Any) -> Node:
 
 
 def grammar_path() -> Path:
-    """The normative grammar file, inside the installed package or the source tree."""
-    packaged = Path(__file__).with_name("grammar") / "stringbt.lark"
-    if packaged.exists():
-        return packaged
-    return Path(__file__).resolve().parent.parent / "grammar" / "stringbt.lark"
+    """The grammar shipped in the package (identical to the repository's normative
+    ``grammar/stringbt.lark``, which a test checks)."""
+    return packaged("grammar", "stringbt.lark")
 
 
 def grammar_text() -> str:
@@ -755,7 +754,7 @@ class _ReferenceBuilder:
 
     def sequence(self, items: list[Any]) -> Node:
         tag, children = self._container(items)
-        return Sequence(children, memory=tag.type == "MSEQ", pos=self._pos(tag))
+        return SequenceNode(children, memory=tag.type == "MSEQ", pos=self._pos(tag))
 
     def selector(self, items: list[Any]) -> Node:
         tag, children = self._container(items)

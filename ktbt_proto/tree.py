@@ -68,8 +68,10 @@ class Container(Node):
 
 
 @dataclass(frozen=True)
-class Sequence(Container):
-    """Ticks children left to right while they succeed. Reactive unless ``memory``."""
+class SequenceNode(Container):
+    """A Sequence (``<sq>``, ``<msq>``): ticks children left to right while they succeed.
+    Reactive unless ``memory``. Named apart from ``collections.abc.Sequence``, which the same
+    modules often need."""
 
     memory: bool = False
 

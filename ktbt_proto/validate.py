@@ -15,10 +15,10 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Protocol
 
-from .errors import ErrorCode, LimitError, StringBTError, ValidationError
-from .limits import DEFAULT_LIMITS, Limits
-from .syntax import NAME_RE
-from .tree import (
+from ktbt_proto.errors import ErrorCode, LimitError, StringBTError, ValidationError
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.syntax import NAME_RE
+from ktbt_proto.tree import (
     Action,
     Args,
     Condition,
@@ -29,7 +29,7 @@ from .tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Wait,
     WaitTimer,
@@ -146,7 +146,7 @@ def _check_args(args: Args, node: Node, limits: Limits, out: list[StringBTError]
 
 
 _TAG = {
-    Sequence: "<sq>",
+    SequenceNode: "<sq>",
     Selector: "<sl>",
     Parallel: "<pl>",
     Inverter: "<neg>",
@@ -222,7 +222,7 @@ def _check_wait(node: Wait, limits: Limits, add: Callable[[StringBTError], None]
         add(_problem(ErrorCode.INVALID_DURATION, f"wait must be {want}, not {shown}", node))
 
 
-def check(
+def find_problems(
     tree: Tree | Node,
     registry: SupportsNames | None = None,
     *,
@@ -300,9 +300,10 @@ def validate(
     *,
     limits: Limits = DEFAULT_LIMITS,
 ) -> None:
-    """Raise a ``LimitError`` if the tree breaks a limit, else the first problem :func:`check`
-    finds (a ``ValidationError`` carrying all of them in ``problems``); ``None`` if valid."""
-    problems = check(tree, registry, limits=limits)
+    """Raise a ``LimitError`` if the tree breaks a limit, else the first problem
+    :func:`find_problems` finds (a ``ValidationError`` carrying all of them in ``problems``);
+    ``None`` if valid."""
+    problems = find_problems(tree, registry, limits=limits)
     if not problems:
         return
     # A limit problem wins: it says the rest of the tree was not even read.

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Annotated, Literal
 import typer
 
 if TYPE_CHECKING:
-    from .experiment import Executor, Job
-    from .scenario import Scenario
+    from ktbt_sim.experiment import Executor, Job
+    from ktbt_sim.scenario import Scenario
 
 sim = typer.Typer(
     help="The search-and-rescue simulator: run the paper's studies, plot them, watch a run.",
@@ -51,7 +51,7 @@ def _need_sim() -> None:
 def _scenarios(
     target: str, trials: int | None, iterations: int | None, seed: int | None
 ) -> list[Scenario]:
-    from .experiment import scenarios_for
+    from ktbt_sim.experiment import scenarios_for
 
     changes: dict[str, int] = {}
     if trials is not None:
@@ -86,7 +86,7 @@ def sweep(
         TimeRemainingColumn,
     )
 
-    from .experiment import plan, run, twins
+    from ktbt_sim.experiment import plan, run, twins
 
     try:
         todo = len(plan(scenarios, out))
@@ -171,7 +171,7 @@ def run_command(
     scenarios = _scenarios(target, trials, iterations, seed)
     ran, before, seconds = sweep(scenarios, out, _workers(workers), executor, address)
     if release_csv:
-        from .results import export_release
+        from ktbt_sim.results import export_release
 
         for scenario in scenarios:
             try:
@@ -191,7 +191,7 @@ def compare_command(
     ] = None,
 ) -> None:
     """Two runs of one configuration side by side: the numbers and one figure."""
-    from .compare import compare
+    from ktbt_sim.compare import compare
 
     try:
         typer.echo(compare(ours, theirs, out))
@@ -206,8 +206,8 @@ def plot_command(
     ],
 ) -> None:
     """Draw every figure the folder has data for (PNG and SVG) and a summary table."""
-    from .plots import plot
-    from .results import load
+    from ktbt_sim.plots import plot
+    from ktbt_sim.results import load
 
     if not directory.is_dir():
         raise _fail(f"{directory} is not a folder")
@@ -225,7 +225,7 @@ def plot_command(
 @sim.command("list")
 def list_command() -> None:
     """Studies and presets."""
-    from .scenario import PRESETS, STUDIES
+    from ktbt_sim.scenario import PRESETS, STUDIES
 
     typer.echo("studies:")
     for name, presets in STUDIES.items():
@@ -304,16 +304,15 @@ def view_command(
     scenarios = _scenarios(target, None, None, None)
     if len(scenarios) != 1:
         raise _fail("view takes one scenario, not a study")
-    from . import viewer
+    from ktbt_sim import viewer
 
     if record is None:
         reason = viewer.no_display()
         if reason:
             raise _fail(f"{reason}; record the run instead: --record run.gif")
-    from ktbt_proto.agent_stream import AgentStream
+    from ktbt_proto.transport.stream import AgentStream
     from ktbt_proto.transport.zenoh import ZenohSettings
-
-    from .world import World
+    from ktbt_sim.world import World
 
     world = World(scenarios[0], seed=seed)
     stream = None
@@ -363,8 +362,8 @@ def demo_command(
 ) -> None:
     """The paper's main result in about a minute: KT-BT against both no-transfer baselines."""
     _need_sim()
-    from .plots import plot
-    from .scenario import PRESETS, STUDIES
+    from ktbt_sim.plots import plot
+    from ktbt_sim.scenario import PRESETS, STUDIES
 
     try:
         scenarios = [

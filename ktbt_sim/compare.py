@@ -18,8 +18,8 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from . import metrics
-from .results import Results, load_folder, read_release_folder
+from ktbt_sim import metrics
+from ktbt_sim.results import Results, load_folder, read_release_folder
 
 matplotlib.use("Agg")
 

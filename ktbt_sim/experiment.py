@@ -22,8 +22,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ktbt_proto.files import write_atomic
-
-from .results import (
+from ktbt_sim.results import (
     Results,
     combine,
     finished,
@@ -32,7 +31,7 @@ from .results import (
     trial_path,
     write_trial,
 )
-from .scenario import PRESETS, STUDIES, Scenario
+from ktbt_sim.scenario import PRESETS, STUDIES, Scenario
 
 Rows = dict[str, list[int]]
 
@@ -45,7 +44,7 @@ def run_trial(scenario_json: str, trial: int) -> Rows:
     """One trial from scratch: the rows recorded every ``record_every`` iterations (and at 0).
 
     Takes the scenario as JSON so that it crosses process and machine boundaries as data."""
-    from .world import RECORD_COLUMNS, World
+    from ktbt_sim.world import RECORD_COLUMNS, World
 
     scenario = Scenario.model_validate_json(scenario_json)
     world = World(scenario, seed=trial_seed(scenario, trial))

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .records import set_name
-from .results import Results
+from ktbt_sim.records import set_name
+from ktbt_sim.results import Results
 
 Array = npt.NDArray[np.float64]
 

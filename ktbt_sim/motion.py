@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernel import generator, jit
+from ktbt_sim.kernel import generator, jit
 
 STOP, WALK, TO_ZONE, AVOID, IDLE = 0, 1, 2, 3, 4
 """The motion modes an action selects. IDLE: the last tick ran a pick or a place, which leave

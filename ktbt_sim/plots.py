@@ -23,10 +23,10 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from . import metrics
-from .results import Results, load
-from .scenario import MODE_GROUPS, MODE_VARIANTS, PRESETS
-from .scenario import STUDIES as SCENARIOS
+from ktbt_sim import metrics
+from ktbt_sim.results import Results, load
+from ktbt_sim.scenario import MODE_GROUPS, MODE_VARIANTS, PRESETS
+from ktbt_sim.scenario import STUDIES as SCENARIOS
 
 matplotlib.use("Agg")
 

@@ -24,12 +24,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ktbt_proto.files import write_atomic
-
-from .scenario import COLOURS, Mode, Robots, Scenario, Targets, TeachingRule
-from .state import total
+from ktbt_sim.scenario import COLOURS, Mode, Robots, Scenario, Targets, TeachingRule
+from ktbt_sim.state import total
 
 if TYPE_CHECKING:
-    from .state import Trial
+    from ktbt_sim.state import Trial
 
 
 def set_name(bits: int) -> str:
@@ -67,7 +66,7 @@ SET_BITS = np.array([1, 2, 4, 8])
 
 def row(world: Trial) -> dict[str, int]:
     """One row of ``COLUMNS`` from a world's state."""
-    from .motion import AVOID
+    from ktbt_sim.motion import AVOID
 
     call = 2 * world.iteration + 2
     known = world.known
@@ -241,7 +240,7 @@ def release_scenario(folder: Path, iterations: int) -> Scenario:
     memory = int(match["memory"])
     i, m, r, g, y, b = (int(v) for v in match["robots"].split("_"))
     tr, tg, ty, tb = (int(v) for v in match["targets"].split("_"))
-    from .scenario import Arena
+    from ktbt_sim.scenario import Arena
 
     return Scenario(
         name=f"release {folder.name}",

@@ -19,9 +19,8 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from ktbt_proto.files import replacing, write_atomic
-
-from .records import read_release_csv, release_name, release_scenario, write_release_csv
-from .scenario import Scenario
+from ktbt_sim.records import read_release_csv, release_name, release_scenario, write_release_csv
+from ktbt_sim.scenario import Scenario
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 import ktbt_proto as kp
-from ktbt_proto.knowledge import sequence_key
-
-from .kernel import jit
+from ktbt_proto.exchange.knowledge import sequence_key
+from ktbt_sim.kernel import jit
 
 if TYPE_CHECKING:
-    from .state import Trial
+    from ktbt_sim.state import Trial
 
 CONTROL_TREE = files("ktbt_sim") / "trees" / "sar_control.sbt"
 """The paper's control tree with ``common``, ``prior`` and ``new`` placeholders."""
@@ -32,7 +31,7 @@ KINDS = {"I": (), "M": (1, 2, 3, 4), "R": (1,), "G": (2,), "Y": (3,), "B": (4,)}
 
 # Motion modes an action selects; the world writes every robot's resultant velocity by its
 # mode each iteration, as the release's actions do each tick (spec/simulator.md §4).
-from .motion import AVOID, IDLE, STOP, TO_ZONE, WALK  # noqa: E402
+from ktbt_sim.motion import AVOID, IDLE, STOP, TO_ZONE, WALK  # noqa: E402
 
 # Blackboard keys written by sensing.
 COLLISION = "_collisionDetectedF"

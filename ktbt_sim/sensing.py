@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pymunk
 
-from .kernel import jit
+from ktbt_sim.kernel import jit
 
 # Collision types and filter categories.
 BODY, WALL, TARGET, TARGET_SENSOR, WALL_SENSOR = 1, 2, 4, 8, 16

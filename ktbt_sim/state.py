@@ -15,12 +15,11 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 if TYPE_CHECKING:
-    from ktbt_proto.agent import Agent
+    from ktbt_proto.exchange.agent import Agent
     from ktbt_proto.transport.memory import MemoryNetwork
-
-    from .scenario import Scenario
-    from .sensing import Proximity, TargetSensor
-    from .timers import Timers
+    from ktbt_sim.scenario import Scenario
+    from ktbt_sim.sensing import Proximity, TargetSensor
+    from ktbt_sim.timers import Timers
 
 
 class Trial(Protocol):

@@ -33,14 +33,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import robot as rb
-from .kernel import jit
-from .scenario import Mode, TeachingRule
-from .sensing import first_requesters
-from .state import sync_known
+from ktbt_sim import robot as rb
+from ktbt_sim.kernel import jit
+from ktbt_sim.scenario import Mode, TeachingRule
+from ktbt_sim.sensing import first_requesters
+from ktbt_sim.state import sync_known
 
 if TYPE_CHECKING:
-    from .state import Trial
+    from ktbt_sim.state import Trial
 
 
 def step(world: Trial, t: int) -> None:

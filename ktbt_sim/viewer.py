@@ -22,8 +22,8 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import numpy as np
 import pygame
 
-from . import geometry
-from .world import World
+from ktbt_sim import geometry
+from ktbt_sim.world import World
 
 RGB = tuple[int, int, int]
 

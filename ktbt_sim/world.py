@@ -22,15 +22,14 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
-from ktbt_proto.agent import Agent
-from ktbt_proto.memory import MemoryPolicy
+from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.memory import MemoryPolicy
 from ktbt_proto.transport.memory import MemoryNetwork
-
-from . import geometry, motion, records, teaching
-from . import robot as rb
-from .kernel import generator_pointers
-from .scenario import Mode, Scenario
-from .sensing import (
+from ktbt_sim import geometry, motion, records, teaching
+from ktbt_sim import robot as rb
+from ktbt_sim.kernel import generator_pointers
+from ktbt_sim.scenario import Mode, Scenario
+from ktbt_sim.sensing import (
     BODY,
     TARGET,
     TARGET_SENSOR,
@@ -42,8 +41,8 @@ from .sensing import (
     after_physics,
     enable,
 )
-from .state import forget_learned
-from .timers import Timers
+from ktbt_sim.state import forget_learned
+from ktbt_sim.timers import Timers
 
 RECORD_COLUMNS = records.COLUMNS
 

@@ -2,7 +2,7 @@
 sessions, ``slow`` one that takes more than about 5 s; ``make test-fast`` runs the others.
 
 Most tests carry their marks where they are written. The simulator's tests are marked from the
-table below instead, until their module says it itself; ``tests/test_tiers.py`` checks that
+table below instead, until their module says it itself; ``tests/suites/test_tiers.py`` checks that
 every name in it is still a test of that module.
 """
 

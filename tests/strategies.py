@@ -62,7 +62,7 @@ def trees(with_comments: bool = False, valid: bool = False) -> st.SearchStrategy
         many = st.lists(children, min_size=1 if valid else 0, max_size=4).map(tuple)
         one = children.map(lambda c: (c,)) if valid else many
         return st.one_of(
-            st.builds(kp.Sequence, many, st.booleans(), comments=notes),
+            st.builds(kp.SequenceNode, many, st.booleans(), comments=notes),
             st.builds(kp.Selector, many, st.booleans(), comments=notes),
             many.flatmap(
                 lambda ch: st.builds(

@@ -8,17 +8,17 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from .btcpp import convert, from_xml, to_xml
+from ktbt_proto.interop.btcpp import convert, from_xml, to_xml
 
 if TYPE_CHECKING:
-    from .pytrees import to_py_trees
+    from ktbt_proto.interop.pytrees import to_py_trees
 
 __all__ = ["convert", "from_xml", "to_py_trees", "to_xml"]
 
 
 def __getattr__(name: str) -> Any:
     if name == "to_py_trees":
-        from .pytrees import to_py_trees
+        from ktbt_proto.interop.pytrees import to_py_trees
 
         return to_py_trees
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -83,12 +83,11 @@ from pathlib import Path
 from typing import NoReturn
 from xml.parsers import expat
 
-from ..errors import ErrorCode, LimitError, ParseError, ValidationError
-from ..format import format as format_tree
-from ..format import format_value
-from ..limits import DEFAULT_LIMITS, Limits
-from ..syntax import parse
-from ..tree import (
+from ktbt_proto.errors import ErrorCode, LimitError, ParseError, ValidationError
+from ktbt_proto.formatter import format_tree, format_value
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.syntax import parse
+from ktbt_proto.tree import (
     Action,
     Args,
     Condition,
@@ -99,14 +98,14 @@ from ..tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Value,
     Wait,
     WaitTimer,
     as_node,
 )
-from ..validate import validate
+from ktbt_proto.validate import validate
 
 __all__ = ["convert", "from_xml", "to_xml"]
 
@@ -271,7 +270,7 @@ class _Exporter:
         if not isinstance(node, Container):
             raise TypeError(f"not a stringBT node: {node!r}")
         kids: list[Node | _Out | str] = list(node.children)
-        if isinstance(node, Sequence):
+        if isinstance(node, SequenceNode):
             return _Out("Sequence" if node.memory else "ReactiveSequence", [], kids)
         if isinstance(node, Selector):
             return _Out("Fallback" if node.memory else "ReactiveFallback", [], kids)
@@ -646,7 +645,7 @@ class _Importer:
     def container(self, el: _El, kind: str, children: tuple[Node, ...]) -> Node:
         pos = (el.line, el.column)
         if kind in ("sq", "msq"):
-            return Sequence(children, kind == "msq", pos=pos)
+            return SequenceNode(children, kind == "msq", pos=pos)
         if kind in ("sl", "msl"):
             return Selector(children, kind == "msl", pos=pos)
         if kind == "k":

@@ -32,11 +32,11 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
         "ktbt_proto.interop.pytrees needs py_trees: pip install 'ktbt[py-trees]'"
     ) from exc
 
-from ..blackboard import Blackboard
-from ..format import format_value
-from ..registry import Registry
-from ..status import FAILURE, RUNNING, SUCCESS, Status
-from ..tree import (
+from ktbt_proto.blackboard import Blackboard
+from ktbt_proto.formatter import format_value
+from ktbt_proto.registry import Registry
+from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
+from ktbt_proto.tree import (
     Action,
     Condition,
     Container,
@@ -46,13 +46,13 @@ from ..tree import (
     Placeholder,
     RunTimer,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     Wait,
     WaitTimer,
     as_node,
 )
-from ..validate import validate
+from ktbt_proto.validate import validate
 
 __all__ = ["Behaviours", "from_py_trees_status", "origin", "to_py_trees", "to_py_trees_status"]
 
@@ -245,7 +245,7 @@ def to_py_trees(
     The tree is validated against the registry first, as :class:`LiveTree` does.
     """
     if isinstance(tree, str):
-        from ..syntax import parse
+        from ktbt_proto.syntax import parse
 
         tree = parse(tree)
     validate(tree, registry)
@@ -296,7 +296,7 @@ def _build(
     if not isinstance(node, Container):
         raise TypeError(f"not a stringBT node: {node!r}")
     kids = [build(child, registry, bb, clock, behaviours) for child in node.children]
-    if isinstance(node, Sequence):
+    if isinstance(node, SequenceNode):
         return composites.Sequence("Sequence*" if node.memory else "Sequence", node.memory, kids)
     if isinstance(node, Selector):
         return composites.Selector("Selector*" if node.memory else "Selector", node.memory, kids)

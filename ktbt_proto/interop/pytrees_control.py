@@ -30,16 +30,24 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
         "ktbt_proto.interop.pytrees_control needs py_trees: pip install 'ktbt[py-trees]'"
     ) from exc
 
-from ..blackboard import Blackboard
-from ..control import ControlFactory, TickClock
-from ..errors import ErrorCode, ValidationError
-from ..items import show_sequence, split_item
-from ..limits import DEFAULT_LIMITS, Limits
-from ..merge import MergeError, admits, building, check_item, conditions, knowledge
-from ..registry import Registry
-from ..status import Status
-from ..syntax import NAME_RE, parse
-from ..tree import (
+from ktbt_proto.blackboard import Blackboard
+from ktbt_proto.control import ControlFactory, TickClock
+from ktbt_proto.errors import ErrorCode, ValidationError
+from ktbt_proto.interop.pytrees import (
+    ORIGIN,
+    Behaviours,
+    Clock,
+    build,
+    from_py_trees_status,
+    origin,
+)
+from ktbt_proto.items import show_sequence, split_item
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.merge import MergeError, admits, building, check_item, conditions, knowledge
+from ktbt_proto.registry import Registry
+from ktbt_proto.status import Status
+from ktbt_proto.syntax import NAME_RE, parse
+from ktbt_proto.tree import (
     Action,
     Condition,
     Container,
@@ -48,13 +56,12 @@ from ..tree import (
     Parallel,
     Placeholder,
     Selector,
-    Sequence,
+    SequenceNode,
     Tree,
     as_node,
     walk,
     with_children,
 )
-from .pytrees import ORIGIN, Behaviours, Clock, build, from_py_trees_status, origin
 
 __all__ = ["PREFIX", "PyTreesControl", "py_trees_control", "tick_tree"]
 
@@ -271,7 +278,7 @@ class PyTreesControl:
                 nodes=self._nodes,
                 taken=self._slots,
             )
-            assert isinstance(item, Sequence)
+            assert isinstance(item, SequenceNode)
             with building():
                 kids = [
                     build(child, self.registry, self.blackboard, self.clock, self.behaviours)
@@ -386,8 +393,8 @@ def tick_tree(bt: trees.BehaviourTree) -> None:
     """Tick ``bt`` once as ``BehaviourTree.tick`` does (py_trees 2.6): its pre-tick handlers,
     the root, its post-tick handlers, the count. Without visitors it skips the walk of the
     whole tree that ``BehaviourTree.tick`` makes for them after the tick (nothing else differs,
-    ``tests/test_pytrees_agent_rules.py`` checks it); a tree with visitors, or of a class with
-    its own ``tick``, is ticked by its ``tick``."""
+    ``tests/interop/test_pytrees_control_rules.py`` checks it); a tree with visitors, or of a
+    class with its own ``tick``, is ticked by its ``tick``."""
     if bt.visitors or type(bt).tick is not trees.BehaviourTree.tick:
         bt.tick()
         return
@@ -440,7 +447,8 @@ def py_trees_control(
     limits: Limits = DEFAULT_LIMITS,
     setup_kwargs: Mapping[str, Any] | None = None,
 ) -> ControlFactory:
-    """What :class:`~ktbt_proto.agent.Agent` takes as its control tree to learn into ``tree``:
+    """What :class:`~ktbt_proto.exchange.agent.Agent` takes as its control tree to learn into
+    ``tree``:
     the agent builds the backend around its own registry, blackboard and clock."""
 
     def make(registry: Registry, blackboard: Any, ticks: TickClock) -> PyTreesControl:
@@ -482,7 +490,7 @@ def _view(
     if node is not None:
         return with_children(node, children) if isinstance(node, Container) else node
     if isinstance(made, composites.Sequence):
-        return Sequence(children, memory=made.memory)
+        return SequenceNode(children, memory=made.memory)
     if isinstance(made, composites.Selector):
         return Selector(children, memory=made.memory)
     if isinstance(made, composites.Parallel):

@@ -23,12 +23,12 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
-from ..errors import StringBTError
-from ..files import fsync_folder, write_atomic
-from ..format import format as format_tree
-from ..knowledge import Knowledge, remove_stale_temporaries
-from ..syntax import NAME_PATTERN, NAME_RE
-from .btcpp import btcpp_name, to_xml
+from ktbt_proto.errors import StringBTError
+from ktbt_proto.exchange.knowledge import Knowledge, remove_stale_temporaries
+from ktbt_proto.files import fsync_folder, write_atomic
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.interop.btcpp import btcpp_name, to_xml
+from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
 
 __all__ = ["LearnedExport"]
 

@@ -11,8 +11,8 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from ..messages import Response
-from .base import Message, Received
+from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.transport import Message, Received
 
 InRange = Callable[[str, str], bool]
 

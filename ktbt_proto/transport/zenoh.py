@@ -45,8 +45,8 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from ..events import EventPublisher
-from ..messages import (
+from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
     MessageRefused,
@@ -55,9 +55,9 @@ from ..messages import (
     decode,
     encode,
 )
-from ..signing import Identity, SignedItem
-from ..transferlog import TransferLog
-from .base import Message, NetworkError, Received
+from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transport import Message, NetworkError, Received
 
 log = logging.getLogger("ktbt.zenoh")
 

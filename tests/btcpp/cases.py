@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 import ktbt_proto as kp
 from ktbt_proto.tree import Args, Node
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
 CONDITIONS = ("C0", "C1", "C2", "nav.Near")
 ACTIONS = ("A0", "A1", "A2", "nav.Go")
 
@@ -69,7 +69,7 @@ def trees(with_ports: bool = True, ticks: bool = True) -> st.SearchStrategy[Node
         many = st.lists(children, min_size=1, max_size=4).map(tuple)
         one = children.map(lambda c: (c,))
         choices = [
-            st.builds(kp.Sequence, many, st.booleans()),
+            st.builds(kp.SequenceNode, many, st.booleans()),
             st.builds(kp.Selector, many, st.booleans()),
             st.builds(kp.Inverter, one),
             st.builds(kp.Placeholder, st.lists(children, max_size=3).map(tuple), st.just("k")),

@@ -1,5 +1,5 @@
 // Ticks a BehaviorTree.CPP XML tree with scripted leaves and prints what happened, for the
-// differential tests in tests/test_interop_btcpp_engine.py (which print LiveTree's run the same
+// differential tests in tests/interop/test_btcpp_engine.py (which print LiveTree's run the same
 // way).
 //
 //   harness TREE.xml SCRIPT

@@ -1,0 +1,78 @@
+"""Answers: what a robot that knows a sequence sends back, and what its catalog lists.
+
+One way to make an answer (``spec/protocol.md`` section 2 and section 7): the item's compact
+stringBT, its author's signature kept, or, unsigned, signed by the holder as its author when it
+has a key pair. Servers, fleet members, the zenoh binding and in-memory agents' streams all use
+these functions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
+from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.formatter import format_tree
+
+
+def signed_answer(item: Knowledge, identity: Identity | None) -> SignedItem:
+    """An item as a peer answers it: its author's signature kept, or, unsigned, signed by this
+    peer as its author when it has a key pair (section 7)."""
+    subtree = format_tree(item.subtree, "compact")
+    if item.author is not None:
+        return SignedItem(subtree, item.author, item.signature)
+    if identity is not None:
+        return identity.sign_item(item.key, subtree)
+    return SignedItem(subtree)
+
+
+def answers(
+    knowledge: KnowledgeBase, identity: Identity | None = None
+) -> Callable[[str], SignedItem | None]:
+    """A server's lookup: every answer formatted (and, with a key pair, signed by this server
+    as its author) once, so a query costs one dict lookup."""
+    return {item.key: signed_answer(item, identity) for item in knowledge}.get
+
+
+def live_answers(
+    knowledge: Callable[[], KnowledgeBase], identity: Identity | None = None
+) -> Callable[[str], SignedItem | None]:
+    """A fleet member's lookup (spec/protocol.md section 4.5): what its agent knows now, learned
+    and forgotten items included, each formatted and signed as :func:`answers` does, once per
+    item. It runs in the queryable's one callback thread, the only one to touch its cache."""
+    made: dict[str, tuple[Knowledge, SignedItem]] = {}
+
+    def lookup(key: str) -> SignedItem | None:
+        item = knowledge().lookup(key)
+        if item is None:
+            made.pop(key, None)
+            return None
+        cached = made.get(key)
+        if cached is None or cached[0] is not item:
+            cached = made[key] = (item, signed_answer(item, identity))
+        return cached[1]
+
+    return lookup
+
+
+def catalog(
+    knowledge: KnowledgeBase, identity: Identity | None = None
+) -> Callable[[], list[str | dict[str, Any]]]:
+    """What the catalog queryable answers: each sequence with its provenance (a peer with a key
+    pair is the author of the items it holds unsigned: it signs them when it answers)."""
+    own = identity.public if identity is not None else None
+
+    def entries() -> list[str | dict[str, Any]]:
+        out: list[str | dict[str, Any]] = []
+        for item in knowledge:
+            entry = {
+                "sequence": item.key,
+                "author": item.author or own,
+                "teacher": item.source,
+                "received_at": item.received_at,
+            }
+            out.append({k: v for k, v in entry.items() if v is not None})
+        return out
+
+    return entries

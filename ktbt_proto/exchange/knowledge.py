@@ -1,0 +1,250 @@
+"""The knowledge base: known condition sequences (the paper's L_ks) and their action subtrees
+(L_ka), keyed by the canonical form of the sequence, and persisted so a robot keeps what it
+learned across a crash.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from ktbt_proto.errors import StringBTError
+from ktbt_proto.files import temporaries, write_atomic
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.items import (
+    parse_sequence,
+    read_sequence,
+    sequence_key,
+    show_sequence,
+    split_item,
+    stray_nodes,
+)
+from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.syntax import parse
+from ktbt_proto.tree import (
+    Condition,
+    Node,
+    Placeholder,
+    Selector,
+    SequenceNode,
+    Tree,
+    as_node,
+    walk,
+)
+
+__all__ = [
+    "MAX_FILE",
+    "Knowledge",
+    "KnowledgeBase",
+    "parse_sequence",
+    "read_sequence",
+    "remove_stale_temporaries",
+    "salvage",
+    "sequence_key",
+    "show_sequence",
+    "split_item",
+    "stray_nodes",
+]
+
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Knowledge:
+    """One item: ``Sequence(conditions, subtree)``, where it lives, and where it came from.
+    ``subtree`` of an item written flat (``<sq><c>(A)<a>(X)<a>(Y)<e>``) is ``Sequence(X, Y)``."""
+
+    conditions: tuple[Condition, ...]
+    subtree: Node
+    segment: str = "new"
+    source: str | None = None
+    learned_at: float | None = None
+    author: str | None = None
+    """Provenance (``spec/protocol.md`` section 7): the author's public key and signature of
+    the item, and when (UTC, ISO 8601) it was received from its teacher ``source``."""
+    signature: str | None = None
+    received_at: str | None = None
+
+    @property
+    def key(self) -> str:
+        return sequence_key(self.conditions)
+
+    def item(self) -> SequenceNode:
+        return SequenceNode((*self.conditions, self.subtree))
+
+
+class KnowledgeBase:
+    """Known sequences and their subtrees, first answer kept (a later one is not an update)."""
+
+    def __init__(self, items: Iterable[Knowledge] = ()) -> None:
+        self._items: dict[str, Knowledge] = {}
+        for item in items:
+            self.add(item)
+
+    @classmethod
+    def from_tree(cls, tree: Tree | Node) -> KnowledgeBase:
+        """The knowledge already in a control tree's placeholders (priors, common knowledge)."""
+        kb = cls()
+        for node, _ in walk(as_node(tree)):
+            if isinstance(node, Placeholder):
+                for child in node.children:
+                    split = split_item(child)
+                    if split is not None:
+                        kb.add(Knowledge(split[0], split[1], node.name))
+        return kb
+
+    def add(self, item: Knowledge) -> bool:
+        """Add unless the sequence is already known; True if it was new."""
+        key = item.key
+        if key in self._items:
+            return False
+        self._items[key] = item
+        return True
+
+    def lookup(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
+        key = sequence if isinstance(sequence, str) else sequence_key(sequence)
+        return self._items.get(key)
+
+    def remove(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
+        """Forget the item answering ``sequence``; the item, or None if it was not known."""
+        key = sequence if isinstance(sequence, str) else sequence_key(sequence)
+        return self._items.pop(key, None)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._items
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __iter__(self) -> Iterator[Knowledge]:
+        return iter(self._items.values())
+
+    def keys(self) -> list[str]:
+        return list(self._items)
+
+    def tree(self) -> Tree:
+        """The items as a tree: each in a placeholder named for its segment, under a selector
+        (what a teacher that ticks no tree shows, spec/protocol.md section 10)."""
+        segments: dict[str, list[Node]] = {}
+        for item in self:
+            segments.setdefault(item.segment, []).append(item.item())
+        slots = tuple(Placeholder(tuple(items), name) for name, items in segments.items())
+        return Tree(Selector(slots or (Placeholder((), "new"),)))
+
+    # -- persistence ---------------------------------------------------------------------------
+
+    def to_json(self) -> str:
+        entries = [
+            {
+                "sequence": k.key,
+                "subtree": format_tree(k.subtree, "compact"),
+                "segment": k.segment,
+                "source": k.source,
+                "learned_at": k.learned_at,
+                **{
+                    name: value
+                    for name, value in (
+                        ("author", k.author),
+                        ("signature", k.signature),
+                        ("received_at", k.received_at),
+                    )
+                    if value is not None
+                },
+            }
+            for k in self
+        ]
+        return json.dumps({"version": FORMAT_VERSION, "knowledge": entries}, indent=1)
+
+    @classmethod
+    def from_json(cls, text: str, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
+        """Read a saved base; raises ValueError (bad file) or StringBTError (bad tree)."""
+        try:
+            data = json.loads(text)
+            if not isinstance(data, dict) or data.get("version") != FORMAT_VERSION:
+                raise ValueError(f"not a version-{FORMAT_VERSION} knowledge file")
+            entries = data.get("knowledge", [])
+            if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+                raise ValueError("'knowledge' must be a list of objects")
+            kb = cls()
+            for entry in entries:
+                kb.add(_entry(entry, limits))
+        except (KeyError, TypeError, RecursionError) as exc:
+            raise ValueError(f"malformed knowledge file: {exc!r}") from None
+        return kb
+
+    def save(self, path: str | Path) -> None:
+        """Write durably (spec/protocol.md section 5): after a crash the file holds either the
+        previous or the new base, never a mixture."""
+        write_atomic(path, self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
+        """Read a saved base, at most ``MAX_FILE`` bytes of it (a path such as /dev/zero is
+        refused, not read until memory runs out); raises ValueError or StringBTError."""
+        with open(path, "rb") as f:
+            data = f.read(MAX_FILE + 1)
+        if len(data) > MAX_FILE:
+            raise ValueError(f"{path} is larger than a knowledge file may be ({MAX_FILE} bytes)")
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError(f"{path} is not UTF-8") from None
+        return cls.from_json(text, limits)
+
+
+MAX_FILE = 64_000_000
+"""The largest knowledge file read (a thousand items at the wire's largest size)."""
+
+
+def _entry(entry: dict[str, object], limits: Limits) -> Knowledge:
+    def text(name: str) -> str | None:
+        value = entry.get(name)
+        return None if value is None else str(value)
+
+    learned_at = entry.get("learned_at")
+    return Knowledge(
+        parse_sequence(str(entry["sequence"]), limits),
+        parse(str(entry["subtree"]), limits=limits).root,
+        str(entry.get("segment", "new")),
+        text("source"),
+        learned_at if isinstance(learned_at, int | float) else None,
+        author=text("author"),
+        signature=text("signature"),
+        received_at=text("received_at"),
+    )
+
+
+def salvage(text: str, limits: Limits = DEFAULT_LIMITS) -> list[Knowledge]:
+    """The items a damaged knowledge file still holds whole (a truncated one, say): each entry
+    of its ``knowledge`` list is read in turn until one cannot be. Nothing here raises."""
+    start = text.find("[", text.find('"knowledge"'))
+    if start < 0:
+        return []
+    decoder = json.JSONDecoder()
+    items: list[Knowledge] = []
+    pos = start + 1
+    while True:
+        while pos < len(text) and text[pos] in " \t\r\n,":
+            pos += 1
+        try:
+            entry, pos = decoder.raw_decode(text, pos)
+            if not isinstance(entry, dict):
+                break
+            items.append(_entry(entry, limits))
+        except (ValueError, KeyError, TypeError, RecursionError, StringBTError):
+            break
+    return items
+
+
+def remove_stale_temporaries(path: str | Path) -> list[Path]:
+    """Delete the temporary files a save killed midway left next to ``path``; returns them."""
+    removed = []
+    for tmp in temporaries(path):
+        try:
+            tmp.unlink()
+        except OSError:
+            continue
+        removed.append(tmp)
+    return removed

@@ -1,0 +1,811 @@
+"""``ktbt fleet run``: real ``ktbt peer`` processes, each its own zenoh session on its own
+loopback address, every link through the fault layer, a seeded fault schedule, and a record.
+
+The record (``events.jsonl`` in the run's folder, times in seconds since the run began) is what
+the checker reads: the plan, every process life (launch, up with what it knew, SIGKILL with what
+its save file held), the peers' own exchange events copied from their ``--log`` files, every
+fault's window with the counters that prove it happened, memory and file-descriptor samples,
+and every save file at the end. Peers are observed only through what they write.
+
+With packet loss (or whenever the machine allows), the run happens inside a network namespace
+of its own: the runner starts itself again inside it (``ip netns exec``), and the outer process
+deletes the namespace, rules and all, whatever happens (Ctrl-C too).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import json
+import os
+import random
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any, TextIO
+
+from ktbt_proto.files import packaged, write_atomic
+from ktbt_proto.tools.fleet import netns, watch
+from ktbt_proto.tools.fleet.plan import FleetConfig, Host, Plan, make_plan, stream
+from ktbt_proto.tools.fleet.proxy import FaultLayer
+from ktbt_proto.transport.zenoh import stable_zid
+
+Say = Callable[[str], None]
+EXAMPLE_KNOWLEDGE = packaged("examples", "knowledge", "colours.sbt")
+COPIED = (
+    "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
+    "network-error", "forgotten", "late-answer",
+)  # fmt: skip
+"""The peers' exchange events copied into the record."""
+OUTPUTS = (
+    "peers",
+    "zenoh",
+    "events.jsonl",
+    "summary.json",
+    "result.json",
+    "config.json",
+    "knowledge.png",
+    "monitor.out",
+)
+"""What a run writes in its folder (and removes there before it starts)."""
+UP = re.compile(r"knows (\d+), will meet|serving (\d+) skills|router listening")
+
+
+def digest(subtree: str) -> str:
+    return hashlib.sha256(subtree.encode("utf-8")).hexdigest()[:16]
+
+
+def authored_items(path: str | Path) -> dict[str, str]:
+    """The teachers' items: sequence key -> digest of its compact subtree, as they send it."""
+    from ktbt_proto.formatter import format_tree
+    from ktbt_proto.tools.peer import load_knowledge
+
+    return {item.key: digest(format_tree(item.subtree, "compact")) for item in load_knowledge(path)}
+
+
+def read_saved(path: Path) -> dict[str, str] | str:
+    """A save file's items (sequence -> digest of the subtree as stored), or why it cannot be
+    read. Read as data, not through the library, so that damage shows as damage."""
+    from ktbt_proto.exchange.knowledge import MAX_FILE
+
+    if not path.exists():
+        return {}
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE + 1)
+        if len(raw) > MAX_FILE:
+            return f"unreadable: larger than {MAX_FILE} bytes"
+        entries = json.loads(raw)["knowledge"]
+        items = {str(e["sequence"]): digest(str(e["subtree"])) for e in entries}
+    except (ValueError, KeyError, TypeError) as exc:
+        return f"unreadable: {exc!r}"[:200]
+    if len(items) != len(entries):
+        twice = Counter(str(e["sequence"]) for e in entries)
+        return f"unreadable: items saved twice: {sorted(k for k, n in twice.items() if n > 1)}"[
+            :200
+        ]
+    return items
+
+
+class Record:
+    """``events.jsonl``: one JSON object a line, flushed, with ``t`` relative to the start."""
+
+    def __init__(self, path: Path, t0: float) -> None:
+        self.t0 = t0
+        self._file: TextIO = open(path, "w", encoding="utf-8")  # noqa: SIM115
+
+    def now(self) -> float:
+        return round(time.time() - self.t0, 3)
+
+    def emit(self, kind: str, t: float | None = None, **fields: Any) -> None:
+        entry = {"t": self.now() if t is None else round(t, 3), "kind": kind, **fields}
+        self._file.write(json.dumps(entry, default=str) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+@dataclass
+class Life:
+    number: int
+    proc: subprocess.Popen[bytes]
+    out: Path
+    started: float
+    known: set[str]
+    up: float | None = None
+
+
+@dataclass
+class PeerProcess:
+    """A peer or router process and what the run has seen of it."""
+
+    node: Host
+    folder: Path
+    lives: list[Life] = field(default_factory=list)
+    log_offset: int = 0
+    counts: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def log(self) -> Path:
+        return self.folder / f"{self.node.name}.log"
+
+    @property
+    def save(self) -> Path:
+        return self.folder / f"{self.node.name}.json"
+
+    @property
+    def life(self) -> Life | None:
+        return self.lives[-1] if self.lives else None
+
+    @property
+    def running(self) -> bool:
+        return self.life is not None and self.life.proc.poll() is None
+
+    @property
+    def up(self) -> bool:
+        return self.running and self.life is not None and self.life.up is not None
+
+
+class FleetRun:
+    """Runs one scenario (inside whatever network namespace the caller chose)."""
+
+    def __init__(
+        self, config: FleetConfig, out: Path, say: Say, live: bool, loss_note: str | None
+    ) -> None:
+        self.config, self.out, self.say, self.live = config, out, say, live
+        self.loss_note = loss_note
+        """None when the loss rule is in place; otherwise why loss is skipped."""
+        self.t0 = time.time()
+        self.items = authored_items(config.knowledge or EXAMPLE_KNOWLEDGE)
+        self.plan: Plan = make_plan(config, _port())
+        self.members = {n.name: PeerProcess(n, out / "peers") for n in self.plan.nodes}
+        self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
+        self.record = Record(out / "events.jsonl", self.t0)
+        self.pause = stream(config.seed, "churn-pauses")
+        self.teacher_program = "run" if config.teacher == "run" else "serve"
+        self.faults_open: dict[str, dict[str, Any]] = {}
+        self.last_sample = 0.0
+        self.sampling = True
+        self.bad = 0
+        """Lines of the peers' logs that were not log entries (skipped)."""
+        self.converged: float | None = None
+        self.reference = 0.0
+
+    # -- processes ----------------------------------------------------------------------------
+
+    def _zenoh_config(self, node: Host) -> Path:
+        path = self.out / "zenoh" / f"{node.name}.json5"
+        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, multicast
+        # off) do not give: no gossip (the fleet's links are the only paths) and, for routers
+        # too, the stable zenoh id (a restarted peer is the same peer).
+        conf: dict[str, Any] = {
+            "scouting": {"gossip": {"enabled": False}},
+            "id": stable_zid(node.name),
+        }
+        path.write_text(json.dumps(conf, indent=1))
+        return path
+
+    def _command(self, member: PeerProcess) -> list[str]:
+        node, port = member.node, self.plan.port
+        connect = [f"tcp/{link.proxy}:{port}" for link in self.plan.dials(node.name)]
+        conf = ["--config", str(self._zenoh_config(node))]
+        python = [sys.executable, "-m", "ktbt_proto", "peer"]
+        if node.role == "router":
+            args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
+            if self.config.watch:
+                args += ["--listen", watch.endpoint(self.config.watch, node.name)]
+            return args + [a for c in connect for a in ("--connect", c)]
+        endpoints = [a for c in connect for a in ("--connect", c)]
+        if self.config.topology == "router":
+            endpoints += ["--mode", "client"]
+        else:
+            endpoints += ["--listen", f"tcp/{node.address}:{port}"]
+        if self.config.watch:  # the monitor's own link: a unix socket, outside the fault layer
+            if self.config.topology != "router":
+                endpoints += ["--listen", watch.endpoint(self.config.watch, node.name)]
+            endpoints += ["--publish-events"]
+        common = ["--id", node.name, "--log", str(member.log), *conf, *endpoints]
+        knowledge = str(self.config.knowledge or EXAMPLE_KNOWLEDGE)
+        if node.role == "teacher" and self.teacher_program == "serve":
+            return [*python, "serve", "--knowledge", knowledge, *common]
+        args = [*python, "run", *common, "--save", str(member.save), "--duration", "31536000"]
+        if node.role == "teacher":
+            args += ["--knowledge", knowledge]
+        return args
+
+    def launch(self, member: PeerProcess) -> None:
+        number = len(member.lives) + 1
+        out = member.folder / f"{member.node.name}.out.{number}"
+        if member.node.role == "teacher":
+            known = set(self.items)
+        elif member.node.role == "learner":
+            saved = read_saved(member.save)
+            known = set(saved) if isinstance(saved, dict) else set()
+        else:
+            known = set()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        with open(out, "wb") as sink:
+            proc = subprocess.Popen(
+                self._command(member), stdout=sink, stderr=subprocess.STDOUT, env=env,
+                stdin=subprocess.DEVNULL, start_new_session=True,
+            )  # fmt: skip
+        member.lives.append(Life(number, proc, out, self.record.now(), known))
+        self.record.emit(
+            "launch",
+            peer=member.node.name,
+            role=member.node.role,
+            life=number,
+            pid=proc.pid,
+            known=sorted(known),
+        )
+
+    def kill(self, member: PeerProcess) -> None:
+        """SIGKILL, as a crash: nothing is flushed or closed."""
+        life = member.life
+        if life is None or life.proc.poll() is not None:
+            return
+        os.kill(life.proc.pid, signal.SIGKILL)
+        life.proc.wait()
+        self._tail(member)
+        saved = read_saved(member.save)
+        self.record.emit(
+            "kill", peer=member.node.name, life=life.number, pid=life.proc.pid,
+            returncode=life.proc.returncode, saved=saved,
+        )  # fmt: skip
+
+    async def stop_all(self) -> None:
+        """SIGTERM to every process, SIGKILL to those still up after a few seconds (a zenoh
+        close can block under faults); each by its pid."""
+        running = [m for m in self.members.values() if m.running]
+        self.record.emit(
+            "stopping", lives={m.node.name: m.life.number for m in running if m.life is not None}
+        )
+        for m in running:
+            assert m.life is not None
+            with contextlib.suppress(ProcessLookupError):
+                m.life.proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + 6
+        while time.monotonic() < deadline and any(m.running for m in running):
+            await asyncio.sleep(0.1)
+        for m in running:
+            assert m.life is not None
+            if m.life.proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    m.life.proc.kill()
+            m.life.proc.wait()
+
+    # -- observation --------------------------------------------------------------------------
+
+    def _tail(self, member: PeerProcess) -> None:
+        life = member.life
+        if life is not None and life.up is None:
+            text = life.out.read_bytes().decode("utf-8", "replace")
+            found = UP.search(text)
+            if found is not None:
+                life.up = self.record.now()
+                knows = found.group(1) or found.group(2)
+                self.record.emit(
+                    "up", peer=member.node.name, life=life.number,
+                    knows=int(knows) if knows else None,
+                )  # fmt: skip
+        if member.node.role == "router" or not member.log.exists():
+            return
+        with open(member.log, "rb") as f:
+            f.seek(member.log_offset)
+            data = f.read()
+        end = data.rfind(b"\n") + 1
+        member.log_offset += end
+        for raw in data[:end].splitlines():
+            try:
+                entry = json.loads(raw)
+                event = entry.get("event")
+                t = datetime.fromisoformat(entry["t"]).timestamp() - self.t0
+            except (ValueError, TypeError, KeyError, AttributeError):
+                self.bad += 1  # a line that is not a log entry: counted, never fatal
+                continue
+            if not isinstance(event, str):
+                self.bad += 1
+                continue
+            member.counts[event] += 1
+            if event not in COPIED:
+                continue
+            fields = {
+                k: entry.get(k) for k in ("sequence", "sender", "to", "id", "teacher", "where")
+            }
+            if event == "refused":
+                fields["reason"] = str(entry.get("reason", ""))[:200]
+            life = member.life
+            if event == "merged" and life is not None and entry.get("sequence"):
+                life.known.add(str(entry["sequence"]))
+            if event == "forgotten" and life is not None and entry.get("sequence"):
+                life.known.discard(str(entry["sequence"]))
+            self.record.emit(
+                event, t=t, peer=member.node.name, life=life.number if life else 0,
+                **{k: v for k, v in fields.items() if v is not None},
+            )  # fmt: skip
+
+    def knows(self, member: PeerProcess) -> set[str]:
+        life = member.life
+        return set() if life is None else life.known & set(self.items)
+
+    def all_know(self) -> bool:
+        peers = [m for m in self.members.values() if m.node.role != "router"]
+        return all(m.up and self.knows(m) >= set(self.items) for m in peers)
+
+    def _sample(self) -> None:
+        for m in self.members.values():
+            if m.running and m.life is not None:
+                usage = _usage(m.life.proc.pid)
+                if usage is not None:
+                    self.record.emit(
+                        "sample", peer=m.node.name, life=m.life.number, rss_kb=usage[0],
+                        fds=usage[1],
+                    )  # fmt: skip
+        usage = _usage(os.getpid())
+        if usage is not None:
+            self.record.emit("sample", peer="runner", life=1, rss_kb=usage[0], fds=usage[1])
+
+    async def observe(self, stop: asyncio.Event) -> None:
+        live = None
+        if self.live:
+            from rich.live import Live
+
+            live = Live(self.table(), refresh_per_second=2, transient=False)
+            live.start()
+        try:
+            while not stop.is_set():
+                for m in self.members.values():
+                    self._tail(m)
+                if self.converged is None and self.all_know():
+                    self.converged = self.record.now()
+                if self.sampling and time.monotonic() - self.last_sample > 2.0:
+                    self.last_sample = time.monotonic()
+                    self._sample()
+                if live is not None:
+                    live.update(self.table())
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), 0.2)
+        finally:
+            for m in self.members.values():
+                self._tail(m)
+            if live is not None:
+                live.update(self.table())
+                live.stop()
+
+    def table(self) -> Any:
+        from rich.table import Table
+
+        faults = ", ".join(self.faults_open) or "none"
+        table = Table(title=f"{self.config.name}: t={self.record.now():.1f}s, faults: {faults}")
+        for column in ("peer", "state", "knows", "learned", "taught", "refused", "asked"):
+            table.add_column(column)
+        for m in self.members.values():
+            state = "up" if m.up else ("starting" if m.running else "down")
+            life = f" (life {len(m.lives)})" if len(m.lives) > 1 else ""
+            knows = "" if m.node.role == "router" else f"{len(self.knows(m))}/{len(self.items)}"
+            table.add_row(
+                f"{m.node.name} {m.node.role}", state + life, knows, str(m.counts["merged"]),
+                str(m.counts["answer-sent"]), str(m.counts["refused"]),
+                str(m.counts["query-sent"]),
+            )  # fmt: skip
+        return table
+
+    # -- the schedule -------------------------------------------------------------------------
+
+    async def wait_up(self, names: list[str], limit: float) -> bool:
+        deadline = time.monotonic() + limit
+        while time.monotonic() < deadline:
+            if all(self.members[n].up for n in names):
+                return True
+            dead = [n for n in names if not self.members[n].running]
+            if dead:
+                self.say(f"{self.config.name}: {', '.join(dead)} exited before coming up")
+                return False
+            await asyncio.sleep(0.1)
+        return False
+
+    def fault(self, name: str, phase: str, **fields: Any) -> None:
+        if phase == "start":
+            self.faults_open[name] = fields
+        else:
+            self.faults_open.pop(name, None)
+        self.record.emit("fault", fault=name, phase=phase, **fields)
+        self.say(f"{self.config.name}: t={self.record.now():.1f}s {name} {phase}")
+
+    def _link_counters(self, links: list[int]) -> dict[str, int]:
+        total: Counter[str] = Counter()
+        counters = self.layer.counters()
+        for i in links:
+            total.update(counters[i])
+        return dict(total)
+
+    async def schedule(self) -> str | None:
+        """Run the scenario; returns why it could not run to its end, or None.
+
+        The learners come up first, then (with a partition, once it has begun on links already
+        up) the teachers: the last peer up is a teacher, and convergence is the time its
+        knowledge takes to reach every peer."""
+        cfg, plan = self.config, self.plan
+        teachers = [n.name for n in plan.peers if n.role == "teacher"]
+        learners = [n.name for n in plan.peers if n.role == "learner"]
+        if cfg.delay:
+            self.fault("delay", "start", seconds=cfg.delay, links=[li.index for li in plan.links])
+        for r in plan.routers:
+            self.launch(self.members[r.name])
+        if plan.routers and not await self.wait_up([r.name for r in plan.routers], 60):
+            return "the routers did not come up"
+        for name in learners:
+            self.launch(self.members[name])
+        if not await self.wait_up(learners, cfg.up_limit):
+            down = [n for n in learners if not self.members[n].up]
+            return f"not up within {cfg.up_limit:g} s: {', '.join(down)}"
+        self.record.emit("learners-up")
+        crossing = [link.index for link in plan.crossing()]
+        cut = f"partition-{cfg.partition_kind}"
+        injected = bool(cfg.partition) and cfg.partition_kind != "none"
+        started = time.monotonic()
+        if cfg.partition:
+            await asyncio.sleep(1.0)  # the links between the halves are up
+            started = time.monotonic()
+        if injected:
+            self.layer.apply(plan.crossing(), "held" if cfg.partition_kind == "silent" else "cut")
+            self.fault(cut, "start", links=crossing, half=plan.half)
+        for name in teachers:
+            self.launch(self.members[name])
+        if not await self.wait_up(teachers, cfg.up_limit):
+            return "the teachers did not come up"
+        self.record.emit("all-up")
+        self.reference = self.record.now()
+        if injected:
+            await asyncio.sleep(max(0.0, cfg.partition - (time.monotonic() - started)))
+            evidence = self._link_counters(crossing)
+            self.layer.apply(plan.crossing(), "open")
+            self.fault(cut, "end", evidence=evidence)
+            self.reference = self.record.now()
+        for number, victims in enumerate(plan.victims, 1):
+            # The first round strikes while the victims are still learning (what they saved
+            # must come back, the rest be learned); later ones after the fleet has converged.
+            await asyncio.sleep((0.1 if number == 1 else 0.5) + 0.5 * self.pause.random())
+            self.fault("churn", "start", round=number, peers=victims)
+            if number == 1:
+                await self._kill_while_learning(victims, cfg.bound)
+            for v in victims:
+                self.kill(self.members[v])
+            await asyncio.sleep(cfg.churn_down)
+            for v in victims:
+                self.launch(self.members[v])
+            if not await self.wait_up(victims, cfg.up_limit):
+                return f"churn round {number}: the restarted peers did not come up"
+            self.fault("churn", "end", round=number, peers=victims)
+            self.reference = self.record.now()
+            if number < len(plan.victims):  # they learn again and run a while: a round
+                if await self.until(self.all_know, cfg.bound):
+                    self.record.emit("round-converged", round=number)
+                await asyncio.sleep(1.0)
+        self.record.emit("reference", at=self.reference)
+        if self.converged is not None and self.converged < self.reference:
+            self.converged = None
+        await self.until(self.all_know, cfg.bound)
+        self.converged = self.record.now() if self.all_know() else None
+        self.record.emit("converged", at=self.converged)
+        if plan.victims and self.converged is not None:
+            self.record.emit("round-converged", round=len(plan.victims))
+        await asyncio.sleep(cfg.settle)
+        if cfg.watch:
+            await self.watched()
+        self._sample()  # the last samples, before the probe opens a session here
+        self.sampling = False  # the probe's session (its threads and sockets) is not the run's
+        return None
+
+    async def watched(self, limit: float = 10.0) -> None:
+        """Record what the monitor shows (``/api/state`` on its unix socket), with when it was
+        asked and when it answered: every peer and what it knows, once that agrees with what
+        the peers' logs say or at ``limit`` seconds; the checker holds the two against each
+        other."""
+        began = time.monotonic()
+        while True:
+            asked = self.record.now()
+            view = await asyncio.to_thread(watch.view, self.config.watch)
+            agreed = view is not None and all(
+                set(view["knows"].get(m.node.name, ())) == self.knows(m)
+                and view["status"].get(m.node.name) == "present"
+                for m in self.members.values()
+                if m.node.role != "router"
+            )
+            if agreed or time.monotonic() - began > limit:
+                break
+            await asyncio.sleep(0.2)
+        found = view or {"error": "the monitor did not answer on its socket (see monitor.out)"}
+        self.record.emit("monitor", asked=asked, waited=round(time.monotonic() - began, 3), **found)
+
+    async def _kill_while_learning(self, victims: list[str], limit: float) -> None:
+        """Kill each victim once it has merged some items but not all (its log says so), so that
+        the kill has something saved to lose; those never in that state die at the limit."""
+        left, deadline = list(victims), time.monotonic() + limit
+        while left and time.monotonic() < deadline:
+            for v in list(left):
+                if 0 < len(self.knows(self.members[v])) < len(self.items):
+                    self.kill(self.members[v])
+                    left.remove(v)
+            await asyncio.sleep(0.02)
+
+    async def until(self, done: Callable[[], bool], limit: float) -> bool:
+        deadline = time.monotonic() + limit
+        while not done():
+            if time.monotonic() > deadline:
+                return False
+            await asyncio.sleep(0.05)
+        return True
+
+    async def floor(self) -> dict[str, Any]:
+        """One query round trip to a teacher on a direct link (no proxy, no loss, no delay):
+        the floor beside which convergence times are read; and one through a proxied link (its
+        delay, loss and all) to the peer behind it, which knows every item by then."""
+        teacher = next(n for n in self.plan.peers if n.role == "teacher")
+        sequence = next(iter(self.items))
+        if self.config.topology == "router":
+            direct = {"skipped": "teachers are clients of routers: no direct link to probe"}
+        else:
+            direct = await asyncio.to_thread(
+                _probe, teacher.name, f"tcp/{teacher.address}:{self.plan.port}", sequence
+            )
+        roles = {n.name: n.role for n in self.plan.peers}
+        link = next((li for li in self.plan.links if li.listener in roles), None)
+        if link is None:
+            proxied: dict[str, Any] = {"skipped": "no link listens on a peer"}
+        else:
+            endpoint = f"tcp/{link.proxy}:{self.plan.port}"
+            proxied = await asyncio.to_thread(_probe, link.listener, endpoint, sequence)
+            proxied["link"] = link.index
+        return {**direct, "proxied": proxied}
+
+    async def _finish(self, stop: asyncio.Event, watcher: asyncio.Task[None]) -> None:
+        """The fault windows' ends, the last log lines and the save files, before the stop."""
+        cfg = self.config
+        try:
+            if cfg.delay:
+                self.fault("delay", "end", evidence=self._link_counters(list(self.layer.proxies)))
+            if cfg.loss and self.loss_note is None:
+                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
+        finally:
+            stop.set()
+            try:
+                await watcher
+            except Exception as exc:  # recorded: the run fails on it
+                self.record.emit("aborted", reason=f"the observer crashed: {exc!r}"[:300])
+        for m in self.members.values():
+            if m.node.role == "learner" or self.teacher_program == "run":
+                saved = read_saved(m.save) if m.node.role != "router" else {}
+                self.record.emit("final", peer=m.node.name, saved=saved)
+
+    async def run(self) -> dict[str, Any]:
+        cfg = self.config
+        (self.out / "peers").mkdir(parents=True, exist_ok=True)
+        (self.out / "zenoh").mkdir(parents=True, exist_ok=True)
+        self.record.emit(
+            "run", config=cfg.to_json(), plan=self.plan.to_json(), items=self.items, t0=self.t0,
+            teacher_program=self.teacher_program, netns=os.environ.get("KTBT_FLEET_NETNS"),
+        )  # fmt: skip
+        if cfg.loss:
+            if self.loss_note is None:
+                self.fault("loss", "start", fraction=cfg.loss)
+            else:
+                self.record.emit("skipped", fault="loss", reason=self.loss_note)
+                self.say(f"{cfg.name}: loss skipped: {self.loss_note}")
+        await self.layer.start()
+        stop = asyncio.Event()
+        watcher = asyncio.create_task(self.observe(stop))
+        problem: str | None = None
+        probe: dict[str, Any] = {}
+        try:
+            try:
+                problem = await self.schedule()
+                if problem is None:
+                    probe = await self.floor()
+                    self.record.emit("floor", **probe)
+            except asyncio.CancelledError:  # Ctrl-C or SIGTERM: clean up, record why
+                problem = "interrupted"
+            except Exception as exc:  # a crash is a failed run, never a passed one
+                problem = f"crashed: {exc!r}"[:300]
+        finally:
+            # The processes are stopped first and whatever fails after: nothing outlives the run.
+            try:
+                await asyncio.shield(self._finish(stop, watcher))
+            finally:
+                await asyncio.shield(self.stop_all())
+                try:
+                    for m in self.members.values():
+                        for life in m.lives:
+                            self.record.emit(
+                                "exit", peer=m.node.name, life=life.number,
+                                returncode=life.proc.returncode,
+                            )  # fmt: skip
+                    self.record.emit("counters", links=self.layer.counters(), bad_lines=self.bad)
+                    await asyncio.shield(self.layer.close())
+                finally:
+                    if problem is not None:
+                        self.record.emit("aborted", reason=problem)
+                    self.record.emit("end")
+                    self.record.close()
+        return {"problem": problem, "floor": probe}
+
+
+def _usage(pid: int) -> tuple[int, int] | None:
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+        fds = len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return None
+    found = re.search(r"VmRSS:\s+(\d+)", status)
+    return (int(found.group(1)) if found else 0), fds
+
+
+def _port() -> int:
+    """A port free on 127.0.0.1, used on every fleet address (each its own address)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict[str, Any]:
+    from ktbt_proto.exchange.messages import Query, encode
+    from ktbt_proto.transport.zenoh import PREFIX, ZenohSettings, open_session
+
+    session = open_session(ZenohSettings(connect=[endpoint]))
+    times: list[float] = []
+    try:
+        deadline = time.monotonic() + 10
+        key = f"{PREFIX}/knowledge/{teacher}"
+        while len(times) < rounds and time.monotonic() < deadline:
+            query = Query(id=Query.new_id(), sender="fleet-probe", sequence=sequence)
+            began = time.perf_counter()
+            for reply in session.get(key, payload=encode(query), timeout=2.0):
+                if reply.ok is not None:
+                    times.append(time.perf_counter() - began)
+                    break
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+    if not times:
+        return {"skipped": "the teacher did not answer the probe"}
+    times.sort()
+    return {"rounds": len(times), "median_s": times[len(times) // 2], "min_s": times[0]}
+
+
+def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: str | None) -> Any:
+    """One scenario here; SIGINT and SIGTERM stop its schedule, and everything it started is
+    still stopped and recorded."""
+
+    async def main() -> dict[str, Any]:
+        fleet = FleetRun(config, out, say, live, loss_note)
+        task = asyncio.current_task()
+        assert task is not None
+        loop = asyncio.get_running_loop()
+        stopping: list[int] = []
+
+        def interrupt(sig: int) -> None:
+            # The first signal stops the schedule; later ones would land in the cleanup and
+            # leave peers behind, so they are only counted.
+            stopping.append(sig)
+            if len(stopping) == 1:
+                task.cancel()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, interrupt, sig)
+        return await fleet.run()
+
+    return asyncio.run(main())
+
+
+def run(
+    config: FleetConfig, out: Path, say: Say, live: bool = False, monitor: str | None = None
+) -> dict[str, Any]:
+    """Run one scenario and check it; inside a namespace of its own where the machine allows
+    (needed for loss), else on the machine's loopback with loss skipped. With ``monitor``
+    (HOST:PORT), ``ktbt monitor`` watches the fleet from this machine's loopback for the
+    whole run. Returns the summary (also written to ``summary.json``)."""
+    from ktbt_proto.tools.fleet.check import check_record
+
+    out.mkdir(parents=True, exist_ok=True)
+    for old in OUTPUTS:  # a previous run's files, never anything else
+        target = out / old
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+    why = netns.unavailable(need_nft=bool(config.loss))
+    ended: list[str] = []
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # as Ctrl-C: everything is stopped
+    try:
+        with contextlib.ExitStack() as stack:
+            if monitor is not None:
+                watching = stack.enter_context(watch.watching(config, monitor, out, say))
+                config, ended = watching.config, watching.ended
+            if why is None:
+                result = _in_namespace(config, out, live)
+            else:
+                note = why if config.loss else None
+                result = run_inside(config, out, say, live, note)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    summary = check_record(out)
+    summary["aborted"] = result.get("problem") or (ended[0] if ended else None)
+    summary["passed"] = summary["passed"] and summary["aborted"] is None
+    write_atomic(out / "summary.json", json.dumps(summary, indent=1, default=str))
+    return summary
+
+
+def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
+    name = f"ktbt-fleet-{os.getpid()}-{random.randrange(1 << 20):x}"
+    netns.create(name)
+    proc: subprocess.Popen[bytes] | None = None
+    try:
+        note = None
+        if config.loss:
+            try:
+                netns.add_loss(name, config.loss)
+            except OSError as exc:
+                note = str(exc)
+        write_atomic(out / "config.json", json.dumps({"config": config.to_json(), "loss": note}))
+        proc = subprocess.Popen(
+            ["ip", "netns", "exec", name, sys.executable, "-m", "ktbt_proto.tools.fleet.runner",
+             str(out), "--live" if live else "--quiet"],
+            env={**os.environ, "KTBT_FLEET_NETNS": name},
+            start_new_session=True,  # it hears exactly one signal: the one sent here
+        )  # fmt: skip
+        previous = signal.signal(signal.SIGTERM, _interrupt)
+        try:
+            proc.wait()
+        except KeyboardInterrupt:  # tell the inner runner once; later signals are ignored
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGINT)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=60)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+        result_file = out / "result.json"
+        if result_file.exists():
+            result: dict[str, Any] = json.loads(result_file.read_text())
+            return result
+        return {"problem": f"the runner in the namespace exited with {proc.returncode}"}
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        netns.delete(name)
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main() -> None:
+    """Inside the namespace: ``python -m ktbt_proto.tools.fleet.runner OUT [--live]``."""
+    out = Path(sys.argv[1])
+    spec = json.loads((out / "config.json").read_text())
+    config = FleetConfig(**spec["config"])
+    live = "--live" in sys.argv[2:]
+
+    def say(text: str) -> None:
+        if not live:
+            print(text, flush=True)
+
+    result = run_inside(config, out, say, live, spec["loss"])
+    write_atomic(out / "result.json", json.dumps(result, default=str))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,191 @@
+"""``ktbt monitor``: added to the ``ktbt`` command through the ``ktbt.commands`` entry point.
+Nothing of the web stack is imported until the command runs, so ``ktbt`` works without the
+``monitor`` extra and the command says in one line how to get it."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import ipaddress
+import os
+import socket
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ktbt_proto.tools.cli import Config, Connect, Mode, ZenohMode
+
+INSTALL = "ktbt monitor needs the monitor extra: pip install 'ktbt[monitor]'"
+LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
+
+
+def _address(text: str, option: str = "--http") -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535 or not host:
+        raise typer.BadParameter(f"{text!r} is not HOST:PORT (127.0.0.1:8470)", param_hint=option)
+    return host.strip("[]"), int(port)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def allowed_hosts(host: str, allow: list[str]) -> list[str]:
+    """The Host headers a page may send: the loopback names when bound to loopback, else the
+    bound address itself, and every ``--allow-host`` (a page reached by another name, as by
+    DNS rebinding, is refused)."""
+    bound = LOOPBACK_NAMES if _is_loopback(host) else [host, f"[{host}]" if ":" in host else host]
+    return [*dict.fromkeys([*bound, *allow])]
+
+
+def monitor_command(
+    connect: Connect = None,
+    http: Annotated[
+        str,
+        typer.Option(
+            "--http",
+            help="Where to serve the page, HOST:PORT; a host other than loopback is reachable "
+            "from other machines (pages must then name it or an --allow-host).",
+        ),
+    ] = "127.0.0.1:8470",
+    allow_host: Annotated[
+        list[str] | None,
+        typer.Option("--allow-host", help="Another Host name a page may use (repeatable)."),
+    ] = None,
+    config: Config = None,
+    mode: Mode = ZenohMode.peer,
+    uds: Annotated[
+        Path | None,
+        typer.Option(
+            "--uds",
+            help="Also serve on this unix socket, for tools on this machine (as in a network "
+            "namespace of their own) that cannot reach the --http address.",
+        ),
+    ] = None,
+    trust: Annotated[
+        Path | None,
+        typer.Option(
+            "--trust",
+            help="Peers' keys, 'NAME KEY' a line: their events must be signed by them (others' "
+            "first key is pinned).",
+        ),
+    ] = None,
+) -> None:
+    """Serve a live view of the fleet in the browser: who is present, who knows what, each
+    transfer and refusal as it happens (spec/protocol.md section 10)."""
+    try:
+        import uvicorn
+
+        from ktbt_proto.tools.monitor.app import create_app
+        from ktbt_proto.tools.monitor.fleet import FleetState
+        from ktbt_proto.tools.monitor.listen import Listener
+    except ImportError:
+        typer.echo(INSTALL, err=True)
+        raise typer.Exit(2) from None
+    from ktbt_proto.exchange.signing import KeyFileError
+    from ktbt_proto.exchange.trust import TrustStore
+    from ktbt_proto.tools.cli import _settings
+    from ktbt_proto.tools.peer import until_signalled
+
+    if not connect:
+        typer.echo("error: --connect ENDPOINT: the fleet to listen to", err=True)
+        raise typer.Exit(2)
+    settings = _settings(None, connect, config, False, mode.value)
+    try:
+        store = TrustStore.load(trust) if trust is not None else None
+    except KeyFileError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    host, port = _address(http)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        typer.echo(f"error: cannot serve on {http}: {exc.strerror or exc}", err=True)
+        raise typer.Exit(2) from None
+    port = sock.getsockname()[1]
+    sockets = [sock]
+    bound: tuple[int, int] | None = None
+    if uds is not None:
+        try:
+            unix, bound = _unix_socket(uds)
+        except OSError as exc:
+            sock.close()
+            typer.echo(f"error: cannot serve on {uds}: {exc.strerror or exc}", err=True)
+            raise typer.Exit(2) from None
+        sockets.append(unix)
+    fleet = FleetState(store)
+    try:
+        listener = Listener(fleet, settings)
+    except Exception as exc:  # zenoh's own error: a bad endpoint or config
+        for s in sockets:
+            s.close()
+        typer.echo(f"error: cannot join the fleet at {', '.join(connect)}: {exc}", err=True)
+        raise typer.Exit(2) from None
+    loopback = _is_loopback(host)
+    shown = f"[{host}]" if family == socket.AF_INET6 else host
+    app = create_app(fleet, allowed_hosts(host, allow_host or []), listener.tree)
+    # An open page's stream never ends by itself: at a stop, give connections a second.
+    server = uvicorn.Server(
+        uvicorn.Config(app, log_level="warning", lifespan="off", timeout_graceful_shutdown=1)
+    )
+    if loopback:
+        typer.echo(f"monitor: http://{shown}:{port}/ (localhost only; --http HOST:PORT to change)")
+    else:
+        typer.echo(f"monitor: http://{shown}:{port}/ (reachable from other machines: not loopback)")
+    if uds is not None:
+        typer.echo(f"  and on the unix socket {uds}")
+    typer.echo(f"  listening to the fleet at {', '.join(connect)}; Ctrl-C to stop")
+    try:
+        # uvicorn handles SIGINT and SIGTERM while it runs, then raises the signal again once
+        # stopped: caught here, so the listener's session is closed below.
+        with until_signalled():
+            server.run(sockets=sockets)
+    finally:
+        listener.close()
+        for s in sockets:
+            s.close()
+        if uds is not None and bound is not None:
+            with contextlib.suppress(OSError):  # ours still: not one a later monitor bound
+                if (uds.stat().st_dev, uds.stat().st_ino) == bound:
+                    uds.unlink()
+
+
+def _unix_socket(path: Path) -> tuple[socket.socket, tuple[int, int]]:
+    """A unix socket bound at ``path``, readable by its owner only, and its file's identity.
+    A socket left there by a monitor that died is replaced; one that still answers, or a
+    file that is not a socket, is refused (``OSError``)."""
+    if path.is_socket():
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(str(path))
+        except ConnectionRefusedError:
+            path.unlink()  # nobody listens: left by a monitor that died
+        else:
+            raise OSError(errno.EADDRINUSE, "another process serves on it")
+        finally:
+            probe.close()
+    unix = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        unix.bind(str(path))
+        unix.listen()  # at once: a monitor starting beside us must see this one taken
+        os.chmod(path, 0o600)
+        stat = path.stat()
+    except OSError:
+        unix.close()
+        raise
+    return unix, (stat.st_dev, stat.st_ino)
+
+
+def register(app: typer.Typer) -> None:
+    """Entry point of ``ktbt.commands``: add ``monitor`` to the ``ktbt`` app."""
+    app.command("monitor")(monitor_command)

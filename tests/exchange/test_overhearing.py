@@ -1,0 +1,107 @@
+"""Overhearing (spec/protocol.md section 4.3): answers to others' queries learned at once
+(``update``), kept and used when needed without a query (``buffer``), or refused (``off``);
+never trusted more than a direct answer."""
+
+from __future__ import annotations
+
+import ktbt_proto as kp
+from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.trust import Policy
+from ktbt_proto.transport import MemoryNetwork
+from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
+
+
+def trio(overhear: str, **kw: object) -> tuple[Agent, Agent, Agent, MemoryNetwork]:
+    net = MemoryNetwork(overhear=True)
+    learner = Agent("l", CONTROL, registry(), net.join("l"))
+    teacher = Agent("t", KNOWER, registry(), net.join("t"))
+    ear = Agent("e", CONTROL, registry(), net.join("e"), overhear=overhear, **kw)  # type: ignore[arg-type]
+    return learner, teacher, ear, net
+
+
+def exchange(learner: Agent, teacher: Agent) -> None:
+    learner.ask(SEQUENCE)
+    teacher.receive()
+    query = teacher.heard("l")
+    assert query is not None and teacher.answer(query)
+    assert learner.receive() == 1
+
+
+def test_update_learns_an_overheard_answer_at_once() -> None:
+    learner, teacher, ear, _net = trio("update")
+    exchange(learner, teacher)
+    assert ear.receive() == 1
+    assert ear.knows(SEQUENCE)
+    assert (ear.metrics.overheard, ear.metrics.learned_passive) == (1, 1)
+    assert ear.metrics.queries_sent == 0
+    assert (
+        ear.metrics.learned[kp.format_tree(kp.parse("<c>(TargetSeen,colour=2)"), "compact")][1]
+        == "t"
+    )
+    assert learner.metrics.learned_direct == 1 and learner.metrics.learned_passive == 0
+
+
+def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
+    learner, teacher, ear, net = trio("buffer")
+    exchange(learner, teacher)
+    assert ear.receive() == 0
+    assert not ear.knows(SEQUENCE) and ear.buffered == ["<c>(TargetSeen,colour=2)"]
+    ear.blackboard["target"] = 2
+    ear.encounter(SEQUENCE)  # the tree's learner meets the sequence
+    for _ in range(3):
+        net.step()
+        ear.tick()
+    assert ear.knows(SEQUENCE) and ear.metrics.learned_buffered == 1
+    assert ear.metrics.queries_sent == 0 and ear.buffered == []
+    assert ear.blackboard.get("picked", 0) >= 1  # and it used what it learned
+
+
+def test_off_refuses_an_answer_addressed_to_another() -> None:
+    learner, teacher, ear, _net = trio("off")
+    exchange(learner, teacher)
+    assert ear.receive() == 0
+    assert not ear.knows(SEQUENCE) and ear.metrics.refused == 1
+
+
+def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None:
+    net = MemoryNetwork(overhear=True)
+    learner = Agent("l", CONTROL, registry(), net.join("l"))
+    teacher = Agent("t", KNOWER, registry(), net.join("t"))
+    reg = kp.Registry()
+    reg.add_condition("TargetSeen", lambda bb, colour: False)
+    reg.add_action("Walk", lambda bb: kp.SUCCESS)
+    ear = Agent("e", CONTROL, reg, net.join("e"), overhear="update")  # it cannot Pick
+    before = kp.format_tree(ear.control.tree, "compact")
+    exchange(learner, teacher)
+    assert ear.receive() == 0
+    assert ear.metrics.refused == 1 and "Pick" in ear.metrics.refusals[-1][1]
+    assert ear.metrics.overheard_refused == 1
+    assert kp.format_tree(ear.control.tree, "compact") == before
+
+
+def test_an_overheard_answer_is_trusted_no_more_than_a_direct_one() -> None:
+    learner, teacher, ear, _net = trio("update", policy=Policy.SIGNED)
+    exchange(learner, teacher)  # the teacher signs nothing
+    assert ear.receive() == 0 and not ear.knows(SEQUENCE)
+    assert ear.metrics.refused == 1
+
+
+def test_a_full_buffer_refuses_the_newcomer() -> None:
+    net = MemoryNetwork(overhear=True)
+    knows_two = KNOWER.replace(
+        "<e><k>(new)", "<sq><c>(TargetSeen, colour=3)<a>(Pick, colour=3)<e><e><k>(new)"
+    )
+    learner = Agent("l", CONTROL, registry(), net.join("l"))
+    teacher = Agent("t", knows_two, registry(), net.join("t"))
+    ear = Agent("e", CONTROL, registry(), net.join("e"), overhear="buffer", buffer_size=1)
+    for colour in (2, 3):
+        learner.ask([f"TargetSeen(colour={colour})"])
+        teacher.receive()
+        query = teacher.heard("l")
+        assert query is not None and teacher.answer(query)
+        learner.receive()
+        learner.close_query()
+    ear.receive()
+    assert ear.buffered == ["<c>(TargetSeen,colour=2)"]
+    assert ear.metrics.refused == 1 and "buffer full" in ear.metrics.refusals[-1][1]
+    assert ear.metrics.overheard_refused == 1

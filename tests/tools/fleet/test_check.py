@@ -1,0 +1,362 @@
+"""The fleet checker over histories written by hand: one that holds every property, and each
+way a history can break one, which the checker must reject."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import pytest
+
+from ktbt_proto.tools.fleet.check import History, check, convergence_time, metrics
+from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, make_plan, seconds
+
+ITEMS = {"A": "aaaa", "B": "bbbb"}
+
+
+def base(**config: Any) -> list[dict[str, Any]]:
+    """Learners p0 and p1, teacher t2, two items; everyone learns both once; all saved."""
+    cfg = FleetConfig(peers=3, **config)
+    plan = make_plan(cfg, 7447)
+    events: list[dict[str, Any]] = [
+        {"t": 0.0, "kind": "run", "config": cfg.to_json(), "plan": plan.to_json(), "items": ITEMS}
+    ]
+    for name, known in (("p0", []), ("p1", []), ("t2", ["A", "B"])):
+        events.append({"t": 0.1, "kind": "launch", "peer": name, "life": 1, "known": known})
+        events.append({"t": 1.0, "kind": "up", "peer": name, "life": 1, "knows": len(known)})
+    events.append({"t": 1.0, "kind": "all-up"})
+    for t, peer, seq in ((1.5, "p0", "A"), (1.6, "p1", "A"), (1.7, "p0", "B"), (1.9, "p1", "B")):
+        events.append({"t": t - 0.1, "kind": "query-sent", "peer": peer, "life": 1, "id": seq})
+        events.append(
+            {"t": t, "kind": "answer-received", "peer": peer, "life": 1, "id": seq, "sender": "t2"}
+        )
+        events.append({"t": t, "kind": "merged", "peer": peer, "life": 1, "sequence": seq})
+    events += [
+        {"t": 1.0, "kind": "reference", "at": 1.0},
+        {"t": 1.9, "kind": "converged", "at": 1.9},
+        {"t": 3.0, "kind": "final", "peer": "p0", "saved": dict(ITEMS)},
+        {"t": 3.0, "kind": "final", "peer": "p1", "saved": dict(ITEMS)},
+        {"t": 4.0, "kind": "end"},
+    ]
+    return events
+
+
+def verdicts(events: list[dict[str, Any]]) -> dict[str, str]:
+    return {v.name: v.status for v in check(events)}
+
+
+def failed(events: list[dict[str, Any]]) -> set[str]:
+    return {v.name for v in check(events) if v.status == "fail"}
+
+
+def test_a_history_that_holds_every_property_passes() -> None:
+    found = verdicts(base())
+    assert found["convergence"] == "pass"
+    assert found["no duplicate merge"] == "pass"
+    assert found["saved files"] == "pass"
+    assert found["faults"] == "skipped"  # a baseline: nothing scheduled, nothing claimed
+    assert "fail" not in found.values()
+    h = History(base())
+    assert convergence_time(h) == pytest.approx(1.9)
+    assert metrics(h)["convergence_s"] == pytest.approx(0.9)
+
+
+def test_a_peer_that_never_learns_an_item_is_not_converged() -> None:
+    events = [
+        e
+        for e in base()
+        if not (e["kind"] == "merged" and e["peer"] == "p0" and e["sequence"] == "B")
+    ]
+    assert "convergence" in failed(events)
+
+
+def test_convergence_later_than_the_bound_fails() -> None:
+    events = base(bound=0.5)
+    assert "convergence" in failed(events)
+
+
+def test_a_duplicate_merge_is_rejected() -> None:
+    events = base()
+    events.append({"t": 2.5, "kind": "merged", "peer": "p1", "life": 1, "sequence": "A"})
+    assert "no duplicate merge" in failed(events)
+
+
+def test_merging_what_a_life_started_with_is_a_duplicate() -> None:
+    events = base()
+    launch = next(e for e in events if e["kind"] == "launch" and e["peer"] == "p0")
+    launch["known"] = ["A"]
+    assert "no duplicate merge" in failed(events)
+
+
+@pytest.mark.parametrize(
+    "saved",
+    [
+        {"A": "aaaa", "B": "tampered"},  # corrupted: not its author's bytes
+        {"A": "aaaa", "B": "bbbb", "Z": "zzzz"},  # foreign: no teacher has it
+        "unreadable: JSONDecodeError",  # a torn or damaged file
+    ],
+)
+def test_a_corrupted_foreign_or_unreadable_saved_file_is_rejected(saved: Any) -> None:
+    events = base()
+    next(e for e in events if e["kind"] == "final" and e["peer"] == "p0")["saved"] = saved
+    assert "saved files" in failed(events)
+
+
+def churned(rounds: int = 1) -> list[dict[str, Any]]:
+    """p1 killed after learning A, restarted knowing A, learning B in its second life."""
+    events = [e for e in base(churn=0.5, churn_rounds=rounds) if e["kind"] != "end"]
+    events = [
+        e
+        for e in events
+        if not (e["kind"] == "merged" and e["peer"] == "p1" and e["sequence"] == "B")
+    ]
+    events += [
+        {"t": 1.55, "kind": "fault", "fault": "churn", "phase": "start", "round": 1, "peers": ["p1"]},  # noqa: E501
+        {"t": 1.55, "kind": "kill", "peer": "p1", "life": 1, "returncode": -9, "saved": {"A": "aaaa"}},  # noqa: E501
+        {"t": 2.0, "kind": "launch", "peer": "p1", "life": 2, "known": ["A"]},
+        {"t": 2.5, "kind": "up", "peer": "p1", "life": 2, "knows": 1},
+        {"t": 2.5, "kind": "fault", "fault": "churn", "phase": "end", "round": 1, "peers": ["p1"]},
+        {"t": 2.8, "kind": "merged", "peer": "p1", "life": 2, "sequence": "B"},
+        {"t": 4.0, "kind": "end"},
+    ]  # fmt: skip
+    return events
+
+
+def test_a_kill_that_loses_nothing_passes() -> None:
+    found = verdicts(churned())
+    assert found["kill -9 loses nothing saved"] == "pass"
+    assert found["fault: churn"] == "pass"
+    assert found["convergence"] == "pass"
+
+
+def test_a_restart_that_forgot_what_was_saved_is_rejected() -> None:
+    events = churned()
+    next(e for e in events if e["kind"] == "up" and e["life"] == 2)["knows"] = 0
+    events.append({"t": 3.0, "kind": "merged", "peer": "p1", "life": 2, "sequence": "A"})
+    assert "kill -9 loses nothing saved" in failed(events)
+
+
+def test_a_last_save_without_an_item_saved_before_the_kill_is_rejected() -> None:
+    events = churned()
+    next(e for e in events if e["kind"] == "final" and e["peer"] == "p1")["saved"] = {"B": "bbbb"}
+    assert "kill -9 loses nothing saved" in failed(events)
+
+
+def test_churn_scheduled_but_no_peer_killed_fails() -> None:
+    events = [e for e in churned() if e["kind"] != "kill"]
+    assert "fault: churn" in failed(events)
+
+
+def partitioned(evidence: dict[str, int]) -> list[dict[str, Any]]:
+    events = [e for e in base(partition=5.0) if e["kind"] != "end"]
+    half = History(events).plan["half"]
+    events += [
+        {"t": 2.0, "kind": "fault", "fault": "partition-silent", "phase": "start", "half": half},
+        {"t": 7.0, "kind": "fault", "fault": "partition-silent", "phase": "end", "evidence": evidence},  # noqa: E501
+        {"t": 8.0, "kind": "end"},
+    ]  # fmt: skip
+    return events
+
+
+def test_a_partition_that_held_bytes_and_let_nothing_through_passes() -> None:
+    assert verdicts(partitioned({"chunks_held": 3}))["fault: partition-silent"] == "pass"
+
+
+def test_a_partition_in_which_nothing_was_held_fails() -> None:
+    assert "fault: partition-silent" in failed(partitioned({"chunks_held": 0}))
+
+
+def test_an_answer_across_the_partition_fails_it() -> None:
+    events = partitioned({"chunks_held": 3})
+    half = History(events).plan["half"]
+    other = next(p for p, side in half.items() if side == 1)
+    events.append(
+        {"t": 3.0, "kind": "answer-received", "peer": other, "life": 1, "sender": "t2", "id": "x"}
+    )
+    assert "fault: partition-silent" in failed(events)
+
+
+def test_loss_with_no_packet_dropped_fails_and_skipped_loss_is_not_passed() -> None:
+    events = [e for e in base(loss=0.2) if e["kind"] != "end"]
+    none = [
+        *events,
+        {"t": 3, "kind": "fault", "fault": "loss", "phase": "end", "evidence": {"dropped": 0}},
+    ]
+    assert "fault: loss" in failed([*none, {"t": 4, "kind": "end"}])
+    skipped = [*events, {"t": 0, "kind": "skipped", "fault": "loss", "reason": "no nft"}]
+    assert verdicts([*skipped, {"t": 4, "kind": "end"}])["fault: loss"] == "skipped"
+    dropped = [
+        *events,
+        {"t": 3, "kind": "fault", "fault": "loss", "phase": "end", "evidence": {"dropped": 9}},
+    ]
+    assert verdicts([*dropped, {"t": 4, "kind": "end"}])["fault: loss"] == "pass"
+
+
+def test_answers_faster_than_the_delay_fail_it() -> None:
+    events = [e for e in base(delay=0.2) if e["kind"] != "end"]
+    events.append(
+        {
+            "t": 3,
+            "kind": "fault",
+            "fault": "delay",
+            "phase": "end",
+            "evidence": {"delayed_chunks": 5},
+        }
+    )
+    events.append({"t": 4, "kind": "end"})
+    assert "fault: delay" in failed(events)  # base() answers come 0.1 s after their query
+    for e in events:
+        if e["kind"] == "query-sent":
+            e["t"] -= 0.5
+    assert verdicts(events)["fault: delay"] == "pass"
+
+
+def test_growing_memory_across_churn_rounds_fails() -> None:
+    events = [e for e in churned(rounds=2) if e["kind"] != "end"]
+    events.append({"t": 3.0, "kind": "fault", "fault": "churn", "phase": "start", "round": 2})
+    steady = [
+        {"t": t, "kind": "sample", "peer": "p0", "life": 1, "rss_kb": 30000, "fds": 40}
+        for t in (2.9, 3.5)
+    ]
+    assert (
+        verdicts([*events, *steady, {"t": 4, "kind": "end"}])["memory and descriptors bounded"]
+        == "pass"
+    )
+    growing = copy.deepcopy(steady)
+    growing[1]["rss_kb"], growing[1]["fds"] = 60000, 90
+    assert "memory and descriptors bounded" in failed([*events, *growing, {"t": 4, "kind": "end"}])
+
+
+def test_an_aborted_or_truncated_record_fails() -> None:
+    events = base()
+    assert "completed" in failed([*events, {"t": 5, "kind": "aborted", "reason": "not up"}])
+    assert "completed" in failed([e for e in events if e["kind"] != "end"])
+
+
+def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
+    a = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
+    b = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=3), 7447)
+    assert a.to_json() == b.to_json()
+    # Each decision has its own stream: a partition does not move the victims, for any seed.
+    for seed in range(8):
+        both = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=seed), 7447)
+        churn_only = make_plan(FleetConfig(peers=10, churn=0.2, seed=seed), 7447)
+        assert both.victims == churn_only.victims
+    assert len(a.links) == 45 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
+    assert {a.half[n.name] for n in a.peers} == {0, 1}
+    assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4
+    router = make_plan(FleetConfig(peers=40, topology="router"), 1)
+    assert len(router.routers) == 2 and len(router.links) == 41
+    assert seconds("200ms") == pytest.approx(0.2) and seconds("2m") == 120
+    nan = float("nan")
+    for bad in ({"peers": 1}, {"teachers": 0}, {"loss": 1.5}, {"topology": "star"},
+                {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}):  # fmt: skip
+        with pytest.raises(PlanError):
+            FleetConfig(**bad)
+    with pytest.raises(PlanError):
+        seconds("soon")
+
+
+def test_a_peer_that_died_by_itself_or_forgot_or_saved_less_is_not_converged() -> None:
+    died = base()
+    died.insert(-1, {"t": 3.5, "kind": "stopping", "lives": {"p1": 1, "t2": 1}})
+    for peer, code in (("p0", 1), ("p1", -15), ("t2", 0)):
+        died.insert(-1, {"t": 3.9, "kind": "exit", "peer": peer, "life": 1, "returncode": code})
+    assert "convergence" in failed(died)
+    stopped = copy.deepcopy(died)
+    next(e for e in stopped if e["kind"] == "stopping")["lives"]["p0"] = 1  # all stopped by us
+    stopped = [e for e in stopped if not (e["kind"] == "exit" and e["returncode"] == 1)]
+    stopped.insert(-1, {"t": 3.9, "kind": "exit", "peer": "p0", "life": 1, "returncode": 0})
+    assert "convergence" not in failed(stopped)
+    forgot = base()
+    forgot.insert(-4, {"t": 2.0, "kind": "forgotten", "peer": "p0", "life": 1, "sequence": "A"})
+    assert "convergence" in failed(forgot)
+    short = base()
+    short[-2]["saved"] = {"A": "aaaa"}
+    assert "convergence" in failed(short)
+
+
+def test_refusals_of_what_fleet_peers_sent_are_counted_as_honest_answers_refused() -> None:
+    events = base()
+    for reason in (
+        "from t2: an answer to no open question",
+        "from p1: an answer to no open question",
+        "from t2: the subtree does not parse",
+        "from stranger: an answer to no open question",
+    ):
+        events.insert(-1, {"t": 2.0, "kind": "refused", "peer": "p0", "life": 1, "reason": reason})
+    found = metrics(History(events))
+    assert found["honest_answers_refused"] == 3
+    assert found["late_answers_refused"] == 2
+
+
+def test_a_kill_with_nothing_saved_proves_nothing_and_is_skipped() -> None:
+    events = churned()
+    next(e for e in events if e["kind"] == "kill")["saved"] = {}
+    assert verdicts(events)["kill -9 loses nothing saved"] == "skipped"
+
+
+def test_a_churn_round_that_never_converges_fails() -> None:
+    found = verdicts(churned())
+    assert found["churn rounds converge"] == "pass"
+    assert metrics(History(churned()))["churn_convergence_s"] == pytest.approx(0.3)
+    never = [e for e in churned() if not (e["kind"] == "merged" and e["peer"] == "p1")]
+    never = [e for e in never if e["kind"] != "final"]
+    assert "churn rounds converge" in failed(never)
+    assert metrics(History(never))["churn_convergence_s"] is None
+
+
+MONITOR = "the monitor shows what the peers know"
+
+
+def watched(
+    knows: dict[str, list[str]] | None, t: float = 5.0, status: str = "present"
+) -> list[dict[str, Any]]:
+    """The base history run with ``--monitor``; ``knows``: what the monitor showed, asked at
+    ``t`` - 0.1 and answering at ``t`` (None: no view recorded)."""
+    events = base(watch="/tmp/ktbt-watch-x")
+    if knows is not None:
+        view = {"knows": knows, "status": dict.fromkeys(knows, status), "asked": t - 0.1}
+        view.update(drops={}, events=12, waited=0.1)
+        events.insert(-1, {"t": t, "kind": "monitor", **view})
+    return events
+
+
+def test_a_monitor_showing_what_every_peer_knows_passes() -> None:
+    assert verdicts(watched({"p0": ["A", "B"], "p1": ["A", "B"], "t2": ["A", "B"]}))[MONITOR] == (
+        "pass"
+    )
+    assert MONITOR not in verdicts(base())  # not watched: no verdict at all
+
+
+@pytest.mark.parametrize(
+    "knows",
+    [
+        {"p0": ["A", "B"], "p1": ["A"], "t2": ["A", "B"]},  # an item learned and not shown
+        {"p0": ["A", "B"], "p1": ["A", "B"], "t2": ["A", "B", "C"]},  # shown, never known
+        {"p0": ["A", "B"], "p1": ["A", "B"]},  # a peer not shown
+    ],
+)
+def test_a_monitor_that_shows_other_than_the_logs_say_fails(knows: dict[str, list[str]]) -> None:
+    assert MONITOR in failed(watched(knows))
+
+
+def test_a_monitor_showing_a_live_peer_gone_fails() -> None:
+    every = {"p0": ["A", "B"], "p1": ["A", "B"], "t2": ["A", "B"]}
+    assert MONITOR in failed(watched(every, status="gone"))
+
+
+def test_a_merge_may_reach_the_monitor_up_to_a_second_late() -> None:
+    # p1 merged B at 1.9: a view asked within a second of that may still lack it; later not.
+    late = {"p0": ["A", "B"], "p1": ["A"], "t2": ["A", "B"]}
+    assert verdicts(watched(late, t=2.6))[MONITOR] == "pass"
+    assert MONITOR in failed(watched(late, t=3.2))
+    early = {"p0": ["A"], "p1": [], "t2": ["A", "B"]}  # at 1.45: neither had learned yet but A
+    assert verdicts(watched(early, t=1.55))[MONITOR] == "pass"
+
+
+def test_a_watched_run_without_the_monitors_view_fails_unless_it_was_cut_short() -> None:
+    assert MONITOR in failed(watched(None))
+    cut = watched(None)
+    cut.insert(-1, {"t": 3.5, "kind": "aborted", "reason": "interrupted"})
+    assert verdicts(cut)[MONITOR] == "skipped"

@@ -10,6 +10,7 @@ base all read items and sequences here, so that the language never depends on th
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Iterable
 from dataclasses import replace
@@ -22,8 +23,10 @@ from ktbt_proto.syntax import parse
 from ktbt_proto.tree import Condition, Node, Placeholder, SequenceNode, Tree, as_node, walk
 
 __all__ = [
+    "item_digest",
     "parse_sequence",
     "read_sequence",
+    "sequence_digest",
     "sequence_key",
     "show_sequence",
     "split_item",
@@ -31,9 +34,40 @@ __all__ = [
 ]
 
 
-def sequence_key(conditions: Iterable[Condition]) -> str:
-    """The canonical form of a condition sequence: how knowledge is looked up and asked for."""
-    return "".join(format_tree(c, "compact") for c in conditions)
+def sequence_key(sequence: str | Iterable[Condition | str]) -> str:
+    """The canonical form of a condition sequence: how knowledge is looked up and asked for
+    (``spec/protocol.md`` section 1). The one way to get a key: a ``str`` is a key already
+    (``<c>(A)<c>(!B)``) and is returned as it is; otherwise each element is a ``Condition`` or
+    the text people type for one or more (``"TargetSeen(colour=2)"``, read by
+    :func:`read_sequence`). Raises ``StringBTError`` for text that is not a condition."""
+    if isinstance(sequence, str):
+        return sequence
+    parts: list[str] = []
+    for element in sequence:
+        if isinstance(element, Condition):
+            parts.append(format_tree(element, "compact"))
+        elif isinstance(element, str):
+            parts.extend(format_tree(c, "compact") for c in read_sequence(element))
+        else:
+            raise ParseError(
+                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {element!r}"
+            )
+    return "".join(parts)
+
+
+def sequence_digest(key: str) -> str:
+    """The digest of a condition sequence: SHA-256 of its key (UTF-8), hexadecimal. A fleet
+    event names the item it is about by it (``spec/protocol.md`` section 10)."""
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def item_digest(key: str, subtree: Tree | Node) -> str:
+    """The digest of a knowledge item, its sequence and its subtree: the first 16 hexadecimal
+    digits of SHA-256 over ``key``, a newline and the compact subtree (UTF-8). Two items with
+    the same digest teach the same thing; the fleet checks a saved item against its author's by
+    it, and the BehaviorTree.CPP sidecar names its files by it (``spec/stringbt.md`` 12.1)."""
+    text = f"{key}\n{format_tree(subtree, 'compact')}"
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
 @lru_cache(maxsize=1024)

@@ -16,7 +16,6 @@ whatever is oversized, malformed, or signed with a signature that does not verif
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 import time
@@ -44,6 +43,8 @@ from ktbt_proto.exchange.messages import (
     _wire_fields,
 )
 from ktbt_proto.exchange.signing import Identity, verify
+from ktbt_proto.exchange.transferlog import Event
+from ktbt_proto.items import sequence_digest
 
 PREFIX = "ktbt/v1/events"
 MAX_EVENT_BYTES = 8192
@@ -57,15 +58,15 @@ DEFAULT_RATE = 200.0
 DEFAULT_BURST = 400
 """Events a publisher may send at once after a quiet spell."""
 
-KEPT_KINDS = frozenset({"merged", "forgotten", "refused"})
+KEPT_KINDS = frozenset({Event.MERGED, Event.FORGOTTEN, Event.REFUSED})
 """What changes the fleet view (a tree's knowledge, a refusal) takes its own bucket, apart from
 queries and answers: a busy peer's merges and forgets are never dropped for its chatter."""
 
 _DIGEST = r"^[0-9a-f]{64}$"
 
 _KIND = r"^[a-z][a-z-]{0,31}$"
-"""An event's kind: one of section 8's (``EVENTS``); a receiver shows a kind it does not know
-as it came, so a log that learns a new kind publishes it without a new model."""
+"""An event's kind: one of section 8's (``transferlog.Event``); a receiver shows a kind it does
+not know as it came, so a log that learns a new kind publishes it without a new model."""
 
 
 class FleetEvent(BaseModel):
@@ -111,11 +112,6 @@ class FleetEvent(BaseModel):
 
 
 _ADAPTER: TypeAdapter[FleetEvent] = TypeAdapter(FleetEvent)
-
-
-def digest(sequence: str) -> str:
-    """An item's digest: SHA-256 of its canonical compact sequence (UTF-8), hexadecimal."""
-    return hashlib.sha256(sequence.encode("utf-8")).hexdigest()
 
 
 def signed_bytes(event: FleetEvent) -> bytes:
@@ -166,7 +162,7 @@ def from_log(entry: dict[str, Any], n: int, dropped: int = 0) -> FleetEvent:
         "dropped": dropped,
     }
     if isinstance(sequence, str):
-        fields["item"] = digest(sequence)
+        fields["item"] = sequence_digest(sequence)
         clipped = sequence[: MAX_SEQUENCE - 3] + "..."
         fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else clipped
     for name in ("id", "sender", "to", "teacher", "author", "where", "tick"):

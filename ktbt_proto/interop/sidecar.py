@@ -5,8 +5,9 @@ A running BT.CPP tree cannot be edited, so a KT-BT agent beside the program lear
 section 12.1): one file per item, ``NNNNNN-<placeholder>-<digest>.xml``, whose one
 ``<BehaviorTree ID="ktbt-<placeholder>-<digest>">`` is the item ``Sequence(conditions,
 subtree)``. ``NNNNNN`` (six digits or more) numbers the items in the order they were learned,
-so the program places them in that order; the digest names the item's placeholder, condition
-sequence and subtree, so an item learned again with another subtree gets a new file. A file is
+so the program places them in that order; the item's digest (``items.item_digest``: its
+condition sequence and subtree) beside its placeholder names it, so an item learned again with
+another subtree gets a new file. A file is
 replaced whole (``ktbt_proto.files``), so the program never reads half of one, and it is removed
 at the first sync after the agent forgets its item. An item BT.CPP could not load (a node named
 like one of its built-ins) is refused with its reason, logged once and not written. The export
@@ -16,7 +17,6 @@ changes nothing in the agent.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import re
@@ -26,8 +26,8 @@ from pathlib import Path
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.knowledge import Knowledge, remove_stale_temporaries
 from ktbt_proto.files import fsync_folder, write_atomic
-from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.btcpp import btcpp_name, to_xml
+from ktbt_proto.items import item_digest
 from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
 
 __all__ = ["LearnedExport"]
@@ -40,14 +40,8 @@ _FILE = re.compile(
 _TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9]+\.[0-9a-f]+\.tmp")
 
 
-def item_digest(item: Knowledge) -> str:
-    """Names an item by its placeholder, condition sequence and subtree (section 12.1)."""
-    text = f"{item.segment}\n{item.key}\n{format_tree(item.subtree, 'compact')}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
 def tree_id(item: Knowledge) -> str:
-    return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item)}"
+    return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item.key, item.subtree)}"
 
 
 class LearnedExport:
@@ -89,7 +83,7 @@ class LearnedExport:
         """Write the learned items (``source`` set) that have no file yet, in the order given,
         and remove the files of items no longer there. Cheap when nothing changed."""
         learned = [item for item in knowledge if item.source is not None]
-        known = frozenset((item.segment, item_digest(item)) for item in learned)
+        known = frozenset((item.segment, item_digest(item.key, item.subtree)) for item in learned)
         if known == self._known:
             return
         self.refused = {key: why for key, why in self.refused.items() if key in known}
@@ -106,7 +100,7 @@ class LearnedExport:
         for key in [key for key in self._numbers if key not in known]:
             del self._numbers[key]  # a failed write of an item forgotten since
         for item in learned:
-            key = (item.segment, item_digest(item))
+            key = (item.segment, item_digest(item.key, item.subtree))
             if key in self.files or key in self.refused:
                 continue
             try:

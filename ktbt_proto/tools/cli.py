@@ -24,7 +24,7 @@ import typer
 
 from ktbt_proto import __version__
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.transferlog import EVENTS
+from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import Style, format_tree
 from ktbt_proto.limits import DEFAULT_LIMITS
@@ -827,7 +827,6 @@ def kb_show(path: Annotated[Path, typer.Argument(help="A knowledge file (--save)
     typer.echo(f"{len(kb)} items")
 
 
-LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
 """The kinds of transfer-log event, as ``--event`` takes them (spec/protocol.md section 8)."""
 
 
@@ -835,7 +834,7 @@ LogEvent = StrEnum("LogEvent", {e: e for e in EVENTS})  # type: ignore[misc]
 def log_command(
     path: Annotated[Path, typer.Argument(help="A transfer log (--log).")],
     event: Annotated[
-        list[LogEvent] | None,
+        list[Event] | None,
         typer.Option("--event", help="Show only this event (repeatable)."),
     ] = None,
 ) -> None:

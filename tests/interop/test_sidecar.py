@@ -10,7 +10,8 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.interop import from_xml, to_xml
-from ktbt_proto.interop.sidecar import LearnedExport, item_digest
+from ktbt_proto.interop.sidecar import LearnedExport
+from ktbt_proto.items import item_digest
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import KNOWER, SEQUENCE, agent, run
 
@@ -92,7 +93,7 @@ def test_a_file_that_cannot_be_written_is_counted_and_tried_again(tmp_path: Path
     export = LearnedExport(folder)
     _, _, learner = learned(tmp_path)
     [item] = [k for k in learner.knowledge if k.source is not None]
-    blocker = folder / f"000001-new-{item_digest(item)}.xml"
+    blocker = folder / f"000001-new-{item_digest(item.key, item.subtree)}.xml"
     (blocker / "inside").mkdir(parents=True)  # a folder where the file should go
     export.sync(learner.knowledge)
     assert export.errors == 1
@@ -165,15 +166,18 @@ def test_numbers_are_reserved_per_item_and_may_grow_past_six_digits(tmp_path: Pa
     folder = tmp_path / "learned"
     first, second = item("Pick"), item("Pick", 3)
     export = LearnedExport(folder)
-    blocker = folder / f"000001-new-{item_digest(first)}.xml"
+    blocker = folder / f"000001-new-{item_digest(first.key, first.subtree)}.xml"
     (blocker / "inside").mkdir(parents=True)
     export.sync([first, second])  # the first write fails: the second does not take its number
-    assert export.errors == 1 and f"000002-new-{item_digest(second)}.xml" in files(folder)
+    assert (
+        export.errors == 1
+        and f"000002-new-{item_digest(second.key, second.subtree)}.xml" in files(folder)
+    )
     (blocker / "inside").rmdir()
     blocker.rmdir()
     export.sync([first, second])
     assert [n[:7] for n in files(folder)] == ["000001-", "000002-"]
-    late = folder / f"9999999-new-{item_digest(second)}.xml"
+    late = folder / f"9999999-new-{item_digest(second.key, second.subtree)}.xml"
     (folder / files(folder)[1]).rename(late)
     again = LearnedExport(folder)  # seven digits: adopted, and the next number follows it
     again.sync([first, second, item("Pick", 4)])

@@ -274,7 +274,8 @@ class Registry:
         var_kw, types = True, dict[str, Any]()  # a builtin without a signature: takes anything
         if params is not None:
             names, required, var_kw, types = _describe(p for p in params if p.name not in skipped)
-        entry = _Entry(None, names, required, var_kw, doc=factory.__doc__ or "", types=types)
+        made = factory.func if isinstance(factory, partial) else factory  # its own doc
+        entry = _Entry(None, names, required, var_kw, doc=made.__doc__ or "", types=types)
         (self._conditions if kind == "condition" else self._actions)[name] = entry
 
     def copy(self) -> Registry:

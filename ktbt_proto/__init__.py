@@ -9,7 +9,7 @@ from ktbt_proto.errors import ErrorCode, LimitError, ParseError, StringBTError, 
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
 from ktbt_proto.merge import MergeError, merge, remove
-from ktbt_proto.registry import Registry, StatefulAction
+from ktbt_proto.registry import Registry, StatefulAction, load_vocabulary
 from ktbt_proto.render import render
 from ktbt_proto.runtime import LiveTree
 from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
@@ -67,6 +67,7 @@ __all__ = [
     "WaitTimer",
     "find_problems",
     "format_tree",
+    "load_vocabulary",
     "merge",
     "parse",
     "parse_reference",

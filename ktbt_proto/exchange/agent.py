@@ -200,7 +200,8 @@ class Agent:
             if callable(control)
             else LiveTree(control, registry, self.blackboard, ticks=self._clock)
         )
-        self.registry = registry
+        # A backend may know more than ``registry`` (a py_trees tree's own behaviours).
+        self.registry: Registry = getattr(self.control, "registry", registry)
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         self.wait_ticks = wait_ticks
         self.cooldown_ticks = cooldown_ticks

@@ -11,8 +11,12 @@ from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.interop import from_xml, to_xml
 from ktbt_proto.interop.sidecar import LearnedExport
-from ktbt_proto.items import item_digest
+from ktbt_proto.items import item_digest, split_item
+from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.transport import MemoryNetwork
+from tests.door_robot import FLAT as DOOR_FLAT
+from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
+from tests.door_robot import VOCABULARY, door_blackboard, door_registry
 from tests.exchange.test_agent import KNOWER, SEQUENCE, agent, run
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples" / "btcpp"
@@ -192,3 +196,30 @@ def test_temporary_files_left_by_a_crash_are_removed(tmp_path: Path) -> None:
     other.write_text("")
     LearnedExport(tmp_path)
     assert files(tmp_path) == [other.name]
+
+
+def test_an_agent_with_only_a_vocabulary_file_learns_and_exports(tmp_path: Path) -> None:
+    """A C++ robot's agent has no Python behaviours: its registry is its vocabulary file
+    (spec/stringbt.md section 5.1). It checks answers as a Python registry would, learns and
+    exports the item; the BT.CPP program runs it."""
+    vocabulary = tmp_path / "door.toml"
+    vocabulary.write_text(VOCABULARY + "\n[actions.Idle]\n", encoding="utf-8")
+    net = MemoryNetwork()
+    teacher = Agent(
+        "t", f"<sl><k>(new){DOOR_FLAT}<e><e>", door_registry(), net.join("t"),
+        wait_ticks=20, cooldown_ticks=5, blackboard=door_blackboard(),
+    )  # fmt: skip
+    learner = Agent(
+        "l", "<sl><k>(new)<e><a>(Idle)<e>", load_vocabulary(str(vocabulary)), net.join("l"),
+        wait_ticks=20, cooldown_ticks=5,
+    )  # fmt: skip
+    export = LearnedExport(tmp_path / "learned")
+    learner.encounter(DOOR_SEQUENCE)
+    for _ in range(10):
+        teacher.tick()
+        learner.tick()
+        export.sync(learner.knowledge)
+    assert learner.knows(DOOR_SEQUENCE) and learner.metrics.refused == 0
+    [name] = files(tmp_path / "learned")
+    text = (tmp_path / "learned" / name).read_text()
+    assert split_item(from_xml(text).root) == split_item(kp.parse(DOOR_FLAT).root)  # same item

@@ -42,10 +42,10 @@ from typing import Any
 import zenoh
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import RECEIVE_LIMITS
 from ktbt_proto.exchange.answers import answers
 from ktbt_proto.exchange.knowledge import KnowledgeBase, parse_sequence
 from ktbt_proto.exchange.messages import Query, Response, decode, encode
+from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
 from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry, load_knowledge

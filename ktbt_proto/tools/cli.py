@@ -36,8 +36,8 @@ from ktbt_proto.validate import Vocabulary, find_problems
 
 if TYPE_CHECKING:
     from ktbt_proto.exchange.knowledge import KnowledgeBase
+    from ktbt_proto.exchange.security import Security
     from ktbt_proto.registry import Registry
-    from ktbt_proto.tools.peer import Security
     from ktbt_proto.transport.zenoh import ZenohSettings
 
 app = typer.Typer(
@@ -513,10 +513,11 @@ def _networked(*, mode: bool = True) -> Callable[[Callable[..., None]], Callable
 
 def _security(key: Path | None, policy: str, trust: Path | None, log: Path | None) -> Security:
     """Key pair, trust policy and transfer log from the options; a bad one is one line, exit 2."""
+    from ktbt_proto.exchange.security import Security
     from ktbt_proto.exchange.signing import Identity, KeyFileError
     from ktbt_proto.exchange.transferlog import TransferLog
     from ktbt_proto.exchange.trust import Policy, TrustStore
-    from ktbt_proto.tools.peer import Security, configure_logging
+    from ktbt_proto.tools.peer import configure_logging
 
     configure_logging()
     if policy == Policy.TRUSTED and trust is None:

@@ -91,7 +91,7 @@ def run_demo(examples: Path) -> int:
 
 def _transfer_showcase() -> None:
     """Two agents on the in-memory network: r1 knows the green skill, r2 asks and learns it."""
-    from ktbt_proto.exchange.agent import Agent
+    from ktbt_proto.exchange.agent import Agent, Timing
     from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
     from ktbt_proto.transport.memory import MemoryNetwork
 
@@ -99,8 +99,8 @@ def _transfer_showcase() -> None:
     skill = "<sq><c>(TargetSeen, colour=2)<a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>"
     net = MemoryNetwork()
     knower = DEMO_CONTROL.replace("<k>(prior)<e>", f"<k>(prior){skill}<e>")
-    r1 = Agent("r1", knower, demo_registry(), net.join("r1"), wait_ticks=20, cooldown_ticks=20)
-    r2 = Agent("r2", DEMO_CONTROL, demo_registry(), net.join("r2"), wait_ticks=20)
+    r1 = Agent("r1", knower, demo_registry(), net.join("r1"), timing=Timing(wait=20, cooldown=20))
+    r2 = Agent("r2", DEMO_CONTROL, demo_registry(), net.join("r2"), timing=Timing(wait=20))
     r2.encounter(["TargetSeen(colour=2)"])
     r2.blackboard["target"] = 2
     for tick in range(1, 6):

@@ -26,15 +26,15 @@ from pydantic import ValidationError as PydanticError
 
 from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog, live_answers
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, sequence_key, show_sequence
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Heard, Overhear
 from ktbt_proto.exchange.receiving import Refused, check
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, SignedItem
-from ktbt_proto.exchange.transferlog import TransferLog
-from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
+from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.limits import DEFAULT_LIMITS
@@ -55,16 +55,6 @@ from ktbt_proto.tree import Condition, Placeholder, Tree
 
 Colour = Annotated[int, Field(ge=1, le=4)]
 """The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
-
-
-@dataclass(frozen=True)
-class Security:
-    """A peer's key pair, what it accepts (policy and trust store) and where it logs."""
-
-    identity: Identity | None = None
-    policy: Policy = Policy.ANY
-    trust: TrustStore | None = None
-    log: TransferLog | None = None
 
 
 Say = Callable[[str], None]
@@ -473,14 +463,11 @@ def run_agent(
             with_knowledge(control, knowledge),
             demo_registry(),
             transport,
-            wait_ticks=wait_ticks,
-            cooldown_ticks=cooldown_ticks,
+            timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
             knowledge_path=knowledge_path,
-            identity=security.identity,
-            policy=security.policy,
-            trust=security.trust,
-            log=transport.log,  # with --publish-events, a log even without --log
-            overhear=member.overhear,
+            # with --publish-events, the transport has a log even without --log
+            security=replace(security, log=transport.log),
+            ear=Ear(member.overhear),
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
         # Every query it can answer is answered at once from what it knows, as `peer serve`

@@ -18,7 +18,7 @@ from py_trees.common import Status as Pt
 
 import ktbt_proto as kp
 from ktbt_proto.control import ControlTree
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.interop import to_py_trees
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
@@ -412,12 +412,12 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
-        reg, net.join("t"), wait_ticks=20, cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        reg, net.join("t"), timing=Timing(wait=20, cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     bb = kp.Blackboard(log=[])
     learner = Agent(
         "l", py_trees_control(py_trees_sar(bb, reg), behaviours=behaviours(bb)), reg,
-        net.join("l"), wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+        net.join("l"), timing=Timing(wait=20, cooldown=5), blackboard=bb,
     )  # fmt: skip
     assert isinstance(learner.control, PyTreesControl)
     assert learner.knows(["TargetSeen(colour=1)"])  # innate, read off the py_trees tree
@@ -429,8 +429,8 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
     assert learner.control.knows("new", SEEN_2)
     # It teaches what it learned, and what it was built knowing, to a third robot.
     third = Agent(
-        "x", "<sl><k>(new)<e><a>(RandomWalk)<e>", reg, net.join("x"), wait_ticks=20,
-        cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        "x", "<sl><k>(new)<e><a>(RandomWalk)<e>", reg, net.join("x"), timing=Timing(wait=20,
+        cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     for sequence in (SEEN_2, ["TargetSeen(colour=1)"]):
         third.encounter(sequence)
@@ -452,7 +452,7 @@ def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
-        reg, net.join("t"), wait_ticks=20, cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        reg, net.join("t"), timing=Timing(wait=20, cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     bb = kp.Blackboard(log=[])
 
@@ -463,7 +463,7 @@ def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     before = kp.format_tree(PyTreesControl(py_trees_sar(bb, reg), reg, bb).tree)
     learner = Agent(
         "l", py_trees_control(bt, behaviours={"PickTreasure": no_gripper}), reg, net.join("l"),
-        wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+        timing=Timing(wait=20, cooldown=5), blackboard=bb,
     )  # fmt: skip
     learner.encounter(SEEN_2)
     for _ in range(10):
@@ -546,12 +546,12 @@ def test_a_py_trees_robot_learns_with_its_own_behaviours_and_no_stubs() -> None:
     net = MemoryNetwork()
     teacher = Agent(
         "t", f"<sl><k>(new){DOOR_FLAT}<e><e>", door_registry(), net.join("t"),
-        wait_ticks=20, cooldown_ticks=5, blackboard=door_blackboard(),
+        timing=Timing(wait=20, cooldown=5), blackboard=door_blackboard(),
     )  # fmt: skip
     bb = door_blackboard()
     learner = Agent(
         "l", py_trees_control(door_tree(), behaviours=door_behaviours(bb)), door_conditions(),
-        net.join("l"), wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+        net.join("l"), timing=Timing(wait=20, cooldown=5), blackboard=bb,
     )  # fmt: skip
     learner.encounter(DOOR_SEQUENCE)
     for _ in range(10):

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.interop import from_xml, to_xml
 from ktbt_proto.interop.sidecar import LearnedExport
@@ -207,11 +207,11 @@ def test_an_agent_with_only_a_vocabulary_file_learns_and_exports(tmp_path: Path)
     net = MemoryNetwork()
     teacher = Agent(
         "t", f"<sl><k>(new){DOOR_FLAT}<e><e>", door_registry(), net.join("t"),
-        wait_ticks=20, cooldown_ticks=5, blackboard=door_blackboard(),
+        timing=Timing(wait=20, cooldown=5), blackboard=door_blackboard(),
     )  # fmt: skip
     learner = Agent(
         "l", "<sl><k>(new)<e><a>(Idle)<e>", load_vocabulary(str(vocabulary)), net.join("l"),
-        wait_ticks=20, cooldown_ticks=5,
+        timing=Timing(wait=20, cooldown=5),
     )  # fmt: skip
     export = LearnedExport(tmp_path / "learned")
     learner.encounter(DOOR_SEQUENCE)

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.items import (
     actions_rerun,
@@ -186,7 +186,7 @@ def sar_registry() -> kp.Registry:
 def test_an_agent_built_on_the_example_knows_red_and_asks_only_for_green() -> None:
     control = (EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8")
     net = MemoryNetwork()
-    robot = Agent("r1", control, sar_registry(), net.join("r1"), wait_ticks=5)
+    robot = Agent("r1", control, sar_registry(), net.join("r1"), timing=Timing(wait=5))
     assert robot.knows(["TargetSeen(colour=1)"])
     robot.blackboard["target"] = 1
     robot.encounter(["TargetSeen(colour=1)"])

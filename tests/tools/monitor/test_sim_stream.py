@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 from collections import Counter
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -37,8 +38,9 @@ def replay(iterations: int) -> tuple[Any, list[dict[str, Any]]]:
     world = World(PRESETS["ktbt"], seed=0)
     merges: list[dict[str, Any]] = []
     for agent in world.agents:
-        agent.log = TransferLog(None)
-        agent.log.add_sink(lambda e: merges.append(e) if e["event"] == "merged" else None)
+        log = TransferLog(None)
+        agent.security = replace(agent.security, log=log)
+        log.add_sink(lambda e: merges.append(e) if e["event"] == "merged" else None)
     world.run(iterations)
     return world, merges
 

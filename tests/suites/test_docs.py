@@ -12,7 +12,7 @@ What each kind of block gets (CONTRIBUTING.md, "Documentation", says the same to
   shown under it (stdout and stderr together);
 - ``stringbt`` must parse; ``toml`` must load;
 - a block whose first line is ``# file: PATH`` is written to PATH in the scratch folder before
-  the page's Python blocks run (a robot's vocabulary, a tree), as well as checked;
+  the page's other blocks run (a robot's vocabulary, a tree), as well as checked;
 - a block that cannot run in a test (a server that runs until Ctrl-C, an install, C++) starts
   with the comment ``# not run: REASON`` (``// not run: REASON`` in C++), in any language; the
   test counts such blocks, so they stay few and explicit.
@@ -277,6 +277,7 @@ SLOW = ("ktbt sim", "ktbt demo", "ktbt fleet run", "btview")
     ids=str,
 )
 def test_shell_blocks_run(block: Block, clone: Path) -> None:
+    write_files(block.page, clone)
     before = files_in(clone)
     script = adapt(block.code, ports())
     done = bash(script, clone)
@@ -300,6 +301,7 @@ def transcript(code: str) -> list[tuple[str, str]]:
 @pytest.mark.network
 @pytest.mark.parametrize("block", of("console"), ids=str)
 def test_console_transcripts_print_what_they_show(block: Block, clone: Path) -> None:
+    write_files(block.page, clone)
     before = files_in(clone)
     for command, shown in transcript(block.code):
         done = bash(command + " 2>&1", clone)

@@ -15,7 +15,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "_ext"))
 
 project = "KT-BT"
-copyright = "the KT-BT authors, MIT licence"  # noqa: A001 (Sphinx's own name)
+copyright = "the KT-BT authors, MIT licence"
 author = "the KT-BT authors"
 
 extensions = [

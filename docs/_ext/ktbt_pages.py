@@ -11,7 +11,7 @@ from __future__ import annotations
 import posixpath
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from pygments.lexer import RegexLexer
 from pygments.lexers.special import TextLexer
@@ -26,8 +26,8 @@ class StringBTLexer(RegexLexer):
     """stringBT: tags, names, arguments and comments (spec/stringbt.md section 2)."""
 
     name = "stringBT"
-    aliases = ["stringbt"]
-    tokens = {
+    aliases: ClassVar[list[str]] = ["stringbt"]
+    tokens: ClassVar[dict[str, Any]] = {
         "root": [
             (r"#[^\n]*", Comment.Single),
             (r"<(?:Root|[a-z][a-z0-9]*)>", Keyword),

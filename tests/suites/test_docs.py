@@ -20,10 +20,11 @@ What each kind of block gets (CONTRIBUTING.md, "Documentation", says the same to
 Changes made to what runs, and why (nothing else is touched): the zenoh ports 7447 and 7448
 become free ports, so the test never collides with another process; ``ktbt demo`` and
 ``ktbt sim run`` get ``--trials 1 --iterations 200`` appended (the last value of an option
-wins), since the studies take minutes at full size; ``ktbt sim view`` without ``--record``
-gets ``--iterations 20`` and SDL's dummy video driver, since a window would wait for someone
-to close it. Whatever a block leaves behind must be ignored by the repository's
-``.gitignore``, so following the documentation leaves a clone clean.
+wins), since the studies take minutes at full size; ``ktbt sim view`` gets SDL's dummy video
+driver and ``--iterations 20``, since a window would wait for someone to close it, or with
+``--record`` ``--frames 3 --every 10``, since a full recording simulates 30,000 iterations.
+Whatever a block leaves behind must be ignored by the repository's ``.gitignore``, so following
+the documentation leaves a clone clean.
 """
 
 from __future__ import annotations
@@ -224,8 +225,8 @@ def adapt(block: str, chosen: dict[str, str]) -> str:
         command, hash_, rest = _split_comment(line)
         if command.startswith(("ktbt demo", "ktbt sim run")):
             command += SMALL
-        elif command.startswith("ktbt sim view") and "--record" not in command:
-            command += " --iterations 20"
+        elif command.startswith("ktbt sim view"):
+            command += " --frames 3 --every 10" if "--record" in command else " --iterations 20"
         out.append(command + hash_ + rest)
     return "\n".join(out) + "\n"
 

@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop soak clean
+.PHONY: demo test test-fast lint typecheck docs pytest bench studies fuzz interop soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,10 +29,15 @@ lint: $(VENV)/.installed-dev
 typecheck: $(VENV)/.installed-dev
 	$(BIN)/mypy
 
+# The documentation site (docs/, Sphinx with MyST) into build/docs/, warnings as errors; the
+# command-line reference is generated from the ktbt command as it builds.
+docs: $(VENV)/.installed-dev
+	$(BIN)/sphinx-build -W --keep-going -q -b html docs build/docs
+
 pytest: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest
 
-test: lint typecheck pytest
+test: lint typecheck docs pytest
 
 # The quick loop (under a minute): every test but the slow ones and those that start processes
 # or zenoh sessions. `make test` runs them all.

@@ -315,9 +315,10 @@ def run_agent(
     (or time runs out), asking again with a bounded backoff while it is missing, and at once
     when a new peer appears; it teaches what it knows to whoever asks, and prints what it
     learned. Refusals are logged (to stderr and, with a transfer log, there) and the summary
-    counts all of them, transport ones too; the network's own errors are counted apart. ``export_learned``: a
-    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1);
-    the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
+    counts all of them, transport ones too; the network's own errors are counted apart.
+    ``export_learned``: a folder to mirror learned items into as BT.CPP documents
+    (spec/stringbt.md section 12.1); the member's ``groot``: serve the control tree to Groot2
+    (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (

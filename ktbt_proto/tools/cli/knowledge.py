@@ -21,7 +21,10 @@ kb_app = typer.Typer(help="Inspect knowledge files.", no_args_is_help=True)
 def kb_show(
     path: Annotated[Path, typer.Argument(metavar="FILE", help="A knowledge file (--save).")],
 ) -> None:
-    """Each item a learner saved, with its teacher, time, author and signature check."""
+    """Each item a learner saved, with who taught and who signed it.
+
+    For each: its subtree, segment, teacher, when it was learned, its author and whether the
+    author's signature holds."""
     from ktbt_proto.exchange.knowledge import KnowledgeBase
     from ktbt_proto.exchange.signing import item_bytes, verify
 
@@ -56,10 +59,16 @@ def log_command(
     path: Annotated[Path, typer.Argument(metavar="FILE", help="A transfer log (--log).")],
     event: Annotated[
         list[LogEvent] | None,
-        typer.Option("--event", help="Show only this event (repeatable)."),
+        typer.Option(
+            "--event",
+            metavar="EVENT",
+            help=f"Show only this event (repeatable): {', '.join(EVENTS)}.",
+        ),
     ] = None,
 ) -> None:
-    """Read a transfer log: one line an event, then the count of each kind."""
+    """Read a transfer log: its events, then the count of each kind.
+
+    One line an event, as recorded (spec/protocol.md section 8)."""
     from collections import Counter
 
     from ktbt_proto.exchange.transferlog import describe, read

@@ -32,7 +32,7 @@ EXIT_ERROR = 123
 """``fmt``: a file could not be formatted (black's code)."""
 
 Files = Annotated[
-    list[str], typer.Argument(metavar="FILES...", help="Files or directories; '-' for stdin.")
+    list[str], typer.Argument(metavar="FILES", help="Files or directories; '-' for stdin.")
 ]
 
 
@@ -312,7 +312,9 @@ def show_command(
         Format, typer.Option("--format", "-f", help="A unicode outline, DOT or Mermaid.")
     ] = "outline",
 ) -> None:
-    """Draw a tree: a unicode outline, Graphviz DOT or a Mermaid flowchart."""
+    """Draw a tree as an outline, Graphviz DOT or Mermaid.
+
+    The outline is unicode text; DOT and Mermaid are for drawing tools."""
     tree = _load_or_exit(file)
     sys.stdout.write(render(tree, fmt))
 
@@ -339,7 +341,9 @@ def tour_command(
         ),
     ] = None,
 ) -> None:
-    """A one-screen tour: format, check and show trees; a robot learning one."""
+    """A one-screen tour of the language and of a robot learning.
+
+    It formats, checks and shows the example trees, then lets one robot teach another."""
     from ktbt_proto.tools.demo import examples_folder, run_demo
 
     raise typer.Exit(run_demo(examples or examples_folder()))

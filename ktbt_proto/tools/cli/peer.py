@@ -187,9 +187,10 @@ def peer_run(
     multicast: Multicast = False,
     mode: JoinMode = "peer",
 ) -> None:
-    """Run the demo robot: it meets each sequence, learns it and teaches what it knows.
+    """Run the demo robot: it learns what it meets and teaches it.
 
-    Without --sequence it meets the four colours; with --knowledge it starts knowing that
+    It meets each sequence until it knows it, and teaches what it knows. Without --sequence
+    it meets the four colours; with --knowledge it starts knowing that
     file's items."""
     from ktbt_proto.tools import peer
     from ktbt_proto.tools.demo import COLOURS, DEMO_CONTROL, demo_registry
@@ -257,7 +258,9 @@ def peer_keygen(
     path: Annotated[Path, typer.Argument(metavar="PATH", help="Where to write the private key.")],
     name: PeerId = "peer",
 ) -> None:
-    """Make an Ed25519 key pair: PATH (private) and PATH.pub; print its trust-store line."""
+    """Make an Ed25519 key pair and print its trust-store line.
+
+    The private key goes to PATH, the public one to PATH.pub."""
     from ktbt_proto.tools import peer
 
     if path.exists():

@@ -58,7 +58,8 @@ def problem(exc: ClickException) -> str:
         subject = given
     elif param is not None:
         longest = sorted(param.opts, key=len)[-1] if param.opts else ""
-        subject = longest if longest.startswith("-") else str(param.human_readable_name)
+        named = (param.metavar or param.name or "argument").upper().rstrip(".")
+        subject = longest if longest.startswith("-") else named
     else:
         ctx = getattr(exc, "ctx", None)
         subject = ctx.command_path if ctx is not None else "ktbt"
@@ -161,4 +162,4 @@ def load_plugins() -> list[str]:
 def main() -> None:
     """The ``ktbt`` script and ``python -m ktbt_proto``."""
     load_plugins()
-    app()
+    app(prog_name="ktbt")

@@ -19,7 +19,7 @@ from ktbt_proto.tools.cli.options import (
 from ktbt_proto.tools.fleet.plan import PartitionKind, TeacherProgram, Topology
 
 fleet = typer.Typer(
-    help="A fleet of real peers on this machine, every link through a fault layer.",
+    help="A fleet of real peers on this machine, with faults on every link.",
     no_args_is_help=True,
 )
 
@@ -129,9 +129,10 @@ def run_command(
         ),
     ] = 1.0,
 ) -> None:
-    """Run a fleet scenario, check it and draw it; exit 1 if a property failed.
+    """Run a fleet scenario, check it and draw it.
 
-    Partitions need --topology mesh or line; times are like 200ms or 30s (0: none)."""
+    Exit 1 if a property failed. Every link goes through a fault layer. Partitions need
+    --topology mesh or line; times are like 200ms or 30s (0: none)."""
     from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, seconds
     from ktbt_proto.tools.fleet.runner import run
     from ktbt_proto.tools.fleet.watch import MonitorFailed
@@ -211,7 +212,9 @@ def study_command(
         typer.Option("--only", metavar="SCENARIO", help="Run only this scenario (repeatable)."),
     ] = None,
 ) -> None:
-    """The whole study: convergence against size, loss, delay, partition and churn."""
+    """Run the whole fleet study and write its table and figure.
+
+    Convergence against size, loss, delay, partition and churn."""
     from ktbt_proto.tools.fleet.study import SCENARIOS, study
 
     unknown = set(only or ()) - {name for name, _, _ in SCENARIOS}

@@ -144,7 +144,9 @@ def decode_event(data: bytes, max_bytes: int = MAX_EVENT_BYTES) -> FleetEvent:
     return event
 
 
-def _clip(value: object, most: int) -> str:
+def clip(value: object, most: int) -> str:
+    """``value`` as one line of at most ``most`` characters (a peer's text is shown bounded,
+    spec/protocol.md section 10)."""
     text = " ".join(str(value).split())
     return text if len(text) <= most else text[: most - 3] + "..."
 
@@ -169,9 +171,9 @@ def from_log(entry: dict[str, Any], n: int, dropped: int = 0) -> FleetEvent:
         if entry.get(name) is not None:
             fields[name] = entry[name]
     if entry.get("reason") is not None:
-        fields["reason"] = _clip(entry["reason"], MAX_REASON)
+        fields["reason"] = clip(entry["reason"], MAX_REASON)
     if entry.get("key") is not None:  # a transport's refusal: the key expression refused
-        fields["on"] = _clip(entry["key"], 200)
+        fields["on"] = clip(entry["key"], 200)
     try:
         event = FleetEvent.model_validate(fields)
     except ValidationError as exc:

@@ -9,39 +9,37 @@ every member takes is one field there.
 
 from __future__ import annotations
 
+import json
 import logging
-import random
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
-from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
-from pydantic import Field
 from pydantic import ValidationError as PydanticError
 
-from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog, live_answers
-from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, sequence_key, show_sequence
+from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.overhearing import Ear, Heard, Overhear
+from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
 from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.security import Security
-from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
+from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.merge import merge
 from ktbt_proto.registry import Registry
-from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
 from ktbt_proto.transport.zenoh import (
     ZenohSettings,
@@ -52,10 +50,6 @@ from ktbt_proto.transport.zenoh import (
     stable_zid,
 )
 from ktbt_proto.tree import Condition, Placeholder, Tree
-
-Colour = Annotated[int, Field(ge=1, le=4)]
-"""The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
-
 
 Say = Callable[[str], None]
 
@@ -75,6 +69,8 @@ class Member:
     """Publish this member's fleet events (``ktbt_proto.exchange.events``, for ``ktbt monitor``)."""
     groot: int | None = None
     """A port to serve Groot2 on (and the next), loopback (spec/groot2.md)."""
+    ready: Path | None = None
+    """Where to say, once up, that this member is ready (:func:`announce_ready`)."""
 
     def transport(self, **kw: Any) -> ZenohTransport:
         """This member's zenoh peer, with its stable zenoh id."""
@@ -101,51 +97,6 @@ def shown(key: str) -> str:
         return repr(key)
 
 
-DEMO_CONTROL = """<sl>
-    <sq>
-        <c>(Carrying)
-        <a>(DeliverToZone)
-    <e>
-    <k>(prior)<e>
-    <k>(new)<e>
-    <a>(RandomWalk)
-<e>
-"""
-COLOURS = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
-
-
-def demo_registry() -> Registry:
-    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
-    reg = Registry()
-    reg.flags("Carrying")
-
-    @reg.condition("TargetSeen")
-    def target_seen(bb: Blackboard, colour: Colour) -> bool:
-        return bool(bb.get("target") == colour)
-
-    @reg.action("PickTreasure")
-    def pick(bb: Blackboard) -> Status:
-        bb["Carrying"] = True
-        return SUCCESS
-
-    @reg.action("AssignCollectionPoint")
-    def assign(bb: Blackboard, colour: Colour) -> Status:
-        bb["zone"] = colour
-        return SUCCESS
-
-    @reg.action("DeliverToZone")
-    def deliver(bb: Blackboard) -> Status:
-        bb["Carrying"] = False
-        bb["delivered"] = bb.get("delivered", 0) + 1
-        return SUCCESS
-
-    @reg.action("RandomWalk")
-    def walk(bb: Blackboard) -> Status:
-        return RUNNING
-
-    return reg
-
-
 @contextmanager
 def until_signalled() -> Iterator[threading.Event]:
     """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly."""
@@ -158,6 +109,15 @@ def until_signalled() -> Iterator[threading.Event]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def announce_ready(path: Path | None, peer: str, knows: int | None) -> None:
+    """Tell a supervisor (``ktbt fleet run``) that this process is up: one JSON object,
+    ``{"peer": NAME, "knows": N}`` (``knows`` null for a router), written whole to ``path``
+    once the session is open and, for a member, what it starts knowing is loaded. A supervisor
+    reads this, never the human-readable output, which may change."""
+    if path is not None:
+        write_atomic(path, json.dumps({"peer": peer, "knows": knows}) + "\n")
 
 
 def load_knowledge(path: str | Path) -> KnowledgeBase:
@@ -201,83 +161,17 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
-class Overhearing:
-    """A server that overhears (spec/protocol.md section 4.3), through the one :class:`Ear`
-    and the one set of receive checks (``ktbt_proto.exchange.receiving``; the trust policy also
-    runs in
-    the transport): an answer another peer published is added to what the server serves, at
-    once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
-    subtree is served as received, so its author's signature still holds. Lookups run in zenoh
-    callbacks while the main thread hears: one lock guards the tables."""
-
-    def __init__(
-        self,
-        name: str,
-        knowledge: KnowledgeBase,
-        served: Callable[[str], SignedItem | None],
-        mode: Overhear,
-        say: Say,
-        buffer_size: int = 16,
-    ) -> None:
-        self.name, self.knowledge, self.served, self.say = name, knowledge, served, say
-        self.ear = Ear(mode, buffer_size)
-        self.learned: dict[str, SignedItem] = {}
-        self.refused = 0
-        self.lock = threading.Lock()
-
-    def heard(self, message: object) -> None:
-        if not isinstance(message, Response):
-            return
-        with self.lock:
-            heard = self.ear.hear(message, message.sequence in self.knowledge, self._learn)
-        if heard is Heard.FULL:
-            self._refuse(f"from {message.sender}: overheard answer, buffer full")
-
-    def lookup(self, key: str) -> SignedItem | None:
-        found = self.served(key)
-        if found is not None:
-            return found
-        with self.lock:
-            found = self.learned.get(key)
-            if found is not None:
-                return found
-            kept = self.ear.take(key)
-            return self.learned.get(key) if kept is not None and self._learn(kept) else None
-
-    def catalog(self, entries: Callable[[], list[str | dict[str, Any]]]) -> Callable[[], Any]:
-        def locked() -> list[str | dict[str, Any]]:
-            with self.lock:
-                return entries()
-
-        return locked
-
-    def _learn(self, answer: Response) -> bool:
-        try:
-            conds, subtree = check(answer, answer.sequence)
-        except Refused as refused:
-            self._refuse(refused.reason)
-            return False
-        received = datetime.now(UTC).isoformat(timespec="seconds")
-        self.knowledge.add(
-            Knowledge(conds, subtree, "new", answer.sender, None, answer.author,
-                      answer.signature, received)
-        )  # fmt: skip
-        self.learned[answer.sequence] = SignedItem(answer.subtree, answer.author, answer.signature)
-        self.say(f"{self.name}: learned {shown(answer.sequence)} from {answer.sender} (overheard)")
-        return True
-
-    def _refuse(self, reason: str) -> None:
-        self.refused += 1
-        logging.getLogger("ktbt.peer").info("%s refused: %s", self.name, reason)
-
-
 def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
     """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
     overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
     is shown to Groot2 (spec/groot2.md)."""
     security = member.security
-    ear = Overhearing(
-        member.name, knowledge, answers(knowledge, security.identity), member.overhear, say
+    ear = ServerEar(
+        member.name,
+        knowledge,
+        answers(knowledge, security.identity),
+        member.overhear,
+        lambda a: say(f"{member.name}: learned {shown(a.sequence)} from {a.sender} (overheard)"),
     )
     policy = security.policy
     name = member.name
@@ -294,6 +188,7 @@ def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        announce_ready(member.ready, name, len(knowledge))
         if groot is not None:
             from ktbt_proto.interop.groot2 import Groot2Publisher, knowledge_tree
 
@@ -374,45 +269,6 @@ def provenance(answer: Response) -> str:
     return f" ({', '.join(words)})" if words else ""
 
 
-BACKOFF_FIRST = 0.25
-"""Seconds a learner holds back after its first unanswered query, doubling with each one."""
-BACKOFF_MOST = 2.0
-"""The longest it holds back: knowledge that is missing is asked for again at least this often
-(after the wait and the cool-down)."""
-
-
-@dataclass
-class Backoff:
-    """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
-    after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
-    once again when it learns something or a new peer appears.
-
-    Each hold is stretched by up to ``jitter`` of itself, drawn from a generator seeded with
-    ``seed`` (the member's name): a fleet whose queries were lost together does not ask again
-    in step, and a run with the same names draws the same holds."""
-
-    first: float = BACKOFF_FIRST
-    most: float = BACKOFF_MOST
-    hold: float = 0.0
-    until: float = 0.0
-    seed: str = ""
-    jitter: float = 0.5
-    _rng: random.Random = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._rng = random.Random(f"ktbt-backoff:{self.seed}")
-
-    def lost(self, now: float) -> None:
-        self.hold = self.first if self.hold == 0 else min(self.hold * 2, self.most)
-        self.until = now + self.hold * (1 + self.jitter * self._rng.random())
-
-    def reset(self, now: float) -> None:
-        self.hold, self.until = 0.0, now
-
-    def ready(self, now: float) -> bool:
-        return now >= self.until
-
-
 def with_knowledge(control: str | Tree, knowledge: KnowledgeBase | None) -> str | Tree:
     """The control tree with ``knowledge``'s items in their placeholders (``prior`` when the
     tree has no placeholder of an item's name): what the agent starts knowing, and teaches."""
@@ -431,7 +287,8 @@ def run_agent(
     sequences: Sequence[str],
     say: Say,
     *,
-    control: str = DEMO_CONTROL,
+    control: str,
+    registry: Registry,
     knowledge: KnowledgeBase | None = None,
     tick_rate: float = 100.0,
     wait_ticks: int = 200,
@@ -441,14 +298,16 @@ def run_agent(
     exit_when_done: bool = False,
     export_learned: str | None = None,
 ) -> int:
-    """A fleet member that learns and teaches: it starts with ``knowledge`` (if any) and what
-    ``knowledge_path`` saved, meets each sequence in turn until it knows it (or time runs out),
-    asking again with a bounded backoff while it is missing, and at once when a new peer
-    appears; it teaches what it knows to whoever asks, and prints what it learned. Refusals are
-    logged (to stderr and, with a transfer log, there) and the summary counts all of them,
-    transport ones too; the network's own errors are counted apart. ``export_learned``: a
-    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1);
-    the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
+    """A fleet member that learns and teaches, running ``control`` with ``registry`` (the demo
+    robot's, ``ktbt_proto.tools.demo``, from the command line): it starts with ``knowledge``
+    (if any) and what ``knowledge_path`` saved, meets each sequence in turn until it knows it
+    (or time runs out), asking again with a bounded backoff while it is missing, and at once
+    when a new peer appears; it teaches what it knows to whoever asks, and prints what it
+    learned. Refusals are logged (to stderr and, with a transfer log, there) and the summary
+    counts all of them, transport ones too; the network's own errors are counted apart.
+    ``export_learned``: a folder to mirror learned items into as BT.CPP documents
+    (spec/stringbt.md section 12.1); the member's ``groot``: serve the control tree to Groot2
+    (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (
@@ -461,7 +320,7 @@ def run_agent(
         robot = Agent(
             name,
             with_knowledge(control, knowledge),
-            demo_registry(),
+            registry,
             transport,
             timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
             knowledge_path=knowledge_path,
@@ -490,6 +349,7 @@ def run_agent(
         todo = list(sequences)
         period = 1.0 / tick_rate
         say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        announce_ready(member.ready, name, len(robot.knowledge))
         announced = set(robot.metrics.learned)
         backoff = Backoff(seed=name)
         lost, joined = robot.metrics.queries_lost, transport.joined
@@ -527,7 +387,8 @@ def run_agent(
         return 0 if all(robot.knows([s]) for s in sequences) else 1
 
 
-def router(settings: ZenohSettings, say: Say) -> int:
+def router(settings: ZenohSettings, say: Say, ready: Path | None = None) -> int:
+    """A zenoh router on ``settings``' endpoints until stopped (spec/protocol.md section 3)."""
     routed = ZenohSettings(
         listen=settings.listen,
         connect=settings.connect,
@@ -539,6 +400,7 @@ def router(settings: ZenohSettings, say: Say) -> int:
         session = open_session(routed)
         try:
             say(f"router listening on {', '.join(settings.listen) or 'the configured endpoints'}")
+            announce_ready(ready, "router", None)
             stop.wait()
         finally:
             session.close()  # type: ignore[no-untyped-call]

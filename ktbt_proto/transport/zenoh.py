@@ -41,7 +41,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import zenoh
 from pydantic import ValidationError
@@ -90,6 +90,13 @@ def stable_zid(name: str) -> str:
     return digest.hex()
 
 
+MemberMode = Literal["peer", "client"]
+"""How a fleet member's session joins: a peer among peers, or a client through a router
+(spec/protocol.md section 3)."""
+Mode = Literal[MemberMode, "router"]
+"""How a session joins; ``router`` serves fleets that span subnets (``ktbt peer router``)."""
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to reach the fleet. ``config`` is a zenoh JSON5 file (TLS, mTLS, user/password...);
@@ -99,7 +106,7 @@ class ZenohSettings:
     listen: Sequence[str] = ()
     connect: Sequence[str] = ()
     config: str | Path | None = None
-    mode: str = "peer"
+    mode: Mode = "peer"
     multicast_scouting: bool = False
     zid: str | None = None
     """The session's zenoh id (``stable_zid(name)`` for a fleet member); None: a random one."""

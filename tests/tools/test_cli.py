@@ -150,6 +150,8 @@ def test_tour_runs() -> None:
     assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
     assert "SBT306 unknown action 'Teleport'" in out
     assert "r2 asked, r1 answered" in out and "heads for zone 2" in out
+    rows = sum(max(1, -(-len(line) // 80)) for line in out.splitlines())
+    assert rows <= 40, f"the tour takes {rows} rows of an 80-column terminal, not one screen"
     code, out, _ = ktbt("tour", cwd=Path(os.sep))  # the examples come with the package
     assert code == 0 and "r2 asked, r1 answered" in out
     code, _, err = ktbt("tour", "--examples", str(Path(os.sep) / "nonexistent"))

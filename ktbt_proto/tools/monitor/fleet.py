@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.events import FleetEvent, _clip
+from ktbt_proto.exchange.events import FleetEvent, clip
 from ktbt_proto.exchange.messages import _ID
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.trust import TrustStore
@@ -143,12 +143,12 @@ class FleetState:
     def _drop(self, why: str, reason: str | None) -> None:
         self.drops[why] += 1
         if reason is not None:
-            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(_clip(reason, 200))
+            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(clip(reason, 200))
 
     def _named(self, name: str, where: str) -> Peer | None:
         """The peer of a name from a key expression: a peer name (section 1) or refused."""
         if not _NAME.fullmatch(name):
-            self._drop("malformed", f"{where}: {_clip(name, 64)!r} is not a peer name")
+            self._drop("malformed", f"{where}: {clip(name, 64)!r} is not a peer name")
             return None
         return self._peer(name)
 
@@ -435,7 +435,7 @@ class FleetState:
         self._remove(victim)
         self._drop(
             "evicted",
-            f"{_clip(sequence, 60)}, known by {count}, for one {_clip(peer.name, 64)} knows",
+            f"{clip(sequence, 60)}, known by {count}, for one {clip(peer.name, 64)} knows",
         )
         return True
 

@@ -37,7 +37,7 @@ class TooLarge(ValueError):
     """A file larger than its reader accepts (``read_bounded``)."""
 
 
-def read_at_most(path: str | Path, limit: int) -> bytes:
+def read_at_most(path: str | os.PathLike[str], limit: int) -> bytes:
     """The first ``limit + 1`` bytes of ``path`` at most: enough for a reader with its own
     positioned error (the stringBT parser's size limit) to refuse a larger file without ever
     holding all of it; raises ``OSError`` as ``open`` does."""
@@ -45,7 +45,7 @@ def read_at_most(path: str | Path, limit: int) -> bytes:
         return f.read(limit + 1)
 
 
-def read_bounded(path: str | Path, limit: int) -> bytes:
+def read_bounded(path: str | os.PathLike[str], limit: int) -> bytes:
     """At most ``limit`` bytes of ``path``; raises :class:`TooLarge` for a larger file (only
     ``limit + 1`` bytes are ever read) and ``OSError`` as ``open`` does."""
     data = read_at_most(path, limit)

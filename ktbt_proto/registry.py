@@ -33,6 +33,7 @@ from pydantic import Field, TypeAdapter
 from pydantic import ValidationError as PydanticError
 from pydantic.fields import FieldInfo
 
+from ktbt_proto.files import TooLarge, read_bounded
 from ktbt_proto.status import FAILURE, Status
 from ktbt_proto.syntax import NAME_RE
 from ktbt_proto.tree import Args
@@ -162,6 +163,10 @@ def _returns_status(fn: Any) -> bool:
     except (TypeError, ValueError):
         return False
     return annotation is Status or (isinstance(annotation, str) and annotation in _STATUS_NAMES)
+
+
+MAX_VOCABULARY_FILE = 1_000_000
+"""A vocabulary file larger than this is refused, not read (a path may be /dev/zero)."""
 
 
 class Registry:
@@ -411,6 +416,20 @@ class Registry:
         return "\n".join(lines) + "\n"
 
     @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Registry:
+        """The registry a vocabulary file declares (spec/stringbt.md, section 5.1), read
+        bounded (at most ``MAX_VOCABULARY_FILE`` bytes); raises ``ValueError`` with one line."""
+        try:
+            text = read_bounded(path, MAX_VOCABULARY_FILE).decode("utf-8")
+        except TooLarge:
+            raise ValueError(
+                f"cannot read registry {os.fspath(path)}: larger than {MAX_VOCABULARY_FILE} bytes"
+            ) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"cannot read registry {os.fspath(path)}: {exc}") from None
+        return cls.from_toml(text, os.fspath(path))
+
+    @classmethod
     def from_toml(cls, text: str, source: str = "<vocabulary>") -> Registry:
         """A registry from a vocabulary file's text; raises ``ValueError`` with a one-line
         reason naming ``source`` and the key at fault."""
@@ -628,11 +647,7 @@ def load_vocabulary(spec: str | os.PathLike[str]) -> Registry:
                 f"registry {text}: neither a vocabulary file (.toml) nor a Python registry "
                 "named module:callable"
             )
-        try:
-            content = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ValueError(f"cannot read registry {text}: {exc}") from None
-        return Registry.from_toml(content, text)
+        return Registry.load(path)
     module_name, _, attribute = text.partition(":")
     if os.getcwd() not in sys.path and "" not in sys.path:
         sys.path.insert(0, os.getcwd())  # as `python -m` would: the robot's own package

@@ -71,11 +71,7 @@ class Vocabulary:
     def load(cls, path: str | Path) -> Vocabulary:
         """The names of a vocabulary file (spec/stringbt.md, section 5.1); raises
         ``ValueError`` with a one-line reason."""
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ValueError(f"cannot read registry {path}: {exc}") from None
-        registry = Registry.from_toml(text, str(path))
+        registry = Registry.load(path)
         return cls(registry.conditions, registry.actions)
 
 

@@ -1,4 +1,5 @@
-"""A simulator run watched by the monitor (spec/protocol.md section 10): `ktbt sim view
+"""The stream of in-memory agents (``ktbt_proto.transport.stream``), as a simulator run watched
+by the monitor uses it (spec/protocol.md section 10): `ktbt sim view
 --publish-events`, headless, streams its robots' events, catalogs and trees to a real
 :class:`Listener`, whose matrix ends equal to what the robots know, learned from whom, with one
 transfer a merge. What the robots know is read off the same run replayed in this process (a

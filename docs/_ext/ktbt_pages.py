@@ -44,7 +44,7 @@ class StringBTLexer(RegexLexer):
 
 def relink(app: Sphinx, relative_path: Path, parent_docname: str, content: list[str]) -> None:
     """In an included file from ``spec/``, a link to a file beside it (not a page) becomes a
-    download link to that file; ``../examples/`` means the package's examples."""
+    download link to that file."""
     source = (Path(app.srcdir) / relative_path).resolve()
     if source.parent != ROOT / "spec":
         return
@@ -55,8 +55,6 @@ def relink(app: Sphinx, relative_path: Path, parent_docname: str, content: list[
         if re.match(r"[a-z]+:", link) or link.endswith(".md"):
             return match[0]
         path = (source.parent / link).resolve()
-        if not path.exists() and link.startswith("../examples/"):
-            path = ROOT / "ktbt_proto" / "examples" / link.removeprefix("../examples/")
         relative = posixpath.relpath(path.as_posix(), page_dir.as_posix())
         return f"](path:{relative}{anchor})"
 

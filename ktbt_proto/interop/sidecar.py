@@ -13,6 +13,13 @@ at the first sync after the agent forgets its item. An item BT.CPP could not loa
 like one of its built-ins) is refused with its reason, logged once and not written. The export
 only observes the agent's knowledge base (:meth:`LearnedExport.sync`, after each tick): it
 changes nothing in the agent.
+
+A BT.CPP program teaches the same way round: :func:`read_skills` reads its skills from one
+document holding one ``<BehaviorTree>`` per item, in the shape :class:`LearnedExport` writes (the
+item ``Sequence(conditions, subtree)`` as the tree's root; a ``ktbt-<placeholder>-<digest>`` ID
+names its placeholder), so what one robot exported another can serve (``ktbt peer serve
+--knowledge skills.xml``). A tree with ``k:`` placeholders (what ``ktbt convert`` makes of a
+``.sbt`` knowledge file) gives the items in its placeholders.
 """
 
 from __future__ import annotations
@@ -24,13 +31,14 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.knowledge import Knowledge, remove_stale_temporaries
+from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, remove_stale_temporaries
 from ktbt_proto.files import fsync_folder, write_atomic
-from ktbt_proto.interop.btcpp import btcpp_name, to_xml
-from ktbt_proto.items import item_digest
+from ktbt_proto.interop.btcpp import btcpp_name, to_xml, trees_from_xml
+from ktbt_proto.items import item_digest, split_item
 from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
+from ktbt_proto.tree import Placeholder
 
-__all__ = ["LearnedExport"]
+__all__ = ["LearnedExport", "read_skills"]
 
 log = logging.getLogger(__name__)
 
@@ -40,8 +48,35 @@ _FILE = re.compile(
 _TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9]+\.[0-9a-f]+\.tmp")
 
 
+_TREE_ID = re.compile(r"ktbt-(?P<slot>[A-Za-z0-9_-]+)-[0-9a-f]{16}")
+
+
 def tree_id(item: Knowledge) -> str:
     return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item.key, item.subtree)}"
+
+
+def read_skills(data: str | bytes, slot: str = "prior") -> KnowledgeBase:
+    """The knowledge items of a BT.CPP document (spec/stringbt.md section 12.1): each
+    ``<BehaviorTree>`` is an item (its root ``Sequence(conditions, subtree)``, in the
+    placeholder its ``ktbt-<placeholder>-<digest>`` ID names, else ``slot``) or a tree whose
+    ``k:`` placeholders hold items. Raises a :class:`StringBTError` for a document that does
+    not read, ``ValueError`` naming a tree that is neither."""
+    kb = KnowledgeBase()
+    for ident, tree in trees_from_xml(data).items():
+        if any(isinstance(node, Placeholder) for node, _ in tree.walk()):
+            for item in KnowledgeBase.from_tree(tree):
+                kb.add(item)
+            continue
+        split = split_item(tree.root)
+        if split is None:
+            raise ValueError(
+                f"<BehaviorTree ID={ident!r}> is not a skill: its root must be a "
+                "ReactiveSequence of its conditions, then its actions"
+            )
+        named = _TREE_ID.fullmatch(ident)
+        segment = named["slot"].replace("-", ".") if named is not None else slot
+        kb.add(Knowledge(split[0], split[1], segment))
+    return kb
 
 
 class LearnedExport:

@@ -1,8 +1,9 @@
 """The demo robot and ``ktbt tour``.
 
-The demo robot is the search-and-rescue robot of the example knowledge (``DEMO_CONTROL``, its
-vocabulary ``demo_registry``, the four ``COLOURS`` it meets): what ``ktbt peer run`` runs when
-no other tree is asked for, and what the tour's two agents are.
+The demo robot is the search-and-rescue robot of the example knowledge (``DEMO_CONTROL`` and
+its vocabulary ``demo_registry``): what ``ktbt peer run`` and ``ktbt fleet run`` run when asked
+for (``--demo``) or when given neither ``--vocabulary`` nor ``--control``, and what the tour's
+two agents are.
 
 ``ktbt tour`` is a short tour of the language on the example trees, in one screen (about 40
 lines). It runs the same code paths as ``ktbt fmt``, ``check`` and ``show``, so what a newcomer
@@ -42,8 +43,6 @@ DEMO_CONTROL = """<sl>
 <e>
 """
 """The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
-COLOURS = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
-"""The sequences the demo robot meets when none is given: a target of each colour."""
 
 
 def demo_registry() -> Registry:
@@ -130,7 +129,7 @@ def run_demo(examples: Path) -> int:
     except StringBTError as err:
         typer.echo(f"broken.sbt:{err}")
 
-    _section(f"ktbt check --registry {registry.name}: knowledge a robot cannot run")
+    _section(f"ktbt check --vocabulary {registry.name}: knowledge a robot cannot run")
     typer.echo(_UNKNOWN)
     vocabulary = Vocabulary.load(registry)
     for problem in find_problems(parse(_UNKNOWN), vocabulary):

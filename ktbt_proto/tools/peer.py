@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import signal
 import threading
 import time
@@ -33,9 +34,10 @@ from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
-from ktbt_proto.files import write_atomic
+from ktbt_proto.files import read_at_most, write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.sidecar import LearnedExport
+from ktbt_proto.interop.sidecar import LearnedExport, read_skills
+from ktbt_proto.items import parse_sequence
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.merge import merge
@@ -49,9 +51,29 @@ from ktbt_proto.transport.zenoh import (
     peers,
     stable_zid,
 )
-from ktbt_proto.tree import Condition, Placeholder, Tree
+from ktbt_proto.tree import Condition, Placeholder, SequenceNode, Tree
+from ktbt_proto.validate import find_problems
 
 Say = Callable[[str], None]
+
+log = logging.getLogger("ktbt.peer")
+
+LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
+"""The control tree of a robot given a vocabulary but no ``--control``: it runs only what it
+knows (what a learner beside a BehaviorTree.CPP program, ``--export-learned``, needs)."""
+CATALOG_PERIOD = 2.0
+"""Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
+(besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
+
+
+def learning_slot(tree: Tree) -> str | None:
+    """The placeholder a robot learns into: ``<k>(new)`` if its control tree has one, else its
+    last placeholder (the lowest priority in a selector); None without any (spec/protocol.md
+    section 4.5)."""
+    names = [n.name for n, _ in tree.walk() if isinstance(n, Placeholder)]
+    if not names:
+        return None
+    return "new" if "new" in names else names[-1]
 
 
 @dataclass(frozen=True)
@@ -121,13 +143,16 @@ def announce_ready(path: Path | None, peer: str, knows: int | None) -> None:
 
 
 def load_knowledge(path: str | Path) -> KnowledgeBase:
-    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve.
+    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve, or
+    (``.xml``) a BehaviorTree.CPP robot's skills (:func:`ktbt_proto.interop.sidecar.read_skills`).
     At most one byte past the size limit is read (``/dev/zero`` is refused, not read until
     memory runs out). Items too large to send, signed and all, are refused here, not at every
     query."""
-    with open(path, "rb") as f:
-        data = f.read(DEFAULT_LIMITS.max_size + 1)
-    kb = KnowledgeBase.from_tree(parse(data))
+    data = read_at_most(path, DEFAULT_LIMITS.max_size)
+    if Path(path).suffix.lower() == ".xml":
+        kb = read_skills(data)
+    else:
+        kb = KnowledgeBase.from_tree(parse(data))
     for item in kb:
         subtree = format_tree(item.subtree, "compact")
         try:  # the largest a reply can be: longest id and name, both signatures
@@ -215,9 +240,11 @@ def ask(
     say: Say,
     note: Say | None = None,
     security: Security | None = None,
+    registry: Registry | None = None,
 ) -> tuple[int, list[Response]]:
     """Ask the fleet and print each acceptable answer the moment it arrives, with its
-    provenance; an answer the policy or the receive limits refuse is shown as refused.
+    provenance; an answer the policy or the receive limits refuse is shown as refused, and so
+    is one the asker's ``registry`` (if given) could not execute (section 2).
     ``note`` is told, when no answer came, whether nobody was reachable or nobody knew: two
     different problems that look alike otherwise."""
     security = security or Security()
@@ -229,7 +256,7 @@ def ask(
         if answer.id != query.id:
             return
         try:  # shown only if it passes a robot's receive checks (numbers too)
-            _, subtree = check(answer, key, security.policy, security.trust)
+            _, subtree = check(answer, key, security.policy, security.trust, registry=registry)
         except Refused as refused:
             say(f"# refused {refused.reason}")
             return
@@ -269,26 +296,73 @@ def provenance(answer: Response) -> str:
     return f" ({', '.join(words)})" if words else ""
 
 
-def with_knowledge(control: str | Tree, knowledge: KnowledgeBase | None) -> str | Tree:
-    """The control tree with ``knowledge``'s items in their placeholders (``prior`` when the
-    tree has no placeholder of an item's name): what the agent starts knowing, and teaches."""
+def with_knowledge(
+    control: str | Tree, knowledge: KnowledgeBase | None, fallback: str = "prior"
+) -> str | Tree:
+    """The control tree with ``knowledge``'s items in their placeholders (``fallback`` when the
+    tree has no placeholder of an item's name, ``prior`` if it has one): what the agent starts
+    knowing, and teaches."""
     if knowledge is None or not len(knowledge):
         return control
     tree = parse(control) if isinstance(control, str) else control
     names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
+    fallback = "prior" if "prior" in names else fallback
     for item in knowledge:
-        slot = item.segment if item.segment in names else "prior"
+        slot = item.segment if item.segment in names else fallback
         tree = merge(tree, item.subtree, slot, when=item.conditions)
     return tree
 
 
+class Listed:
+    """The sequences a learner without ``--sequence`` meets (spec/protocol.md section 4.5):
+    those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
+    sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
+    INFO line."""
+
+    def __init__(self, name: str, registry: Registry, say: Say) -> None:
+        self.name, self.registry, self.say = name, registry, say
+        self.found: list[str] = []
+        self.skipped: set[str] = set()
+
+    def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
+        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
+        new = []
+        for peer, entries in sorted(listed.items()):
+            for entry in entries:
+                given = entry["sequence"]
+                if given in self.skipped:
+                    continue
+                try:
+                    conds = parse_sequence(given)
+                    problems = find_problems(SequenceNode(conds), self.registry)
+                except StringBTError as err:
+                    problems = [err]
+                    conds = ()
+                key = sequence_key(conds) if not problems else given
+                if key in self.found or key in self.skipped:
+                    continue
+                if problems:
+                    self.skipped.add(given)
+                    log.info(
+                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
+                        "(%s %s)",
+                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
+                    )  # fmt: skip
+                    continue
+                self.found.append(key)
+                new.append(key)
+                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
+        return new
+
+
 def run_agent(
     member: Member,
-    sequences: Sequence[str],
+    sequences: Sequence[str] | None,
     say: Say,
     *,
     control: str,
     registry: Registry,
+    slot: str = "new",
     knowledge: KnowledgeBase | None = None,
     tick_rate: float = 100.0,
     wait_ticks: int = 200,
@@ -298,16 +372,19 @@ def run_agent(
     exit_when_done: bool = False,
     export_learned: str | None = None,
 ) -> int:
-    """A fleet member that learns and teaches, running ``control`` with ``registry`` (the demo
-    robot's, ``ktbt_proto.tools.demo``, from the command line): it starts with ``knowledge``
-    (if any) and what ``knowledge_path`` saved, meets each sequence in turn until it knows it
-    (or time runs out), asking again with a bounded backoff while it is missing, and at once
-    when a new peer appears; it teaches what it knows to whoever asks, and prints what it
-    learned. Refusals are logged (to stderr and, with a transfer log, there) and the summary
-    counts all of them, transport ones too; the network's own errors are counted apart.
-    ``export_learned``: a folder to mirror learned items into as BT.CPP documents
-    (spec/stringbt.md section 12.1); the member's ``groot``: serve the control tree to Groot2
-    (spec/groot2.md)."""
+    """A fleet member that learns and teaches, running ``control`` with ``registry`` and
+    learning into the placeholder ``slot``: it starts with ``knowledge`` (if any) and what
+    ``knowledge_path`` saved, meets each sequence in turn until it knows it (or time runs out),
+    asking again with a bounded backoff while it is missing, and at once when a new peer
+    appears; it teaches what it knows to whoever asks, and prints what it learned. With
+    ``sequences`` None, the sequences it meets are those its fleet's catalogs list and its
+    vocabulary can execute (:class:`Listed`), the catalogs read again whenever a peer appears
+    and every ``CATALOG_PERIOD`` seconds (section 4.5); ``exit_when_done`` then stops once it
+    knows every one found, and it has found one. Refusals are logged (to stderr and, with a
+    transfer log, there) and the summary counts all of them, transport ones too; the
+    network's own errors are counted apart. ``export_learned``: a folder to mirror learned
+    items into as BT.CPP documents (spec/stringbt.md section 12.1); the member's ``groot``:
+    serve the control tree to Groot2 (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (
@@ -319,7 +396,7 @@ def run_agent(
     ):
         robot = Agent(
             name,
-            with_knowledge(control, knowledge),
+            with_knowledge(control, knowledge, slot),
             registry,
             transport,
             timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
@@ -327,6 +404,7 @@ def run_agent(
             # with --publish-events, the transport has a log even without --log
             security=replace(security, log=transport.log),
             ear=Ear(member.overhear),
+            slot=slot,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
         # Every query it can answer is answered at once from what it knows, as `peer serve`
@@ -346,18 +424,28 @@ def run_agent(
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
         deadline = time.monotonic() + duration
-        todo = list(sequences)
+        listed = Listed(name, registry, say) if sequences is None else None
+        todo = list(sequences) if sequences is not None else []
         period = 1.0 / tick_rate
-        say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        if listed is None:
+            say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        else:
+            say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
         announce_ready(member.ready, name, len(robot.knowledge))
         announced = set(robot.metrics.learned)
         backoff = Backoff(seed=name)
         lost, joined = robot.metrics.queries_lost, transport.joined
+        read_at = -math.inf
         while not stop.is_set() and time.monotonic() < deadline:
             now = time.monotonic()
+            if listed is not None and (
+                transport.joined != joined or now - read_at >= CATALOG_PERIOD
+            ):
+                read_at = now
+                todo += listed.read(catalogs(transport, timeout=0.5))
             while todo and robot.knows([todo[0]]):
                 todo.pop(0)
-            if not todo and exit_when_done:
+            if not todo and exit_when_done and (listed is None or listed.found):
                 break
             if transport.joined != joined:  # a new neighbour: it may know
                 joined = transport.joined
@@ -384,7 +472,8 @@ def run_agent(
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")
-        return 0 if all(robot.knows([s]) for s in sequences) else 1
+        met = listed.found if listed is not None else list(sequences or ())
+        return 0 if all(robot.knows([s]) for s in met) else 1
 
 
 def router(settings: ZenohSettings, say: Say, ready: Path | None = None) -> int:

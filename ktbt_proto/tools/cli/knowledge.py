@@ -11,7 +11,7 @@ import typer
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.tools.cli.options import example, io_reason, say
+from ktbt_proto.tools.cli.options import example, io_reason, refuse, say
 
 kb_app = typer.Typer(help="Inspect knowledge files.", no_args_is_help=True)
 
@@ -30,6 +30,12 @@ def kb_show(
     try:
         kb = KnowledgeBase.load(path)
     except (OSError, ValueError, StringBTError) as exc:
+        kind = _other_kind(path)
+        if kind is not None:  # a mistake of the user's, not a damaged file
+            raise refuse(
+                f"FILE {path}: {kind}, not a saved knowledge base; kb show reads the JSON "
+                "that peer run --save writes"
+            ) from None
         say(f"error: {path}: {str(exc).splitlines()[0]}")
         raise typer.Exit(1) from None
     for item in kb:
@@ -47,6 +53,27 @@ def kb_show(
         typer.echo(f"  author    {item.author}")
         typer.echo(f"  signature {item.signature} ({'valid' if ok else 'INVALID'})")
     typer.echo(f"{len(kb)} items")
+
+
+def _other_kind(path: Path) -> str | None:
+    """What a file given to ``kb show`` is when it is a tree, not a saved knowledge base: a
+    stringBT file (a knowledge file for ``--knowledge``, say) or a BehaviorTree.CPP
+    document; None for anything else (a damaged save file is its own error)."""
+    from ktbt_proto.files import read_at_most
+    from ktbt_proto.limits import DEFAULT_LIMITS
+    from ktbt_proto.syntax import parse
+
+    try:
+        data = read_at_most(path, DEFAULT_LIMITS.max_size)
+    except OSError:
+        return None
+    if data.lstrip().startswith((b"<?xml", b"<root")):
+        return "a BehaviorTree.CPP XML file"
+    try:
+        parse(data)
+    except StringBTError:
+        return None
+    return "a stringBT file"
 
 
 def log_command(

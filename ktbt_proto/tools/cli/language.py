@@ -26,7 +26,7 @@ from ktbt_proto.render import Format, render
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.cli.options import STDIN, example, io_reason, say, sequence_or_exit
 from ktbt_proto.tree import Tree
-from ktbt_proto.validate import Vocabulary, find_problems
+from ktbt_proto.validate import find_problems
 
 EXIT_ERROR = 123
 """``fmt``: a file could not be formatted (black's code)."""
@@ -169,13 +169,13 @@ def fmt_command(
 
 def check_command(
     files: Files,
-    registry: Annotated[
-        Path | None,
+    vocabulary: Annotated[
+        str | None,
         typer.Option(
-            "--registry",
-            metavar="FILE",
-            help="TOML file: conditions = [...], actions = [...]; unknown names are problems.",
-            readable=False,  # checked when read, with one clear line
+            "--vocabulary",
+            metavar="SPEC",
+            help="The robot's vocabulary, FILE.toml or module:callable: names it lacks and "
+            "arguments it does not take are problems.",
         ),
     ] = None,
 ) -> None:
@@ -183,15 +183,10 @@ def check_command(
 
     Each is file:line:col: CODE message. Warnings (SBT5xx) are reported too, but do not
     change the exit status."""
-    from ktbt_proto.items import stray_nodes
+    from ktbt_proto.items import find_warnings
+    from ktbt_proto.tools.cli.options import vocabulary_or_exit
 
-    vocabulary = None
-    if registry is not None:
-        try:
-            vocabulary = Vocabulary.load(registry)
-        except ValueError as exc:
-            say(f"error: {exc}")
-            raise typer.Exit(2) from None
+    registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
     problems = checked = 0
     for path in _expand(files):
         name = _location(path)
@@ -205,8 +200,8 @@ def check_command(
         warnings: list[StringBTError] = []
         try:
             tree = parse(data)
-            found: list[StringBTError] = find_problems(tree, vocabulary)
-            warnings = stray_nodes(tree)
+            found: list[StringBTError] = find_problems(tree, registry)
+            warnings = find_warnings(tree)
         except StringBTError as exc:
             found = [exc]
         for problem in sorted([*found, *warnings], key=lambda p: (p.line, p.column)):
@@ -352,7 +347,7 @@ def tour_command(
 def register(app: typer.Typer) -> None:
     """Add the language's commands to the ``ktbt`` app."""
     app.command("fmt", epilog=example("ktbt fmt --check trees/"))(fmt_command)
-    app.command("check", epilog=example("ktbt check --registry robot.toml trees/"))(check_command)
+    app.command("check", epilog=example("ktbt check --vocabulary robot.toml trees/"))(check_command)
     app.command("show", epilog=example("ktbt show --format mermaid control.sbt"))(show_command)
     app.command(
         "merge", epilog=example("ktbt merge control.sbt skill.sbt --when 'TargetSeen(colour=2)'")

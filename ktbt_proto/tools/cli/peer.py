@@ -18,6 +18,8 @@ from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.tools.cli.options import (
     Connect,
+    ControlOption,
+    DemoOption,
     Duration,
     GrootPort,
     JoinMode,
@@ -34,14 +36,17 @@ from ktbt_proto.tools.cli.options import (
     ReadyFile,
     Timeout,
     TrustFile,
+    VocabularyOption,
     ZenohConfig,
     acceptable_or_exit,
     example,
     knowledge_or_exit,
     refuse,
+    robot_or_exit,
     say,
     security,
     sequence_or_exit,
+    vocabulary_or_exit,
     zenoh_settings,
 )
 
@@ -69,6 +74,7 @@ def _peer_call(action: Callable[[], int]) -> None:
 @peer_app.command("serve", epilog=example("ktbt peer serve --knowledge skills.sbt --key r1.key"))
 def peer_serve(
     knowledge: KnowledgeFile,
+    vocabulary: VocabularyOption = None,
     name: PeerId = "server",
     key: KeyFile = None,
     log: LogFile = None,
@@ -85,11 +91,14 @@ def peer_serve(
 ) -> None:
     """Answer queries for the knowledge in a file until stopped.
 
+    A .sbt file's <k>(...) items, or a .xml file's BehaviorTree.CPP skills (one
+    <BehaviorTree> each). With --vocabulary, an item it names wrongly is refused at start.
     Answers are signed with --key; with --overhear, it also serves what it overhears."""
     from ktbt_proto.tools import peer
 
     settings = zenoh_settings(listen, connect, config, multicast, mode)
-    served = knowledge_or_exit(knowledge)
+    registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
+    served = knowledge_or_exit(knowledge, registry)
     secure = security(key, Policy.ANY, None, log)
     member = peer.Member(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
@@ -110,6 +119,7 @@ def peer_ask(
             "'TargetSeen(colour=2), !_inZoneF'.",
         ),
     ],
+    vocabulary: VocabularyOption = None,
     timeout: Timeout = 2.0,
     name: PeerId = "asker",
     policy: PolicyOption = Policy.ANY,
@@ -123,21 +133,38 @@ def peer_ask(
 ) -> None:
     """Ask the fleet; print each answer with its provenance as it arrives.
 
-    Exit 1 if no acceptable answer came in time, saying on stderr whether no peer was
-    reachable or no peer knew."""
+    With --vocabulary, an answer it could not execute is shown as refused. Exit 1 if no
+    acceptable answer came in time, saying on stderr whether no peer was reachable or no peer
+    knew."""
     from ktbt_proto.tools import peer
 
     settings = zenoh_settings(listen, connect, config, multicast, mode)
+    registry = None
+    if vocabulary is not None:
+        registry = vocabulary_or_exit(vocabulary)
+        acceptable_or_exit("--sequence", sequence, registry)
     conds = sequence_or_exit("--sequence", sequence)
     secure = security(None, policy, trust, log)
     _peer_call(
-        lambda: peer.ask(name, conds, settings, timeout, typer.echo, note=say, security=secure)[0]
-    )
+        lambda: peer.ask(
+            name, conds, settings, timeout, typer.echo, note=say, security=secure,
+            registry=registry,
+        )[0]
+    )  # fmt: skip
 
 
-@peer_app.command("run", epilog=example("ktbt peer run --id r2 --save r2.json --exit-when-done"))
+@peer_app.command(
+    "run",
+    epilog=example(
+        "ktbt peer run --id door1 --vocabulary door.toml --control door.sbt \\",
+        "    --connect tcp/127.0.0.1:7447 --exit-when-done",
+    ),
+)
 def peer_run(
     name: PeerId = "robot",
+    vocabulary: VocabularyOption = None,
+    control: ControlOption = None,
+    demo: DemoOption = False,
     sequence: Annotated[
         list[str] | None,
         typer.Option(
@@ -187,31 +214,33 @@ def peer_run(
     multicast: Multicast = False,
     mode: JoinMode = "peer",
 ) -> None:
-    """Run the demo robot: it learns what it meets and teaches it.
+    """Run a robot: it learns what it meets and teaches what it knows.
 
-    It meets each sequence until it knows it, and teaches what it knows. Without --sequence
-    it meets the four colours; with --knowledge it starts knowing that
-    file's items."""
+    It meets each --sequence until it knows it; without one, each sequence its peers list
+    that its vocabulary can execute. --control runs your tree (learning into its <k>(new),
+    else its last placeholder); --vocabulary alone runs only what it knows. Without either
+    (or with --demo), the search-and-rescue demo robot. With --knowledge it starts knowing
+    that file's items."""
     from ktbt_proto.tools import peer
-    from ktbt_proto.tools.demo import COLOURS, DEMO_CONTROL, demo_registry
 
     settings = zenoh_settings(listen, connect, config, multicast, mode)
-    registry = demo_registry()
+    robot = robot_or_exit(vocabulary, control, demo)
+    registry = robot.registry
     for text in sequence or ():
         acceptable_or_exit("--sequence", text, registry)
-    start = knowledge_or_exit(knowledge) if knowledge is not None else None
+    start = knowledge_or_exit(knowledge, registry) if knowledge is not None else None
     secure = security(key, policy, trust, log)
     member = peer.Member(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
     )
-    sequences = sequence or COLOURS
     _peer_call(
         lambda: peer.run_agent(
             member,
-            sequences,
+            sequence or None,
             typer.echo,
-            control=DEMO_CONTROL,
+            control=robot.control,
             registry=registry,
+            slot=robot.slot,
             knowledge=start,
             duration=duration,
             exit_when_done=exit_when_done,

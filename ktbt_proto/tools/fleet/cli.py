@@ -11,10 +11,14 @@ from typing import Annotated
 import typer
 
 from ktbt_proto.tools.cli.options import (
+    ControlOption,
+    DemoOption,
+    VocabularyOption,
     address,
     example,
     knowledge_or_exit,
     refuse,
+    robot_or_exit,
 )
 from ktbt_proto.tools.fleet.plan import PartitionKind, TeacherProgram, Topology
 
@@ -35,6 +39,15 @@ def _show(summary: dict[str, object]) -> None:
         f"query round trip {_ms(floor)} direct, {_ms(linked)} through a link, "
         f"{summary.get('honest_answers_refused')} honest answers refused"
     )
+
+
+def _absolute(vocabulary: str | None) -> str:
+    """``--vocabulary`` as every peer must be given it: a file by its absolute path (a
+    module:callable as given: the peers run in this folder)."""
+    if vocabulary is None:
+        return ""
+    path = Path(vocabulary)
+    return str(path.resolve()) if path.is_file() else vocabulary
 
 
 def _ms(value: object) -> str:
@@ -97,10 +110,13 @@ def run_command(
         typer.Option(
             "--knowledge",
             metavar="FILE",
-            help="The teachers' .sbt file (default: the colours).",
+            help="The teachers' .sbt file; learners meet its sequences (default: the colours).",
             readable=False,
         ),
     ] = None,
+    vocabulary: VocabularyOption = None,
+    control: ControlOption = None,
+    demo: DemoOption = False,
     teacher: Annotated[
         TeacherProgram,
         typer.Option(
@@ -132,7 +148,8 @@ def run_command(
     """Run a fleet scenario, check it and draw it.
 
     Exit 1 if a property failed. Every link goes through a fault layer. Partitions need
-    --topology mesh or line; times are like 200ms or 30s (0: none)."""
+    --topology mesh or line; times are like 200ms or 30s (0: none). Every peer is the robot
+    --vocabulary and --control describe (as in peer run), or the demo robot."""
     from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, seconds
     from ktbt_proto.tools.fleet.runner import run
     from ktbt_proto.tools.fleet.watch import MonitorFailed
@@ -146,8 +163,12 @@ def run_command(
             import uvicorn  # noqa: F401
         except ImportError:
             raise refuse(INSTALL) from None
-    if knowledge is not None:  # refused here, with its position, not inside the namespace
-        knowledge_or_exit(knowledge)
+    # Refused here, in one line with its position, not inside the namespace.
+    robot = robot_or_exit(vocabulary, control, demo)
+    if knowledge is not None or robot.vocabulary is not None:
+        from ktbt_proto.tools.fleet.runner import EXAMPLE_KNOWLEDGE
+
+        knowledge_or_exit(knowledge or EXAMPLE_KNOWLEDGE, robot.registry)
     try:
         config = FleetConfig(
             peers=peers, teachers=teachers, topology=topology, routers=routers,
@@ -155,6 +176,7 @@ def run_command(
             partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,
             seed=seed, bound=bound, teacher=teacher, settle=settle,
             knowledge=str(knowledge.resolve()) if knowledge else "",
+            vocabulary=_absolute(vocabulary), control=str(control.resolve()) if control else "",
             name=out.name,
         )  # fmt: skip
     except PlanError as exc:
@@ -226,7 +248,13 @@ def study_command(
     raise typer.Exit(1 if failed else 0)
 
 
-fleet.command("run", epilog=example("ktbt fleet run --peers 6 --loss 0.05 --out run1"))(run_command)
+fleet.command(
+    "run",
+    epilog=example(
+        "ktbt fleet run --peers 6 --loss 0.05 --out run1",
+        "ktbt fleet run --peers 4 --knowledge door.sbt --vocabulary door.toml",
+    ),
+)(run_command)
 fleet.command("check", epilog=example("ktbt fleet check run1"))(check_command)
 fleet.command("study", epilog=example("ktbt fleet study --only size-5"))(study_command)
 

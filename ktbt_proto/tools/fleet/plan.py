@@ -65,7 +65,13 @@ class FleetConfig:
     up_timeout: float = 0.0
     """Seconds for every peer to come up (0: 30 + 1.5 a peer)."""
     knowledge: str = ""
-    """The teachers' knowledge file (empty: the example colour skills)."""
+    """The teachers' knowledge file (empty: the example colour skills); the learners meet its
+    sequences."""
+    vocabulary: str = ""
+    """Every peer's ``--vocabulary`` (empty: the search-and-rescue demo robot)."""
+    control: str = ""
+    """Every peer's ``--control`` tree (empty: the demo robot's, or, with a vocabulary, a
+    learner that runs only what it knows)."""
     teacher: TeacherProgram = "run"
     """``run``: teachers are fleet members (``ktbt peer run --knowledge``: an agent, which
     teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from ktbt_proto.files import packaged, write_atomic
+from ktbt_proto.items import show_sequence
 from ktbt_proto.tools.fleet import netns, watch
 from ktbt_proto.tools.fleet.plan import FleetConfig, Host, Plan, make_plan, stream
 from ktbt_proto.tools.fleet.proxy import FaultLayer
@@ -218,11 +219,17 @@ class FleetRun:
             endpoints += ["--publish-events"]
         common = ["--id", node.name, "--log", str(member.log), *conf, *endpoints]
         knowledge = str(self.config.knowledge or EXAMPLE_KNOWLEDGE)
+        robot = ["--vocabulary", self.config.vocabulary] if self.config.vocabulary else []
         if node.role == "teacher" and self.teacher_program == "serve":
-            return [*python, "serve", "--knowledge", knowledge, *common]
-        args = [*python, "run", *common, "--save", str(member.save), "--duration", "31536000"]
+            return [*python, "serve", "--knowledge", knowledge, *robot, *common]
+        if self.config.control:
+            robot += ["--control", self.config.control]
+        args = [*python, "run", *common, *(robot or ["--demo"])]
+        args += ["--save", str(member.save), "--duration", "31536000"]
         if node.role == "teacher":
             args += ["--knowledge", knowledge]
+        else:  # the learners meet the knowledge file's sequences, and stop at nothing else
+            args += [a for key in self.items for a in ("--sequence", show_sequence(key))]
         return args
 
     def launch(self, member: PeerProcess) -> None:

@@ -248,7 +248,7 @@ def ask(
     ``note`` is told, when no answer came, whether nobody was reachable or nobody knew: two
     different problems that look alike otherwise."""
     security = security or Security()
-    key = sequence_key(parse_conditions(sequence))
+    key = sequence_key(sequence)
     query = Query(id=Query.new_id(), sender=name, sequence=key)
     responses: list[Response] = []
 

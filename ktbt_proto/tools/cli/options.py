@@ -284,8 +284,7 @@ def vocabulary_or_exit(spec: str) -> Registry:
     try:
         return load_vocabulary(spec)
     except ValueError as exc:
-        reason = str(exc).removeprefix(f"registry {spec}: ")
-        raise refuse(f"--vocabulary {spec}: {reason}") from None
+        raise refuse(f"--vocabulary: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -77,10 +77,11 @@ def test_ask_answer_presence_and_refusals_in_one_process() -> None:
 
 
 def test_agents_over_zenoh_teach_through_their_trees() -> None:
-    """No lookup: the teacher's own teach tree answers, through pending zenoh queries."""
+    """With ``answer_at_once`` off, the teacher's own teach tree answers, through pending zenoh
+    queries (spec section 3)."""
     a, b = free_port(), free_port()
     with (
-        ZenohTransport("k", settings(a), query_timeout=2) as tk,
+        ZenohTransport("k", settings(a), query_timeout=2, answer_at_once=False) as tk,
         ZenohTransport("i", settings(b, a), query_timeout=2) as ti,
     ):
         teacher = Agent(

@@ -558,7 +558,8 @@ class ZenohTransport:
         return answer
 
     def _reply_error(self, payload: bytes, asked: Message) -> None:
-        """A reply error. A peer's is an error message (a JSON object, section 1), logged; what
+        """A reply error. A peer's is an error message (a JSON object, section 1), logged at
+        WARNING (a peer refused this one's query: the user should see why); what
         zenoh itself sends (``Timeout``, as text) is the network's: counted apart, handed to the
         agent as a :class:`NetworkError`, never decoded as a peer's message nor refused."""
         if not payload.lstrip().startswith(b"{"):
@@ -572,7 +573,9 @@ class ZenohTransport:
         error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
         if error is None:
             return
-        log.info("%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message)
+        log.warning(
+            "%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message[:200]
+        )
         if self.log is not None:
             self.log.record(
                 "error-received", peer=self.name, sender=error.sender, reason=error.message

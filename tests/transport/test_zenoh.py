@@ -227,7 +227,9 @@ def test_peer_ask_cli_exit_codes() -> None:
         assert listed.returncode == 0 and "teacher: 4 skills" in listed.stdout
     bad = ktbt_run("peer", "ask", "--sequence", "A", "--connect", "nonsense://x")
     assert (bad.returncode, bad.stdout) == (2, "")
-    assert bad.stderr == "error: --connect: nonsense://x is not a zenoh endpoint: write nonsense/x\n"
+    assert (
+        bad.stderr == "error: --connect: nonsense://x is not a zenoh endpoint: write nonsense/x\n"
+    )
 
 
 def _ask(port: int, *extra: str) -> subprocess.CompletedProcess[str]:

@@ -23,6 +23,9 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.zenoh import ZenohTransport
+from tests.door_robot import MEMORY as DOOR_MEMORY
+from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
+from tests.door_robot import door_blackboard, door_registry
 from tests.interop.test_pytrees_control import (
     ACTIONS,
     EXAMPLES,
@@ -37,9 +40,6 @@ from tests.interop.test_pytrees_control import (
     py_trees_sar,
     sar_registry,
 )
-from tests.door_robot import MEMORY as DOOR_MEMORY
-from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
-from tests.door_robot import door_blackboard, door_registry
 from tests.zenoh_helpers import endpoint, free_port, ktbt_process, see, wait_until
 from tests.zenoh_helpers import settings as zenoh_settings
 

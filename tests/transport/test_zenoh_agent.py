@@ -67,12 +67,19 @@ def test_a_hand_built_agent_learns_runs_and_is_listed_with_what_it_knows(tmp_pat
             robot.tick()
         assert bb["log"] == ["grasp", "turn 30/60", "turn 60/60", "push"]
 
-        listed = ktbt_run("peer", "list", "--connect", endpoint(pl), "--timeout", "5")
-        assert listed.returncode == 0, listed.stderr
-        lines = listed.stdout.splitlines()
+        lines: list[str] = []
+
+        def both_listed() -> bool:  # `peer list` prints who answered its first round
+            listed = ktbt_run("peer", "list", "--connect", endpoint(pl), "--connect",
+                              endpoint(pt), "--timeout", "5")  # fmt: skip
+            assert listed.returncode == 0, listed.stderr
+            lines[:] = listed.stdout.splitlines()
+            return {"door: 1 skills", "teacher: 1 skills"} <= set(lines)
+
+        assert wait_until(both_listed, 60), lines
         for name in ("door", "teacher"):
             at = lines.index(f"{name}: 1 skills")
-            assert lines[at + 1].strip().startswith(SHOWN), listed.stdout
+            assert lines[at + 1].strip().startswith(SHOWN), lines
         assert "(author" not in lines[lines.index("door: 1 skills") + 1]  # unsigned
         assert "teacher teacher" in lines[lines.index("door: 1 skills") + 1]
 

@@ -1,7 +1,8 @@
 """The paper's SAR scenario: a py_trees robot learns over zenoh from a LiveTree robot, then ticks
 its new knowledge exactly as its teacher does (spec/protocol.md section 4.4). And the
 door-opening robot, a py_trees robot with its own behaviour classes and no stubs, learns its
-skill over zenoh from a ``ktbt peer serve`` process or a Python teacher, and runs it.
+skill over zenoh from a ``ktbt peer serve`` process (serving stringBT, or a BehaviorTree.CPP
+robot's skills as XML) or a Python teacher, and runs it.
 
 Real zenoh sessions on loopback. After the transfer, both control trees get the same inputs
 every tick (sensed flags, the target in view, each action's outcome), scripted and then drawn by
@@ -21,6 +22,7 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
+from ktbt_proto.interop.btcpp import to_xml
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.door_robot import MEMORY as DOOR_MEMORY
@@ -156,11 +158,16 @@ def test_a_py_trees_robot_learns_over_zenoh_and_ticks_as_its_teacher() -> None:
 @contextmanager
 def door_teacher(kind: str, port: int, folder: Path) -> Iterator[None]:
     """A teacher of the door skill on ``port``: a ``ktbt peer serve`` process serving a
-    knowledge file, or a Python agent that is never ticked (it answers from what it knows, in
+    knowledge file (stringBT, or a BehaviorTree.CPP robot's skills as XML, spec/stringbt.md
+    section 12.1), or a Python agent that is never ticked (it answers from what it knows, in
     zenoh's callback, spec section 4.5)."""
-    if kind == "serve":
-        knowledge = folder / "door.sbt"
-        knowledge.write_text(f"<sl><k>(prior){DOOR_MEMORY}<e><e>")
+    if kind in ("serve", "serve-btcpp-xml"):
+        if kind == "serve":
+            knowledge = folder / "door.sbt"
+            knowledge.write_text(f"<sl><k>(prior){DOOR_MEMORY}<e><e>")
+        else:
+            knowledge = folder / "skills.xml"
+            knowledge.write_text(to_xml(kp.parse(DOOR_MEMORY)))
         with ktbt_process(
             "peer", "serve", "--id", "teacher", "--knowledge", str(knowledge),
             "--listen", endpoint(port), ready="serving",
@@ -172,7 +179,7 @@ def door_teacher(kind: str, port: int, folder: Path) -> Iterator[None]:
             yield
 
 
-@pytest.mark.parametrize("teacher", ["serve", "python"])
+@pytest.mark.parametrize("teacher", ["serve", "serve-btcpp-xml", "python"])
 def test_the_door_robot_in_py_trees_learns_over_zenoh_and_runs_its_own_behaviours(
     teacher: str, tmp_path: Path
 ) -> None:

@@ -3,7 +3,8 @@ JSON request a line on stdin, one JSON answer a line on stdout. Everything waite
 request's deadline (``timeout``) and is polled on observable conditions, never slept for.
 
 Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, match): the first
-message received on the topic whose fields match (and hold none of ``absent``); ``messages`` (topic); ``publishers`` and
+message received on the topic (past the first ``skip``) whose fields match (and hold none
+of ``absent``); ``messages`` (topic); ``publishers`` and
 ``subscribers`` (topic, count): wait until the topic has that many; ``publish`` (topic, type, fields or
 ``raw`` hex bytes, subscribers: wait for that many first); ``call`` (service, type, request);
 ``params`` (node, names): a node's parameter values.
@@ -94,7 +95,7 @@ class ProbeNode:
                     seen = list(self.received.get(topic, []))
                 if op == "messages":
                     return {"ok": True, "messages": seen}
-                for message in seen:
+                for message in seen[int(req.get("skip", 0)) :]:
                     absent = req.get("absent", {})
                     if matches(message, req["match"]) and not any(
                         str(v) in str(message.get(k)) for k, v in absent.items()

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import IO, Any
 
 _DOMAINS = itertools.count((os.getpid() % 50) + 1)
-KTBT = [sys.executable, "-m", "ktbt_proto.tools.cli"]
+KTBT = [sys.executable, "-m", "ktbt_proto"]
 """``ktbt`` run by this environment's Python (the console script may not be on PATH)."""
 
 
@@ -135,12 +135,17 @@ class Probe:
         self.ask({"op": "sub", "topic": topic, "type": type_name, "latched": latched})
 
     def wait(
-        self, topic: str, timeout: float = 30, absent: dict[str, str] | None = None, **match: Any
+        self,
+        topic: str,
+        timeout: float = 30,
+        absent: dict[str, str] | None = None,
+        skip: int = 0,
+        **match: Any,
     ) -> dict[str, Any]:
-        """The first message on ``topic`` (since subscribing) whose fields match (a string
-        field contains the value given, others equal it) and contain nothing of ``absent``;
-        fails the test at the deadline."""
-        request = {"op": "wait", "topic": topic, "match": match, "absent": absent or {}}
+        """The first message on ``topic`` (since subscribing, past the first ``skip``) whose
+        fields match (a string field contains the value given, others equal it) and contain
+        nothing of ``absent``; fails the test at the deadline."""
+        request = {"op": "wait", "topic": topic, "match": match, "absent": absent or {}, "skip": skip}
         answer = self.ask(request, timeout)
         assert answer["ok"], f"nothing on {topic} matched {match} in {timeout} s: {answer}"
         return dict(answer["msg"])

@@ -59,9 +59,7 @@ def build_command(
         _say(f"{interfaces.PACKAGE} is up to date")
 
 
-@ros2.command(
-    "run", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}
-)
+@ros2.command("run", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
 def run_command(
     ctx: typer.Context,
     autostart: Annotated[
@@ -78,6 +76,7 @@ def run_command(
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
 
     from ktbt_proto.interop.ros2.node import KtbtNode
 
@@ -115,8 +114,7 @@ def run_command(
     finally:
         if node is not None:
             node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        try_shutdown()
     raise typer.Exit(code)
 
 

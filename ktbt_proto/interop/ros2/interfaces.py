@@ -74,7 +74,9 @@ def not_here() -> str:
     """One line saying what to do where ROS 2 is not installed."""
     if has_wheels():
         return "ROS 2 is not installed: pip install 'ktbt[ros2]', then ktbt ros2 build"
-    where = f"{platform.machine() or 'this machine'} {sys.platform}, CPython {sys.version.split()[0]}"
+    where = (
+        f"{platform.machine() or 'this machine'} {sys.platform}, CPython {sys.version.split()[0]}"
+    )
     return (
         f"no ROS 2 wheels for {where} (they exist for {WHEEL_PLATFORMS}): install ROS 2 Jazzy "
         "(docs.ros.org), source it, and build ros2/ktbt_interfaces in a colcon workspace"

@@ -25,21 +25,23 @@ import logging
 import re
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
+from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
+from ktbt_interfaces.srv import Forget, ListKnowledge
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
-from ktbt_interfaces.srv import Forget, ListKnowledge
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.answers import catalog, live_answers
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.knowledge import sequence_key
+from ktbt_proto.exchange.overhearing import Overhear
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
@@ -141,6 +143,29 @@ def load_registry(spec: str) -> Registry:
     return made
 
 
+def problem(name: str, value: Any) -> str | None:
+    """What is wrong with a value of the node's parameter ``name``, in one line, or None."""
+    if name == "tick_rate" and not 0 < float(value) <= 1000:
+        return f"tick_rate {value}: use (0, 1000] Hz"
+    if name == "snapshot_period" and not 0 <= float(value) <= 3600:
+        return f"snapshot_period {value}: use [0, 3600] s (0: only on change)"
+    if name in ("wait_ticks", "cooldown_ticks") and not 1 <= int(value) <= 1_000_000:
+        return f"{name} {value}: use 1 to 1000000 ticks"
+    if name == "overhear" and value not in ("off", "update", "buffer"):
+        return f"overhear {value!r}: use off, update or buffer"
+    if name == "policy" and value not in [p.value for p in Policy]:
+        return f"policy {value!r}: use {', '.join(p.value for p in Policy)}"
+    if name.endswith("_topic") and not str(value).startswith("/"):
+        return f"{name} {value!r}: use an absolute name, shared by the fleet (/ktbt/queries)"
+    if name == "sequences":
+        for text in value:
+            try:
+                parse_conditions([text])
+            except StringBTError as err:
+                return f"sequences: {text!r}: {err.code} {err.message}"
+    return None
+
+
 class _ToNodeLogger(logging.Handler):
     """The library's log records (``ktbt.*``) through the node's logger."""
 
@@ -163,9 +188,14 @@ class KtbtNode(LifecycleNode):
 
     def __init__(self, node_name: str = "ktbt", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        setup = ParameterDescriptor(description="read at configure")
-        live = ParameterDescriptor(description="applied at once")
-        declare = self.declare_parameter
+        self.logger = Node.get_logger(self)
+        """The node's logger (named for the node, namespace included)."""
+
+        def declare(name: str, default: Any, when: str) -> None:
+            # One descriptor each: rclpy writes the parameter's type into the one it is given.
+            self.declare_parameter(name, default, ParameterDescriptor(description=when))
+
+        setup, live = "read at configure", "applied at once"
         declare("agent_name", "", setup)  # "": the namespace's last name, else the node's
         declare("control", "", setup)  # a .sbt file; "": the demo's control tree
         declare("registry", "demo", setup)
@@ -205,24 +235,26 @@ class KtbtNode(LifecycleNode):
     # -- parameters -----------------------------------------------------------------------------
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Setup parameters change only while unconfigured; the live ones apply at once."""
+        """Setup parameters change only while unconfigured; the live ones apply at once: the
+        sequences to meet, the tick rate and the snapshot period (timers made anew)."""
         for param in params:
             if param.name in SETUP and self.agent is not None:
-                return SetParametersResult(
-                    successful=False, reason=f"{param.name} is read at configure: clean up first"
-                )
-            if param.name == "tick_rate" and not 0 < float(param.value) <= 1000:
-                return SetParametersResult(successful=False, reason="tick_rate: (0, 1000] Hz")
-            if param.name == "snapshot_period" and float(param.value) < 0:
-                return SetParametersResult(successful=False, reason="snapshot_period: >= 0 s")
+                why: str | None = f"{param.name} is read at configure: clean up first"
+            else:
+                why = problem(param.name, param.value)
+            if why is not None:
+                return SetParametersResult(successful=False, reason=why)
+        for param in params:
             if param.name == "sequences":
-                try:
-                    todo = [sequence_key(parse_conditions([s])) for s in param.value]
-                except StringBTError as err:
-                    return SetParametersResult(successful=False, reason=f"sequences: {err}")
-                self._todo = todo
-        if any(p.name in ("tick_rate", "snapshot_period") for p in params) and self._timer:
-            self.get_logger().info("tick_rate/snapshot_period change applies at next activate")
+                self._todo = [sequence_key(parse_conditions([s])) for s in param.value]
+        if self._timer is not None and any(
+            p.name in ("tick_rate", "snapshot_period") for p in params
+        ):
+            values = {p.name: p.value for p in params}
+            self._start_timers(
+                float(values.get("tick_rate", self._param("tick_rate"))),
+                float(values.get("snapshot_period", self._param("snapshot_period"))),
+            )
         return SetParametersResult(successful=True)
 
     def _param(self, name: str) -> Any:
@@ -244,12 +276,16 @@ class KtbtNode(LifecycleNode):
             self._configure()
         except (OSError, ValueError, KeyFileError, StringBTError) as exc:
             reason = str(exc) if not isinstance(exc, OSError) else f"{exc.filename}: {exc.strerror}"
-            self.get_logger().error(f"configure failed: {reason}")
+            self.logger.error(f"configure failed: {reason}")
             self._cleanup()
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
+        for param_name in (*SETUP, "sequences", "tick_rate", "snapshot_period"):
+            why = problem(param_name, self._param(param_name))
+            if why is not None:
+                raise ValueError(why)
         name = self.agent_name()
         registry = load_registry(str(self._param("registry")))
         control_path = str(self._param("control"))
@@ -262,11 +298,12 @@ class KtbtNode(LifecycleNode):
         trust = TrustStore.load(trust_path) if trust_path else None
         if policy == Policy.TRUSTED and trust is None:
             raise ValueError("policy trusted needs a trust file (parameter trust)")
-        overhear = str(self._param("overhear"))
-        if overhear not in ("off", "update", "buffer"):
-            raise ValueError(f"overhear {overhear!r}: off, update or buffer")
+        overhear = cast(Overhear, str(self._param("overhear")))
         self._todo = [sequence_key(parse_conditions([s])) for s in self._param("sequences")]
-        wait_ticks, cooldown_ticks = int(self._param("wait_ticks")), int(self._param("cooldown_ticks"))
+        wait_ticks, cooldown_ticks = (
+            int(self._param("wait_ticks")),
+            int(self._param("cooldown_ticks")),
+        )
         log_path = str(self._param("log"))
         self.log = TransferLog(log_path or None)
         topics = Topics(
@@ -309,7 +346,7 @@ class KtbtNode(LifecycleNode):
             policy=policy,
             trust=trust,
             log=self.log,
-            overhear=overhear,  # type: ignore[arg-type]
+            overhear=overhear,
         )
         agent = self.agent
         self.transport.lookup = live_answers(lambda: agent.knowledge, identity)
@@ -319,11 +356,11 @@ class KtbtNode(LifecycleNode):
             self.create_service(Forget, "~/forget", self._on_forget),
         ]
         for _, reason in agent.metrics.refusals:  # a damaged save file, say
-            self.get_logger().warning(f"{name} refused: {reason}")
+            self.logger.warning(f"{name} refused: {reason}")
         self._announced = set(agent.metrics.learned)
         self._backoff = Backoff(seed=name)
         self._lost, self._joined = agent.metrics.queries_lost, self.transport.joined
-        self.get_logger().info(
+        self.logger.info(
             f"{name}: configured, knows {len(agent.knowledge)}, will meet {len(self._todo)} "
             f"sequences; queries on {topics.queries}, answers on {topics.answers}"
         )
@@ -331,19 +368,16 @@ class KtbtNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         assert self.transport is not None
         self.transport.active = True
-        self._timer = self.create_timer(1.0 / float(self._param("tick_rate")), self._tick)
-        period = float(self._param("snapshot_period"))
-        if period > 0:
-            self._snapshot_timer = self.create_timer(period, self._show)
+        self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
         self._show()
-        self.get_logger().info(f"{self.transport.name}: active")
+        self.logger.info(f"{self.transport.name}: active")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._stop_timers()
         if self.transport is not None:
             self.transport.active = False
-            self.get_logger().info(f"{self.transport.name}: inactive")
+            self.logger.info(f"{self.transport.name}: inactive")
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -353,6 +387,16 @@ class KtbtNode(LifecycleNode):
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._cleanup()
         return TransitionCallbackReturn.SUCCESS
+
+    def _start_timers(self, tick_rate: float, snapshot_period: float) -> None:
+        """Tick at ``tick_rate`` (a query stays open ``wait_ticks`` ticks), and publish a
+        snapshot every ``snapshot_period`` seconds if positive."""
+        self._stop_timers()
+        self._timer = self.create_timer(1.0 / tick_rate, self._tick)
+        if snapshot_period > 0:
+            self._snapshot_timer = self.create_timer(snapshot_period, self._show)
+        if self.transport is not None:
+            self.transport.query_timeout = int(self._param("wait_ticks")) / tick_rate
 
     def _stop_timers(self) -> None:
         for timer in (self._timer, self._snapshot_timer):
@@ -365,7 +409,7 @@ class KtbtNode(LifecycleNode):
         self._stop_timers()
         if self.agent is not None and self.transport is not None:
             m = self.agent.metrics
-            self.get_logger().info(
+            self.logger.info(
                 f"{self.agent.name}: queries sent {m.queries_sent}, answers "
                 f"{m.responses_received}, lost {m.queries_lost}, refused "
                 f"{m.refused + self.transport.refused}, taught "
@@ -389,7 +433,7 @@ class KtbtNode(LifecycleNode):
     def destroy_node(self) -> None:
         self._cleanup()
         logging.getLogger("ktbt").removeHandler(self._handler)
-        super().destroy_node()
+        super().destroy_node()  # type: ignore[no-untyped-call]
 
     # -- running --------------------------------------------------------------------------------
 
@@ -412,7 +456,7 @@ class KtbtNode(LifecycleNode):
         agent.tick()
         for key in agent.metrics.learned.keys() - self._announced:
             tick, source = agent.metrics.learned[key]
-            self.get_logger().info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
+            self.logger.info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
             self._announced.add(key)
             backoff.reset(now)
         self._show()
@@ -446,7 +490,9 @@ class KtbtNode(LifecycleNode):
 
     def _entries(self) -> list[CatalogEntry]:
         return [
-            CatalogEntry(**{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")})
+            CatalogEntry(
+                **{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")}
+            )
             if isinstance(e, dict)
             else CatalogEntry(sequence=e)
             for e in self._catalog()
@@ -477,7 +523,7 @@ class KtbtNode(LifecycleNode):
                 else f"{shown(key)} is innate: only learned items are forgotten"
             )
         else:
-            self.get_logger().info(f"{agent.name}: forgot {shown(key)} (asked)")
+            self.logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
             self._announced.discard(key)
             self._show()
         return response

@@ -42,6 +42,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from ktbt_interfaces.msg import Answer as AnswerMsg
+from ktbt_interfaces.msg import ErrorReply as ErrorMsg
+from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -52,9 +55,6 @@ from rclpy.qos import (
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
-from ktbt_interfaces.msg import Answer as AnswerMsg
-from ktbt_interfaces.msg import ErrorReply as ErrorMsg
-from ktbt_interfaces.msg import Query as QueryMsg
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -136,7 +136,9 @@ def wire_json(msg: Any, kind: str) -> bytes:
 def to_msg(message: Message, to: str = "") -> Any:
     """The ROS message for a protocol message; ``to``: the asker an answer or error is for."""
     if isinstance(message, Query):
-        return QueryMsg(v=message.v, id=message.id, sender=message.sender, sequence=message.sequence)
+        return QueryMsg(
+            v=message.v, id=message.id, sender=message.sender, sequence=message.sequence
+        )
     if isinstance(message, Response):
         return AnswerMsg(
             v=message.v,
@@ -336,7 +338,9 @@ class Ros2Transport:
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
-    def _read(self, data: bytes, msg_type: Any, kind: type[_M], topic: str) -> tuple[Any, _M] | None:
+    def _read(
+        self, data: bytes, msg_type: Any, kind: type[_M], topic: str
+    ) -> tuple[Any, _M] | None:
         """A raw message from ``topic`` as the protocol message ``kind``, with the ROS message
         it came as; anything else is refused, with its reason."""
         what = f"on {topic}"

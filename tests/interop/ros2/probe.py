@@ -3,11 +3,11 @@ JSON request a line on stdin, one JSON answer a line on stdout. Everything waite
 request's deadline (``timeout``) and is polled on observable conditions, never slept for.
 
 Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, match): the first
-message received on the topic (past the first ``skip``) whose fields match (and hold none
-of ``absent``); ``messages`` (topic); ``publishers`` and
-``subscribers`` (topic, count): wait until the topic has that many; ``publish`` (topic, type, fields or
-``raw`` hex bytes, subscribers: wait for that many first); ``call`` (service, type, request);
-``params`` (node, names): a node's parameter values.
+message received on the topic (past the first ``skip``) whose fields match (and hold none of
+``absent``); ``messages`` (topic); ``publishers`` and ``subscribers`` (topic, count): wait
+until the topic has that many; ``publish`` (topic, type, fields or ``raw`` hex bytes,
+subscribers: wait for that many first); ``call`` (service, type, request); ``params`` (node,
+names): a node's parameter values; ``set_params`` (node, values): set them, each one's result.
 """
 
 from __future__ import annotations
@@ -19,12 +19,13 @@ import time
 from typing import Any
 
 import rclpy
-from rcl_interfaces.srv import GetParameters
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
 from ktbt_interfaces import msg as ktbt_msg
 from ktbt_interfaces import srv as ktbt_srv
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import try_shutdown
 
 SERVICES: dict[str, Any] = {
     "Forget": ktbt_srv.Forget,
@@ -148,6 +149,24 @@ class ProbeNode:
                 return {"ok": True, "response": plain(future.result())}
             finally:
                 self.node.destroy_client(client)
+        if op == "set_params":  # each result: (successful, reason)
+            srv = SetParameters
+            client = self.node.create_client(srv, f"{req['node']}/set_parameters")
+            try:
+                if not client.wait_for_service(timeout_sec=timeout):
+                    return {"ok": False, "error": "no service"}
+                params = [
+                    Parameter(k, value=v).to_parameter_msg() for k, v in req["values"].items()
+                ]
+                future = client.call_async(srv.Request(parameters=params))
+                done = threading.Event()
+                future.add_done_callback(lambda _: done.set())
+                if not done.wait(max(0.0, deadline - time.monotonic())):
+                    return {"ok": False, "error": "no answer"}
+                results = future.result().results
+                return {"ok": True, "results": [[r.successful, r.reason] for r in results]}
+            finally:
+                self.node.destroy_client(client)
         if op == "params":
             names = req["names"]
             answer = self.handle(
@@ -189,7 +208,7 @@ def main() -> None:
     finally:
         executor.shutdown()
         probe.node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ class RosNamespace:
         self.logs.mkdir(parents=True, exist_ok=True)
         self.processes: list[subprocess.Popen[str]] = []
         self.holder = subprocess.Popen(
-            ["unshare", "-n", "sh", "-c", 'ip link set lo up && echo up && exec sleep 100000'],
+            ["unshare", "-n", "sh", "-c", "ip link set lo up && echo up && exec sleep 100000"],
             stdout=subprocess.PIPE,
             text=True,
         )
@@ -117,7 +117,9 @@ class Probe:
     one JSON answer a line."""
 
     def __init__(self, ns: RosNamespace) -> None:
-        self.proc = ns.start([sys.executable, "-m", "tests.interop.ros2.probe"], "probe", stdin=True)
+        self.proc = ns.start(
+            [sys.executable, "-m", "tests.interop.ros2.probe"], "probe", stdin=True
+        )
         self.ask({"op": "ping"}, timeout=60)
 
     def ask(self, request: dict[str, Any], timeout: float = 30) -> dict[str, Any]:
@@ -145,7 +147,13 @@ class Probe:
         """The first message on ``topic`` (since subscribing, past the first ``skip``) whose
         fields match (a string field contains the value given, others equal it) and contain
         nothing of ``absent``; fails the test at the deadline."""
-        request = {"op": "wait", "topic": topic, "match": match, "absent": absent or {}, "skip": skip}
+        request = {
+            "op": "wait",
+            "topic": topic,
+            "match": match,
+            "absent": absent or {},
+            "skip": skip,
+        }
         answer = self.ask(request, timeout)
         assert answer["ok"], f"nothing on {topic} matched {match} in {timeout} s: {answer}"
         return dict(answer["msg"])

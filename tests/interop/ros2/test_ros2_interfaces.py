@@ -5,6 +5,8 @@ the project still imports lark 1.x after the ROS wheels."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from ktbt_proto.exchange.events import EventPublisher, decode_event
@@ -18,7 +20,7 @@ SEQUENCE = "<c>(TargetSeen,colour=2)"
 SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
 
 
-def through_dds(msg: object) -> object:
+def through_dds(msg: Any) -> Any:
     """``msg`` serialized as DDS sends it and read back."""
     from rclpy.serialization import deserialize_message, serialize_message
 

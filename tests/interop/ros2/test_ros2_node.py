@@ -85,7 +85,9 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     }
     probe.until({"op": "publishers", "topic": "/fleet_a/queries", "count": 1})
     probe.until({"op": "subscribers", "topic": "/fleet_a/queries", "count": 2})
-    assert probe.ask({"op": "subscribers", "topic": "/ktbt/queries", "count": 1}, 0.5)["ok"] is False
+    assert (
+        probe.ask({"op": "subscribers", "topic": "/ktbt/queries", "count": 1}, 0.5)["ok"] is False
+    )
 
     # What it knows, then forgetting it: the tree is taken again, changed, without the item.
     listed = probe.until({"op": "call", "service": "/learner/ktbt/list_knowledge",
@@ -101,6 +103,24 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     again = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
                          "request": {"sequence": "TargetSeen(colour=2)"}})["response"]  # fmt: skip
     assert again == {"forgotten": False, "message": "TargetSeen(colour=2) is not known"}
+
+    # Reconfigured while it runs: what it meets and its rate apply at once; what is read at
+    # configure, and a bad value, are refused with their reason.
+    results = probe.until(
+        {"op": "set_params", "node": "/learner/ktbt",
+         "values": {"sequences": ["TargetSeen(colour=3)"], "tick_rate": 80.0}}
+    )["results"]  # fmt: skip
+    assert results == [[True, ""], [True, ""]]
+    refused = probe.until(
+        {"op": "set_params", "node": "/learner/ktbt",
+         "values": {"wait_ticks": 10, "tick_rate": 0.0, "sequences": ["TargetSeen(colour="]}}
+    )["results"]  # fmt: skip
+    assert refused[0] == [False, "wait_ticks is read at configure: clean up first"]
+    assert refused[1] == [False, "tick_rate 0.0: use (0, 1000] Hz"]
+    assert refused[2][0] is False and refused[2][1].startswith(
+        "sequences: 'TargetSeen(colour=': SBT"
+    )
+    probe.wait("/learner/ktbt/tree", 60, skip=shown, tree="AssignCollectionPoint,colour=3")
 
 
 def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
@@ -138,15 +158,18 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     garbage = "00010000" + "ff" * 60  # a CDR header, then a string claiming 4 GB
     probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage,
                  "subscribers": 2})  # fmt: skip
+    v2 = {"v": 2, "id": "h1", "sender": "probe", "sequence": WANTED}
     probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 2,
-                 "fields": {"v": 2, "id": "h1", "sender": "probe", "sequence": WANTED}})  # fmt: skip
+                 "fields": v2})  # fmt: skip
     probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer", "subscribers": 2,
                  "fields": {"v": 1, "id": "h2", "sender": "not a name!", "to": "teacher",
                             "sequence": WANTED, "subtree": "<a>(RandomWalk)"}})  # fmt: skip
     refusals = []
     for reason in ("not a Query", "query.v: Input should be 1", "response.sender: String"):
         refusals.append(
-            probe.wait("/teacher/ktbt/events", 30, event="refused", where="transport", reason=reason)
+            probe.wait(
+                "/teacher/ktbt/events", 30, event="refused", where="transport", reason=reason
+            )
         )
     assert len({r["n"] for r in refusals}) == 3
     error = probe.wait("/ktbt/errors", 30, to="probe", sender="teacher", code="refused")

@@ -320,8 +320,13 @@ class KtbtNode(LifecycleNode):
         self._made.append(events)
         self._events = EventPublisher(name, lambda data: events.publish(event_msg(data)), identity)
         self.log.add_sink(self._events)
-        self._tree_pub = self.create_publisher(TreeSnapshot, "~/tree", latched())
-        self._catalog_pub = self.create_publisher(Catalog, "~/catalog", latched())
+        overrides = QoSOverridingOptions.with_default_policies
+        self._tree_pub = self.create_publisher(
+            TreeSnapshot, "~/tree", latched(), qos_overriding_options=overrides()
+        )
+        self._catalog_pub = self.create_publisher(
+            Catalog, "~/catalog", latched(), qos_overriding_options=overrides()
+        )
         self._made += [self._tree_pub, self._catalog_pub]
         self.transport = Ros2Transport(
             self,

@@ -221,42 +221,23 @@ class Ros2Transport:
         """Queries from others still in their answer window: (sender, id) -> deadline."""
         self._present: set[str] = set()
         self._next_presence = 0.0
-        qos = exchange_qos()
-        overrides = QoSOverridingOptions.with_default_policies()
-        self._queries = node.create_publisher(
-            QueryMsg, self.topics.queries, qos, qos_overriding_options=overrides
-        )
-        self._answers = node.create_publisher(
-            AnswerMsg, self.topics.answers, qos, qos_overriding_options=overrides
-        )
-        self._errors = node.create_publisher(
-            ErrorMsg, self.topics.errors, qos, qos_overriding_options=overrides
-        )
+
+        # A profile and options of its own for each entity: rclpy writes the overridden
+        # values into the profile it is given.
+        def qos() -> dict[str, Any]:
+            return {
+                "qos_profile": exchange_qos(),
+                "qos_overriding_options": QoSOverridingOptions.with_default_policies(),
+            }
+
+        topics = self.topics
+        self._queries = node.create_publisher(QueryMsg, topics.queries, **qos())
+        self._answers = node.create_publisher(AnswerMsg, topics.answers, **qos())
+        self._errors = node.create_publisher(ErrorMsg, topics.errors, **qos())
         self._subscriptions = [
-            node.create_subscription(
-                QueryMsg,
-                self.topics.queries,
-                self._on_query,
-                qos,
-                raw=True,
-                qos_overriding_options=overrides,
-            ),
-            node.create_subscription(
-                AnswerMsg,
-                self.topics.answers,
-                self._on_answer,
-                qos,
-                raw=True,
-                qos_overriding_options=overrides,
-            ),
-            node.create_subscription(
-                ErrorMsg,
-                self.topics.errors,
-                self._on_error,
-                qos,
-                raw=True,
-                qos_overriding_options=overrides,
-            ),
+            node.create_subscription(QueryMsg, topics.queries, self._on_query, raw=True, **qos()),
+            node.create_subscription(AnswerMsg, topics.answers, self._on_answer, raw=True, **qos()),
+            node.create_subscription(ErrorMsg, topics.errors, self._on_error, raw=True, **qos()),
         ]
         self._present = self.peers()
 
@@ -269,10 +250,13 @@ class Ros2Transport:
         now = time.monotonic()
         with self._lock:
             self._expire(now)
-            full = len(self._open) >= self.max_asking
+            again = self._open.get(message.id)  # the same query, repeated while it waits
+            full = again is None and len(self._open) >= self.max_asking
             if not full:
-                self._open[message.id] = (message.sequence, now + self.query_timeout, set())
-                self._asked.append(message.id)
+                heard = again[2] if again is not None else set()
+                self._open[message.id] = (message.sequence, now + self.query_timeout, heard)
+                if again is None:
+                    self._asked.append(message.id)
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
             return
@@ -383,6 +367,17 @@ class Ros2Transport:
         query = read[1]
         if query.sender == self.name:
             return  # our own query, heard back
+        if self.lookup is not None:
+            if self.log is not None:
+                self.log.record(
+                    "query-received",
+                    peer=self.name,
+                    sender=query.sender,
+                    id=query.id,
+                    sequence=query.sequence,
+                )
+            self._answer_at_once(query, self.lookup)
+            return
         now = time.monotonic()
         key = (query.sender, query.id)
         with self._lock:
@@ -394,20 +389,8 @@ class Ros2Transport:
         if replay:
             self._refuse(f"query {query.id} from {query.sender} is already open")
             return
-        if full:
-            return  # finished unanswered, as a teacher in cool-down would
-        if self.lookup is None:
+        if not full:  # else left unanswered, as a teacher in cool-down would
             self._deliver(query)
-            return
-        if self.log is not None:
-            self.log.record(
-                "query-received",
-                peer=self.name,
-                sender=query.sender,
-                id=query.id,
-                sequence=query.sequence,
-            )
-        self._answer_at_once(query, self.lookup)
 
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when

@@ -105,12 +105,12 @@ class ProbeNode:
                 if time.monotonic() > deadline:
                     return {"ok": False, "error": "timeout", "last": seen[-5:]}
                 time.sleep(0.02)
-        if op == "publishers":
-            while len(self.node.get_publishers_info_by_topic(req["topic"])) < req["count"]:
+        if op == "publishers":  # with each one's reliability
+            while len(infos := self.node.get_publishers_info_by_topic(req["topic"])) < req["count"]:
                 if time.monotonic() > deadline:
                     return {"ok": False, "error": "timeout"}
                 time.sleep(0.02)
-            return {"ok": True}
+            return {"ok": True, "reliability": [i.qos_profile.reliability.name for i in infos]}
         if op == "subscribers":  # wait until the topic has that many subscriptions
             while len(self.node.get_subscriptions_info_by_topic(req["topic"])) < req["count"]:
                 if time.monotonic() > deadline:

@@ -35,6 +35,12 @@ def params_file(tmp: Path) -> Path:
     answers_topic: /fleet_a/answers
     errors_topic: /fleet_a/errors
     tick_rate: 50.0
+    qos_overrides:
+      /fleet_a/queries:
+        publisher:
+          reliability: best_effort
+        subscription:
+          reliability: best_effort
 /teacher/ktbt:
   ros__parameters:
     knowledge: {COLOURS}
@@ -72,7 +78,8 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     assert merged["sequence"] == WANTED and merged["peer"] == "learner"
     assert "learned TargetSeen(colour=2) from teacher" in ns.log("learner")
 
-    # The YAML file's parameters applied: the fleet's topics, the rates, what to meet.
+    # The YAML file's parameters applied: the fleet's topics and their QoS, the rates, what to
+    # meet.
     values = probe.until(
         {"op": "params", "node": "/learner/ktbt",
          "names": ["queries_topic", "tick_rate", "wait_ticks", "sequences"]}
@@ -83,7 +90,10 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
         "wait_ticks": 100,
         "sequences": ["TargetSeen(colour=2)"],
     }
-    probe.until({"op": "publishers", "topic": "/fleet_a/queries", "count": 1})
+    queries = probe.until({"op": "publishers", "topic": "/fleet_a/queries", "count": 2})
+    assert queries["reliability"] == ["BEST_EFFORT", "BEST_EFFORT"]  # the QoS override applied
+    answers = probe.until({"op": "publishers", "topic": "/fleet_a/answers", "count": 2})
+    assert answers["reliability"] == ["RELIABLE", "RELIABLE"]
     probe.until({"op": "subscribers", "topic": "/fleet_a/queries", "count": 2})
     assert (
         probe.ask({"op": "subscribers", "topic": "/ktbt/queries", "count": 1}, 0.5)["ok"] is False

@@ -6,9 +6,9 @@ BIN := $(VENV)/bin
 .PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop soak ros2 clean
 
 # The ROS 2 wheels (the dev extra brings them) depend on lark-parser 0.12, which writes the same
-# lark/ folder as lark 1.x: added to an environment that has lark already, it wins. Put 1.x back.
-LARK_1X = $(BIN)/python -c 'import lark, sys; sys.exit(int(lark.__version__.split(".")[0]) < 1)' \
-	|| $(BIN)/python -m pip install --quiet --force-reinstall --no-deps 'lark>=1.2,<2'
+# lark/ folder as lark 1.x (added to an environment that has lark already, it wins) and type
+# stubs mypy would prefer to lark 1.x's own: put 1.x back, remove the stubs.
+LARK_1X = $(BIN)/python -m ktbt_proto.interop.ros2.interfaces
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)

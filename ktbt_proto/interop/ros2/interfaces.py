@@ -163,15 +163,17 @@ def lark_version() -> str:
 
 def restore_lark(say: Callable[[str], None]) -> None:
     """Reinstall lark 1.x when lark-parser 0.12 (a dependency of ROS's rosidl_parser, which
-    works with lark 1.x) has overwritten it."""
+    works with lark 1.x) has overwritten it, and remove the type stubs of 0.12 it leaves
+    (``lark-stubs``), which type checkers would take over lark 1.x's own types."""
     found = lark_version()
-    if found.split(".")[0].isdigit() and int(found.split(".")[0]) >= 1:
-        return
-    say(f"lark {found} found (from the ROS wheels' lark-parser): reinstalling {LARK}")
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--force-reinstall", "--no-deps", LARK],
-        check=True,
-    )
+    if not (found.split(".")[0].isdigit() and int(found.split(".")[0]) >= 1):
+        say(f"lark {found} found (from the ROS wheels' lark-parser): reinstalling {LARK}")
+        pip = [sys.executable, "-m", "pip", "install", "--quiet", "--force-reinstall"]
+        subprocess.run([*pip, "--no-deps", LARK], check=True)
+    stubs = Path(sysconfig.get_paths()["purelib"]) / "lark-stubs"
+    if stubs.is_dir():
+        say(f"removing {stubs} (lark-parser 0.12's types, not lark 1.x's)")
+        shutil.rmtree(stubs)
 
 
 def cache_dir() -> Path:
@@ -244,3 +246,7 @@ def _last_error(log: Path) -> str:
     lines = [line.strip() for line in log.read_text(errors="replace").splitlines()]
     errors = [line for line in lines if "error" in line.lower()]
     return (errors or lines or ["no output"])[-1][:160]
+
+
+if __name__ == "__main__":  # python -m ktbt_proto.interop.ros2.interfaces: lark 1.x back (make)
+    restore_lark(lambda line: print(line, file=sys.stderr))

@@ -5,6 +5,8 @@ the project still imports lark 1.x after the ROS wheels."""
 
 from __future__ import annotations
 
+import sysconfig
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -86,3 +88,5 @@ def test_the_build_is_cached_and_lark_is_1x_after_the_ros_install() -> None:
         assert not any("building" in line for line in said)
     major = interfaces.lark_version().split(".")[0]
     assert major.isdigit() and int(major) >= 1, interfaces.lark_version()
+    site = Path(sysconfig.get_paths()["purelib"])
+    assert not (site / "lark-stubs").exists(), "lark-parser 0.12's stubs hide lark 1.x's types"

@@ -90,3 +90,14 @@ def test_the_build_is_cached_and_lark_is_1x_after_the_ros_install() -> None:
     assert major.isdigit() and int(major) >= 1, interfaces.lark_version()
     site = Path(sysconfig.get_paths()["purelib"])
     assert not (site / "lark-stubs").exists(), "lark-parser 0.12's stubs hide lark 1.x's types"
+
+
+def test_a_platform_without_wheels_is_told_what_to_do_in_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(interfaces.platform, "machine", lambda: "aarch64")
+    assert not interfaces.has_wheels()
+    line = interfaces.not_here()
+    assert "\n" not in line
+    assert line.startswith("no ROS 2 wheels for aarch64 linux, CPython 3.")
+    assert "install ROS 2 Jazzy" in line and "colcon" in line

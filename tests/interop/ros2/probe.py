@@ -25,6 +25,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
 SERVICES: dict[str, Any] = {
@@ -191,7 +192,7 @@ class ProbeNode:
 
 
 def main() -> None:
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # SIGTERM ends it at once
     probe = ProbeNode()
     executor = SingleThreadedExecutor()
     executor.add_node(probe.node)

@@ -24,6 +24,9 @@ from pathlib import Path
 from typing import IO, Any
 
 _DOMAINS = itertools.count((os.getpid() % 50) + 1)
+SEQUENCE = "<c>(TargetSeen,colour=2)"
+SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
+"""The skill the tests' robots exchange (``colours.sbt``'s green one)."""
 KTBT = [sys.executable, "-m", "ktbt_proto"]
 """``ktbt`` run by this environment's Python (the console script may not be on PATH)."""
 
@@ -96,6 +99,9 @@ class RosNamespace:
 
     def close(self) -> None:
         """End every process started, by its pid: SIGTERM, then SIGKILL after 10 s."""
+        for proc in self.processes:  # a probe ends at the end of its input
+            if proc.stdin is not None:
+                proc.stdin.close()
         for proc in [*self.processes, self.holder]:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
@@ -107,9 +113,8 @@ class RosNamespace:
                 proc.kill()
                 proc.wait()
         for proc in [*self.processes, self.holder]:
-            for stream in (proc.stdin, proc.stdout):
-                if stream is not None:
-                    stream.close()
+            if proc.stdout is not None:
+                proc.stdout.close()
 
 
 class Probe:

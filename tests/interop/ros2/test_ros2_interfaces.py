@@ -15,11 +15,9 @@ from ktbt_proto.exchange.events import EventPublisher, decode_event
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode
 from ktbt_proto.exchange.signing import Identity, hop_bytes, item_bytes, verify
 from ktbt_proto.interop.ros2 import interfaces
+from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
-pytestmark = pytest.mark.usefixtures("ros2_built")
-
-SEQUENCE = "<c>(TargetSeen,colour=2)"
-SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
+# The tests that use ROS are slow: the first in an environment builds the interfaces.
 
 
 def through_dds(msg: Any) -> Any:
@@ -29,6 +27,8 @@ def through_dds(msg: Any) -> Any:
     return deserialize_message(serialize_message(msg), type(msg))
 
 
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
 def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() -> None:
     from ktbt_proto.interop.ros2.transport import to_msg, wire_json
 
@@ -47,6 +47,8 @@ def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() ->
         update={"key": None, "hop": None})))  # fmt: skip
 
 
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
 def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
     from ktbt_proto.interop.ros2.transport import to_msg, wire_json
 
@@ -58,6 +60,8 @@ def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
         assert decode(wire_json(through_dds(to_msg(message, "x")), kind)) == message
 
 
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
 def test_a_signed_fleet_event_survives_its_ros_message() -> None:
     from ktbt_proto.interop.ros2.node import event_json, event_msg
 
@@ -74,6 +78,8 @@ def test_a_signed_fleet_event_survives_its_ros_message() -> None:
     assert through_dds(event_msg(sent[1])).tick == -1
 
 
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
 def test_a_relative_topic_is_refused_with_one_line() -> None:
     from ktbt_proto.interop.ros2.transport import Topics
 
@@ -81,6 +87,8 @@ def test_a_relative_topic_is_refused_with_one_line() -> None:
         Topics(queries="ktbt/queries")
 
 
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
 def test_the_build_is_cached_and_lark_is_1x_after_the_ros_install() -> None:
     said: list[str] = []
     if interfaces.system_ros() is None:

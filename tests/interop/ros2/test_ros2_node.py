@@ -10,13 +10,13 @@ from typing import Any
 import pytest
 
 from ktbt_proto.files import packaged
-from tests.interop.ros2.rosns import Probe, RosNamespace
+from tests.interop.ros2.rosns import SEQUENCE, Probe, RosNamespace
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
 COLOURS = packaged("examples", "knowledge", "colours.sbt")
 SKILL = "AssignCollectionPoint,colour=2"
-WANTED = "<c>(TargetSeen,colour=2)"
+WANTED = SEQUENCE
 
 
 def lifecycle(ns: RosNamespace, node: str, transition: str) -> str:

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from tests.interop.ros2.transports import SEQUENCE, SUBTREE
+from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(180)]
 

@@ -18,9 +18,7 @@ from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.signing import SignedItem
 from ktbt_proto.exchange.transport import Received
 from ktbt_proto.interop.ros2.transport import Ros2Transport
-
-SEQUENCE = "<c>(TargetSeen,colour=2)"
-SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
+from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
 
 def main() -> None:

@@ -323,10 +323,16 @@ class Ros2Transport:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
     def _read(
-        self, data: bytes, msg_type: Any, kind: type[_M], topic: str
+        self,
+        data: bytes,
+        msg_type: Any,
+        kind: type[_M],
+        topic: str,
+        wanted: Callable[[Any], bool] | None = None,
     ) -> tuple[Any, _M] | None:
         """A raw message from ``topic`` as the protocol message ``kind``, with the ROS message
-        it came as; anything else is refused, with its reason."""
+        it came as; anything else is refused, with its reason. ``wanted``: whether this robot
+        reads a message that deserialized (one addressed to another is dropped unread)."""
         what = f"on {topic}"
         if len(data) > self.max_bytes + CDR_SLACK:
             self._refuse(f"{what}: {len(data)} bytes, more than the limit", key=topic)
@@ -335,6 +341,8 @@ class Ros2Transport:
             msg = deserialize_message(data, msg_type)
         except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
             self._refuse(f"{what}: not a {msg_type.__name__} ({type(exc).__name__})", key=topic)
+            return None
+        if wanted is not None and not wanted(msg):
             return None
         label = {Query: "query", Response: "response", ErrorReply: "error"}[kind]
         try:
@@ -428,7 +436,13 @@ class Ros2Transport:
     def _on_answer(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
-        read = self._read(data, AnswerMsg, Response, self.topics.answers)
+        read = self._read(
+            data,
+            AnswerMsg,
+            Response,
+            self.topics.answers,
+            lambda msg: msg.to == self.name or (self.overhear and msg.sender != self.name),
+        )
         if read is None:
             return
         msg, answer = read
@@ -486,12 +500,12 @@ class Ros2Transport:
     def _on_error(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
-        read = self._read(data, ErrorMsg, ErrorReply, self.topics.errors)
+        read = self._read(
+            data, ErrorMsg, ErrorReply, self.topics.errors, lambda msg: msg.to == self.name
+        )
         if read is None:
             return
-        msg, error = read
-        if msg.to != self.name:
-            return
+        error = read[1]
         self.node.get_logger().info(f"{error.sender} refused a query of ours: {error.message}")
         if self.log is not None:
             self.log.record(

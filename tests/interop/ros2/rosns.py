@@ -2,8 +2,9 @@
 loopback up, so that DDS discovery (multicast) never leaves the machine and concurrent tests
 never see each other (docs/tutorials/ros2.md, "Testing").
 
-A :class:`RosNamespace` starts a holder process (``unshare -n``, ``ip link set lo up``) and runs
-every other process in its namespace (``nsenter -n``), with ``ROS_AUTOMATIC_DISCOVERY_RANGE=
+A :class:`RosNamespace` starts a holder process (``unshare -n``, ``ip link set lo up``; not
+root, ``unshare -rn``: in a user namespace of its own) and runs every other process in its
+namespaces (``nsenter``), with ``ROS_AUTOMATIC_DISCOVERY_RANGE=
 LOCALHOST``, a ``ROS_DOMAIN_ID`` of the test's own and ``ROS_LOG_DIR`` under the test's tmp
 folder. Every process it started is ended by its pid when it closes (SIGTERM, then SIGKILL).
 :class:`Probe` is a ROS participant in the namespace that the test drives line by line
@@ -40,11 +41,15 @@ class RosNamespace:
         self.logs = tmp / "ros-logs"
         self.logs.mkdir(parents=True, exist_ok=True)
         self.processes: list[subprocess.Popen[str]] = []
+        # As root, a network namespace; otherwise one inside a user namespace of its own.
+        root = os.geteuid() == 0
+        up = "ip link set lo up && echo up && exec sleep 100000"
         self.holder = subprocess.Popen(
-            ["unshare", "-n", "sh", "-c", "ip link set lo up && echo up && exec sleep 100000"],
-            stdout=subprocess.PIPE,
-            text=True,
+            ["unshare", "-n" if root else "-rn", "sh", "-c", up], stdout=subprocess.PIPE, text=True
         )
+        self.enter = ["nsenter", "-t", str(self.holder.pid), "-n"]
+        if not root:
+            self.enter[1:1] = ["-U", "--preserve-credentials"]
         assert self.holder.stdout is not None
         if self.holder.stdout.readline().strip() != "up":
             self.holder.kill()
@@ -70,7 +75,7 @@ class RosNamespace:
         goes to ``<tmp>/<name>.log``."""
         log: IO[str] = open(self.tmp / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
         proc = subprocess.Popen(
-            ["nsenter", "-t", str(self.holder.pid), "-n", "--", *args],
+            [*self.enter, "--", *args],
             stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             stdout=subprocess.PIPE if stdin else log,
             stderr=log,
@@ -87,7 +92,7 @@ class RosNamespace:
     def run(self, *args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
         """A ``ktbt`` command run to its end in the namespace."""
         return subprocess.run(
-            ["nsenter", "-t", str(self.holder.pid), "-n", "--", *KTBT, *args],
+            [*self.enter, "--", *KTBT, *args],
             capture_output=True,
             text=True,
             env=self.env(),

@@ -272,11 +272,18 @@ class KtbtNode(LifecycleNode):
     # -- lifecycle ------------------------------------------------------------------------------
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Build the robot from its parameters; anything wrong fails the transition with one
+        line in the log, and the node stays unconfigured."""
         try:
             self._configure()
-        except (OSError, ValueError, KeyFileError, StringBTError) as exc:
-            reason = str(exc) if not isinstance(exc, OSError) else f"{exc.filename}: {exc.strerror}"
-            self.logger.error(f"configure failed: {reason}")
+        except Exception as exc:  # a bad file or value: one line, never a traceback
+            if isinstance(exc, OSError) and exc.filename is not None:
+                reason = f"{exc.filename}: {exc.strerror}"
+            elif isinstance(exc, OSError | ValueError | KeyFileError | StringBTError):
+                reason = str(exc)
+            else:
+                reason = f"{type(exc).__name__}: {exc}"
+            self.logger.error(f"configure failed: {' '.join(reason.split())[:300]}")
             self._cleanup()
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
@@ -339,20 +346,25 @@ class KtbtNode(LifecycleNode):
             active=False,
         )
         save = str(self._param("save"))
-        self.agent = Agent(
-            name,
-            with_knowledge(control, knowledge),
-            registry,
-            self.transport,
-            wait_ticks=wait_ticks,
-            cooldown_ticks=cooldown_ticks,
-            knowledge_path=save or None,
-            identity=identity,
-            policy=policy,
-            trust=trust,
-            log=self.log,
-            overhear=overhear,
-        )
+        try:
+            self.agent = Agent(
+                name,
+                with_knowledge(control, knowledge),
+                registry,
+                self.transport,
+                wait_ticks=wait_ticks,
+                cooldown_ticks=cooldown_ticks,
+                knowledge_path=save or None,
+                identity=identity,
+                policy=policy,
+                trust=trust,
+                log=self.log,
+                overhear=overhear,
+            )
+        except StringBTError as err:  # the control tree, with its knowledge, against the registry
+            where = control_path or "the demo's control tree"
+            why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
+            raise ValueError(why) from None
         agent = self.agent
         self.transport.lookup = live_answers(lambda: agent.knowledge, identity)
         self._catalog = catalog(agent.knowledge, identity)

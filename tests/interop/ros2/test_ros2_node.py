@@ -187,7 +187,19 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     log = ns.log("teacher")
     assert log.count("[WARN]") >= 3 and "teacher refused: on /ktbt/queries" in log
     assert "Traceback" not in log
-    # And it goes on: it still answers what it is asked.
+    # A robot whose files are wrong refuses to configure, with one line, and stays unconfigured.
+    missing = tmp_path / "missing.sbt"
+    ns.ktbt("ros2", "run", "--ros-args", "-r", "__ns:=/broken", "-p", f"control:={missing}",
+            name="broken")  # fmt: skip
+    refused = ns.run("ros2", "lifecycle", "/broken/ktbt", "configure", "--timeout", "60")
+    assert (refused.returncode, refused.stderr) == (
+        1,
+        "error: /broken/ktbt refused configure (see its log)\n",
+    )
+    assert lifecycle(ns, "/broken/ktbt", "get") == "unconfigured"
+    assert f"configure failed: {missing}: No such file or directory" in ns.log("broken")
+    assert "Traceback" not in ns.log("broken")
+    # And the teacher goes on: it still answers what it is asked.
     listed = probe.until({"op": "call", "service": "/teacher/ktbt/list_knowledge",
                           "type": "ListKnowledge"})["response"]["items"]  # fmt: skip
     assert len(listed) == 4

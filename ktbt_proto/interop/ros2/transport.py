@@ -63,7 +63,7 @@ from ktbt_proto.exchange.messages import (
     Response,
     decode,
 )
-from ktbt_proto.exchange.signing import SignedItem
+from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, Received
 
@@ -181,7 +181,7 @@ class Ros2Transport:
         inbox_limit: int = 1024,
         max_asking: int = 32,
         max_bytes: int = MAX_MESSAGE_BYTES,
-        identity: Any = None,
+        identity: Identity | None = None,
         log: TransferLog | None = None,
         overhear: bool = False,
         overheard_limit: int = 64,

@@ -36,6 +36,7 @@ typecheck: $(VENV)/.installed-dev
 	$(BIN)/mypy
 
 pytest: $(VENV)/.installed-dev
+	$(BIN)/python -m ktbt_proto.interop.ros2.interfaces build
 	$(BIN)/python -m pytest
 
 test: lint typecheck pytest
@@ -90,7 +91,7 @@ clean:
 
 # KT-BT on ROS 2 (docs/tutorials/ros2.md): ros2/ktbt_interfaces built from the ROS 2 Jazzy wheels
 # (the dev extra brings them, on x86_64 Linux) into .venv, skipped while up to date: about 20 s
-# the first time on an idle 2-core machine, under a second after. The ROS tests of `make test`
-# build it the same way if this was not run.
+# the first time on an idle 2-core machine, under a second after. `make pytest` builds it first
+# the same way (and where there are no wheels says the ROS tests will skip).
 ros2: $(VENV)/.installed-dev
 	$(BIN)/ktbt ros2 build

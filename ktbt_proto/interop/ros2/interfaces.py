@@ -248,5 +248,29 @@ def _last_error(log: Path) -> str:
     return (errors or lines or ["no output"])[-1][:160]
 
 
-if __name__ == "__main__":  # python -m ktbt_proto.interop.ros2.interfaces: lark 1.x back (make)
-    restore_lark(lambda line: print(line, file=sys.stderr))
+def main(args: list[str]) -> int:
+    """``python -m ktbt_proto.interop.ros2.interfaces [build]``, for ``make``: lark 1.x put
+    back (after the dev install); with ``build``, the interfaces built too where ROS 2 can run
+    from the wheels (before the tests), and elsewhere one line saying the ROS tests will skip."""
+
+    def say(line: str) -> None:
+        print(line, file=sys.stderr)
+
+    restore_lark(say)
+    if args != ["build"]:
+        return 0
+    if not has_wheels() or system_ros() is not None:
+        why = not_here() if not has_wheels() else "a ROS 2 is sourced (build it with colcon)"
+        say(f"not building {PACKAGE} here: {why}")
+        return 0
+    try:
+        if not build(say):
+            say(f"{PACKAGE} is up to date")
+    except Ros2Unavailable as exc:
+        say(f"error: {exc}")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -6,13 +6,19 @@ missing.
 - ``ktbt ros2 build``: build ``ktbt_interfaces`` into this environment (cached);
 - ``ktbt ros2 run [--autostart] [--ros-args ...]``: one robot's agent as a lifecycle node;
 - ``ktbt ros2 lifecycle NODE TRANSITION``: a transition (configure, activate, deactivate,
-  cleanup, shutdown) or ``get``, through the node's standard lifecycle_msgs services, for
-  machines without the ``ros2`` command line.
+  cleanup, shutdown) or ``get``, through the node's standard lifecycle_msgs services;
+- ``ktbt ros2 list NODE [--until SEQUENCE]`` and ``ktbt ros2 forget NODE SEQUENCE``: what a
+  robot knows, and forgetting an item, through its services;
+
+the last three for machines without the ``ros2`` command line.
 """
 
 from __future__ import annotations
 
 import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Annotated, Any
 
 import typer
@@ -118,55 +124,179 @@ def run_command(
     raise typer.Exit(code)
 
 
+def _full(node: str) -> str:
+    return node if node.startswith("/") else "/" + node
+
+
+class _NoAnswer(Exception):
+    """A node's service could not be reached or did not answer; the message says which."""
+
+
+@contextmanager
+def _client_node() -> Iterator[Any]:
+    """A short-lived node of this command's own, in a context of its own."""
+    _ready()
+    import rclpy
+    from rclpy.utilities import try_shutdown
+
+    rclpy.init()
+    node = rclpy.create_node("ktbt_cli")
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        try_shutdown()
+
+
+def _call(client_node: Any, srv_type: Any, service: str, request: Any, timeout: float) -> Any:
+    """``service``'s answer to ``request``, waiting for the service at most ``timeout`` s and
+    as long again for the answer; raises :class:`_NoAnswer` with one line."""
+    import rclpy
+
+    client = client_node.create_client(srv_type, service)
+    try:
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise _NoAnswer(f"no service {service} found within {timeout:g} s")
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(client_node, future, timeout_sec=timeout)
+        result = future.result()
+        if result is None:
+            raise _NoAnswer(f"{service} did not answer within {timeout:g} s")
+        return result
+    finally:
+        client_node.destroy_client(client)
+
+
+Timeout = Annotated[float, typer.Option(help="Seconds to wait for the node.")]
+
+
 @ros2.command("lifecycle")
 def lifecycle_command(
     node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
     transition: Annotated[
         str, typer.Argument(help="configure, activate, deactivate, cleanup, shutdown, or get.")
     ],
-    timeout: Annotated[float, typer.Option(help="Seconds to wait for the node.")] = 10.0,
+    timeout: Timeout = 10.0,
 ) -> None:
     """Change a managed node's state (or print it, with get) through its lifecycle services."""
     if transition not in (*TRANSITIONS, "get"):
         _say(f"error: {transition!r}: use {', '.join(TRANSITIONS)} or get")
         raise typer.Exit(2)
-    if not node.startswith("/"):
-        node = "/" + node
-    _ready()
-    import rclpy
-    from lifecycle_msgs.srv import ChangeState, GetState
+    node = _full(node)
+    with _client_node() as client_node:
+        from lifecycle_msgs.srv import ChangeState, GetState
 
-    rclpy.init()
-    client_node = rclpy.create_node("ktbt_lifecycle")
-    code = 1
-    try:
-        if transition == "get":
-            client = client_node.create_client(GetState, f"{node}/get_state")
-            request: Any = GetState.Request()
-        else:
-            client = client_node.create_client(ChangeState, f"{node}/change_state")
-            request = ChangeState.Request()
+        srv_type: Any = GetState if transition == "get" else ChangeState
+        request = srv_type.Request()
+        if transition != "get":
             request.transition.label = transition
-        if not client.wait_for_service(timeout_sec=timeout):
-            _say(f"error: no lifecycle node {node} found within {timeout:g} s")
-        else:
-            future = client.call_async(request)
-            rclpy.spin_until_future_complete(client_node, future, timeout_sec=timeout)
-            result = future.result()
-            if result is None:
-                _say(f"error: {node} did not answer within {timeout:g} s")
-            elif transition == "get":
-                typer.echo(result.current_state.label)
-                code = 0
-            elif result.success:
-                typer.echo(f"{node}: {transition} done")
-                code = 0
-            else:
-                _say(f"error: {node} refused {transition} (see its log)")
-    finally:
-        client_node.destroy_node()
-        rclpy.shutdown()
-    raise typer.Exit(code)
+        service = f"{node}/{'get_state' if transition == 'get' else 'change_state'}"
+        try:
+            done = _call(client_node, srv_type, service, request, timeout)
+        except _NoAnswer as exc:
+            _say(f"error: {exc}")
+            raise typer.Exit(1) from None
+    if transition == "get":
+        typer.echo(done.current_state.label)
+        return
+    if not done.success:
+        _say(f"error: {node} refused {transition} (see its log)")
+        raise typer.Exit(1)
+    typer.echo(f"{node}: {transition} done")
+
+
+def _shown(key: str) -> str:
+    """A sequence key as people type it; one that does not parse is shown quoted."""
+    from ktbt_proto.errors import StringBTError
+    from ktbt_proto.exchange.knowledge import show_sequence
+
+    try:
+        return show_sequence(key)
+    except StringBTError:
+        return repr(key)
+
+
+def _key(option: str, text: str) -> str:
+    """A sequence as typed, in wire form; a mistake is one line and exit 2."""
+    from ktbt_proto.errors import StringBTError
+    from ktbt_proto.exchange.knowledge import sequence_key
+    from ktbt_proto.merge import conditions
+
+    try:
+        return sequence_key(conditions([text]))
+    except StringBTError as err:
+        _say(f"error: {option} {text!r}: {err.code} {err.message}")
+        raise typer.Exit(2) from None
+
+
+@ros2.command("list")
+def list_command(
+    node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
+    until: Annotated[
+        str | None,
+        typer.Option(help="Wait (up to --timeout) until the robot knows this sequence."),
+    ] = None,
+    timeout: Timeout = 10.0,
+) -> None:
+    """What a robot knows, each item with its author, teacher and time (its ~/list_knowledge
+    service)."""
+    wanted = _key("--until", until) if until is not None else None
+    node = _full(node)
+    with _client_node() as client_node:
+        from ktbt_interfaces.srv import ListKnowledge
+
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                items = _call(
+                    client_node,
+                    ListKnowledge,
+                    f"{node}/list_knowledge",
+                    ListKnowledge.Request(),
+                    max(0.1, deadline - time.monotonic()),
+                ).items
+            except _NoAnswer as exc:
+                _say(f"error: {exc}")
+                raise typer.Exit(1) from None
+            if wanted is None or any(item.sequence == wanted for item in items):
+                break
+            if time.monotonic() >= deadline:
+                _say(f"error: {node} did not know {_shown(wanted)} within {timeout:g} s")
+                raise typer.Exit(1)
+            time.sleep(0.1)  # polling the robot's service, at most ten times a second
+    typer.echo(f"{node}: {len(items)} skill{'s' * (len(items) != 1)}")
+    for item in items:
+        origin = [
+            f"{name} {value}"
+            for name, value in (("author", item.author), ("teacher", item.teacher))
+            if value
+        ]
+        typer.echo(f"  {_shown(item.sequence)}" + (f"  ({', '.join(origin)})" if origin else ""))
+
+
+@ros2.command("forget")
+def forget_command(
+    node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
+    sequence: Annotated[str, typer.Argument(help="The item's sequence: 'TargetSeen(colour=2)'.")],
+    timeout: Timeout = 10.0,
+) -> None:
+    """Make a robot forget a learned item (its ~/forget service)."""
+    key = _key("SEQUENCE", sequence)
+    node = _full(node)
+    with _client_node() as client_node:
+        from ktbt_interfaces.srv import Forget
+
+        try:
+            done = _call(
+                client_node, Forget, f"{node}/forget", Forget.Request(sequence=key), timeout
+            )
+        except _NoAnswer as exc:
+            _say(f"error: {exc}")
+            raise typer.Exit(1) from None
+    if not done.forgotten:
+        _say(f"error: {node}: {done.message}")
+        raise typer.Exit(1)
+    typer.echo(f"{node}: forgot {_shown(key)}")
 
 
 def register(app: typer.Typer) -> None:

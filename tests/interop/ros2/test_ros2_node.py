@@ -77,6 +77,11 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     merged = probe.wait("/learner/ktbt/events", 10, event="merged", teacher="teacher")
     assert merged["sequence"] == WANTED and merged["peer"] == "learner"
     assert "learned TargetSeen(colour=2) from teacher" in ns.log("learner")
+    listed = ns.run("ros2", "list", "/learner/ktbt", "--until", "TargetSeen(colour=2)")
+    assert (listed.returncode, listed.stdout) == (
+        0,
+        "/learner/ktbt: 1 skill\n  TargetSeen(colour=2)  (teacher teacher)\n",
+    )
 
     # The YAML file's parameters applied: the fleet's topics and their QoS, the rates, what to
     # meet.
@@ -131,6 +136,16 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
         "sequences: 'TargetSeen(colour=': SBT"
     )
     probe.wait("/learner/ktbt/tree", 60, skip=shown, tree="AssignCollectionPoint,colour=3")
+    forgot_3 = ns.run("ros2", "forget", "/learner/ktbt", "TargetSeen(colour=3)")
+    assert (forgot_3.returncode, forgot_3.stdout) == (
+        0,
+        "/learner/ktbt: forgot TargetSeen(colour=3)\n",
+    )
+    unknown = ns.run("ros2", "forget", "/learner/ktbt", "TargetSeen(colour=3)")
+    assert (unknown.returncode, unknown.stderr) == (
+        1,
+        "error: /learner/ktbt: TargetSeen(colour=3) is not known\n",
+    )
 
 
 def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(

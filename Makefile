@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-fast lint typecheck pytest bench studies fuzz interop soak ros2 clean
+.PHONY: demo test test-fast lint typecheck docs pytest bench studies fuzz interop soak ros2 clean
 
 # The ROS 2 wheels (the dev extra brings them) depend on lark-parser 0.12, which writes the same
 # lark/ folder as lark 1.x (added to an environment that has lark already, it wins) and type
@@ -35,11 +35,16 @@ lint: $(VENV)/.installed-dev
 typecheck: $(VENV)/.installed-dev
 	$(BIN)/mypy
 
+# The documentation site (docs/, Sphinx with MyST) into build/docs/, warnings as errors; the
+# command-line reference is generated from the ktbt command as it builds.
+docs: $(VENV)/.installed-dev
+	$(BIN)/sphinx-build -W --keep-going -q -b html docs build/docs
+
 pytest: $(VENV)/.installed-dev
 	$(BIN)/python -m ktbt_proto.interop.ros2.interfaces build
 	$(BIN)/python -m pytest
 
-test: lint typecheck pytest
+test: lint typecheck docs pytest
 
 # The quick loop (under a minute): every test but the slow ones and those that start processes
 # or zenoh sessions. `make test` runs them all.

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import ktbt_proto as kp
-from ktbt_proto.syntax import _lark
+from ktbt_proto.syntax import _lark, parse_reference
 
 from .timing import Stats, interleaved, machine, markdown_table, time_once, write_json
 
@@ -95,7 +95,7 @@ def _check_inputs(compact: str, pretty: str, big: str, big_limits: kp.Limits) ->
     for text, limits in ((compact, kp.DEFAULT_LIMITS), (pretty, kp.DEFAULT_LIMITS)):
         tree = kp.parse(text, limits=limits)
         kp.validate(tree, limits=limits)
-        assert tree == kp.parse_reference(text, limits=limits)
+        assert tree == parse_reference(text, limits=limits)
     big_tree = kp.parse(big, limits=big_limits)
     kp.validate(big_tree, limits=big_limits)
     if kp.format_tree(big_tree) != big:

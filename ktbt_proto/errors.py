@@ -53,6 +53,10 @@ class ErrorCode(StrEnum):
     BEHAVIOUR_FAILED = ("SBT403", "the application's code failed to build or set up a behaviour")
     # Warnings: the tree is valid, but probably not what was meant.
     NOT_KNOWLEDGE = ("SBT501", "a placeholder holds a node that is not a knowledge item")
+    ACTIONS_RERUN = (
+        "SBT502",
+        "a knowledge item whose earlier actions run again while a later one is RUNNING",
+    )
 
 
 class StringBTError(Exception):

@@ -1,7 +1,9 @@
 """Files: the package's own data, bounded reads, and the one durable write.
 
 Packaged data (the grammar, the examples) is found one way, :func:`packaged`, through
-``importlib.resources``, so a wheel and a source checkout read the same files.
+``importlib.resources``, so a wheel and a source checkout read the same files. A file someone
+else may have written (a key, a trust store, a knowledge base, a tree) is read one way,
+:func:`read_bounded`, so a path such as ``/dev/zero`` is refused, not read until memory runs out.
 
 Durable file replacement is the one way the project writes a file that must survive a crash.
 
@@ -29,6 +31,27 @@ def packaged(*parts: str) -> Path:
     ``packaged("grammar", "stringbt.lark")``. The package is installed as files (a wheel or a
     source checkout), so the resource is a real path other processes can be handed."""
     return Path(str(importlib.resources.files("ktbt_proto").joinpath(*parts)))
+
+
+class TooLarge(ValueError):
+    """A file larger than its reader accepts (``read_bounded``)."""
+
+
+def read_at_most(path: str | os.PathLike[str], limit: int) -> bytes:
+    """The first ``limit + 1`` bytes of ``path`` at most: enough for a reader with its own
+    positioned error (the stringBT parser's size limit) to refuse a larger file without ever
+    holding all of it; raises ``OSError`` as ``open`` does."""
+    with open(path, "rb") as f:
+        return f.read(limit + 1)
+
+
+def read_bounded(path: str | os.PathLike[str], limit: int) -> bytes:
+    """At most ``limit`` bytes of ``path``; raises :class:`TooLarge` for a larger file (only
+    ``limit + 1`` bytes are ever read) and ``OSError`` as ``open`` does."""
+    data = read_at_most(path, limit)
+    if len(data) > limit:
+        raise TooLarge(f"{path} is larger than {limit} bytes")
+    return data
 
 
 def temporary_name(final: Path) -> Path:

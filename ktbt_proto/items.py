@@ -10,6 +10,7 @@ base all read items and sequences here, so that the language never depends on th
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Iterable
 from dataclasses import replace
@@ -19,11 +20,27 @@ from ktbt_proto.errors import ErrorCode, ParseError, StringBTError
 from ktbt_proto.formatter import format_tree, format_value
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
 from ktbt_proto.syntax import parse
-from ktbt_proto.tree import Condition, Node, Placeholder, SequenceNode, Tree, as_node, walk
+from ktbt_proto.tree import (
+    Action,
+    Condition,
+    Container,
+    Node,
+    Placeholder,
+    SequenceNode,
+    Tree,
+    Wait,
+    WaitTimer,
+    as_node,
+    walk,
+)
 
 __all__ = [
+    "actions_rerun",
+    "find_warnings",
+    "item_digest",
     "parse_sequence",
     "read_sequence",
+    "sequence_digest",
     "sequence_key",
     "show_sequence",
     "split_item",
@@ -31,9 +48,40 @@ __all__ = [
 ]
 
 
-def sequence_key(conditions: Iterable[Condition]) -> str:
-    """The canonical form of a condition sequence: how knowledge is looked up and asked for."""
-    return "".join(format_tree(c, "compact") for c in conditions)
+def sequence_key(sequence: str | Iterable[Condition | str]) -> str:
+    """The canonical form of a condition sequence: how knowledge is looked up and asked for
+    (``spec/protocol.md`` section 1). The one way to get a key: a ``str`` is a key already
+    (``<c>(A)<c>(!B)``) and is returned as it is; otherwise each element is a ``Condition`` or
+    the text people type for one or more (``"TargetSeen(colour=2)"``, read by
+    :func:`read_sequence`). Raises ``StringBTError`` for text that is not a condition."""
+    if isinstance(sequence, str):
+        return sequence
+    parts: list[str] = []
+    for element in sequence:
+        if isinstance(element, Condition):
+            parts.append(format_tree(element, "compact"))
+        elif isinstance(element, str):
+            parts.extend(format_tree(c, "compact") for c in read_sequence(element))
+        else:
+            raise ParseError(
+                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {element!r}"
+            )
+    return "".join(parts)
+
+
+def sequence_digest(key: str) -> str:
+    """The digest of a condition sequence: SHA-256 of its key (UTF-8), hexadecimal. A fleet
+    event names the item it is about by it (``spec/protocol.md`` section 10)."""
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def item_digest(key: str, subtree: Tree | Node) -> str:
+    """The digest of a knowledge item, its sequence and its subtree: the first 16 hexadecimal
+    digits of SHA-256 over ``key``, a newline and the compact subtree (UTF-8). Two items with
+    the same digest teach the same thing; the fleet checks a saved item against its author's by
+    it, and the BehaviorTree.CPP sidecar names its files by it (``spec/stringbt.md`` 12.1)."""
+    text = f"{key}\n{format_tree(subtree, 'compact')}"
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
 @lru_cache(maxsize=1024)
@@ -219,3 +267,71 @@ def stray_nodes(tree: Tree | Node) -> list[StringBTError]:
                         )
                     )
     return found
+
+
+def actions_rerun(tree: Tree | Node) -> list[StringBTError]:
+    """Warnings (``SBT502``) for the re-run trap of the flat item form (spec/stringbt.md,
+    section 4.1): in a reactive ``<sq>`` every tick starts again at the first child, so an
+    action that succeeded runs again on every tick while a later one is RUNNING (``grasp, turn
+    30/60, grasp, turn 60/60, push``). Looked for in knowledge items, the children of
+    placeholders and a root that is an item, at any depth inside them: a reactive sequence
+    with an action in one child and, in a later child, an action, a wait or a TT1 timer (which
+    may return RUNNING). The memory form, the actions in one ``<msq>``, runs each once.
+    Which actions finish in the tick they start is the robot's to know, not the text's, so
+    this is a warning: the tree stays valid."""
+    root = as_node(tree)
+    items = [root] if split_item(root) is not None else []
+    for node, _ in walk(root):
+        if isinstance(node, Placeholder):
+            items.extend(child for child in node.children if split_item(child) is not None)
+    found = []
+    for item in items:
+        stack = [item]
+        while stack:  # placeholders inside an item: their items are looked at on their own
+            node = stack.pop()
+            if isinstance(node, SequenceNode) and not node.memory:
+                trap = _rerun(node.children)
+                if trap is not None:
+                    found.append(trap)
+            if isinstance(node, Container) and not isinstance(node, Placeholder):
+                stack.extend(reversed(node.children))
+    return sorted(found, key=lambda w: (w.line, w.column))
+
+
+def _rerun(children: tuple[Node, ...]) -> StringBTError | None:
+    """The warning for one reactive sequence's children, None if no action there is re-run."""
+    first: Action | None = None
+    for child in children:
+        if first is not None:
+            later = _first(child, (Action, Wait, WaitTimer))
+            if later is not None:
+                return StringBTError(
+                    ErrorCode.ACTIONS_RERUN,
+                    f"{format_tree(first, 'compact')} runs again on every tick while "
+                    f"{_shown(later)} is RUNNING: if it must run once, put the actions in "
+                    "one <msq>...<e> (the memory form)",
+                    first.line,
+                    first.column,
+                )
+        if first is None:
+            found = _first(child, (Action,))
+            first = found if isinstance(found, Action) else None
+    return None
+
+
+def _first(node: Node, kinds: tuple[type[Node], ...]) -> Node | None:
+    """The first node of one of ``kinds`` in ``node``, in document order."""
+    return next((n for n, _ in walk(node) if isinstance(n, kinds)), None)
+
+
+def _shown(node: Node) -> str:
+    if isinstance(node, Action | Wait):
+        return format_tree(node, "compact")
+    return "a <tt1> timer"
+
+
+def find_warnings(tree: Tree | Node) -> list[StringBTError]:
+    """Every warning about a valid tree (``SBT5xx``), in document order: what ``ktbt check``
+    prints besides :func:`~ktbt_proto.validate.find_problems`'s problems, without counting
+    them as problems (spec/stringbt.md, section 11)."""
+    return sorted([*stray_nodes(tree), *actions_rerun(tree)], key=lambda w: (w.line, w.column))

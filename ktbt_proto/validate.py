@@ -8,7 +8,6 @@ validation is also what a robot uses to refuse knowledge it cannot execute.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -17,6 +16,7 @@ from typing import Protocol
 
 from ktbt_proto.errors import ErrorCode, LimitError, StringBTError, ValidationError
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import NAME_RE
 from ktbt_proto.tree import (
     Action,
@@ -49,10 +49,9 @@ class SupportsNames(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class Vocabulary:
-    """The condition and action names a robot knows, without their implementations.
-
-    Loaded from a TOML file (``conditions = [...]``, ``actions = [...]``) by ``ktbt check
-    --registry``; a runtime registry answers the same two questions.
+    """The condition and action names a robot knows, without their arguments: the two questions
+    validation asks of any registry. For a vocabulary file with its arguments' types and ranges
+    checked too, use :func:`~ktbt_proto.registry.load_vocabulary`, which gives a ``Registry``.
     """
 
     conditions: frozenset[str]
@@ -70,21 +69,10 @@ class Vocabulary:
 
     @classmethod
     def load(cls, path: str | Path) -> Vocabulary:
-        """Read a TOML vocabulary file; raises ``ValueError`` with a one-line reason."""
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise ValueError(f"cannot read registry {path}: {exc}") from None
-        lists: dict[str, list[str]] = {}
-        for key in ("conditions", "actions"):
-            value = data.get(key, [])
-            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-                raise ValueError(f"registry {path}: '{key}' must be a list of names")
-            lists[key] = value
-        unknown = set(data) - {"conditions", "actions"}
-        if unknown:
-            raise ValueError(f"registry {path}: unknown keys {sorted(unknown)}")
-        return cls.of(lists["conditions"], lists["actions"])
+        """The names of a vocabulary file (spec/stringbt.md, section 5.1); raises
+        ``ValueError`` with a one-line reason."""
+        registry = Registry.load(path)
+        return cls(registry.conditions, registry.actions)
 
 
 def _problem(code: ErrorCode, message: str, node: Node) -> ValidationError:

@@ -13,12 +13,14 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 
+from ktbt_proto.tools.cli.options import example
+
 if TYPE_CHECKING:
     from ktbt_sim.experiment import Executor, Job
     from ktbt_sim.scenario import Scenario
 
 sim = typer.Typer(
-    help="The search-and-rescue simulator: run the paper's studies, plot them, watch a run.",
+    help="The search-and-rescue simulator.",
     no_args_is_help=True,
 )
 
@@ -135,7 +137,8 @@ def sweep(
 
 
 Workers = Annotated[
-    int, typer.Option("--workers", "-j", help="Parallel processes (default 0: all cores).")
+    int,
+    typer.Option("--workers", "-j", metavar="N", help="Parallel processes (default 0: all cores)."),
 ]
 
 
@@ -145,29 +148,33 @@ def _workers(workers: int) -> int:
     return workers or os.cpu_count() or 1
 
 
-@sim.command("run")
+@sim.command("run", epilog=example("ktbt sim run ktbt --trials 4 --out results"))
 def run_command(
     target: Annotated[str, typer.Argument(help="A study, a preset or a scenario file.")],
-    trials: Annotated[int | None, typer.Option(help="Trials per scenario.")] = None,
-    iterations: Annotated[int | None, typer.Option(help="Iterations per trial.")] = None,
-    seed: Annotated[int | None, typer.Option(help="Root seed of the trials.")] = None,
+    trials: Annotated[int | None, typer.Option(metavar="N", help="Trials per scenario.")] = None,
+    iterations: Annotated[
+        int | None, typer.Option(metavar="N", help="Iterations per trial.")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(metavar="N", help="Root seed of the trials.")] = None,
     workers: Workers = 0,
-    out: Annotated[Path, typer.Option(help="Output folder (resumable).", readable=False)] = Path(
-        "results"
-    ),
+    out: Annotated[
+        Path, typer.Option(metavar="FOLDER", help="Output folder (resumable).", readable=False)
+    ] = Path("results"),
     executor: Annotated[
         Literal["local", "ray"], typer.Option(help="local (process pool) or ray.")
     ] = "local",
     address: Annotated[
-        str | None, typer.Option(help="Ray cluster address (default: a local Ray).")
+        str | None,
+        typer.Option(metavar="ADDRESS", help="Ray cluster address (default: a local Ray)."),
     ] = None,
     release_csv: Annotated[
         bool,
         typer.Option(help="Also write each trial in the release's 35-column CSV format."),
     ] = False,
 ) -> None:
-    """Run a study; an interrupted run restarted with the same --out runs only what is
-    missing."""
+    """Run a study, a preset or a scenario file.
+
+    An interrupted run restarted with the same --out runs only what is missing."""
     scenarios = _scenarios(target, trials, iterations, seed)
     ran, before, seconds = sweep(scenarios, out, _workers(workers), executor, address)
     if release_csv:
@@ -182,15 +189,18 @@ def run_command(
     typer.echo(f"ran {ran} trial{'s' * (ran != 1)} in {seconds:.1f} s{kept}; results in {out}")
 
 
-@sim.command("compare")
+@sim.command("compare", epilog=example("ktbt sim compare results/ktbt release/ktbt"))
 def compare_command(
     ours: Annotated[Path, typer.Argument(help="A scenario folder (ours or a release one).")],
     theirs: Annotated[Path, typer.Argument(help="Another, e.g. a release SimData folder.")],
     out: Annotated[
-        Path | None, typer.Option(help="Write OUT.png and OUT.md beside the printed table.")
+        Path | None,
+        typer.Option(metavar="FOLDER", help="Write OUT.png and OUT.md beside the printed table."),
     ] = None,
 ) -> None:
-    """Two runs of one configuration side by side: the numbers and one figure."""
+    """Two runs of one configuration side by side.
+
+    The numbers, and one figure."""
     from ktbt_sim.compare import compare
 
     try:
@@ -199,13 +209,15 @@ def compare_command(
         raise _fail(str(exc)) from None
 
 
-@sim.command("plot")
+@sim.command("plot", epilog=example("ktbt sim plot results"))
 def plot_command(
     directory: Annotated[
         Path, typer.Argument(help="An output folder of `ktbt sim run`.", readable=False)
     ],
 ) -> None:
-    """Draw every figure the folder has data for (PNG and SVG) and a summary table."""
+    """Draw every figure a run's folder has data for.
+
+    PNG and SVG, and a summary table."""
     from ktbt_sim.plots import plot
     from ktbt_sim.results import load
 
@@ -222,7 +234,7 @@ def plot_command(
         typer.echo(str(path))
 
 
-@sim.command("list")
+@sim.command("list", epilog=example("ktbt sim list"))
 def list_command() -> None:
     """Studies and presets."""
     from ktbt_sim.scenario import PRESETS, STUDIES
@@ -239,11 +251,13 @@ def list_command() -> None:
         )
 
 
-@sim.command("scenario")
+@sim.command("scenario", epilog=example("ktbt sim scenario ktbt > mine.json"))
 def scenario_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")],
 ) -> None:
-    """Print a scenario as JSON (a starting point for a file of your own) and, on standard
+    """Print a scenario as JSON.
+
+    It is a starting point for a file of your own; on standard
     error, the physical values its numbers stand for in the release (radius in units, seconds
     per iteration), so that the output stays a file one can save."""
     for scenario in _scenarios(target, None, None, None):
@@ -252,38 +266,50 @@ def scenario_command(
             typer.echo(f"# {key}: {value:g}", err=True)
 
 
-@sim.command("view")
+@sim.command("view", epilog=example("ktbt sim view ktbt --record run.gif"))
 def view_command(
     target: Annotated[str, typer.Argument(help="A preset or a scenario file.")] = "ktbt",
-    seed: Annotated[int, typer.Option(help="Seed of the run.")] = 0,
+    seed: Annotated[int, typer.Option(metavar="N", help="Seed of the run.")] = 0,
     record: Annotated[
         Path | None,
         typer.Option(
+            metavar="PATH",
             help="Write frames headless: out.gif, or a folder (no suffix) of PNGs.",
             readable=False,
         ),
     ] = None,
-    frames: Annotated[int, typer.Option(help="Frames to record.")] = 150,
+    frames: Annotated[int, typer.Option(metavar="N", help="Frames to record.")] = 150,
     every: Annotated[
-        int, typer.Option(help="Iterations between recorded frames (default: 30,000 in all).")
+        int,
+        typer.Option(
+            metavar="N", help="Iterations between recorded frames (default: 30,000 in all)."
+        ),
     ] = 200,
     iterations: Annotated[
-        int, typer.Option(help="Watching: close the window after this many (0: when you quit).")
+        int,
+        typer.Option(
+            metavar="N", help="Watching: close the window after this many (0: when you quit)."
+        ),
     ] = 0,
     publish_events: Annotated[
         str | None,
-        typer.Option(help="Stream the robots' events (ktbt monitor) from this endpoint."),
+        typer.Option(
+            metavar="ENDPOINT", help="Stream the robots' events (ktbt monitor) from this endpoint."
+        ),
     ] = None,
     wait_monitor: Annotated[
         float,
         typer.Option(
+            metavar="SECONDS",
             help="With --publish-events: seconds to wait for a monitor before the first step, "
             "watching or recording headless alike, so it sees the run from its start "
-            "(0: start at once; inf: wait for ever)."
+            "(0: start at once; inf: wait for ever).",
         ),
     ] = 30.0,
 ) -> None:
-    """Watch a run: space pauses, right arrow steps, +/- change speed, q quits."""
+    """Watch a run in a window, or record it headless.
+
+    Space pauses, right arrow steps, +/- change speed, q quits."""
     for option, value, least in (
         ("--seed", seed, 0),
         ("--frames", frames, 1),
@@ -355,12 +381,16 @@ def _connectable(endpoint: str) -> str:
 
 
 def demo_command(
-    out: Annotated[Path, typer.Option(help="Output folder.", readable=False)] = Path("ktbt-demo"),
-    trials: Annotated[int, typer.Option(help="Trials per group.")] = 4,
-    iterations: Annotated[int, typer.Option(help="Iterations per trial.")] = 30_000,
+    out: Annotated[
+        Path, typer.Option(metavar="FOLDER", help="Output folder.", readable=False)
+    ] = Path("ktbt-demo"),
+    trials: Annotated[int, typer.Option(metavar="N", help="Trials per group.")] = 4,
+    iterations: Annotated[int, typer.Option(metavar="N", help="Iterations per trial.")] = 30_000,
     workers: Workers = 0,
 ) -> None:
-    """The paper's main result in about a minute: KT-BT against both no-transfer baselines."""
+    """The paper's main result in about a minute.
+
+    KT-BT against both no-transfer baselines."""
     _need_sim()
     from ktbt_sim.plots import plot
     from ktbt_sim.scenario import PRESETS, STUDIES
@@ -387,4 +417,4 @@ def demo_command(
 def register(app: typer.Typer) -> None:
     """Entry point of ``ktbt.commands``: add ``sim`` and ``demo`` to the ``ktbt`` app."""
     app.add_typer(sim, name="sim")
-    app.command("demo")(demo_command)
+    app.command("demo", epilog=example("ktbt demo --out ktbt-demo"))(demo_command)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 if TYPE_CHECKING:
-    from ktbt_proto.exchange.agent import Agent
+    from ktbt_proto.exchange.application import ApplicationTimedAgent
     from ktbt_proto.transport.memory import MemoryNetwork
     from ktbt_sim.scenario import Scenario
     from ktbt_sim.sensing import Proximity, TargetSensor
@@ -68,7 +68,7 @@ class Trial(Protocol):
     answered_at: dict[int, int]
     proximity: Proximity
     sensor: TargetSensor
-    agents: list[Agent]
+    agents: list[ApplicationTimedAgent]
     names: list[str]
     network: MemoryNetwork
     sequence_keys: list[str]

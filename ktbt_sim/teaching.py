@@ -1,6 +1,7 @@
 """Knowledge transfer as the release does it (``spec/simulator.md`` §8), over real messages.
 
-Each iteration, after the behaviour trees and the actuators (§8.5):
+The robots' agents are application-timed (``ApplicationTimedAgent``, ``spec/protocol.md``
+section 4.1). Each iteration, after the behaviour trees and the actuators (§8.5):
 
 1. **Comms scan** (§8.2): every robot that is not querying and has neighbours takes as its
    requester the first neighbour, in order of entry into range, that is querying and not yet
@@ -8,18 +9,18 @@ Each iteration, after the behaviour trees and the actuators (§8.5):
    requester it had: a stale requester can still be answered.
 2. **Asking** (§8.1): a free robot (neither waiting nor cooling down) that has registered a
    target, carries nothing and does not know the target's colour broadcasts a query
-   (``Agent.ask``) and starts a wait. A query stays answerable for the whole wait: when a robot
+   (``ask``) and starts a wait. A query stays answerable for the whole wait: when a robot
    comes into range of an asker still untaught, the asker sends it the query
-   (``Agent.announce``), as if it had heard it all along.
-3. **Waits that ended** close their queries (``Agent.close_query``: a query never answered is
+   (``announce``), as if it had heard it all along.
+3. **Waits that ended** close their queries (``close_query``: a query never answered is
    lost) and clear the querying and teaching flags (§7).
 4. **TeachingRule** (§8.2, §8.3): a free robot that is not querying, carries nothing and has a
-   requester answers it (``Agent.answer``) if it knows what the requester asked, the requester
+   requester answers it (``answer``) if it knows what the requester asked, the requester
    is still untaught and knows fewer colours than the memory size. It answers nobody else, even
    a later neighbour it could answer. A requester a teacher still holds after it moved out of
    range can be answered, and hears new questions from it too (the release's teacher reads
    its requester's question wherever it is). The learner's agent checks and merges the answer
-   (``Agent.receive``); a taught learner is skipped by every later teacher, so there is exactly
+   (``receive``); a taught learner is skipped by every later teacher, so there is exactly
    one teacher per query. The teacher then waits and cools down; the learner keeps waiting for
    the rest of its wait.
 

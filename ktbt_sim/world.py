@@ -22,8 +22,9 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.transport.memory import MemoryNetwork
 from ktbt_sim import geometry, motion, records, teaching
 from ktbt_sim import robot as rb
@@ -188,16 +189,16 @@ class World:
         self.names = [f"r{i}" for i in range(n)]
         self.registry = rb.registry(self)
         """The behaviours: they write their effects into this world's arrays (``state``)."""
-        self.agents: list[Agent] = []
-        overhear = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}.get(scenario.mode, "off")
+        self.agents: list[ApplicationTimedAgent] = []
+        modes: dict[Mode, Overhear] = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}
+        overhear = modes.get(scenario.mode, "off")
         for i, kind in enumerate(self.kinds):
-            agent = Agent(
+            agent = ApplicationTimedAgent(
                 self.names[i],
                 rb.control_tree(rb.KINDS[kind]),
                 self.registry,
                 self.network.join(self.names[i]),
-                overhear=overhear,  # type: ignore[arg-type]
-                buffer_size=4,  # at most one answer a colour (§9.4)
+                ear=Ear(overhear, buffer_size=4),  # at most one answer a colour (§9.4)
             )
             if scenario.memory_when_full == "evict":
                 # The release counts known colours; the tree's common item (carry to the zone)

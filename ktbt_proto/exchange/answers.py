@@ -1,8 +1,10 @@
 """Answers: what a robot that knows a sequence sends back, and what its catalog lists.
 
-One way to make an answer (``spec/protocol.md`` section 2 and section 7): the item's compact
-stringBT, its author's signature kept, or, unsigned, signed by the holder as its author when it
-has a key pair. Servers, fleet members, the zenoh binding and in-memory agents' streams all use
+One way to make an answer (``spec/protocol.md`` sections 2 and 7): the item's compact stringBT,
+its author's signature kept, or, unsigned, signed by the holder as its author when it has a key
+pair (:func:`signed_answer`); then the response to one query, hop-signed by the peer that sends
+it (:func:`answer_to`). An agent's teach tree, an application-timed agent (the simulator's), the
+zenoh binding's knowledge servers and fleet members, and in-memory agents' streams all use
 these functions.
 """
 
@@ -12,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
+from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.formatter import format_tree
 
@@ -25,6 +28,20 @@ def signed_answer(item: Knowledge, identity: Identity | None) -> SignedItem:
     if identity is not None:
         return identity.sign_item(item.key, subtree)
     return SignedItem(subtree)
+
+
+def answer_to(
+    query: Query, sender: str, item: Knowledge | SignedItem, identity: Identity | None
+) -> Response:
+    """The response ``sender`` gives to ``query`` from ``item`` (an item it holds, or one
+    already made by :func:`signed_answer`), hop-signed with ``identity`` when it has a key pair
+    (section 7). Raises pydantic's ``ValidationError`` if it is too large to send (section 1):
+    no peer could accept it."""
+    signed = item if isinstance(item, SignedItem) else signed_answer(item, identity)
+    response = Response.of(
+        query.id, sender, query.sequence, signed.subtree, signed.author, signed.signature
+    )
+    return identity.sign_reply(response) if identity is not None else response
 
 
 def answers(

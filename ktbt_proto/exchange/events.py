@@ -16,7 +16,6 @@ whatever is oversized, malformed, or signed with a signature that does not verif
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 import time
@@ -44,6 +43,8 @@ from ktbt_proto.exchange.messages import (
     _wire_fields,
 )
 from ktbt_proto.exchange.signing import Identity, verify
+from ktbt_proto.exchange.transferlog import Event
+from ktbt_proto.items import sequence_digest
 
 PREFIX = "ktbt/v1/events"
 MAX_EVENT_BYTES = 8192
@@ -57,15 +58,15 @@ DEFAULT_RATE = 200.0
 DEFAULT_BURST = 400
 """Events a publisher may send at once after a quiet spell."""
 
-KEPT_KINDS = frozenset({"merged", "forgotten", "refused"})
+KEPT_KINDS = frozenset({Event.MERGED, Event.FORGOTTEN, Event.REFUSED})
 """What changes the fleet view (a tree's knowledge, a refusal) takes its own bucket, apart from
 queries and answers: a busy peer's merges and forgets are never dropped for its chatter."""
 
 _DIGEST = r"^[0-9a-f]{64}$"
 
 _KIND = r"^[a-z][a-z-]{0,31}$"
-"""An event's kind: one of section 8's (``EVENTS``); a receiver shows a kind it does not know
-as it came, so a log that learns a new kind publishes it without a new model."""
+"""An event's kind: one of section 8's (``transferlog.Event``); a receiver shows a kind it does
+not know as it came, so a log that learns a new kind publishes it without a new model."""
 
 
 class FleetEvent(BaseModel):
@@ -113,11 +114,6 @@ class FleetEvent(BaseModel):
 _ADAPTER: TypeAdapter[FleetEvent] = TypeAdapter(FleetEvent)
 
 
-def digest(sequence: str) -> str:
-    """An item's digest: SHA-256 of its canonical compact sequence (UTF-8), hexadecimal."""
-    return hashlib.sha256(sequence.encode("utf-8")).hexdigest()
-
-
 def signed_bytes(event: FleetEvent) -> bytes:
     """What a peer signs: ``"ktbt/v1/event" NUL`` and the event's JSON without ``sig``, keys
     sorted, no spaces, non-ASCII as UTF-8 (every value is a string or an integer)."""
@@ -148,7 +144,9 @@ def decode_event(data: bytes, max_bytes: int = MAX_EVENT_BYTES) -> FleetEvent:
     return event
 
 
-def _clip(value: object, most: int) -> str:
+def clip(value: object, most: int) -> str:
+    """``value`` as one line of at most ``most`` characters (a peer's text is shown bounded,
+    spec/protocol.md section 10)."""
     text = " ".join(str(value).split())
     return text if len(text) <= most else text[: most - 3] + "..."
 
@@ -166,16 +164,16 @@ def from_log(entry: dict[str, Any], n: int, dropped: int = 0) -> FleetEvent:
         "dropped": dropped,
     }
     if isinstance(sequence, str):
-        fields["item"] = digest(sequence)
+        fields["item"] = sequence_digest(sequence)
         clipped = sequence[: MAX_SEQUENCE - 3] + "..."
         fields["sequence"] = sequence if len(sequence) <= MAX_SEQUENCE else clipped
     for name in ("id", "sender", "to", "teacher", "author", "where", "tick"):
         if entry.get(name) is not None:
             fields[name] = entry[name]
     if entry.get("reason") is not None:
-        fields["reason"] = _clip(entry["reason"], MAX_REASON)
+        fields["reason"] = clip(entry["reason"], MAX_REASON)
     if entry.get("key") is not None:  # a transport's refusal: the key expression refused
-        fields["on"] = _clip(entry["key"], 200)
+        fields["on"] = clip(entry["key"], 200)
     try:
         event = FleetEvent.model_validate(fields)
     except ValidationError as exc:

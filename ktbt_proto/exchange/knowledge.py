@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.files import temporaries, write_atomic
+from ktbt_proto.files import TooLarge, read_bounded, temporaries, write_atomic
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.items import (
     parse_sequence,
@@ -104,13 +104,11 @@ class KnowledgeBase:
         return True
 
     def lookup(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
-        key = sequence if isinstance(sequence, str) else sequence_key(sequence)
-        return self._items.get(key)
+        return self._items.get(sequence_key(sequence))
 
     def remove(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
         """Forget the item answering ``sequence``; the item, or None if it was not known."""
-        key = sequence if isinstance(sequence, str) else sequence_key(sequence)
-        return self._items.pop(key, None)
+        return self._items.pop(sequence_key(sequence), None)
 
     def __contains__(self, key: object) -> bool:
         return key in self._items
@@ -183,10 +181,12 @@ class KnowledgeBase:
     def load(cls, path: str | Path, limits: Limits = DEFAULT_LIMITS) -> KnowledgeBase:
         """Read a saved base, at most ``MAX_FILE`` bytes of it (a path such as /dev/zero is
         refused, not read until memory runs out); raises ValueError or StringBTError."""
-        with open(path, "rb") as f:
-            data = f.read(MAX_FILE + 1)
-        if len(data) > MAX_FILE:
-            raise ValueError(f"{path} is larger than a knowledge file may be ({MAX_FILE} bytes)")
+        try:
+            data = read_bounded(path, MAX_FILE)
+        except TooLarge:
+            raise ValueError(
+                f"{path} is larger than a knowledge file may be ({MAX_FILE} bytes)"
+            ) from None
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError:

@@ -10,12 +10,17 @@ A server hears in one thread and looks up in zenoh's, so the buffer is guarded b
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
+from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Literal
+from typing import Any, Literal
 
+from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
 from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.receiving import Refused, check
+from ktbt_proto.exchange.signing import SignedItem
 
 Overhear = Literal["off", "update", "buffer"]
 """What a peer does with answers to others' queries."""
@@ -82,3 +87,78 @@ class Ear:
         """The sequences of the kept answers, in the order heard."""
         with self._lock:
             return list(self._buffer)
+
+
+class ServerEar:
+    """A knowledge server that overhears (section 4.3), through the one :class:`Ear` and the
+    one set of receive checks (``ktbt_proto.exchange.receiving``; the trust policy also runs in
+    the transport): an answer another peer published is added to what the server serves, at
+    once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
+    subtree is served as received, so its author's signature still holds. Lookups run in zenoh
+    callbacks while the main thread hears: one lock guards the tables. ``learned`` is told of
+    each answer learned; a refusal is counted and logged at WARNING with its reason."""
+
+    def __init__(
+        self,
+        name: str,
+        knowledge: KnowledgeBase,
+        served: Callable[[str], SignedItem | None],
+        mode: Overhear,
+        learned: Callable[[Response], None] = lambda _: None,
+        buffer_size: int = 16,
+    ) -> None:
+        self.name, self.knowledge, self.served, self.on_learned = name, knowledge, served, learned
+        self.ear = Ear(mode, buffer_size)
+        self.learned: dict[str, SignedItem] = {}
+        self.refused = 0
+        self.lock = threading.Lock()
+
+    def heard(self, message: object) -> None:
+        """A message received on the answers topic: an overheard answer, or ignored."""
+        if not isinstance(message, Response):
+            return
+        with self.lock:
+            heard = self.ear.hear(message, message.sequence in self.knowledge, self._learn)
+        if heard is Heard.FULL:
+            self._refuse(f"from {message.sender}: overheard answer, buffer full")
+
+    def lookup(self, key: str) -> SignedItem | None:
+        """What the server answers for ``key``: its own item, one it overheard, or one kept in
+        the buffer (checked and learned now)."""
+        found = self.served(key)
+        if found is not None:
+            return found
+        with self.lock:
+            found = self.learned.get(key)
+            if found is not None:
+                return found
+            kept = self.ear.take(key)
+            return self.learned.get(key) if kept is not None and self._learn(kept) else None
+
+    def catalog(self, entries: Callable[[], list[str | dict[str, Any]]]) -> Callable[[], Any]:
+        """``entries`` read under the lock, as the tables may change while zenoh reads."""
+
+        def locked() -> list[str | dict[str, Any]]:
+            with self.lock:
+                return entries()
+
+        return locked
+
+    def _learn(self, answer: Response) -> bool:
+        try:
+            conds, subtree = check(answer, answer.sequence)
+        except Refused as refused:
+            self._refuse(refused.reason)
+            return False
+        received = datetime.now(UTC).isoformat(timespec="seconds")
+        self.knowledge.add(
+            Knowledge(conds, subtree, "new", answer.sender, None, answer.author,
+                      answer.signature, received)
+        )  # fmt: skip
+        self.learned[answer.sequence] = SignedItem(answer.subtree, answer.author, answer.signature)
+        self.on_learned(answer)
+        return True
+
+    def _refuse(self, reason: str) -> None:
+        self.refused += 1
+        logging.getLogger("ktbt.peer").warning("%s refused: %s", self.name, reason)

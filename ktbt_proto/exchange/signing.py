@@ -28,6 +28,7 @@ from nacl.exceptions import CryptoError
 from nacl.signing import SigningKey, VerifyKey
 
 from ktbt_proto.exchange.messages import Response
+from ktbt_proto.files import TooLarge, read_bounded
 
 ITEM_DOMAIN = b"ktbt/v1/item\x00"
 """Prefix of the bytes an author signs, so no other signed text can be mistaken for an item."""
@@ -188,12 +189,13 @@ class Identity:
     def load(cls, path: str | Path) -> Identity:
         """Read a private key written by :meth:`save`; raises :class:`KeyFileError`."""
         try:
-            with open(path, "rb") as f:
-                data = f.read(MAX_KEY_FILE + 1)
+            data = read_bounded(path, MAX_KEY_FILE)
+        except TooLarge:
+            raise KeyFileError(
+                f"{path} is not a key file (larger than {MAX_KEY_FILE} bytes)"
+            ) from None
         except OSError as exc:
             raise KeyFileError(f"cannot read key {path}: {exc.strerror or exc}") from None
-        if len(data) > MAX_KEY_FILE:
-            raise KeyFileError(f"{path} is not a key file (larger than {MAX_KEY_FILE} bytes)")
         return cls.from_seed(_pkcs8_seed(data, path))
 
 

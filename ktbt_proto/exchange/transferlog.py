@@ -1,9 +1,10 @@
 """The transfer log: one JSON object a line for every knowledge exchange event
 (``spec/protocol.md`` section 8), so an operator can see every query, answer and refusal.
 
-Events: ``query-sent``, ``query-received``, ``answer-sent``, ``answer-received``, ``refused``
-(with its ``reason``), ``merged``, ``forgotten`` and ``error-received``. Every line has ``t``
-(UTC, ISO 8601), ``event`` and ``peer`` (whose log it is); the other fields depend on the event.
+The events are the members of :class:`Event`, the one list of their names: fleet events
+(section 10), the monitor, the fleet tool and ``ktbt log`` all use it. Every line has ``t``
+(UTC, ISO 8601), ``event`` and ``peer`` (whose log it is); the other fields depend on the event
+(a ``refused`` line carries its ``reason``).
 The log is append-only and written from several threads (zenoh callbacks, the agent's loop), so
 each line is written whole under a lock and flushed.
 
@@ -19,21 +20,31 @@ import threading
 from collections import Counter
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, TextIO
 
-EVENTS = (
-    "query-sent",
-    "query-received",
-    "answer-sent",
-    "answer-received",
-    "refused",
-    "merged",
-    "forgotten",
-    "error-received",
-    "network-error",
-    "late-answer",
-)
+
+class Event(StrEnum):
+    """Every kind of transfer-log event (``spec/protocol.md`` section 8). A member is its
+    name on the wire and in the log (``Event.MERGED == "merged"``)."""
+
+    QUERY_SENT = "query-sent"
+    QUERY_RECEIVED = "query-received"
+    ANSWER_SENT = "answer-sent"
+    ANSWER_RECEIVED = "answer-received"
+    REFUSED = "refused"
+    """An answer (or query) refused, with its ``reason``: a peer's fault or a policy's."""
+    MERGED = "merged"
+    FORGOTTEN = "forgotten"
+    ERROR_RECEIVED = "error-received"
+    """A peer's error reply (section 2)."""
+    NETWORK_ERROR = "network-error"
+    """The network's own failure, never a peer's refusal."""
+    LATE_ANSWER = "late-answer"
+    """An answer to a query already closed: counted, not merged (section 4)."""
+
+
 MAX_LINE = 1_000_000
 """A line longer than this is not read (a log is ours, but a file may be anything)."""
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.signing import KeyFileError, hop_bytes, item_bytes, public_key, verify
+from ktbt_proto.files import TooLarge, read_bounded
 
 MAX_TRUST_FILE = 1_000_000
 
@@ -56,12 +57,13 @@ class TrustStore:
     @classmethod
     def load(cls, path: str | Path) -> TrustStore:
         try:
-            with open(path, "rb") as f:
-                data = f.read(MAX_TRUST_FILE + 1)
+            data = read_bounded(path, MAX_TRUST_FILE)
+        except TooLarge:
+            raise KeyFileError(
+                f"trust store {path} is larger than {MAX_TRUST_FILE} bytes"
+            ) from None
         except OSError as exc:
             raise KeyFileError(f"cannot read trust store {path}: {exc.strerror or exc}") from None
-        if len(data) > MAX_TRUST_FILE:
-            raise KeyFileError(f"trust store {path} is larger than {MAX_TRUST_FILE} bytes")
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError:

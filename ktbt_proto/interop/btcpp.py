@@ -107,7 +107,7 @@ from ktbt_proto.tree import (
 )
 from ktbt_proto.validate import validate
 
-__all__ = ["convert", "from_xml", "to_xml"]
+__all__ = ["convert", "from_xml", "to_xml", "trees_from_xml"]
 
 MAIN_TREE = "MainTree"
 TT1, TT2, WAIT_TICKS = "KTBT_TT1", "KTBT_TT2", "KTBT_WaitTicks"
@@ -481,7 +481,9 @@ class _Importer:
     def unsupported(self, el: _El, why: str) -> NoReturn:
         self.fail(ErrorCode.UNKNOWN_TAG, f"<{el.tag}> is not supported: {why}", el)
 
-    def document(self, root: _El) -> Node:
+    def trees(self, root: _El) -> dict[str, _El]:
+        """The document's ``<BehaviorTree>`` elements by ID (the first of an ID), its model
+        read on the way."""
         if root.tag != "root":
             self.unsupported(root, "a BT.CPP document's element is <root>")
         version = root.attrs.get("BTCPP_format", "4")
@@ -497,13 +499,20 @@ class _Importer:
                         self.model[entry.attrs["ID"]] = entry.tag
             else:
                 self.unsupported(child, "a <root> holds <BehaviorTree> and <TreeNodesModel>")
+        return trees
+
+    def document(self, root: _El) -> Node:
+        trees = self.trees(root)
         main = root.attrs.get("main_tree_to_execute")
         if main is not None and main not in trees:
             self.fail(ErrorCode.EMPTY, f"no <BehaviorTree ID={main!r}> to execute", root)
         if main is None and len(trees) != 1:
             what = "no <BehaviorTree>" if not trees else "several trees, no main_tree_to_execute"
             self.fail(ErrorCode.EMPTY, what, root)
-        body = trees[main] if main is not None else next(iter(trees.values()))
+        return self.body(trees[main] if main is not None else next(iter(trees.values())))
+
+    def body(self, body: _El) -> Node:
+        """The one root node of a ``<BehaviorTree>``."""
         if not body.children:
             self.fail(ErrorCode.EMPTY, "the <BehaviorTree> holds no node", body)
         if len(body.children) > 1:
@@ -669,12 +678,9 @@ class _Importer:
         return Parallel(children, None if success == -1 else need, pos=pos)
 
 
-def from_xml(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
-    """Read a BT.CPP v4 document back into a validated stringBT tree.
-
-    Raises a :class:`StringBTError` (never an XML exception) whose line and column point into
-    the XML: malformed XML, an element or attribute stringBT cannot express, an invalid tree.
-    """
+def _reader(data: str | bytes, limits: Limits) -> _Reader:
+    """The document read as elements; a :class:`StringBTError` for what is not XML or too
+    large."""
     if len(data) > limits.max_size:
         raise LimitError(ErrorCode.TOO_LARGE, f"input larger than {limits.max_size}")
     if isinstance(data, bytes):
@@ -695,10 +701,35 @@ def from_xml(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
         raise ParseError(ErrorCode.INVALID_UTF8, "lone surrogate in the text", line, column)
     if not text.strip():
         raise ParseError(ErrorCode.EMPTY, "no XML element at all")
-    reader = _Reader(text, limits)
+    return _Reader(text, limits)
+
+
+def from_xml(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> Tree:
+    """Read a BT.CPP v4 document back into a validated stringBT tree.
+
+    Raises a :class:`StringBTError` (never an XML exception) whose line and column point into
+    the XML: malformed XML, an element or attribute stringBT cannot express, an invalid tree.
+    """
+    reader = _reader(data, limits)
     tree = Tree(_Importer(reader).document(reader.read()))
     validate(tree, limits=limits)
     return tree
+
+
+def trees_from_xml(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> dict[str, Tree]:
+    """Every ``<BehaviorTree>`` of a BT.CPP v4 document, by ID, each a validated stringBT tree
+    (a robot's skills, one tree each: :func:`ktbt_proto.interop.sidecar.read_skills`). Raises
+    as :func:`from_xml` does; a document without a tree is ``SBT`` ``EMPTY``."""
+    reader = _reader(data, limits)
+    importer = _Importer(reader)
+    root = reader.read()
+    found = importer.trees(root)
+    if not found:
+        importer.fail(ErrorCode.EMPTY, "no <BehaviorTree>", root)
+    trees = {ident: Tree(importer.body(el)) for ident, el in found.items()}
+    for tree in trees.values():
+        validate(tree, limits=limits)
+    return trees
 
 
 # -- files -----------------------------------------------------------------------------------

@@ -63,7 +63,7 @@ from ktbt_proto.tree import (
     with_children,
 )
 
-__all__ = ["PREFIX", "PyTreesControl", "py_trees_control", "tick_tree"]
+__all__ = ["PREFIX", "PyTreesControl", "known_behaviours", "py_trees_control", "tick_tree"]
 
 log = logging.getLogger("ktbt.pytrees")
 
@@ -148,7 +148,8 @@ class PyTreesControl:
     """A py_trees ``BehaviourTree`` an agent learns into and teaches from.
 
     ``registry`` is what received knowledge is checked against and what its leaves call unless
-    ``behaviours`` names the leaf (then the leaf is the user's own behaviour); ``ticks`` is the
+    ``behaviours`` names the leaf (then the leaf is the user's own behaviour; one the registry does
+    not know is an action with its factory's arguments, :func:`known_behaviours`); ``ticks`` is the
     clock ``last_used`` reads (by default this tree's own count of ticks); ``setup_kwargs`` is
     what each behaviour a merge inserts gets as ``setup(**setup_kwargs)`` (a py_trees_ros
     node, a timeout), as ``BehaviourTree.setup`` gives the tree's own. Items the user put in a
@@ -168,14 +169,16 @@ class PyTreesControl:
         limits: Limits = DEFAULT_LIMITS,
         setup_kwargs: Mapping[str, Any] | None = None,
     ) -> None:
+        _is_tree(tree)
         if any(isinstance(getattr(h, "__self__", None), PyTreesControl) for h in
                tree.pre_tick_handlers):  # fmt: skip
             raise ValueError("this BehaviourTree has a PyTreesControl already: wrap a tree once")
         self.bt = tree
-        self.registry = registry
+        self.behaviours: Behaviours = behaviours or {}
+        self.registry = known_behaviours(registry, self.behaviours)
+        """What received knowledge is checked against: ``registry`` and the behaviours."""
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.limits = limits
-        self.behaviours: Behaviours = behaviours or {}
         self.setup_kwargs: dict[str, Any] = dict(setup_kwargs or {})
         self.clock = clock
         self.ticks = 0
@@ -448,8 +451,19 @@ def py_trees_control(
     setup_kwargs: Mapping[str, Any] | None = None,
 ) -> ControlFactory:
     """What :class:`~ktbt_proto.exchange.agent.Agent` takes as its control tree to learn into
-    ``tree``:
-    the agent builds the backend around its own registry, blackboard and clock."""
+    ``tree``: the agent builds the backend around its own registry, blackboard and clock.
+    ``behaviours`` are the robot's own py_trees behaviours by leaf name, known to the agent as
+    actions with their factories' arguments (:func:`known_behaviours`): no registry entry is
+    needed for them. Raises at once, in one line, for what an agent could not learn into: not
+    a ``BehaviourTree`` (``TypeError``), or a tree without a knowledge placeholder
+    (``ValueError``, saying how to add one; spec/protocol.md section 4.4)."""
+    _is_tree(tree)
+    if not _selectors(tree.root):
+        raise ValueError(
+            "the py_trees tree has no knowledge placeholder, so an agent could learn nothing "
+            f"into it: add py_trees.composites.Selector(name='{PREFIX}new', memory=False, "
+            "children=[]) where learned knowledge should run, before the fallback"
+        )
 
     def make(registry: Registry, blackboard: Any, ticks: TickClock) -> PyTreesControl:
         return PyTreesControl(
@@ -464,6 +478,42 @@ def py_trees_control(
         )
 
     return make
+
+
+def _is_tree(tree: object) -> None:
+    """A one-line ``TypeError`` for anything but a ``BehaviourTree`` (a root behaviour, say)."""
+    if isinstance(tree, trees.BehaviourTree):
+        return
+    what = (
+        f"the behaviour {tree.name!r}"
+        if isinstance(tree, behaviour.Behaviour)
+        else f"a {type(tree).__name__}"
+    )
+    raise TypeError(
+        f"a py_trees control tree is a py_trees.trees.BehaviourTree, not {what}: pass "
+        "py_trees.trees.BehaviourTree(root)"
+    )
+
+
+def known_behaviours(registry: Registry, behaviours: Behaviours) -> Registry:
+    """``registry`` with the user's own behaviours known (a new registry; ``registry`` itself
+    when it knows them all already). A behaviour whose name ``registry`` does not know is an
+    action, and the arguments a leaf may pass are its factory's parameters (a class's
+    ``__init__``'s) without the plumbing (``name``, ``blackboard``, ``bb``), typed and ranged
+    by their annotations; a name ``registry`` knows keeps its entry there. So received
+    knowledge naming them is checked as it would be against registered behaviours, and a robot
+    needs no stand-in registration for them."""
+    new = [
+        (name, factory)
+        for name, factory in behaviours.items()
+        if not (registry.has_action(name) or registry.has_condition(name))
+    ]
+    if not new:
+        return registry
+    known = registry.copy()
+    for name, factory in new:
+        known.declare_from("action", name, factory)
+    return known
 
 
 # -- reading a py_trees tree as stringBT -------------------------------------------------------

@@ -5,18 +5,25 @@ A running BT.CPP tree cannot be edited, so a KT-BT agent beside the program lear
 section 12.1): one file per item, ``NNNNNN-<placeholder>-<digest>.xml``, whose one
 ``<BehaviorTree ID="ktbt-<placeholder>-<digest>">`` is the item ``Sequence(conditions,
 subtree)``. ``NNNNNN`` (six digits or more) numbers the items in the order they were learned,
-so the program places them in that order; the digest names the item's placeholder, condition
-sequence and subtree, so an item learned again with another subtree gets a new file. A file is
+so the program places them in that order; the item's digest (``items.item_digest``: its
+condition sequence and subtree) beside its placeholder names it, so an item learned again with
+another subtree gets a new file. A file is
 replaced whole (``ktbt_proto.files``), so the program never reads half of one, and it is removed
 at the first sync after the agent forgets its item. An item BT.CPP could not load (a node named
 like one of its built-ins) is refused with its reason, logged once and not written. The export
 only observes the agent's knowledge base (:meth:`LearnedExport.sync`, after each tick): it
 changes nothing in the agent.
+
+A BT.CPP program teaches the same way round: :func:`read_skills` reads its skills from one
+document holding one ``<BehaviorTree>`` per item, in the shape :class:`LearnedExport` writes (the
+item ``Sequence(conditions, subtree)`` as the tree's root; a ``ktbt-<placeholder>-<digest>`` ID
+names its placeholder), so what one robot exported another can serve (``ktbt peer serve
+--knowledge skills.xml``). A tree with ``k:`` placeholders (what ``ktbt convert`` makes of a
+``.sbt`` knowledge file) gives the items in its placeholders.
 """
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import re
@@ -24,13 +31,14 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.knowledge import Knowledge, remove_stale_temporaries
+from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, remove_stale_temporaries
 from ktbt_proto.files import fsync_folder, write_atomic
-from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.btcpp import btcpp_name, to_xml
+from ktbt_proto.interop.btcpp import btcpp_name, to_xml, trees_from_xml
+from ktbt_proto.items import item_digest, split_item
 from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
+from ktbt_proto.tree import Placeholder
 
-__all__ = ["LearnedExport"]
+__all__ = ["LearnedExport", "read_skills"]
 
 log = logging.getLogger(__name__)
 
@@ -40,14 +48,35 @@ _FILE = re.compile(
 _TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9]+\.[0-9a-f]+\.tmp")
 
 
-def item_digest(item: Knowledge) -> str:
-    """Names an item by its placeholder, condition sequence and subtree (section 12.1)."""
-    text = f"{item.segment}\n{item.key}\n{format_tree(item.subtree, 'compact')}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+_TREE_ID = re.compile(r"ktbt-(?P<slot>[A-Za-z0-9_-]+)-[0-9a-f]{16}")
 
 
 def tree_id(item: Knowledge) -> str:
-    return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item)}"
+    return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item.key, item.subtree)}"
+
+
+def read_skills(data: str | bytes, slot: str = "prior") -> KnowledgeBase:
+    """The knowledge items of a BT.CPP document (spec/stringbt.md section 12.1): each
+    ``<BehaviorTree>`` is an item (its root ``Sequence(conditions, subtree)``, in the
+    placeholder its ``ktbt-<placeholder>-<digest>`` ID names, else ``slot``) or a tree whose
+    ``k:`` placeholders hold items. Raises a :class:`StringBTError` for a document that does
+    not read, ``ValueError`` naming a tree that is neither."""
+    kb = KnowledgeBase()
+    for ident, tree in trees_from_xml(data).items():
+        if any(isinstance(node, Placeholder) for node, _ in tree.walk()):
+            for item in KnowledgeBase.from_tree(tree):
+                kb.add(item)
+            continue
+        split = split_item(tree.root)
+        if split is None:
+            raise ValueError(
+                f"<BehaviorTree ID={ident!r}> is not a skill: its root must be a "
+                "ReactiveSequence of its conditions, then its actions"
+            )
+        named = _TREE_ID.fullmatch(ident)
+        segment = named["slot"].replace("-", ".") if named is not None else slot
+        kb.add(Knowledge(split[0], split[1], segment))
+    return kb
 
 
 class LearnedExport:
@@ -89,7 +118,7 @@ class LearnedExport:
         """Write the learned items (``source`` set) that have no file yet, in the order given,
         and remove the files of items no longer there. Cheap when nothing changed."""
         learned = [item for item in knowledge if item.source is not None]
-        known = frozenset((item.segment, item_digest(item)) for item in learned)
+        known = frozenset((item.segment, item_digest(item.key, item.subtree)) for item in learned)
         if known == self._known:
             return
         self.refused = {key: why for key, why in self.refused.items() if key in known}
@@ -106,7 +135,7 @@ class LearnedExport:
         for key in [key for key in self._numbers if key not in known]:
             del self._numbers[key]  # a failed write of an item forgotten since
         for item in learned:
-            key = (item.segment, item_digest(item))
+            key = (item.segment, item_digest(item.key, item.subtree))
             if key in self.files or key in self.refused:
                 continue
             try:

@@ -1,22 +1,81 @@
-"""``ktbt tour``: a short tour of the language on the example trees.
+"""The demo robot and ``ktbt tour``.
 
-It runs the same code paths as ``ktbt fmt``, ``check`` and ``show``, so what a newcomer sees
-is what the tools do, on the paper's own control tree.
+The demo robot is the search-and-rescue robot of the example knowledge (``DEMO_CONTROL`` and
+its vocabulary ``demo_registry``): what ``ktbt peer run`` and ``ktbt fleet run`` run when asked
+for (``--demo``) or when given neither ``--vocabulary`` nor ``--control``, and what the tour's
+two agents are.
+
+``ktbt tour`` is a short tour of the language on the example trees, in one screen (about 40
+lines). It runs the same code paths as ``ktbt fmt``, ``check`` and ``show``, so what a newcomer
+sees is what the tools do, on the paper's own control tree.
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 import typer
+from pydantic import Field
 
+from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.files import packaged
 from ktbt_proto.formatter import format_tree
+from ktbt_proto.registry import Registry
 from ktbt_proto.render import render
+from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
 from ktbt_proto.validate import Vocabulary, find_problems
+
+Colour = Annotated[int, Field(ge=1, le=4)]
+"""The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
+
+DEMO_CONTROL = """<sl>
+    <sq>
+        <c>(Carrying)
+        <a>(DeliverToZone)
+    <e>
+    <k>(prior)<e>
+    <k>(new)<e>
+    <a>(RandomWalk)
+<e>
+"""
+"""The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
+
+
+def demo_registry() -> Registry:
+    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
+    reg = Registry()
+    reg.flags("Carrying")
+
+    @reg.condition("TargetSeen")
+    def target_seen(bb: Blackboard, colour: Colour) -> bool:
+        return bool(bb.get("target") == colour)
+
+    @reg.action("PickTreasure")
+    def pick(bb: Blackboard) -> Status:
+        bb["Carrying"] = True
+        return SUCCESS
+
+    @reg.action("AssignCollectionPoint")
+    def assign(bb: Blackboard, colour: Colour) -> Status:
+        bb["zone"] = colour
+        return SUCCESS
+
+    @reg.action("DeliverToZone")
+    def deliver(bb: Blackboard) -> Status:
+        bb["Carrying"] = False
+        bb["delivered"] = bb.get("delivered", 0) + 1
+        return SUCCESS
+
+    @reg.action("RandomWalk")
+    def walk(bb: Blackboard) -> Status:
+        return RUNNING
+
+    return reg
+
 
 _BROKEN = """<sl>
     <sq>
@@ -27,6 +86,9 @@ _BROKEN = """<sl>
 """
 
 _UNKNOWN = "<sq><c>(TargetSeen, colour=3)<a>(PickTreasure)<a>(Teleport)<e>"
+
+# Written flat, as the paper does: the conditions, then the actions (spec section 4).
+_SKILL = "<sq><c>(TargetSeen, colour=2)<a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>"
 
 
 def _section(title: str) -> None:
@@ -40,34 +102,26 @@ def examples_folder() -> Path:
 
 
 def run_demo(examples: Path) -> int:
+    """The tour: each section one command and what it shows, in about 40 lines."""
     paper = examples / "paper_control.sbt"
-    control = examples / "sar_control.sbt"
     registry = examples / "sar_registry.toml"
-    for path in (paper, control, registry):
+    for path in (paper, registry):
         if not path.is_file():
-            typer.echo(f"error: {path} not found (pass --examples FOLDER)", err=True)
+            typer.echo(f"error: --examples: {path} not found", err=True)
             return 1
 
-    _section(f"The paper's control tree, as printed in the paper ({paper})")
-    source = paper.read_text(encoding="utf-8")
-    typer.echo(source.rstrip())
-    tree = parse(source)
-
-    _section("ktbt fmt: the pretty form (one node per line, comments kept)")
-    typer.echo(format_tree(tree).rstrip())
-
-    _section("ktbt fmt --compact: the canonical wire form (same tree, same bytes)")
-    compact = format_tree(tree, "compact")
+    _section(f"ktbt fmt --compact: the paper's control tree ({paper.name}) on the wire")
+    compact = format_tree(parse(paper.read_text(encoding="utf-8")), "compact")
     typer.echo(compact)
     rounds = 2000
     started = time.perf_counter()
     for _ in range(rounds):
         parse(compact)
     took = (time.perf_counter() - started) / rounds * 1e6
-    typer.echo(f"({len(compact)} characters; parsed in {took:.0f} µs on this machine)")
+    typer.echo(f"({len(compact)} characters, one line; parsed in {took:.0f} µs here)")
 
-    _section(f"ktbt show: the authoring form with knowledge placeholders ({control})")
-    typer.echo(render(parse(control.read_text(encoding="utf-8"))).rstrip())
+    _section("ktbt fmt: the pretty form, one node per line (a skill to teach)")
+    typer.echo(format_tree(parse(_SKILL)).rstrip())
 
     _section("ktbt check: every error has a code, a position and a caret")
     try:
@@ -75,32 +129,29 @@ def run_demo(examples: Path) -> int:
     except StringBTError as err:
         typer.echo(f"broken.sbt:{err}")
 
-    _section(f"ktbt check --registry {registry}: refusing knowledge a robot cannot execute")
+    _section(f"ktbt check --vocabulary {registry.name}: knowledge a robot cannot run")
     typer.echo(_UNKNOWN)
     vocabulary = Vocabulary.load(registry)
     for problem in find_problems(parse(_UNKNOWN), vocabulary):
         typer.echo(
             f"knowledge.sbt:{problem.line}:{problem.column}: {problem.code} {problem.message}"
         )
-    _section("Knowledge transfer: r2 meets a green target it knows nothing about")
+    _section("ktbt show: r2 meets a green target it knows nothing about")
     _transfer_showcase()
     typer.echo("")
-    typer.echo("Next: `ktbt fmt --help`, `ktbt peer --help`; spec/stringbt.md, spec/protocol.md.")
+    typer.echo("Next: ktbt fmt --help, ktbt peer --help; spec/stringbt.md, spec/protocol.md.")
     return 0
 
 
 def _transfer_showcase() -> None:
     """Two agents on the in-memory network: r1 knows the green skill, r2 asks and learns it."""
-    from ktbt_proto.exchange.agent import Agent
-    from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
+    from ktbt_proto.exchange.agent import Agent, Timing
     from ktbt_proto.transport.memory import MemoryNetwork
 
-    # Written flat, as the paper does: the conditions, then the actions (spec section 4).
-    skill = "<sq><c>(TargetSeen, colour=2)<a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>"
     net = MemoryNetwork()
-    knower = DEMO_CONTROL.replace("<k>(prior)<e>", f"<k>(prior){skill}<e>")
-    r1 = Agent("r1", knower, demo_registry(), net.join("r1"), wait_ticks=20, cooldown_ticks=20)
-    r2 = Agent("r2", DEMO_CONTROL, demo_registry(), net.join("r2"), wait_ticks=20)
+    knower = DEMO_CONTROL.replace("<k>(prior)<e>", f"<k>(prior){_SKILL}<e>")
+    r1 = Agent("r1", knower, demo_registry(), net.join("r1"), timing=Timing(wait=20, cooldown=20))
+    r2 = Agent("r2", DEMO_CONTROL, demo_registry(), net.join("r2"), timing=Timing(wait=20))
     r2.encounter(["TargetSeen(colour=2)"])
     r2.blackboard["target"] = 2
     for tick in range(1, 6):

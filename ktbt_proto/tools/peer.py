@@ -9,39 +9,39 @@ every member takes is one field there.
 
 from __future__ import annotations
 
+import json
 import logging
-import random
+import math
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
-from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
-from pydantic import Field
 from pydantic import ValidationError as PydanticError
 
-from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog, live_answers
-from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, sequence_key, show_sequence
+from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.overhearing import Ear, Heard, Overhear
+from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
 from ktbt_proto.exchange.receiving import Refused, check
-from ktbt_proto.exchange.signing import Identity, SignedItem
-from ktbt_proto.exchange.transferlog import TransferLog
-from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
+from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.exchange.trust import refusal
+from ktbt_proto.files import read_at_most, write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.sidecar import LearnedExport
+from ktbt_proto.interop.sidecar import LearnedExport, read_skills
+from ktbt_proto.items import parse_sequence
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.merge import merge
 from ktbt_proto.registry import Registry
-from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
 from ktbt_proto.transport.zenoh import (
     ZenohSettings,
@@ -51,23 +51,29 @@ from ktbt_proto.transport.zenoh import (
     peers,
     stable_zid,
 )
-from ktbt_proto.tree import Condition, Placeholder, Tree
-
-Colour = Annotated[int, Field(ge=1, le=4)]
-"""The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
-
-
-@dataclass(frozen=True)
-class Security:
-    """A peer's key pair, what it accepts (policy and trust store) and where it logs."""
-
-    identity: Identity | None = None
-    policy: Policy = Policy.ANY
-    trust: TrustStore | None = None
-    log: TransferLog | None = None
-
+from ktbt_proto.tree import Condition, Placeholder, SequenceNode, Tree
+from ktbt_proto.validate import find_problems
 
 Say = Callable[[str], None]
+
+log = logging.getLogger("ktbt.peer")
+
+LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
+"""The control tree of a robot given a vocabulary but no ``--control``: it runs only what it
+knows (what a learner beside a BehaviorTree.CPP program, ``--export-learned``, needs)."""
+CATALOG_PERIOD = 2.0
+"""Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
+(besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
+
+
+def learning_slot(tree: Tree) -> str | None:
+    """The placeholder a robot learns into: ``<k>(new)`` if its control tree has one, else its
+    last placeholder (the lowest priority in a selector); None without any (spec/protocol.md
+    section 4.5)."""
+    names = [n.name for n, _ in tree.walk() if isinstance(n, Placeholder)]
+    if not names:
+        return None
+    return "new" if "new" in names else names[-1]
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,8 @@ class Member:
     """Publish this member's fleet events (``ktbt_proto.exchange.events``, for ``ktbt monitor``)."""
     groot: int | None = None
     """A port to serve Groot2 on (and the next), loopback (spec/groot2.md)."""
+    ready: Path | None = None
+    """Where to say, once up, that this member is ready (:func:`announce_ready`)."""
 
     def transport(self, **kw: Any) -> ZenohTransport:
         """This member's zenoh peer, with its stable zenoh id."""
@@ -111,51 +119,6 @@ def shown(key: str) -> str:
         return repr(key)
 
 
-DEMO_CONTROL = """<sl>
-    <sq>
-        <c>(Carrying)
-        <a>(DeliverToZone)
-    <e>
-    <k>(prior)<e>
-    <k>(new)<e>
-    <a>(RandomWalk)
-<e>
-"""
-COLOURS = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
-
-
-def demo_registry() -> Registry:
-    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
-    reg = Registry()
-    reg.flags("Carrying")
-
-    @reg.condition("TargetSeen")
-    def target_seen(bb: Blackboard, colour: Colour) -> bool:
-        return bool(bb.get("target") == colour)
-
-    @reg.action("PickTreasure")
-    def pick(bb: Blackboard) -> Status:
-        bb["Carrying"] = True
-        return SUCCESS
-
-    @reg.action("AssignCollectionPoint")
-    def assign(bb: Blackboard, colour: Colour) -> Status:
-        bb["zone"] = colour
-        return SUCCESS
-
-    @reg.action("DeliverToZone")
-    def deliver(bb: Blackboard) -> Status:
-        bb["Carrying"] = False
-        bb["delivered"] = bb.get("delivered", 0) + 1
-        return SUCCESS
-
-    @reg.action("RandomWalk")
-    def walk(bb: Blackboard) -> Status:
-        return RUNNING
-
-    return reg
-
-
 @contextmanager
 def until_signalled() -> Iterator[threading.Event]:
     """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly."""
@@ -170,14 +133,26 @@ def until_signalled() -> Iterator[threading.Event]:
             signal.signal(sig, handler)
 
 
+def announce_ready(path: Path | None, peer: str, knows: int | None) -> None:
+    """Tell a supervisor (``ktbt fleet run``) that this process is up: one JSON object,
+    ``{"peer": NAME, "knows": N}`` (``knows`` null for a router), written whole to ``path``
+    once the session is open and, for a member, what it starts knowing is loaded. A supervisor
+    reads this, never the human-readable output, which may change."""
+    if path is not None:
+        write_atomic(path, json.dumps({"peer": peer, "knows": knows}) + "\n")
+
+
 def load_knowledge(path: str | Path) -> KnowledgeBase:
-    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve.
+    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve, or
+    (``.xml``) a BehaviorTree.CPP robot's skills (:func:`ktbt_proto.interop.sidecar.read_skills`).
     At most one byte past the size limit is read (``/dev/zero`` is refused, not read until
     memory runs out). Items too large to send, signed and all, are refused here, not at every
     query."""
-    with open(path, "rb") as f:
-        data = f.read(DEFAULT_LIMITS.max_size + 1)
-    kb = KnowledgeBase.from_tree(parse(data))
+    data = read_at_most(path, DEFAULT_LIMITS.max_size)
+    if Path(path).suffix.lower() == ".xml":
+        kb = read_skills(data)
+    else:
+        kb = KnowledgeBase.from_tree(parse(data))
     for item in kb:
         subtree = format_tree(item.subtree, "compact")
         try:  # the largest a reply can be: longest id and name, both signatures
@@ -211,83 +186,17 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
-class Overhearing:
-    """A server that overhears (spec/protocol.md section 4.3), through the one :class:`Ear`
-    and the one set of receive checks (``ktbt_proto.exchange.receiving``; the trust policy also
-    runs in
-    the transport): an answer another peer published is added to what the server serves, at
-    once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
-    subtree is served as received, so its author's signature still holds. Lookups run in zenoh
-    callbacks while the main thread hears: one lock guards the tables."""
-
-    def __init__(
-        self,
-        name: str,
-        knowledge: KnowledgeBase,
-        served: Callable[[str], SignedItem | None],
-        mode: Overhear,
-        say: Say,
-        buffer_size: int = 16,
-    ) -> None:
-        self.name, self.knowledge, self.served, self.say = name, knowledge, served, say
-        self.ear = Ear(mode, buffer_size)
-        self.learned: dict[str, SignedItem] = {}
-        self.refused = 0
-        self.lock = threading.Lock()
-
-    def heard(self, message: object) -> None:
-        if not isinstance(message, Response):
-            return
-        with self.lock:
-            heard = self.ear.hear(message, message.sequence in self.knowledge, self._learn)
-        if heard is Heard.FULL:
-            self._refuse(f"from {message.sender}: overheard answer, buffer full")
-
-    def lookup(self, key: str) -> SignedItem | None:
-        found = self.served(key)
-        if found is not None:
-            return found
-        with self.lock:
-            found = self.learned.get(key)
-            if found is not None:
-                return found
-            kept = self.ear.take(key)
-            return self.learned.get(key) if kept is not None and self._learn(kept) else None
-
-    def catalog(self, entries: Callable[[], list[str | dict[str, Any]]]) -> Callable[[], Any]:
-        def locked() -> list[str | dict[str, Any]]:
-            with self.lock:
-                return entries()
-
-        return locked
-
-    def _learn(self, answer: Response) -> bool:
-        try:
-            conds, subtree = check(answer, answer.sequence)
-        except Refused as refused:
-            self._refuse(refused.reason)
-            return False
-        received = datetime.now(UTC).isoformat(timespec="seconds")
-        self.knowledge.add(
-            Knowledge(conds, subtree, "new", answer.sender, None, answer.author,
-                      answer.signature, received)
-        )  # fmt: skip
-        self.learned[answer.sequence] = SignedItem(answer.subtree, answer.author, answer.signature)
-        self.say(f"{self.name}: learned {shown(answer.sequence)} from {answer.sender} (overheard)")
-        return True
-
-    def _refuse(self, reason: str) -> None:
-        self.refused += 1
-        logging.getLogger("ktbt.peer").info("%s refused: %s", self.name, reason)
-
-
 def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
     """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
     overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
     is shown to Groot2 (spec/groot2.md)."""
     security = member.security
-    ear = Overhearing(
-        member.name, knowledge, answers(knowledge, security.identity), member.overhear, say
+    ear = ServerEar(
+        member.name,
+        knowledge,
+        answers(knowledge, security.identity),
+        member.overhear,
+        lambda a: say(f"{member.name}: learned {shown(a.sequence)} from {a.sender} (overheard)"),
     )
     policy = security.policy
     name = member.name
@@ -304,6 +213,7 @@ def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
         ) as transport,
     ):
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
+        announce_ready(member.ready, name, len(knowledge))
         if groot is not None:
             from ktbt_proto.interop.groot2 import Groot2Publisher, knowledge_tree
 
@@ -330,9 +240,11 @@ def ask(
     say: Say,
     note: Say | None = None,
     security: Security | None = None,
+    registry: Registry | None = None,
 ) -> tuple[int, list[Response]]:
     """Ask the fleet and print each acceptable answer the moment it arrives, with its
-    provenance; an answer the policy or the receive limits refuse is shown as refused.
+    provenance; an answer the policy or the receive limits refuse is shown as refused, and so
+    is one the asker's ``registry`` (if given) could not execute (section 2).
     ``note`` is told, when no answer came, whether nobody was reachable or nobody knew: two
     different problems that look alike otherwise."""
     security = security or Security()
@@ -344,7 +256,7 @@ def ask(
         if answer.id != query.id:
             return
         try:  # shown only if it passes a robot's receive checks (numbers too)
-            _, subtree = check(answer, key, security.policy, security.trust)
+            _, subtree = check(answer, key, security.policy, security.trust, registry=registry)
         except Refused as refused:
             say(f"# refused {refused.reason}")
             return
@@ -384,64 +296,73 @@ def provenance(answer: Response) -> str:
     return f" ({', '.join(words)})" if words else ""
 
 
-BACKOFF_FIRST = 0.25
-"""Seconds a learner holds back after its first unanswered query, doubling with each one."""
-BACKOFF_MOST = 2.0
-"""The longest it holds back: knowledge that is missing is asked for again at least this often
-(after the wait and the cool-down)."""
-
-
-@dataclass
-class Backoff:
-    """When a learner may ask next (spec/protocol.md section 4.5): at once at first, then
-    after each query nobody answered, ``first`` seconds later, doubling up to ``most``; at
-    once again when it learns something or a new peer appears.
-
-    Each hold is stretched by up to ``jitter`` of itself, drawn from a generator seeded with
-    ``seed`` (the member's name): a fleet whose queries were lost together does not ask again
-    in step, and a run with the same names draws the same holds."""
-
-    first: float = BACKOFF_FIRST
-    most: float = BACKOFF_MOST
-    hold: float = 0.0
-    until: float = 0.0
-    seed: str = ""
-    jitter: float = 0.5
-    _rng: random.Random = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._rng = random.Random(f"ktbt-backoff:{self.seed}")
-
-    def lost(self, now: float) -> None:
-        self.hold = self.first if self.hold == 0 else min(self.hold * 2, self.most)
-        self.until = now + self.hold * (1 + self.jitter * self._rng.random())
-
-    def reset(self, now: float) -> None:
-        self.hold, self.until = 0.0, now
-
-    def ready(self, now: float) -> bool:
-        return now >= self.until
-
-
-def with_knowledge(control: str | Tree, knowledge: KnowledgeBase | None) -> str | Tree:
-    """The control tree with ``knowledge``'s items in their placeholders (``prior`` when the
-    tree has no placeholder of an item's name): what the agent starts knowing, and teaches."""
+def with_knowledge(
+    control: str | Tree, knowledge: KnowledgeBase | None, fallback: str = "prior"
+) -> str | Tree:
+    """The control tree with ``knowledge``'s items in their placeholders (``fallback`` when the
+    tree has no placeholder of an item's name, ``prior`` if it has one): what the agent starts
+    knowing, and teaches."""
     if knowledge is None or not len(knowledge):
         return control
     tree = parse(control) if isinstance(control, str) else control
     names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
+    fallback = "prior" if "prior" in names else fallback
     for item in knowledge:
-        slot = item.segment if item.segment in names else "prior"
+        slot = item.segment if item.segment in names else fallback
         tree = merge(tree, item.subtree, slot, when=item.conditions)
     return tree
 
 
+class Listed:
+    """The sequences a learner without ``--sequence`` meets (spec/protocol.md section 4.5):
+    those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
+    sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
+    INFO line."""
+
+    def __init__(self, name: str, registry: Registry, say: Say) -> None:
+        self.name, self.registry, self.say = name, registry, say
+        self.found: list[str] = []
+        self.skipped: set[str] = set()
+
+    def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
+        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
+        new = []
+        for peer, entries in sorted(listed.items()):
+            for entry in entries:
+                given = entry["sequence"]
+                if given in self.skipped:
+                    continue
+                try:
+                    conds = parse_sequence(given)
+                    problems = find_problems(SequenceNode(conds), self.registry)
+                except StringBTError as err:
+                    problems = [err]
+                    conds = ()
+                key = sequence_key(conds) if not problems else given
+                if key in self.found or key in self.skipped:
+                    continue
+                if problems:
+                    self.skipped.add(given)
+                    log.info(
+                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
+                        "(%s %s)",
+                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
+                    )  # fmt: skip
+                    continue
+                self.found.append(key)
+                new.append(key)
+                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
+        return new
+
+
 def run_agent(
     member: Member,
-    sequences: Sequence[str],
+    sequences: Sequence[str] | None,
     say: Say,
     *,
-    control: str = DEMO_CONTROL,
+    control: str,
+    registry: Registry,
+    slot: str = "new",
     knowledge: KnowledgeBase | None = None,
     tick_rate: float = 100.0,
     wait_ticks: int = 200,
@@ -451,14 +372,19 @@ def run_agent(
     exit_when_done: bool = False,
     export_learned: str | None = None,
 ) -> int:
-    """A fleet member that learns and teaches: it starts with ``knowledge`` (if any) and what
+    """A fleet member that learns and teaches, running ``control`` with ``registry`` and
+    learning into the placeholder ``slot``: it starts with ``knowledge`` (if any) and what
     ``knowledge_path`` saved, meets each sequence in turn until it knows it (or time runs out),
     asking again with a bounded backoff while it is missing, and at once when a new peer
-    appears; it teaches what it knows to whoever asks, and prints what it learned. Refusals are
-    logged (to stderr and, with a transfer log, there) and the summary counts all of them,
-    transport ones too; the network's own errors are counted apart. ``export_learned``: a
-    folder to mirror learned items into as BT.CPP documents (spec/stringbt.md section 12.1);
-    the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
+    appears; it teaches what it knows to whoever asks, and prints what it learned. With
+    ``sequences`` None, the sequences it meets are those its fleet's catalogs list and its
+    vocabulary can execute (:class:`Listed`), the catalogs read again whenever a peer appears
+    and every ``CATALOG_PERIOD`` seconds (section 4.5); ``exit_when_done`` then stops once it
+    knows every one found, and it has found one. Refusals are logged (to stderr and, with a
+    transfer log, there) and the summary counts all of them, transport ones too; the
+    network's own errors are counted apart. ``export_learned``: a folder to mirror learned
+    items into as BT.CPP documents (spec/stringbt.md section 12.1); the member's ``groot``:
+    serve the control tree to Groot2 (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (
@@ -470,17 +396,15 @@ def run_agent(
     ):
         robot = Agent(
             name,
-            with_knowledge(control, knowledge),
-            demo_registry(),
+            with_knowledge(control, knowledge, slot),
+            registry,
             transport,
-            wait_ticks=wait_ticks,
-            cooldown_ticks=cooldown_ticks,
+            timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
             knowledge_path=knowledge_path,
-            identity=security.identity,
-            policy=security.policy,
-            trust=security.trust,
-            log=transport.log,  # with --publish-events, a log even without --log
-            overhear=member.overhear,
+            # with --publish-events, the transport has a log even without --log
+            security=replace(security, log=transport.log),
+            ear=Ear(member.overhear),
+            slot=slot,
         )
         transport.catalog = catalog(robot.knowledge, security.identity)
         # Every query it can answer is answered at once from what it knows, as `peer serve`
@@ -500,17 +424,28 @@ def run_agent(
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
         deadline = time.monotonic() + duration
-        todo = list(sequences)
+        listed = Listed(name, registry, say) if sequences is None else None
+        todo = list(sequences) if sequences is not None else []
         period = 1.0 / tick_rate
-        say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        if listed is None:
+            say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        else:
+            say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
+        announce_ready(member.ready, name, len(robot.knowledge))
         announced = set(robot.metrics.learned)
         backoff = Backoff(seed=name)
         lost, joined = robot.metrics.queries_lost, transport.joined
+        read_at = -math.inf
         while not stop.is_set() and time.monotonic() < deadline:
             now = time.monotonic()
+            if listed is not None and (
+                transport.joined != joined or now - read_at >= CATALOG_PERIOD
+            ):
+                read_at = now
+                todo += listed.read(catalogs(transport, timeout=0.5))
             while todo and robot.knows([todo[0]]):
                 todo.pop(0)
-            if not todo and exit_when_done:
+            if not todo and exit_when_done and (listed is None or listed.found):
                 break
             if transport.joined != joined:  # a new neighbour: it may know
                 joined = transport.joined
@@ -537,10 +472,12 @@ def run_agent(
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")
-        return 0 if all(robot.knows([s]) for s in sequences) else 1
+        met = listed.found if listed is not None else list(sequences or ())
+        return 0 if all(robot.knows([s]) for s in met) else 1
 
 
-def router(settings: ZenohSettings, say: Say) -> int:
+def router(settings: ZenohSettings, say: Say, ready: Path | None = None) -> int:
+    """A zenoh router on ``settings``' endpoints until stopped (spec/protocol.md section 3)."""
     routed = ZenohSettings(
         listen=settings.listen,
         connect=settings.connect,
@@ -552,6 +489,7 @@ def router(settings: ZenohSettings, say: Say) -> int:
         session = open_session(routed)
         try:
             say(f"router listening on {', '.join(settings.listen) or 'the configured endpoints'}")
+            announce_ready(ready, "router", None)
             stop.wait()
         finally:
             session.close()  # type: ignore[no-untyped-call]

@@ -6,6 +6,7 @@ depends on threads or wall-clock time.
 
 from __future__ import annotations
 
+import logging
 import random
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -13,6 +14,8 @@ from dataclasses import dataclass, field
 
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.transport import Message, Received
+
+log = logging.getLogger("ktbt.memory")
 
 InRange = Callable[[str, str], bool]
 
@@ -89,9 +92,16 @@ class MemoryNetwork:
             member = self._members.get(receiver)
             if member is not None and not member.closed:
                 if len(member._inbox) >= self.inbox_limit:
-                    # Full: the newcomer is refused and counted; what came first (the first
-                    # answer, which wins) stays.
+                    # Full: the newcomer is refused, counted and logged; what came first (the
+                    # first answer, which wins) stays (spec/protocol.md section 2).
                     member.refused += 1
+                    log.warning(
+                        "%s refused: inbox full (%d messages): a %s from %s is dropped",
+                        receiver,
+                        self.inbox_limit,
+                        message.type,
+                        message.sender,
+                    )
                     continue
                 member._inbox.append(message)
                 self.delivered += 1

@@ -7,9 +7,11 @@ from __future__ import annotations
 import json
 import threading
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from typing import Any
 
 from ktbt_proto.exchange.answers import catalog
+from ktbt_proto.exchange.core import AgentCore
 from ktbt_proto.exchange.events import DEFAULT_RATE, EventPublisher
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
 from ktbt_proto.exchange.transferlog import TransferLog
@@ -31,7 +33,9 @@ class AgentStream:
     served from that copy; a control tree is never changed in place, only replaced, so it is
     read as it is."""
 
-    def __init__(self, agents: Iterable[Any], settings: Any, rate: float = DEFAULT_RATE) -> None:
+    def __init__(
+        self, agents: Iterable[AgentCore], settings: Any, rate: float = DEFAULT_RATE
+    ) -> None:
         try:
             self._session = open_session(settings)
         except Exception as exc:  # zenoh's own error: a bad endpoint, a port in use
@@ -53,7 +57,7 @@ class AgentStream:
             self.close()
             raise
 
-    def _stream(self, agent: Any, entries: Callable[[], list[Any]], rate: float) -> None:
+    def _stream(self, agent: AgentCore, entries: Callable[[], list[Any]], rate: float) -> None:
         name = agent.name
         publisher, declared = EventPublisher.on_session(self._session, name, rate=rate)
         self._declared.append(declared)
@@ -77,10 +81,11 @@ class AgentStream:
             self._session.declare_queryable(f"{PREFIX}/catalog/{name}", on_catalog)
         )
         self._declared.append(self._session.declare_queryable(f"{PREFIX}/tree/{name}", on_tree))
-        agent.log = agent.log or TransferLog(None)
+        log = agent.security.log or TransferLog(None)
+        agent.security = replace(agent.security, log=log)
         for sink in (publisher, changed):
-            agent.log.add_sink(sink)
-            self._logs.append((agent.log, sink))
+            log.add_sink(sink)
+            self._logs.append((log, sink))
 
     def _seen(self, name: str) -> None:
         """``name``'s catalog was read: it counts if every agent's events have a subscriber."""

@@ -41,10 +41,12 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import zenoh
+from pydantic import ValidationError
 
+from ktbt_proto.exchange.answers import answer_to
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
@@ -88,6 +90,13 @@ def stable_zid(name: str) -> str:
     return digest.hex()
 
 
+MemberMode = Literal["peer", "client"]
+"""How a fleet member's session joins: a peer among peers, or a client through a router
+(spec/protocol.md section 3)."""
+Mode = Literal[MemberMode, "router"]
+"""How a session joins; ``router`` serves fleets that span subnets (``ktbt peer router``)."""
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to reach the fleet. ``config`` is a zenoh JSON5 file (TLS, mTLS, user/password...);
@@ -97,7 +106,7 @@ class ZenohSettings:
     listen: Sequence[str] = ()
     connect: Sequence[str] = ()
     config: str | Path | None = None
-    mode: str = "peer"
+    mode: Mode = "peer"
     multicast_scouting: bool = False
     zid: str | None = None
     """The session's zenoh id (``stable_zid(name)`` for a fleet member); None: a random one."""
@@ -169,7 +178,7 @@ class ZenohTransport:
     screen: Callable[[Response], str | None] | None = None
     """The asker's check of a reply's signatures (its trust policy), run before the reply takes
     its sender's one place in a get, so that a forgery on a peer's key cannot keep that peer's
-    genuine answer out. An agent sets it (``Agent`` gives its policy)."""
+    genuine answer out. An agent sets it (its ``security`` gives the policy and store)."""
     publish_answers: bool = False
     """Publish a copy of every answer this peer sends on ``ktbt/v1/answers/<name>`` (section
     4.3), so that peers that overhear can learn it; off, nothing extra is sent."""
@@ -254,10 +263,11 @@ class ZenohTransport:
         self._get(message, self.query_timeout)
 
     def _refuse(self, reason: str, **fields: Any) -> None:
-        """Count, log and record one refusal (spec section 2: every refusal is counted)."""
+        """Count, log at WARNING and record one refusal (spec section 2: every refusal is
+        counted and logged with its reason)."""
         with self._lock:
             self.refused += 1
-        log.info("%s refused: %s", self.name, reason)
+        log.warning("%s refused: %s", self.name, reason)
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
@@ -526,16 +536,18 @@ class ZenohTransport:
         self._deliver(message)
 
     def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
-        """A knowledge server's answer, given inside the callback."""
+        """A knowledge server's answer, given inside the callback, made by ``answer_to`` as
+        every answer is (spec section 2 and section 7)."""
         found = lookup(message.sequence)
         if found is None:
             return
         item = found if isinstance(found, SignedItem) else SignedItem(found)
-        response = Response.of(
-            message.id, self.name, message.sequence, item.subtree, item.author, item.signature
-        )
-        if self.identity is not None:
-            response = self.identity.sign_reply(response)
+        try:
+            response = answer_to(message, self.name, item, self.identity)
+        except ValidationError as exc:  # too large to send: no peer could accept it
+            reason = exc.errors()[0].get("msg", "invalid")
+            log.warning("%s cannot answer %s: %s", self.name, message.sequence[:80], reason)
+            return
         payload = encode(response)
         query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
         self.answered += 1

@@ -13,9 +13,11 @@ import networkx as nx
 import pytest
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.transport import MemoryNetwork, MemoryTransport
 from tests.zenoh_helpers import wait_until
 
@@ -44,10 +46,26 @@ def registry() -> kp.Registry:
     return reg
 
 
-def agent(net: MemoryNetwork, name: str, tree: str = CONTROL, **kw: object) -> Agent:
-    kw.setdefault("wait_ticks", 5)
-    kw.setdefault("cooldown_ticks", 5)
-    return Agent(name, tree, registry(), net.join(name), **kw)  # type: ignore[arg-type]
+def agent(
+    net: MemoryNetwork,
+    name: str,
+    tree: str = CONTROL,
+    *,
+    wait: int = 5,
+    cooldown: int = 5,
+    repeat_every: int = 0,
+    log: TransferLog | None = None,
+    knowledge_path: str | Path | None = None,
+) -> Agent:
+    return Agent(
+        name,
+        tree,
+        registry(),
+        net.join(name),
+        timing=Timing(wait, cooldown, repeat_every),
+        security=Security(log=log),
+        knowledge_path=knowledge_path,
+    )
 
 
 def run(net: MemoryNetwork, agents: list[Agent], ticks: int) -> None:
@@ -76,7 +94,7 @@ def test_lemma_1_two_agents_in_range() -> None:
 
 def test_out_of_range_the_query_is_lost_and_not_repeated_during_cooldown() -> None:
     net = MemoryNetwork(in_range=lambda a, b: False)
-    k, i = agent(net, "k", KNOWER), agent(net, "i", wait_ticks=5, cooldown_ticks=20)
+    k, i = agent(net, "k", KNOWER), agent(net, "i", wait=5, cooldown=20)
     i.encounter(SEQUENCE)
     run(net, [k, i], 10)
     assert not i.knows(SEQUENCE)
@@ -171,7 +189,7 @@ def test_bad_answers_are_refused_and_an_honest_peer_teaches_later(
 ) -> None:
     net = MemoryNetwork()
     liar = Liar(net, answer, sequence)
-    learner = agent(net, "i", wait_ticks=4, cooldown_ticks=3)
+    learner = agent(net, "i", wait=4, cooldown=3)
     before = kp.format_tree(learner.control.tree, "compact")
     learner.encounter(SEQUENCE)
     for _ in range(3):
@@ -191,9 +209,9 @@ def test_bad_answers_are_refused_and_an_honest_peer_teaches_later(
 
 def test_teacher_answers_only_what_it_knows_and_one_query_per_cooldown() -> None:
     net = MemoryNetwork()
-    k = agent(net, "k", KNOWER, cooldown_ticks=50)
-    askers = [agent(net, f"a{n}", wait_ticks=10) for n in range(3)]
-    unknown = agent(net, "u", wait_ticks=10)
+    k = agent(net, "k", KNOWER, cooldown=50)
+    askers = [agent(net, f"a{n}", wait=10) for n in range(3)]
+    unknown = agent(net, "u", wait=10)
     unknown.encounter(["TargetSeen(colour=4)"])
     for a in askers:
         a.encounter(SEQUENCE)
@@ -240,8 +258,8 @@ def _learn_forever(path: str, ready: str) -> None:
     colours = range(1, 10_000)
     skills = "".join(f"<sq><c>(TargetSeen, colour={c})<a>(Pick, colour={c})<e>" for c in colours)
     net = MemoryNetwork()
-    teacher = agent(net, "k", f"<sl><k>(prior){skills}<e><k>(new)<e><a>(Walk)<e>", cooldown_ticks=0)
-    learner = agent(net, "i", knowledge_path=path, cooldown_ticks=0)
+    teacher = agent(net, "k", f"<sl><k>(prior){skills}<e><k>(new)<e><a>(Walk)<e>", cooldown=0)
+    learner = agent(net, "i", knowledge_path=path, cooldown=0)
     for colour in colours:
         learner.encounter([f"TargetSeen(colour={colour})"])
         while not learner.knows([f"TargetSeen(colour={colour})"]):
@@ -317,8 +335,8 @@ def test_a_failed_save_is_a_refusal_not_a_crash(tmp_path: Path) -> None:
 
 def test_teaching_does_not_cut_the_own_wait_short() -> None:
     net = MemoryNetwork()
-    a = agent(net, "a", KNOWER, wait_ticks=30, cooldown_ticks=5)
-    b = agent(net, "b", wait_ticks=30, cooldown_ticks=5)
+    a = agent(net, "a", KNOWER, wait=30, cooldown=5)
+    b = agent(net, "b", wait=30, cooldown=5)
     a.encounter(["TargetSeen(colour=7)"])  # nobody knows it: a waits its full 30 ticks
     b.encounter(SEQUENCE)  # a teaches b meanwhile
     run(net, [a, b], 10)
@@ -342,8 +360,8 @@ def test_an_item_is_merged_once_whatever_the_duplicates_reordering_and_re_asks(
     rng = random.Random(seed)
     net = MemoryNetwork()
     log = TransferLog(tmp_path / "i.log")
-    teachers = [agent(net, f"k{n}", KNOWER, cooldown_ticks=0) for n in range(4)]
-    learner = agent(net, "i", wait_ticks=50, cooldown_ticks=1, repeat_every=3, log=log)
+    teachers = [agent(net, f"k{n}", KNOWER, cooldown=0) for n in range(4)]
+    learner = agent(net, "i", wait=50, cooldown=1, repeat_every=3, log=log)
     learned = 0
     for _ in range(3):
         learner.encounter(SEQUENCE)
@@ -375,7 +393,7 @@ def test_an_answer_after_the_wait_is_late_not_refused(tmp_path: Path) -> None:
 
     net = MemoryNetwork()
     log = TransferLog(tmp_path / "i.log")
-    learner = agent(net, "i", wait_ticks=3, cooldown_ticks=50, log=log)
+    learner = agent(net, "i", wait=3, cooldown=50, log=log)
     slow = net.join("k")
     learner.encounter(SEQUENCE)
     run(net, [learner], 8)  # asked, waited, lost

@@ -4,18 +4,20 @@ close, with real messages on the in-memory network and the same checks as the tr
 from __future__ import annotations
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
 
-def trio(audience: dict[str, list[str]] | None = None) -> tuple[Agent, Agent, Agent]:
+def trio(
+    audience: dict[str, list[str]] | None = None,
+) -> tuple[ApplicationTimedAgent, ApplicationTimedAgent, ApplicationTimedAgent]:
     hears = audience or {}
     net = MemoryNetwork(audience=(lambda s: hears.get(s, ["l", "t", "x"])) if hears else None)
-    learner = Agent("l", CONTROL, registry(), net.join("l"))
-    teacher = Agent("t", KNOWER, registry(), net.join("t"))
-    other = Agent("x", CONTROL, registry(), net.join("x"))
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    other = ApplicationTimedAgent("x", CONTROL, registry(), net.join("x"))
     return learner, teacher, other
 
 
@@ -63,7 +65,7 @@ def test_a_second_answer_and_an_answer_after_the_wait_are_late_not_refused() -> 
 def test_only_the_latest_closed_queries_are_remembered() -> None:
     learner, _, _ = trio()
     first = learner.ask(SEQUENCE)
-    for _ in range(Agent.RECENT_QUERIES):
+    for _ in range(ApplicationTimedAgent.RECENT_QUERIES):
         learner.ask(SEQUENCE)  # each ask closes the one before
     learner.close_query()
     old = Response(id=first.id, sender="t", sequence=first.sequence, subtree="<a>(Pick)")

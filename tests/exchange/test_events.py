@@ -17,7 +17,6 @@ from ktbt_proto.exchange.events import (
     EventPublisher,
     FleetEvent,
     decode_event,
-    digest,
     encode_event,
     from_log,
     schema_text,
@@ -25,7 +24,8 @@ from ktbt_proto.exchange.events import (
 )
 from ktbt_proto.exchange.messages import MessageRefused
 from ktbt_proto.exchange.signing import Identity
-from ktbt_proto.exchange.transferlog import EVENTS, TransferLog
+from ktbt_proto.exchange.transferlog import Event, TransferLog
+from ktbt_proto.items import sequence_digest
 
 SPEC = Path(__file__).resolve().parents[2] / "spec"
 SEQ = "<c>(TargetSeen,colour=2)"
@@ -69,17 +69,17 @@ def test_a_log_may_have_sinks_and_no_file() -> None:
 def test_every_kind_the_log_records_can_be_published() -> None:
     out: list[bytes] = []
     publish = EventPublisher("r1", out.append)
-    for kind in EVENTS:
+    for kind in Event:
         publish({"t": "2026-12-01T00:00:00.000+00:00", "event": kind, "peer": "r1"})
     publish({"t": "x", "event": "Not A Kind", "peer": "r1"})  # never raises into the log
-    assert [decode_event(p).event for p in out] == list(EVENTS)
+    assert [decode_event(p).event for p in out] == list(Event)
     assert publish.dropped == 1
 
 
 def test_an_event_names_its_item_by_digest_and_round_trips() -> None:
     entry = {"t": "2026-12-01T00:00:00.000+00:00", "event": "merged", "peer": "r1"}
     event = from_log({**entry, "sequence": SEQ, "teacher": "t", "tick": 4}, 3)
-    assert event.item == digest(SEQ) and len(event.item or "") == 64
+    assert event.item == sequence_digest(SEQ) and len(event.item or "") == 64
     assert decode_event(encode_event(event)) == event
 
 
@@ -95,7 +95,7 @@ def test_hostile_fields_are_clipped_or_left_out_and_the_event_stays_small() -> N
     }
     event = from_log(entry, 0)
     assert event.sender is None
-    assert event.item == digest(entry["sequence"])
+    assert event.item == sequence_digest(entry["sequence"])
     assert len(event.reason or "") == 200 and len(event.on or "") == 200
     assert len(encode_event(event)) <= MAX_EVENT_BYTES - 200
     assert decode_event(encode_event(event)) == event

@@ -12,8 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.transport import MemoryNetwork
 
 COLOURS = (1, 2, 3, 4)
@@ -47,14 +48,17 @@ def registry() -> kp.Registry:
     return reg
 
 
-def pair(control: str = CONTROL, **memory: object) -> tuple[Agent, Agent]:
+def pair(
+    control: str = CONTROL, **memory: object
+) -> tuple[ApplicationTimedAgent, ApplicationTimedAgent]:
     net = MemoryNetwork()
-    learner = Agent("l", control, registry(), net.join("l"), memory=MemoryPolicy(**memory))  # type: ignore[arg-type]
-    teacher = Agent("t", KNOWS_ALL, registry(), net.join("t"))
+    policy = MemoryPolicy(**memory)  # type: ignore[arg-type]
+    learner = ApplicationTimedAgent("l", control, registry(), net.join("l"), memory=policy)
+    teacher = ApplicationTimedAgent("t", KNOWS_ALL, registry(), net.join("t"))
     return learner, teacher
 
 
-def teach(learner: Agent, teacher: Agent, colour: int) -> bool:
+def teach(learner: ApplicationTimedAgent, teacher: ApplicationTimedAgent, colour: int) -> bool:
     learner.ask([f"TargetSeen(colour={colour})"])
     teacher.receive()
     query = teacher.heard("l")
@@ -65,7 +69,7 @@ def teach(learner: Agent, teacher: Agent, colour: int) -> bool:
     return accepted and learner.knows([f"TargetSeen(colour={colour})"])
 
 
-def see(agent: Agent, colour: int | None, ticks: int = 1) -> None:
+def see(agent: ApplicationTimedAgent, colour: int | None, ticks: int = 1) -> None:
     agent.blackboard["target"] = colour
     for _ in range(ticks):
         agent.now += 1
@@ -131,15 +135,15 @@ def test_forgetting_reaches_the_saved_file_and_the_log(tmp_path: Path) -> None:
 
     net = MemoryNetwork()
     path = tmp_path / "l.json"
-    learner = Agent(
+    learner = ApplicationTimedAgent(
         "l",
         CONTROL,
         registry(),
         net.join("l"),
         knowledge_path=path,
-        log=TransferLog(tmp_path / "l.log"),
+        security=Security(log=TransferLog(tmp_path / "l.log")),
     )
-    teacher = Agent("t", KNOWS_ALL, registry(), net.join("t"))
+    teacher = ApplicationTimedAgent("t", KNOWS_ALL, registry(), net.join("t"))
     assert teach(learner, teacher, 2)
     assert len(json.loads(path.read_text())["knowledge"]) == 1
     assert learner.forget(["TargetSeen(colour=2)"]) is True

@@ -6,20 +6,28 @@ from __future__ import annotations
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
 
-def trio(overhear: str, **kw: object) -> tuple[Agent, Agent, Agent, MemoryNetwork]:
+def trio(
+    overhear: Overhear,
+    security: Security = Security(),  # noqa: B008
+) -> tuple[ApplicationTimedAgent, ApplicationTimedAgent, ApplicationTimedAgent, MemoryNetwork]:
     net = MemoryNetwork(overhear=True)
-    learner = Agent("l", CONTROL, registry(), net.join("l"))
-    teacher = Agent("t", KNOWER, registry(), net.join("t"))
-    ear = Agent("e", CONTROL, registry(), net.join("e"), overhear=overhear, **kw)  # type: ignore[arg-type]
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    ear = ApplicationTimedAgent(
+        "e", CONTROL, registry(), net.join("e"), ear=Ear(overhear), security=security
+    )
     return learner, teacher, ear, net
 
 
-def exchange(learner: Agent, teacher: Agent) -> None:
+def exchange(learner: ApplicationTimedAgent, teacher: ApplicationTimedAgent) -> None:
     learner.ask(SEQUENCE)
     teacher.receive()
     query = teacher.heard("l")
@@ -42,9 +50,13 @@ def test_update_learns_an_overheard_answer_at_once() -> None:
 
 
 def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
-    learner, teacher, ear, net = trio("buffer")
+    net = MemoryNetwork(overhear=True)
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    ear = Agent("e", CONTROL, registry(), net.join("e"), ear=Ear("buffer"))  # tree-timed
     exchange(learner, teacher)
-    assert ear.receive() == 0
+    ear.tick()  # reads the transport; nothing encountered yet, so nothing asked
+    assert ear.metrics.learned_passive == 0 and ear.metrics.queries_sent == 0
     assert not ear.knows(SEQUENCE) and ear.buffered == ["<c>(TargetSeen,colour=2)"]
     ear.blackboard["target"] = 2
     ear.encounter(SEQUENCE)  # the tree's learner meets the sequence
@@ -65,12 +77,12 @@ def test_off_refuses_an_answer_addressed_to_another() -> None:
 
 def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None:
     net = MemoryNetwork(overhear=True)
-    learner = Agent("l", CONTROL, registry(), net.join("l"))
-    teacher = Agent("t", KNOWER, registry(), net.join("t"))
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
     reg = kp.Registry()
     reg.add_condition("TargetSeen", lambda bb, colour: False)
     reg.add_action("Walk", lambda bb: kp.SUCCESS)
-    ear = Agent("e", CONTROL, reg, net.join("e"), overhear="update")  # it cannot Pick
+    ear = ApplicationTimedAgent("e", CONTROL, reg, net.join("e"), ear=Ear("update"))  # no Pick
     before = kp.format_tree(ear.control.tree, "compact")
     exchange(learner, teacher)
     assert ear.receive() == 0
@@ -80,7 +92,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
 
 
 def test_an_overheard_answer_is_trusted_no_more_than_a_direct_one() -> None:
-    learner, teacher, ear, _net = trio("update", policy=Policy.SIGNED)
+    learner, teacher, ear, _net = trio("update", Security(policy=Policy.SIGNED))
     exchange(learner, teacher)  # the teacher signs nothing
     assert ear.receive() == 0 and not ear.knows(SEQUENCE)
     assert ear.metrics.refused == 1
@@ -91,9 +103,9 @@ def test_a_full_buffer_refuses_the_newcomer() -> None:
     knows_two = KNOWER.replace(
         "<e><k>(new)", "<sq><c>(TargetSeen, colour=3)<a>(Pick, colour=3)<e><e><k>(new)"
     )
-    learner = Agent("l", CONTROL, registry(), net.join("l"))
-    teacher = Agent("t", knows_two, registry(), net.join("t"))
-    ear = Agent("e", CONTROL, registry(), net.join("e"), overhear="buffer", buffer_size=1)
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", knows_two, registry(), net.join("t"))
+    ear = ApplicationTimedAgent("e", CONTROL, registry(), net.join("e"), ear=Ear("buffer", 1))
     for colour in (2, 3):
         learner.ask([f"TargetSeen(colour={colour})"])
         teacher.receive()

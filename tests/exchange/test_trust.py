@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import pytest
 from cryptography.exceptions import InvalidSignature
@@ -19,7 +19,7 @@ from pydantic import Field
 from typer.testing import CliRunner
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import (
     MessageRefused,
@@ -29,6 +29,7 @@ from ktbt_proto.exchange.messages import (
     encode,
     schema_text,
 )
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import (
     Identity,
     KeyFileError,
@@ -85,10 +86,24 @@ def registry() -> kp.Registry:
     return reg
 
 
-def agent(net: MemoryNetwork, name: str, tree: str = CONTROL, **kw: Any) -> Agent:
-    kw.setdefault("wait_ticks", 20)
-    kw.setdefault("cooldown_ticks", 5)
-    return Agent(name, tree, registry(), net.join(name), **kw)
+def agent(
+    net: MemoryNetwork,
+    name: str,
+    tree: str = CONTROL,
+    *,
+    security: Security = Security(),  # noqa: B008
+    repeat_every: int = 0,
+    knowledge_path: str | Path | None = None,
+) -> Agent:
+    return Agent(
+        name,
+        tree,
+        registry(),
+        net.join(name),
+        timing=Timing(wait=20, cooldown=5, repeat_every=repeat_every),
+        security=security,
+        knowledge_path=knowledge_path,
+    )
 
 
 def run(net: MemoryNetwork, agents: list[Agent], ticks: int) -> None:
@@ -288,9 +303,9 @@ def test_trusted_learner_refuses_unsigned_and_forged_answers_and_learns_the_sign
     store = TrustStore.parse(f"{author.public}\n")
     net = MemoryNetwork()
     log = TransferLog(tmp_path / "i.log")
-    learner = agent(net, "i", policy=Policy.TRUSTED, trust=store, log=log)
-    teacher = agent(net, "t", KNOWER, identity=author)
-    relay = agent(net, "r", identity=teacher_key)
+    learner = agent(net, "i", security=Security(policy=Policy.TRUSTED, trust=store, log=log))
+    teacher = agent(net, "t", KNOWER, security=Security(identity=author))
+    relay = agent(net, "r", security=Security(identity=teacher_key))
     evil = net.join("evil")
     learner.encounter(SEQUENCE)
     learner.tick()
@@ -304,13 +319,13 @@ def test_trusted_learner_refuses_unsigned_and_forged_answers_and_learns_the_sign
     assert learner.metrics.refused == 2
     # Taught onward, the item keeps its author and signature; the relay signs the hop.
     net2 = MemoryNetwork()
-    source = agent(net2, "t", KNOWER, identity=author)
-    relay = agent(net2, "r", identity=teacher_key)
+    source = agent(net2, "t", KNOWER, security=Security(identity=author))
+    relay = agent(net2, "r", security=Security(identity=teacher_key))
     relay.encounter(SEQUENCE)
     run(net2, [relay, source], 3)
     assert relay.knows(SEQUENCE)
     source.transport.close()  # gone: only the relay can teach now
-    third = agent(net2, "c", policy=Policy.TRUSTED, trust=store, repeat_every=2)
+    third = agent(net2, "c", security=Security(policy=Policy.TRUSTED, trust=store), repeat_every=2)
     third.encounter(SEQUENCE)
     run(net2, [third, relay], 12)
     learned = third.knowledge.lookup(SEQ)
@@ -350,7 +365,7 @@ def test_provenance_is_saved_and_shown(tmp_path: Path) -> None:
     author = Identity.generate()
     net = MemoryNetwork()
     learner = agent(net, "i", knowledge_path=tmp_path / "kb.json")
-    teacher = agent(net, "t", KNOWER, identity=author)
+    teacher = agent(net, "t", KNOWER, security=Security(identity=author))
     learner.encounter(SEQUENCE)
     run(net, [learner, teacher], 3)
     saved = json.loads((tmp_path / "kb.json").read_text())["knowledge"][0]
@@ -417,7 +432,7 @@ def test_a_teacher_refuses_to_send_an_answer_no_peer_could_accept() -> None:
     huge = "<sq>" + "<a>(Pick,colour=2)" * 3_500 + "<e>"  # 63,000 characters, within its limits
     tree = f"<sl><k>(prior)<sq>{SEQ}{huge}<e><e><k>(new)<e><a>(Walk)<e>"
     net = MemoryNetwork()
-    teacher = agent(net, "t", tree, identity=Identity.generate())
+    teacher = agent(net, "t", tree, security=Security(identity=Identity.generate()))
     learner = agent(net, "i")
     learner.encounter(SEQUENCE)
     run(net, [learner, teacher], 3)

@@ -8,6 +8,7 @@ the same inputs each tick and must give the same status, calls and halts.
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -17,11 +18,15 @@ from py_trees.common import Status as Pt
 
 import ktbt_proto as kp
 from ktbt_proto.control import ControlTree
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.interop import to_py_trees
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.memory import MemoryNetwork
+from tests.door_robot import FLAT as DOOR_FLAT
+from tests.door_robot import MEMORY as DOOR_MEMORY
+from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
+from tests.door_robot import Degrees, Side, door_blackboard, door_registry
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
 FLAGS = ("_collisionDetectedF", "_waitF", "_treasureOnBoardF", "_inZoneF")
@@ -407,12 +412,12 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
-        reg, net.join("t"), wait_ticks=20, cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        reg, net.join("t"), timing=Timing(wait=20, cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     bb = kp.Blackboard(log=[])
     learner = Agent(
         "l", py_trees_control(py_trees_sar(bb, reg), behaviours=behaviours(bb)), reg,
-        net.join("l"), wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+        net.join("l"), timing=Timing(wait=20, cooldown=5), blackboard=bb,
     )  # fmt: skip
     assert isinstance(learner.control, PyTreesControl)
     assert learner.knows(["TargetSeen(colour=1)"])  # innate, read off the py_trees tree
@@ -424,8 +429,8 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
     assert learner.control.knows("new", SEEN_2)
     # It teaches what it learned, and what it was built knowing, to a third robot.
     third = Agent(
-        "x", "<sl><k>(new)<e><a>(RandomWalk)<e>", reg, net.join("x"), wait_ticks=20,
-        cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        "x", "<sl><k>(new)<e><a>(RandomWalk)<e>", reg, net.join("x"), timing=Timing(wait=20,
+        cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     for sequence in (SEEN_2, ["TargetSeen(colour=1)"]):
         third.encounter(sequence)
@@ -447,7 +452,7 @@ def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
-        reg, net.join("t"), wait_ticks=20, cooldown_ticks=5, blackboard=kp.Blackboard(log=[]),
+        reg, net.join("t"), timing=Timing(wait=20, cooldown=5), blackboard=kp.Blackboard(log=[]),
     )  # fmt: skip
     bb = kp.Blackboard(log=[])
 
@@ -458,7 +463,7 @@ def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     before = kp.format_tree(PyTreesControl(py_trees_sar(bb, reg), reg, bb).tree)
     learner = Agent(
         "l", py_trees_control(bt, behaviours={"PickTreasure": no_gripper}), reg, net.join("l"),
-        wait_ticks=20, cooldown_ticks=5, blackboard=bb,
+        timing=Timing(wait=20, cooldown=5), blackboard=bb,
     )  # fmt: skip
     learner.encounter(SEEN_2)
     for _ in range(10):
@@ -467,3 +472,131 @@ def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     assert not learner.knows(SEEN_2) and learner.metrics.refused == 1
     assert "a behaviour failed to build" in learner.metrics.refusals[0][1]
     assert kp.format_tree(learner.control.tree) == before and bt.root.children[4].children == []
+
+
+# -- a door-opening robot whose actions are its own py_trees behaviours -------------------------
+
+
+class GraspHandle(py_trees.behaviour.Behaviour):
+    """Close the gripper on the handle."""
+
+    def __init__(self, *, bb: kp.Blackboard, name: str = "GraspHandle") -> None:
+        super().__init__(name)
+        self.bb = bb
+
+    def update(self) -> Pt:
+        self.bb["log"].append("grasp")
+        return Pt.SUCCESS
+
+
+class TurnHandle(py_trees.behaviour.Behaviour):
+    """Turn the grasped handle, 30 degrees a tick."""
+
+    def __init__(self, degrees: Degrees, *, bb: kp.Blackboard, name: str = "TurnHandle") -> None:
+        super().__init__(name)
+        self.bb, self.degrees, self.turned = bb, degrees, 0
+
+    def initialise(self) -> None:
+        self.turned = 0
+
+    def update(self) -> Pt:
+        self.turned += 30
+        self.bb["log"].append(f"turn {self.turned}/{self.degrees}")
+        return Pt.RUNNING if self.turned < self.degrees else Pt.SUCCESS
+
+
+class Push(py_trees.behaviour.Behaviour):
+    """Push the door open."""
+
+    def __init__(self, *, bb: kp.Blackboard, name: str = "Push") -> None:
+        super().__init__(name)
+        self.bb = bb
+
+    def update(self) -> Pt:
+        self.bb["log"].append("push")
+        self.bb["DoorClosed"] = False
+        return Pt.SUCCESS
+
+
+def door_conditions() -> kp.Registry:
+    """What the py_trees robot registers: its two conditions, and no action at all."""
+    reg = kp.Registry()
+    reg.flags("DoorClosed")
+
+    @reg.condition("HandleSeen")
+    def handle_seen(bb: kp.Blackboard, side: Side) -> bool:
+        return bool(bb.get("handle") == side)
+
+    return reg
+
+
+def door_tree() -> py_trees.trees.BehaviourTree:
+    idle = py_trees.behaviours.Running("Idle")
+    return py_trees.trees.BehaviourTree(sel("Root", sel("k:new"), idle))
+
+
+def door_behaviours(bb: kp.Blackboard) -> dict[str, Any]:
+    return {cls.__name__: partial(cls, bb=bb) for cls in (GraspHandle, TurnHandle, Push)}
+
+
+def test_a_py_trees_robot_learns_with_its_own_behaviours_and_no_stubs() -> None:
+    """Its behaviours are its actions, typed by their classes' __init__: it learns the door
+    skill on the in-memory network, runs it with its own classes, and refuses an answer whose
+    argument its TurnHandle does not take (the same SBT310 a Python registry gives)."""
+    net = MemoryNetwork()
+    teacher = Agent(
+        "t", f"<sl><k>(new){DOOR_FLAT}<e><e>", door_registry(), net.join("t"),
+        timing=Timing(wait=20, cooldown=5), blackboard=door_blackboard(),
+    )  # fmt: skip
+    bb = door_blackboard()
+    learner = Agent(
+        "l", py_trees_control(door_tree(), behaviours=door_behaviours(bb)), door_conditions(),
+        net.join("l"), timing=Timing(wait=20, cooldown=5), blackboard=bb,
+    )  # fmt: skip
+    learner.encounter(DOOR_SEQUENCE)
+    for _ in range(10):
+        teacher.tick()
+        learner.tick()
+        if learner.knows(DOOR_SEQUENCE):
+            break
+    assert learner.knows(DOOR_SEQUENCE) and learner.metrics.refused == 0
+    for _ in range(4):
+        learner.tick()
+    assert bb["log"] == ["grasp", "turn 30/60", "grasp", "turn 60/60", "push"]  # the flat form
+    assert learner.registry.has_action("TurnHandle")
+    wide = kp.parse("<a>(TurnHandle, degrees=120)")
+    [problem] = kp.find_problems(wide, learner.registry)
+    assert str(problem) == str(kp.find_problems(wide, door_registry())[0])
+    assert problem.code is kp.ErrorCode.INVALID_VALUE
+
+
+def test_registering_only_the_conditions_no_longer_refuses_every_answer() -> None:
+    bb = door_blackboard()
+    control = PyTreesControl(door_tree(), door_conditions(), bb, behaviours=door_behaviours(bb))
+    assert control.merge(DOOR_MEMORY, "new")
+    control.tick()
+    control.tick()
+    assert bb["log"] == ["grasp", "turn 30/60", "turn 60/60", "push"]  # the memory form
+    with pytest.raises(kp.StringBTError) as info:
+        control.merge("<sq><c>(DoorClosed)<a>(Fly)<e>", "new")
+    assert info.value.code is kp.ErrorCode.UNKNOWN_ACTION
+
+
+def test_what_is_not_a_control_tree_is_refused_in_one_line() -> None:
+    root = sel("Root", sel("k:new"))
+    with pytest.raises(TypeError) as info:
+        py_trees_control(root)  # type: ignore[arg-type]
+    assert str(info.value) == (
+        "a py_trees control tree is a py_trees.trees.BehaviourTree, not the behaviour 'Root': "
+        "pass py_trees.trees.BehaviourTree(root)"
+    )
+    with pytest.raises(TypeError, match="not the behaviour 'Root'"):
+        PyTreesControl(root, door_conditions())  # type: ignore[arg-type]
+    bare = py_trees.trees.BehaviourTree(sel("Root", py_trees.behaviours.Running("Idle")))
+    with pytest.raises(ValueError) as no_slot:
+        py_trees_control(bare)
+    assert str(no_slot.value) == (
+        "the py_trees tree has no knowledge placeholder, so an agent could learn nothing into "
+        "it: add py_trees.composites.Selector(name='k:new', memory=False, children=[]) where "
+        "learned knowledge should run, before the fallback"
+    )

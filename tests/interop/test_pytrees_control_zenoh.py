@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.interop.test_pytrees_control import (
@@ -58,14 +58,14 @@ def test_a_py_trees_robot_learns_over_zenoh_and_ticks_as_its_teacher() -> None:
     ):
         see(tl, "teacher")
         teacher_bb, learner_bb = kp.Blackboard(log=[]), kp.Blackboard(log=[])
-        teacher = Agent("teacher", knows_2, reg, tt, wait_ticks=400, blackboard=teacher_bb)
+        teacher = Agent("teacher", knows_2, reg, tt, timing=Timing(wait=400), blackboard=teacher_bb)
         bt = py_trees_sar(learner_bb, reg)
         learner = Agent(
             "learner",
             py_trees_control(bt, behaviours=behaviours(learner_bb)),
             reg,
             tl,
-            wait_ticks=400,
+            timing=Timing(wait=400),
             blackboard=learner_bb,
         )
         assert isinstance(learner.control, PyTreesControl)

@@ -7,11 +7,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.interop import from_xml, to_xml
-from ktbt_proto.interop.sidecar import LearnedExport, item_digest
+from ktbt_proto.interop.sidecar import LearnedExport
+from ktbt_proto.items import item_digest, split_item
+from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.transport import MemoryNetwork
+from tests.door_robot import FLAT as DOOR_FLAT
+from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
+from tests.door_robot import VOCABULARY, door_blackboard, door_registry
 from tests.exchange.test_agent import KNOWER, SEQUENCE, agent, run
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples" / "btcpp"
@@ -92,7 +97,7 @@ def test_a_file_that_cannot_be_written_is_counted_and_tried_again(tmp_path: Path
     export = LearnedExport(folder)
     _, _, learner = learned(tmp_path)
     [item] = [k for k in learner.knowledge if k.source is not None]
-    blocker = folder / f"000001-new-{item_digest(item)}.xml"
+    blocker = folder / f"000001-new-{item_digest(item.key, item.subtree)}.xml"
     (blocker / "inside").mkdir(parents=True)  # a folder where the file should go
     export.sync(learner.knowledge)
     assert export.errors == 1
@@ -165,15 +170,18 @@ def test_numbers_are_reserved_per_item_and_may_grow_past_six_digits(tmp_path: Pa
     folder = tmp_path / "learned"
     first, second = item("Pick"), item("Pick", 3)
     export = LearnedExport(folder)
-    blocker = folder / f"000001-new-{item_digest(first)}.xml"
+    blocker = folder / f"000001-new-{item_digest(first.key, first.subtree)}.xml"
     (blocker / "inside").mkdir(parents=True)
     export.sync([first, second])  # the first write fails: the second does not take its number
-    assert export.errors == 1 and f"000002-new-{item_digest(second)}.xml" in files(folder)
+    assert (
+        export.errors == 1
+        and f"000002-new-{item_digest(second.key, second.subtree)}.xml" in files(folder)
+    )
     (blocker / "inside").rmdir()
     blocker.rmdir()
     export.sync([first, second])
     assert [n[:7] for n in files(folder)] == ["000001-", "000002-"]
-    late = folder / f"9999999-new-{item_digest(second)}.xml"
+    late = folder / f"9999999-new-{item_digest(second.key, second.subtree)}.xml"
     (folder / files(folder)[1]).rename(late)
     again = LearnedExport(folder)  # seven digits: adopted, and the next number follows it
     again.sync([first, second, item("Pick", 4)])
@@ -188,3 +196,30 @@ def test_temporary_files_left_by_a_crash_are_removed(tmp_path: Path) -> None:
     other.write_text("")
     LearnedExport(tmp_path)
     assert files(tmp_path) == [other.name]
+
+
+def test_an_agent_with_only_a_vocabulary_file_learns_and_exports(tmp_path: Path) -> None:
+    """A C++ robot's agent has no Python behaviours: its registry is its vocabulary file
+    (spec/stringbt.md section 5.1). It checks answers as a Python registry would, learns and
+    exports the item; the BT.CPP program runs it."""
+    vocabulary = tmp_path / "door.toml"
+    vocabulary.write_text(VOCABULARY + "\n[actions.Idle]\n", encoding="utf-8")
+    net = MemoryNetwork()
+    teacher = Agent(
+        "t", f"<sl><k>(new){DOOR_FLAT}<e><e>", door_registry(), net.join("t"),
+        timing=Timing(wait=20, cooldown=5), blackboard=door_blackboard(),
+    )  # fmt: skip
+    learner = Agent(
+        "l", "<sl><k>(new)<e><a>(Idle)<e>", load_vocabulary(str(vocabulary)), net.join("l"),
+        timing=Timing(wait=20, cooldown=5),
+    )  # fmt: skip
+    export = LearnedExport(tmp_path / "learned")
+    learner.encounter(DOOR_SEQUENCE)
+    for _ in range(10):
+        teacher.tick()
+        learner.tick()
+        export.sync(learner.knowledge)
+    assert learner.knows(DOOR_SEQUENCE) and learner.metrics.refused == 0
+    [name] = files(tmp_path / "learned")
+    text = (tmp_path / "learned" / name).read_text()
+    assert split_item(from_xml(text).root) == split_item(kp.parse(DOOR_FLAT).root)  # same item

@@ -15,11 +15,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
-from ktbt_proto.items import read_sequence, sequence_key, show_sequence, split_item, stray_nodes
+from ktbt_proto.items import (
+    actions_rerun,
+    find_warnings,
+    read_sequence,
+    sequence_key,
+    show_sequence,
+    split_item,
+    stray_nodes,
+)
 from ktbt_proto.tools.peer import load_knowledge
 from ktbt_proto.transport import MemoryNetwork
+from tests.door_robot import FLAT as DOOR_FLAT
+from tests.door_robot import MEMORY as DOOR_MEMORY
+from tests.door_robot import door_blackboard, door_registry
 from tests.runtime_helpers import Harness
 from tests.strategies import names, values
 
@@ -41,7 +52,7 @@ def test_knowledge_vectors(case: dict[str, Any]) -> None:
         for k in KnowledgeBase.from_tree(tree)
     ]
     assert items == case["items"]
-    assert [[w.code.value, w.line, w.column] for w in stray_nodes(tree)] == case["warnings"]
+    assert [[w.code.value, w.line, w.column] for w in find_warnings(tree)] == case["warnings"]
 
 
 def test_flat_and_nested_are_the_same_item_but_written_as_they_are() -> None:
@@ -99,6 +110,53 @@ def test_flat_and_nested_tick_alike(
     assert runs[0] == runs[1]
 
 
+def run_door(text: str) -> list[str]:
+    """The log of the door robot's item, ticked until it finishes."""
+    bb = door_blackboard()
+    live = kp.LiveTree(text, door_registry(), bb)
+    for _ in range(5):
+        if live.tick() is not kp.RUNNING:
+            break
+    return list(bb["log"])
+
+
+def test_the_flat_form_runs_earlier_actions_again_and_is_warned_about() -> None:
+    """The re-run trap (spec/stringbt.md, section 4.1): while TurnHandle runs, the reactive
+    item starts again at its first child, so the handle is grasped twice; the memory form
+    grasps once. The warning is given for the one and not for the other."""
+    assert run_door(DOOR_FLAT) == ["grasp", "turn 30/60", "grasp", "turn 60/60", "push"]
+    assert run_door(DOOR_MEMORY) == ["grasp", "turn 30/60", "turn 60/60", "push"]
+    [warning] = actions_rerun(kp.parse(f"<k>(new){DOOR_FLAT}<e>"))
+    assert (warning.code, warning.line, warning.column) == (kp.ErrorCode.ACTIONS_RERUN, 1, 56)
+    assert warning.message == (
+        "<a>(GraspHandle) runs again on every tick while <a>(TurnHandle,degrees=60) is "
+        "RUNNING: if it must run once, put the actions in one <msq>...<e> (the memory form)"
+    )
+    assert [w.column for w in actions_rerun(kp.parse(DOOR_FLAT))] == [48]  # a root item
+    assert actions_rerun(kp.parse(f"<k>(new){DOOR_MEMORY}<e>")) == []
+    # A warning, not a problem: the flat item stays valid for a peer.
+    assert kp.find_problems(kp.parse(DOOR_FLAT), door_registry()) == []
+
+
+@pytest.mark.parametrize(
+    ("text", "columns"),
+    [
+        ("<k>(k)<sq><c>(A)<a>(X)<e><e>", []),  # one action
+        ("<k>(k)<sq><c>(A)<a>(X)<w>(3)<e><e>", [17]),  # a wait may return RUNNING
+        ("<k>(k)<sq><c>(A)<a>(X)<tt1>(3)<c>(B)<e><e><e>", [17]),  # so may TT1
+        ("<k>(k)<sq><c>(A)<a>(X)<c>(B)<e><e>", []),  # a condition never runs
+        ("<k>(k)<sq><c>(A)<sl><a>(X)<a>(Y)<e><e><e>", []),  # a selector's children are not rerun
+        ("<k>(k)<sq><c>(A)<sq><a>(X)<a>(Y)<e><e><e>", [21]),  # the nested form ticks the same
+        ("<k>(k)<sq><c>(A)<msq><a>(X)<a>(Y)<e><a>(Z)<e><e>", [22]),  # a finished <msq> restarts
+        ("<sq><c>(A)<a>(X)<a>(Y)<e>", [11]),  # a root item
+        ("<sl><sq><c>(A)<a>(X)<a>(Y)<e><e>", []),  # not knowledge: the control tree's own
+        ("<k>(k)<sq><c>(A)<k>(in)<sq><c>(B)<a>(X)<a>(Y)<e><e><e><e>", [34]),  # once, inside
+    ],
+)
+def test_the_rerun_warning_looks_at_what_may_run(text: str, columns: list[int]) -> None:
+    assert [w.column for w in actions_rerun(kp.parse(text))] == columns
+
+
 def sar_registry() -> kp.Registry:
     """The example control tree's vocabulary, with actions that record what they did."""
     reg = kp.Registry()
@@ -128,7 +186,7 @@ def sar_registry() -> kp.Registry:
 def test_an_agent_built_on_the_example_knows_red_and_asks_only_for_green() -> None:
     control = (EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8")
     net = MemoryNetwork()
-    robot = Agent("r1", control, sar_registry(), net.join("r1"), wait_ticks=5)
+    robot = Agent("r1", control, sar_registry(), net.join("r1"), timing=Timing(wait=5))
     assert robot.knows(["TargetSeen(colour=1)"])
     robot.blackboard["target"] = 1
     robot.encounter(["TargetSeen(colour=1)"])

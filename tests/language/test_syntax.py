@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.limits import DEFAULT_LIMITS
-from ktbt_proto.syntax import _parse_fast
+from ktbt_proto.syntax import _parse_fast, parse_reference
 from ktbt_proto.tree import walk
 from tests.strategies import SOUP_TOKENS, soup, trees
 
@@ -106,7 +106,7 @@ def test_paper_example_file_is_the_paper_tree() -> None:
 )
 def test_node_spellings(text: str, expected: kp.Node) -> None:
     assert kp.parse(text).root == expected
-    assert kp.parse_reference(text).root == expected
+    assert parse_reference(text).root == expected
 
 
 def test_values_keep_their_type() -> None:
@@ -146,7 +146,7 @@ def test_bytes_input_and_bad_utf8() -> None:
 def test_errors_have_code_and_position(text: str, code: str, line: int, column: int) -> None:
     assert errors_of(text) == (code, line, column)
     with pytest.raises(kp.StringBTError) as ref:
-        kp.parse_reference(text)
+        parse_reference(text)
     assert (ref.value.code.value, ref.value.line, ref.value.column) == (code, line, column)
 
 
@@ -183,7 +183,7 @@ def test_deep_trees_within_raised_limits_need_no_recursion() -> None:
     kp.validate(tree, limits=limits)
     assert kp.format_tree(tree, "compact") == text
     assert kp.format_tree(tree).count("\n") == 2 * depth + 1
-    ref = kp.parse_reference(text, limits=limits)
+    ref = parse_reference(text, limits=limits)
     assert kp.format_tree(ref, "compact") == text
 
 
@@ -228,7 +228,7 @@ def _outcome(fn: object, text: str) -> object:
 @settings(max_examples=400, deadline=None)
 @given(soup())
 def test_agrees_with_reference_on_token_soup(text: str) -> None:
-    ours, ref = _outcome(kp.parse, text), _outcome(kp.parse_reference, text)
+    ours, ref = _outcome(kp.parse, text), _outcome(parse_reference, text)
     assert ours == ref
     if isinstance(ref, kp.Tree):
         assert _parse_fast(text, DEFAULT_LIMITS) is not None, "fast path refused valid text"
@@ -252,7 +252,7 @@ def mutated(draw: st.DrawFn) -> str:
 @settings(max_examples=400, deadline=None)
 @given(mutated())
 def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
-    ours, ref = _outcome(kp.parse, text), _outcome(kp.parse_reference, text)
+    ours, ref = _outcome(kp.parse, text), _outcome(parse_reference, text)
     assert ours == ref
     if isinstance(ref, kp.Tree):
         assert _parse_fast(text, DEFAULT_LIMITS) is not None, "fast path refused valid text"
@@ -265,7 +265,7 @@ def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> 
     text = kp.format_tree(tree, style)  # type: ignore[arg-type]
     fast = _parse_fast(text, DEFAULT_LIMITS)
     assert fast is not None
-    assert fast == kp.parse_reference(text) == kp.Tree(tree)
+    assert fast == parse_reference(text) == kp.Tree(tree)
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import networkx as nx
 
-PACKAGE = Path(__file__).resolve().parents[1] / "ktbt_sim"
+PACKAGE = Path(__file__).resolve().parents[2] / "ktbt_sim"
 MECHANISMS = ("geometry", "motion", "sensing", "timers", "teaching", "robot", "records", "state")
 
 

@@ -319,7 +319,7 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
     prefix = without_privileges()
     paper = str(EXAMPLES / "paper_control.sbt")
     for args, expected in [
-        (("check", "--registry", "u.toml", paper), "error: cannot read registry u.toml: "),
+        (("check", "--vocabulary", "u.toml", paper), "error: --vocabulary: u.toml not found"),
         (("peer", "serve", "--knowledge", "u.sbt"), "error: cannot read --knowledge u.sbt: "),
         (("peer", "ask", "--sequence", "A", "--config", "u.json"), "error: cannot read --config"),
         (("show", "u.sbt"), "error: cannot read u.sbt: "),

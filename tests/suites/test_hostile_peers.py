@@ -14,14 +14,15 @@ from typing import Any
 import pytest
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode, encode
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog, read
 from ktbt_proto.exchange.trust import Policy, TrustStore
-from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
 
@@ -154,9 +155,12 @@ def test_a_query_sent_back_as_a_reply_and_an_over_long_reason_are_refused() -> N
         assert errors and all(isinstance(e, ErrorReply) and e.code == "refused" for e in errors)
 
 
-def trusted_learner(port: int, *connect: int, **kw: Any) -> tuple[Agent, ZenohTransport]:
+def trusted_learner(port: int, *connect: int, security: Security) -> tuple[Agent, ZenohTransport]:
     transport = ZenohTransport("learner", settings(port, *connect), query_timeout=30)
-    robot = Agent("learner", DEMO_CONTROL, demo_registry(), transport, wait_ticks=2000, **kw)
+    robot = Agent(
+        "learner", DEMO_CONTROL, demo_registry(), transport, timing=Timing(wait=2000),
+        security=security,
+    )  # fmt: skip
     return robot, transport
 
 
@@ -213,8 +217,9 @@ def test_trusted_learner_learns_from_the_honest_peer_among_silent_flooding_and_l
         declare(flood, "ktbt/v1/knowledge/flood", flooding)
         declare(imp, "ktbt/v1/knowledge/t", lying)
         robot, transport = trusted_learner(
-            pl, pt, ps, pf, pi, policy=Policy.TRUSTED, trust=store, log=transfer_log
-        )
+            pl, pt, ps, pf, pi,
+            security=Security(policy=Policy.TRUSTED, trust=store, log=transfer_log),
+        )  # fmt: skip
         stack.enter_context(transport)
         transport.log = transfer_log
         see(transport, "t", "silent", "flood", "imp")
@@ -370,7 +375,14 @@ def test_the_networks_own_errors_are_counted_apart_not_refused(tmp_path: Path) -
     ):
         declare(silent, "ktbt/v1/knowledge/quiet", held.append)
         see(transport, "silent")
-        agent = Agent("me", DEMO_CONTROL, demo_registry(), transport, wait_ticks=1000, log=log)
+        agent = Agent(
+            "me",
+            DEMO_CONTROL,
+            demo_registry(),
+            transport,
+            timing=Timing(wait=1000),
+            security=Security(log=log),
+        )
         agent.encounter(["TargetSeen(colour=2)"])
         agent.tick()  # asks
 

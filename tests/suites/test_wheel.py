@@ -134,7 +134,7 @@ def test_the_language_commands_work_from_the_wheel(core: Env) -> None:
     assert check.returncode == 1 and check.stdout.startswith(f"{broken}:1:18: SBT103 ")
     tour = core.run("ktbt", "tour")
     assert tour.returncode == 0, tour.stderr
-    assert "r2 asked, r1 answered" in tour.stdout and "ktbt_proto/examples" in tour.stdout
+    assert "r2 asked, r1 answered" in tour.stdout and "(paper_control.sbt)" in tour.stdout
     sim = core.run("ktbt", "sim", "list")
     assert sim.returncode == 2
     assert sim.stderr.count("\n") == 1 and "pip install 'ktbt[sim]'" in sim.stderr

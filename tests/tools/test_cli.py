@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from ktbt_proto.tools.cli.options import DEMO_NOTE
+from tests.door_robot import FLAT, VOCABULARY
+
 pytestmark = pytest.mark.network  # every test runs the ktbt command as a process
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -102,7 +105,7 @@ def test_check_reports_every_problem(tmp_path: Path) -> None:
         f"{f}:2:5: SBT301 <neg> needs exactly one child, not 0",
         f"{f}:3:5: SBT308 parallel threshold 3 is not in 1..1",
     ]
-    code, out, _ = ktbt("check", "--registry", str(EXAMPLES / "sar_registry.toml"), str(f))
+    code, out, _ = ktbt("check", "--vocabulary", str(EXAMPLES / "sar_registry.toml"), str(f))
     assert f"{f}:3:12: SBT306 unknown action 'Go'" in out.splitlines()
     assert f"{f}:4:5: SBT306 unknown action 'Fly'" in out.splitlines()
 
@@ -110,12 +113,13 @@ def test_check_reports_every_problem(tmp_path: Path) -> None:
 def test_check_clean_files_and_bad_inputs(tmp_path: Path) -> None:
     code, out, _ = ktbt(
         "check",
-        "--registry",
+        "--vocabulary",
         str(EXAMPLES / "sar_registry.toml"),
         str(EXAMPLES / "sar_control.sbt"),
         str(EXAMPLES / "paper_control.sbt"),
     )
-    assert (code, out) == (0, "")
+    assert code == 0  # the flat items' re-run trap is a warning, not a problem
+    assert all(" SBT502 warning: " in line for line in out.splitlines())
     code, out, err = ktbt("check", str(tmp_path / "nope.sbt"))
     assert (
         code == 1
@@ -125,8 +129,9 @@ def test_check_clean_files_and_bad_inputs(tmp_path: Path) -> None:
     assert (code, out) == (1, "<stdin>:1:14: SBT105 <e> closes nothing: no node is open\n")
     reg = tmp_path / "reg.toml"
     reg.write_text("conditions = 3\n")
-    code, _, err = ktbt("check", "--registry", str(reg), str(EXAMPLES / "sar_control.sbt"))
+    code, _, err = ktbt("check", "--vocabulary", str(reg), str(EXAMPLES / "sar_control.sbt"))
     assert code == 2 and "'conditions' must be a list of names" in err and "Traceback" not in err
+    assert err.startswith(f"error: --vocabulary {reg}: ") and len(err.splitlines()) == 1
 
 
 @pytest.mark.parametrize("fmt", ["outline", "dot", "mermaid"])
@@ -150,6 +155,8 @@ def test_tour_runs() -> None:
     assert "<sl><sq><c>(_collisionDetectedF)<a>(CollisionAvoidance)<e>" in out
     assert "SBT306 unknown action 'Teleport'" in out
     assert "r2 asked, r1 answered" in out and "heads for zone 2" in out
+    rows = sum(max(1, -(-len(line) // 80)) for line in out.splitlines())
+    assert rows <= 40, f"the tour takes {rows} rows of an 80-column terminal, not one screen"
     code, out, _ = ktbt("tour", cwd=Path(os.sep))  # the examples come with the package
     assert code == 0 and "r2 asked, r1 answered" in out
     code, _, err = ktbt("tour", "--examples", str(Path(os.sep) / "nonexistent"))
@@ -241,8 +248,9 @@ def test_peer_run_refuses_at_start_a_sequence_its_own_registry_refuses(
     status, out, err = ktbt("peer", "run", "--sequence", sequence, "--duration", "600")
     assert status == 2 and out == ""
     lines = err.splitlines()
-    assert lines[0].startswith(f"error: --sequence {sequence!r}: {code} ")
-    assert lines[1:] == [f"    {sequence}", f"    {caret}"]
+    assert lines[0] == DEMO_NOTE  # neither --vocabulary nor --control: the demo robot
+    assert lines[1].startswith(f"error: --sequence {sequence!r}: {code} ")
+    assert lines[2:] == [f"    {sequence}", f"    {caret}"]
     assert "Traceback" not in err
 
 
@@ -254,3 +262,57 @@ def test_peer_commands_take_fixed_choices_as_choices() -> None:
     ):
         status, _, err = ktbt("peer", *args)
         assert status == 2 and "is not one of" in err, err
+
+
+def test_check_with_a_vocabulary_prints_the_rerun_warning_without_failing(tmp_path: Path) -> None:
+    door, skill = tmp_path / "door.toml", tmp_path / "door.sbt"
+    door.write_text(VOCABULARY)
+    skill.write_text(f"<k>(prior)\n    {FLAT}\n<e>\n")
+    for spec in (str(door), "tests.door_robot:door_registry"):
+        code, out, err = ktbt("check", "--vocabulary", spec, str(skill))
+        assert code == 0, err
+        [line] = out.splitlines()
+        assert line.startswith(f"{skill}:2:") and " SBT502 warning: " in line
+
+
+# The command-line rows of the mistakes table: one line naming the option, exit 2.
+MISTAKES = [
+    (["kb", "show", str(EXAMPLES / "knowledge" / "colours.sbt")],
+     "error: FILE {examples}/knowledge/colours.sbt: a stringBT file, not a saved knowledge "
+     "base; kb show reads the JSON that peer run --save writes"),
+    (["peer", "run", "--vocabulary", "nope.toml"],
+     "error: --vocabulary: nope.toml not found (a FILE.toml, or module:callable)"),
+    (["peer", "serve", "--knowledge", "x.sbt", "--vocabulary", "no_such_robot:make"],
+     "error: --vocabulary no_such_robot:make: no module named 'no_such_robot'"),
+    (["check", "--vocabulary", "tests.door_robot:no_registry", "x.sbt"],
+     "error: --vocabulary tests.door_robot:no_registry: tests.door_robot has no "
+     "'no_registry'"),
+    (["peer", "run", "--demo", "--vocabulary", "x.toml"],
+     "error: --demo: the demo robot has its own; leave out --vocabulary and --control"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("args", "expected"), MISTAKES, ids=lambda a: str(a)[:40])
+def test_a_mistake_is_one_line_naming_the_option(args: list[str], expected: str) -> None:
+    code, out, err = ktbt(*args)
+    assert (code, out) == (2, "")
+    assert err.splitlines() == [expected.format(examples=EXAMPLES)]
+
+
+def test_a_control_tree_without_a_placeholder_is_refused_saying_how_to_add_one(
+    tmp_path: Path,
+) -> None:
+    door, control = tmp_path / "door.toml", tmp_path / "control.sbt"
+    door.write_text(VOCABULARY)
+    control.write_text("<sl><c>(DoorClosed)<a>(Push)<e>\n")
+    for command in (["peer", "run"], ["fleet", "run", "--out", str(tmp_path / "run")]):
+        code, _, err = ktbt(*command, "--vocabulary", str(door), "--control", str(control))
+        assert code == 2 and "Traceback" not in err
+        [line] = err.splitlines()
+        assert line.startswith(f"error: --control {control}: no <k>(...) placeholder")
+        assert "add one where learned skills belong, e.g. <sl><k>(new)<e>...<e>" in line
+    control.write_text("<sl><k>(new)<e><a>(Fly)<e>\n")
+    code, _, err = ktbt("peer", "run", "--vocabulary", str(door), "--control", str(control))
+    assert code == 2
+    assert err == f"error: --control {control}:1:16: SBT306 unknown action 'Fly'\n"
+    assert not (tmp_path / "run").exists()

@@ -14,10 +14,10 @@ import pytest
 import zenoh
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode, encode
-from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
 from tests.zenoh_helpers import (
     ROOT,
@@ -90,9 +90,9 @@ def test_agents_over_zenoh_teach_through_their_trees() -> None:
             ),
             demo_registry(),
             tk,
-            wait_ticks=300,
+            timing=Timing(wait=300),
         )
-        learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, wait_ticks=300)
+        learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, timing=Timing(wait=300))
         learner.encounter(["TargetSeen(colour=3)"])
 
         def learned() -> bool:
@@ -159,7 +159,9 @@ def test_three_processes_knowledge_spreads_along_a_chain() -> None:
 def test_teacher_killed_mid_exchange_then_an_honest_peer_teaches() -> None:
     pt, pl, ph = free_port(), free_port(), free_port()
     with ZenohTransport("i", settings(pl, pt, ph), query_timeout=1.0) as ti:
-        learner = Agent("i", DEMO_CONTROL, demo_registry(), ti, wait_ticks=100, cooldown_ticks=20)
+        learner = Agent(
+            "i", DEMO_CONTROL, demo_registry(), ti, timing=Timing(wait=100, cooldown=20)
+        )
         with serving(pt, name="doomed") as doomed:
             doomed.send_signal(signal.SIGKILL)
             doomed.wait(timeout=15)

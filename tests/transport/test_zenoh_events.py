@@ -9,8 +9,9 @@ from pathlib import Path
 
 import zenoh
 
-from ktbt_proto.exchange.events import FleetEvent, decode_event, digest
+from ktbt_proto.exchange.events import FleetEvent, decode_event
 from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.items import sequence_digest
 from ktbt_proto.transport.zenoh import ZenohSettings, open_session
 from tests.zenoh_helpers import endpoint, free_port, ktbt_process, serving, settings, wait_until
 
@@ -56,7 +57,7 @@ def test_peers_publish_the_events_their_logs_record(tmp_path: Path) -> None:
         finally:
             session.close()  # type: ignore[no-untyped-call]
     event = merged()[0]
-    assert (event.item, event.teacher, event.sig) == (digest(GREEN), "t", None)
+    assert (event.item, event.teacher, event.sig) == (sequence_digest(GREEN), "t", None)
     written = [json.loads(line) for line in log.read_text().splitlines()]
     assert event.t == next(e["t"] for e in written if e["event"] == "merged")
     ours = [e for e in heard if e.peer == "r1"]  # from when r1 and we first met, none lost
@@ -75,7 +76,7 @@ def test_in_memory_agents_stream_the_same_events() -> None:
     import ktbt_proto as kp
     from ktbt_proto.exchange.agent import Agent
     from ktbt_proto.exchange.knowledge import KnowledgeBase
-    from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
+    from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
     from ktbt_proto.transport import MemoryNetwork
     from ktbt_proto.transport.stream import AgentStream
     from tests.zenoh_helpers import ROOT
@@ -115,7 +116,7 @@ def test_in_memory_agents_stream_the_same_events() -> None:
     finally:
         session.close()  # type: ignore[no-untyped-call]
     merged = next(e for e in heard if e.event == "merged")
-    assert (merged.peer, merged.teacher, merged.item) == ("r1", "t", digest(GREEN))
+    assert (merged.peer, merged.teacher, merged.item) == ("r1", "t", sequence_digest(GREEN))
     assert {e.event for e in heard if e.peer == "t"} >= {"query-received", "answer-sent"}
 
 

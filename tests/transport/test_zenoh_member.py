@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
-from ktbt_proto.tools.peer import Backoff, Member
+from ktbt_proto.tools.peer import Member
 from ktbt_proto.transport.zenoh import stable_zid
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, serving
 

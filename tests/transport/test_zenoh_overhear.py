@@ -17,9 +17,11 @@ from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.answers import answers
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, encode
+from ktbt_proto.exchange.overhearing import Ear
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.syntax import parse
-from ktbt_proto.tools.peer import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import (
     ROOT,
@@ -51,7 +53,7 @@ def ear(port: int, teacher: int, save: str, conn: Connection) -> None:
             DEMO_CONTROL,
             demo_registry(),
             transport,
-            overhear="update",
+            ear=Ear("update"),
             knowledge_path=save,
         )
         reached(transport, "teacher")  # so the subscription has reached the teacher
@@ -151,10 +153,11 @@ def test_buffer_and_the_trust_policy_over_zenoh() -> None:
         ZenohTransport("buf", settings(pb, pt), overhear=True) as tb,
         ZenohTransport("strict", settings(ps, pt), overhear=True) as ts,
     ):
-        buffering = Agent("buf", DEMO_CONTROL, demo_registry(), tb, overhear="buffer")
+        buffering = Agent("buf", DEMO_CONTROL, demo_registry(), tb, ear=Ear("buffer"))
         strict = Agent(
-            "strict", DEMO_CONTROL, demo_registry(), ts, overhear="update", policy=Policy.SIGNED
-        )
+            "strict", DEMO_CONTROL, demo_registry(), ts, ear=Ear("update"),
+            security=Security(policy=Policy.SIGNED),
+        )  # fmt: skip
         for t in (learner, tb, ts):
             reached(t, "teacher")  # so the subscriptions have reached the teacher
         got = learner.ask(Query(id="q1", sender="learner", sequence=GREEN), timeout=3)

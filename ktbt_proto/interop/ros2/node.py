@@ -19,7 +19,6 @@ and ``~/forget``. It logs through the node's logger, the library's own log recor
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import re
@@ -37,32 +36,37 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.agent import Agent
+from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import catalog, live_answers
+from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.knowledge import sequence_key
-from ktbt_proto.exchange.overhearing import Overhear
+from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
 from ktbt_proto.merge import conditions as parse_conditions
-from ktbt_proto.registry import Registry
+from ktbt_proto.registry import load_vocabulary
+from ktbt_proto.syntax import parse
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.tools.peer import (
-    COLOURS,
-    DEMO_CONTROL,
-    Backoff,
-    demo_registry,
+    LEARNER_CONTROL,
+    learning_slot,
     load_knowledge,
     shown,
     with_knowledge,
 )
 
+DEMO_SEQUENCES = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
+"""What the node meets unless told: the demo robot's four colours."""
+
 SETUP = (
     "agent_name",
     "control",
-    "registry",
+    "vocabulary",
     "knowledge",
     "save",
     "key",
@@ -126,23 +130,6 @@ def event_json(msg: FleetEvent) -> bytes:
     return json.dumps(fields, ensure_ascii=False).encode("utf-8")
 
 
-def load_registry(spec: str) -> Registry:
-    """The robot's vocabulary: ``demo`` (the search-and-rescue demo's), or ``module:callable``
-    returning a :class:`Registry`. Raises ValueError with one line."""
-    if spec == "demo":
-        return demo_registry()
-    module, sep, attr = spec.partition(":")
-    if not sep or not module or not attr:
-        raise ValueError(f"registry {spec!r}: use 'demo' or MODULE:CALLABLE")
-    try:
-        made = getattr(importlib.import_module(module), attr)()
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"registry {spec!r}: {exc}") from None
-    if not isinstance(made, Registry):
-        raise ValueError(f"registry {spec!r} returned a {type(made).__name__}, not a Registry")
-    return made
-
-
 def problem(name: str, value: Any) -> str | None:
     """What is wrong with a value of the node's parameter ``name``, in one line, or None."""
     if name == "tick_rate" and not 0 < float(value) <= 1000:
@@ -197,8 +184,8 @@ class KtbtNode(LifecycleNode):
 
         setup, live = "read at configure", "applied at once"
         declare("agent_name", "", setup)  # "": the namespace's last name, else the node's
-        declare("control", "", setup)  # a .sbt file; "": the demo's control tree
-        declare("registry", "demo", setup)
+        declare("vocabulary", "", setup)  # FILE.toml or module:callable; "": the demo robot
+        declare("control", "", setup)  # a .sbt file; "": the demo's, or a learner's
         declare("knowledge", "", setup)
         declare("save", "", setup)
         declare("key", "", setup)
@@ -211,7 +198,7 @@ class KtbtNode(LifecycleNode):
         declare("queries_topic", Topics().queries, setup)
         declare("answers_topic", Topics().answers, setup)
         declare("errors_topic", Topics().errors, setup)
-        declare("sequences", list(COLOURS), live)
+        declare("sequences", list(DEMO_SEQUENCES), live)
         declare("tick_rate", 100.0, live)
         declare("snapshot_period", 0.0, live)
         self.add_on_set_parameters_callback(self._on_parameters)
@@ -294,9 +281,22 @@ class KtbtNode(LifecycleNode):
             if why is not None:
                 raise ValueError(why)
         name = self.agent_name()
-        registry = load_registry(str(self._param("registry")))
-        control_path = str(self._param("control"))
-        control = Path(control_path).read_text(encoding="utf-8") if control_path else DEMO_CONTROL
+        vocabulary, control_path = str(self._param("vocabulary")), str(self._param("control"))
+        if control_path and not vocabulary:
+            raise ValueError(f"control {control_path}: give vocabulary too (the names it runs)")
+        registry = load_vocabulary(vocabulary) if vocabulary else demo_registry()
+        if control_path:
+            control = Path(control_path).read_text(encoding="utf-8")
+        else:
+            control = LEARNER_CONTROL if vocabulary else DEMO_CONTROL
+        try:
+            slot = learning_slot(parse(control))
+        except StringBTError as err:
+            where = control_path or "the control tree"
+            why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
+            raise ValueError(why) from None
+        if slot is None:
+            raise ValueError(f"control {control_path}: no placeholder (<k>(new)) to learn into")
         knowledge = load_knowledge(self._param("knowledge")) if self._param("knowledge") else None
         key = str(self._param("key"))
         identity = Identity.load(key) if key else None
@@ -349,17 +349,14 @@ class KtbtNode(LifecycleNode):
         try:
             self.agent = Agent(
                 name,
-                with_knowledge(control, knowledge),
+                with_knowledge(control, knowledge, slot),
                 registry,
                 self.transport,
-                wait_ticks=wait_ticks,
-                cooldown_ticks=cooldown_ticks,
+                timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
                 knowledge_path=save or None,
-                identity=identity,
-                policy=policy,
-                trust=trust,
-                log=self.log,
-                overhear=overhear,
+                security=Security(identity, policy, trust, self.log),
+                ear=Ear(overhear),
+                slot=slot,
             )
         except StringBTError as err:  # the control tree, with its knowledge, against the registry
             where = control_path or "the demo's control tree"

@@ -17,6 +17,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from ktbt_proto.exchange.transferlog import Event
+
 Status = Literal["pass", "fail", "skipped"]
 RSS_GROWTH = 0.20
 """Median resident memory of the peers never killed may grow by at most this fraction from
@@ -92,7 +94,7 @@ class History:
 
     def merges(self) -> dict[tuple[str, int], list[dict[str, Any]]]:
         out: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
-        for e in self.of("merged"):
+        for e in self.of(Event.MERGED):
             out[(e["peer"], e["life"])].append(e)
         return out
 
@@ -100,7 +102,7 @@ class History:
         """Merges and forgettings of each life, in the record's order."""
         out: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
         for e in self.events:
-            if e["kind"] in ("merged", "forgotten"):
+            if e["kind"] in (Event.MERGED, Event.FORGOTTEN):
                 out[(e["peer"], e["life"])].append(e)
         return out
 
@@ -164,7 +166,7 @@ def convergence_time(h: History, among: set[str] | None = None) -> float | None:
         known = set(life.get("known", []))
         when = life["up"]
         for m in sorted(merges.get((peer, life["life"]), []), key=lambda e: e["t"]):
-            if m["kind"] == "forgotten":
+            if m["kind"] == Event.FORGOTTEN:
                 known.discard(m["sequence"])
             elif m["sequence"] in h.items and m["sequence"] not in known:
                 known.add(m["sequence"])
@@ -218,7 +220,7 @@ def _no_duplicates(h: History) -> Verdict:
             known.add(m["sequence"])
     if dups:
         return Verdict("no duplicate merge", "fail", "; ".join(dups[:5]))
-    total = len(h.of("merged"))
+    total = len(h.of(Event.MERGED))
     return Verdict("no duplicate merge", "pass", f"{total} merges, each once per peer life")
 
 
@@ -294,7 +296,7 @@ def knows_at(h: History, peer: str, t: float) -> set[str]:
     known = set(current.get("known", []))
     for e in h.changes().get((peer, current["life"]), []):
         if e["t"] <= t:
-            if e["kind"] == "forgotten":
+            if e["kind"] == Event.FORGOTTEN:
                 known.discard(e["sequence"])
             else:
                 known.add(e["sequence"])
@@ -311,7 +313,11 @@ def round_times(h: History) -> list[float | None]:
     ends = sorted(e["t"] for e in h.of("fault") if e["fault"] == "churn" and e["phase"] == "end")
     last = h.events[-1]["t"] if h.events else 0.0
     moments = sorted(
-        {e["t"] for e in h.events if e["kind"] in ("merged", "up", "forgotten") and "t" in e}
+        {
+            e["t"]
+            for e in h.events
+            if e["kind"] in (Event.MERGED, "up", Event.FORGOTTEN) and "t" in e
+        }
     )
     out: list[float | None] = []
     for i, end in enumerate(ends):
@@ -385,10 +391,10 @@ def _faults(h: History) -> list[Verdict]:
 
 
 def _fastest_answer(h: History) -> float | None:
-    sent = {(e["peer"], e.get("id")): e["t"] for e in h.of("query-sent")}
+    sent = {(e["peer"], e.get("id")): e["t"] for e in h.of(Event.QUERY_SENT)}
     times = [
         e["t"] - sent[(e["peer"], e.get("id"))]
-        for e in h.of("answer-received")
+        for e in h.of(Event.ANSWER_RECEIVED)
         if (e["peer"], e.get("id")) in sent
     ]
     return min(times) if times else None
@@ -412,7 +418,7 @@ def _partition(h: History, starts: dict[str, Any], ends: dict[str, Any]) -> Verd
     half = start.get("half", {})
     leaks = [
         f"{e['peer']} heard {e['sender']} at {e['t']:.2f} s"
-        for e in h.of("answer-received")
+        for e in h.of(Event.ANSWER_RECEIVED)
         if start["t"] < e["t"] < end["t"] - 0.5
         and e.get("sender") in half
         and half.get(e["peer"]) != half.get(e["sender"])
@@ -481,7 +487,8 @@ def _monitor(h: History) -> list[Verdict]:
         shown = set(seen["knows"][peer])
         moments = [since, until] + [
             e["t"] for e in h.events
-            if e["kind"] in ("merged", "forgotten", "up", "kill") and e.get("peer") == peer
+            if e["kind"] in (Event.MERGED, Event.FORGOTTEN, "up", "kill")
+            and e.get("peer") == peer
             and since <= e["t"] <= until
         ]  # fmt: skip
         if not any(shown == knows_at(h, peer, t) for t in moments):
@@ -503,23 +510,23 @@ def honest_refusals(h: History) -> dict[str, int]:
     neighbour answered first), which a peer refuses as "an answer to no open question"."""
     peers = set(h.peers)
     honest = [
-        e for e in h.of("refused")
+        e for e in h.of(Event.REFUSED)
         if str(e.get("reason", "")).removeprefix("from ").split(":", 1)[0] in peers
     ]  # fmt: skip
     late = [e for e in honest if "an answer to no open question" in str(e.get("reason", ""))]
     return {
         "honest_answers_refused": len(honest),
         "late_answers_refused": len(late),
-        "late_answers": len(h.of("late-answer")),
+        "late_answers": len(h.of(Event.LATE_ANSWER)),
     }
 
 
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
-    counted = [e for e in h.events if e["kind"] in ("query-sent", "answer-sent")]
+    counted = [e for e in h.events if e["kind"] in (Event.QUERY_SENT, Event.ANSWER_SENT)]
     messages = len([e for e in counted if e.get("to") != "fleet-probe"])
-    merged = len(h.of("merged"))
+    merged = len(h.of(Event.MERGED))
     up = h.one("all-up")
     half = {p for p, side in h.plan["half"].items() if side == 0}
     teacher_half = convergence_time(h, half) if half and up is not None else None
@@ -540,10 +547,10 @@ def metrics(h: History) -> dict[str, Any]:
         "messages_per_item": round(messages / merged, 2) if merged else None,
         "floor_s": floor.get("median_s"),
         "floor_proxied_s": (floor.get("proxied") or {}).get("median_s"),
-        "refused": len(h.of("refused")),
+        "refused": len(h.of(Event.REFUSED)),
         **honest_refusals(h),
-        "error_replies": len(h.of("error-received")),
-        "network_errors": len(h.of("network-error")),
+        "error_replies": len(h.of(Event.ERROR_RECEIVED)),
+        "network_errors": len(h.of(Event.NETWORK_ERROR)),
     }
 
 

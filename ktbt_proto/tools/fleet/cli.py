@@ -10,15 +10,22 @@ from typing import Annotated
 
 import typer
 
+from ktbt_proto.tools.cli.options import (
+    ControlOption,
+    DemoOption,
+    VocabularyOption,
+    address,
+    example,
+    knowledge_or_exit,
+    refuse,
+    robot_or_exit,
+)
+from ktbt_proto.tools.fleet.plan import PartitionKind, TeacherProgram, Topology
+
 fleet = typer.Typer(
-    help="A fleet of real peers on this machine, every link through a fault layer.",
+    help="A fleet of real peers on this machine, with faults on every link.",
     no_args_is_help=True,
 )
-
-
-def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(2)
 
 
 def _show(summary: dict[str, object]) -> None:
@@ -34,85 +41,150 @@ def _show(summary: dict[str, object]) -> None:
     )
 
 
+def _absolute(vocabulary: str | None) -> str:
+    """``--vocabulary`` as every peer must be given it: a file by its absolute path (a
+    module:callable as given: the peers run in this folder)."""
+    if vocabulary is None:
+        return ""
+    path = Path(vocabulary)
+    return str(path.resolve()) if path.is_file() else vocabulary
+
+
 def _ms(value: object) -> str:
     return "-" if value is None else f"{float(value) * 1000:.1f} ms"  # type: ignore[arg-type]
 
 
-@fleet.command("run")
 def run_command(
-    peers: Annotated[int, typer.Option(help="Peers, teachers included.")] = 10,
-    teachers: Annotated[int, typer.Option(help="Peers that start with the knowledge.")] = 1,
-    topology: Annotated[str, typer.Option(help="mesh, line, or router.")] = "mesh",
-    routers: Annotated[int, typer.Option(help="Routers (0: one per 20 peers).")] = 0,
-    loss: Annotated[float, typer.Option(help="Packets dropped on every link, 0 to 1.")] = 0.0,
-    delay: Annotated[str, typer.Option(help="One-way delay on every link, e.g. 200ms.")] = "0",
-    partition: Annotated[
-        str, typer.Option(help="A half/half partition this long, e.g. 30s (0: none).")
+    peers: Annotated[
+        int, typer.Option("--peers", metavar="N", help="Peers, teachers included.")
+    ] = 10,
+    teachers: Annotated[
+        int, typer.Option("--teachers", metavar="N", help="Peers that start with the knowledge.")
+    ] = 1,
+    topology: Annotated[
+        Topology, typer.Option("--topology", help="How the peers are linked.")
+    ] = "mesh",
+    routers: Annotated[
+        int, typer.Option("--routers", metavar="N", help="Routers (0: one per 20 peers).")
+    ] = 0,
+    loss: Annotated[
+        float,
+        typer.Option("--loss", metavar="FRACTION", help="Packets dropped on every link, 0 to 1."),
+    ] = 0.0,
+    delay: Annotated[
+        str,
+        typer.Option("--delay", metavar="TIME", help="One-way delay on every link, e.g. 200ms."),
     ] = "0",
-    partition_kind: Annotated[
+    partition: Annotated[
         str,
         typer.Option(
+            "--partition", metavar="TIME", help="A half/half partition this long, e.g. 30s."
+        ),
+    ] = "0",
+    partition_kind: Annotated[
+        PartitionKind,
+        typer.Option(
+            "--partition-kind",
             help="silent (hold bytes, keep sockets), reset (RST), or none (the same halves, "
-            "nothing cut: a baseline)."
+            "nothing cut: a baseline).",
         ),
     ] = "silent",
-    churn: Annotated[float, typer.Option(help="Learners killed -9 and restarted, 0 to 1.")] = 0.0,
-    churn_rounds: Annotated[int, typer.Option(help="Churn rounds.")] = 1,
-    seed: Annotated[int, typer.Option(help="The seed of the fault schedule.")] = 7,
-    bound: Annotated[float, typer.Option(help="Seconds allowed for convergence.")] = 30.0,
+    churn: Annotated[
+        float,
+        typer.Option(
+            "--churn", metavar="FRACTION", help="Learners killed -9 and restarted, 0 to 1."
+        ),
+    ] = 0.0,
+    churn_rounds: Annotated[
+        int, typer.Option("--churn-rounds", metavar="N", help="Churn rounds.")
+    ] = 1,
+    seed: Annotated[
+        int, typer.Option("--seed", metavar="N", help="The seed of the fault schedule.")
+    ] = 7,
+    bound: Annotated[
+        float,
+        typer.Option("--bound", metavar="SECONDS", help="Seconds allowed for convergence."),
+    ] = 30.0,
     knowledge: Annotated[
-        Path | None, typer.Option(help="The teachers' .sbt file (default: the colours).")
+        Path | None,
+        typer.Option(
+            "--knowledge",
+            metavar="FILE",
+            help="The teachers' .sbt file; learners meet its sequences (default: the colours).",
+            readable=False,
+        ),
     ] = None,
+    vocabulary: VocabularyOption = None,
+    control: ControlOption = None,
+    demo: DemoOption = False,
     teacher: Annotated[
-        str, typer.Option(help="run (fleet members: peer run --knowledge) or serve (peer serve).")
+        TeacherProgram,
+        typer.Option(
+            "--teacher", help="run (fleet members: peer run --knowledge) or serve (peer serve)."
+        ),
     ] = "run",
-    out: Annotated[Path, typer.Option(help="Folder for the record and the figure.")] = Path(
-        "fleet-run"
-    ),
-    live: Annotated[bool, typer.Option(help="Show the live table.")] = True,
+    out: Annotated[
+        Path, typer.Option("--out", metavar="FOLDER", help="Folder for the record and figure.")
+    ] = Path("fleet-run"),
+    live: Annotated[bool, typer.Option("--live/--no-live", help="Show the live table.")] = True,
     monitor: Annotated[
         str | None,
         typer.Option(
-            help="Watch the fleet in the browser: `ktbt monitor` serves its page on HOST:PORT "
-            "(e.g. 127.0.0.1:8470) for the whole run; needs the monitor extra."
+            "--monitor",
+            metavar="HOST:PORT",
+            help="Watch the fleet in the browser: `ktbt monitor` serves its page here for the "
+            "whole run; needs the monitor extra.",
         ),
     ] = None,
     settle: Annotated[
-        float, typer.Option(help="Seconds the fleet keeps running once it has converged.")
+        float,
+        typer.Option(
+            "--settle",
+            metavar="SECONDS",
+            help="Seconds the fleet keeps running once it has converged.",
+        ),
     ] = 1.0,
 ) -> None:
-    """Run a fleet scenario, check it and draw it; exit 1 if a property failed."""
-    from ktbt_proto.tools.cli import _knowledge_or_exit
+    """Run a fleet scenario, check it and draw it.
+
+    Exit 1 if a property failed. Every link goes through a fault layer. Partitions need
+    --topology mesh or line; times are like 200ms or 30s (0: none). Every peer is the robot
+    --vocabulary and --control describe (as in peer run), or the demo robot."""
     from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, seconds
     from ktbt_proto.tools.fleet.runner import run
     from ktbt_proto.tools.fleet.watch import MonitorFailed
 
     if monitor is not None:
-        from ktbt_proto.tools.monitor.command import INSTALL, _address
+        from ktbt_proto.tools.monitor.command import INSTALL
 
-        _address(monitor, "--monitor")  # a bad HOST:PORT is refused before anything starts
+        address(monitor, "--monitor")  # a bad HOST:PORT is refused before anything starts
         try:
             import starlette  # noqa: F401
             import uvicorn  # noqa: F401
         except ImportError:
-            raise _fail(INSTALL) from None
-    if knowledge is not None:  # refused here, with its position, not inside the namespace
-        _knowledge_or_exit(knowledge)
+            raise refuse(INSTALL) from None
+    # Refused here, in one line with its position, not inside the namespace.
+    robot = robot_or_exit(vocabulary, control, demo)
+    if knowledge is not None or robot.vocabulary is not None:
+        from ktbt_proto.tools.fleet.runner import EXAMPLE_KNOWLEDGE
+
+        knowledge_or_exit(knowledge or EXAMPLE_KNOWLEDGE, robot.registry)
     try:
         config = FleetConfig(
-            peers=peers, teachers=teachers, topology=topology, routers=routers,  # type: ignore[arg-type]
+            peers=peers, teachers=teachers, topology=topology, routers=routers,
             loss=loss, delay=seconds(delay), partition=seconds(partition),
-            partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,  # type: ignore[arg-type]
-            seed=seed, bound=bound, teacher=teacher, settle=settle,  # type: ignore[arg-type]
+            partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,
+            seed=seed, bound=bound, teacher=teacher, settle=settle,
             knowledge=str(knowledge.resolve()) if knowledge else "",
+            vocabulary=_absolute(vocabulary), control=str(control.resolve()) if control else "",
             name=out.name,
         )  # fmt: skip
     except PlanError as exc:
-        raise _fail(str(exc)) from None
+        raise refuse(str(exc)) from None
     try:
         summary = run(config, out, typer.echo, live=live and sys.stdout.isatty(), monitor=monitor)
     except MonitorFailed as exc:
-        raise _fail(str(exc)) from None
+        raise refuse(str(exc)) from None
     except KeyboardInterrupt:  # before the schedule began, or after it ended
         typer.echo(f"{out}: interrupted; every process it started is stopped", err=True)
         raise typer.Exit(130) from None
@@ -131,47 +203,62 @@ def _figure(out: Path) -> None:
         typer.echo(str(exc))
 
 
-@fleet.command("check")
 def check_command(
-    folder: Annotated[Path, typer.Argument(help="A run's folder (with events.jsonl).")],
+    folder: Annotated[
+        Path, typer.Argument(metavar="FOLDER", help="A run's folder (with events.jsonl).")
+    ],
 ) -> None:
     """Check a run's record again; exit 1 if a property failed."""
     from ktbt_proto.tools.fleet.check import check_record
 
     if not (folder / "events.jsonl").exists():
-        raise _fail(f"{folder}: no events.jsonl")
+        raise refuse(f"{folder}: no events.jsonl")
     try:
         summary = check_record(folder)
     except (ValueError, KeyError, TypeError) as exc:
-        raise _fail(f"{folder}/events.jsonl: not a fleet record ({exc})") from None
+        raise refuse(f"{folder}/events.jsonl: not a fleet record ({exc})") from None
     typer.echo(f"{folder}: {'passed' if summary['passed'] else 'FAILED'}")
     _show(summary)
     raise typer.Exit(0 if summary["passed"] else 1)
 
 
-@fleet.command("study")
 def study_command(
-    out: Annotated[Path, typer.Option(help="Folder for every run's record.")] = Path(
-        "results/fleet"
-    ),
-    docs: Annotated[Path, typer.Option(help="Where the table and the figure go.")] = Path(
-        "docs/results"
-    ),
+    out: Annotated[
+        Path, typer.Option("--out", metavar="FOLDER", help="Folder for every run's record.")
+    ] = Path("results/fleet"),
+    docs: Annotated[
+        Path, typer.Option("--docs", metavar="FOLDER", help="Where the table and figure go.")
+    ] = Path("docs/results"),
     only: Annotated[
-        list[str] | None, typer.Option(help="Run only this scenario (repeatable).")
+        list[str] | None,
+        typer.Option("--only", metavar="SCENARIO", help="Run only this scenario (repeatable)."),
     ] = None,
 ) -> None:
-    """The whole study: convergence against size, loss, delay, partition and churn."""
+    """Run the whole fleet study and write its table and figure.
+
+    Convergence against size, loss, delay, partition and churn."""
     from ktbt_proto.tools.fleet.study import SCENARIOS, study
 
     unknown = set(only or ()) - {name for name, _, _ in SCENARIOS}
     if unknown:
-        raise _fail(f"no such scenario: {', '.join(sorted(unknown))}")
+        raise refuse(f"no such scenario: {', '.join(sorted(unknown))}")
     summaries = study(out, docs, typer.echo, only)
     failed = [s["name"] for s in summaries if not s["passed"]]
     typer.echo(json.dumps({"runs": len(summaries), "failed": failed}))
     raise typer.Exit(1 if failed else 0)
 
 
+fleet.command(
+    "run",
+    epilog=example(
+        "ktbt fleet run --peers 6 --loss 0.05 --out run1",
+        "ktbt fleet run --peers 4 --knowledge door.sbt --vocabulary door.toml",
+    ),
+)(run_command)
+fleet.command("check", epilog=example("ktbt fleet check run1"))(check_command)
+fleet.command("study", epilog=example("ktbt fleet study --only size-5"))(study_command)
+
+
 def register(app: typer.Typer) -> None:
+    """Entry point of ``ktbt.commands``: add ``fleet`` to the ``ktbt`` app."""
     app.add_typer(fleet, name="fleet")

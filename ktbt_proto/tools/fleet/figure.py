@@ -8,6 +8,7 @@ import importlib.util
 from pathlib import Path
 from typing import Any
 
+from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.tools.fleet.check import History, convergence_time, read_record, reference_time
 
 INSTALL = "the figure needs matplotlib: pip install 'ktbt[fleet]'"
@@ -37,7 +38,7 @@ def knowledge_steps(h: History) -> dict[str, list[tuple[float, int]]]:
     for e in h.events:
         if e["kind"] == "launch" and e["peer"] in steps:  # a life starts with its save file
             timeline.append((e["t"], e["peer"], "up", e["life"]))
-        elif e["kind"] == "merged" and e["peer"] in steps:
+        elif e["kind"] == Event.MERGED and e["peer"] in steps:
             timeline.append((e["t"], e["peer"], "merged", e["sequence"]))
         elif e["kind"] == "kill":
             timeline.append((e["t"], e["peer"], "kill", None))
@@ -45,7 +46,7 @@ def knowledge_steps(h: History) -> dict[str, list[tuple[float, int]]]:
     for t, peer, what, value in sorted(timeline, key=lambda x: x[0]):
         if what == "up":
             known[peer] = set(lives[(peer, value)].get("known", []))
-        elif what == "merged":
+        elif what == Event.MERGED:
             known.setdefault(peer, set()).add(value)
         else:
             known[peer] = set()

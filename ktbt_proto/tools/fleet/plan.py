@@ -21,6 +21,8 @@ TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router")
 PartitionKind = Literal["silent", "reset", "none"]
 """``none``: the same halves and schedule, nothing held or cut (a baseline for the half
 with the teacher)."""
+TeacherProgram = Literal["run", "serve"]
+"""What a teacher runs: ``ktbt peer run --knowledge`` or ``ktbt peer serve``."""
 
 
 class PlanError(ValueError):
@@ -63,8 +65,14 @@ class FleetConfig:
     up_timeout: float = 0.0
     """Seconds for every peer to come up (0: 30 + 1.5 a peer)."""
     knowledge: str = ""
-    """The teachers' knowledge file (empty: the example colour skills)."""
-    teacher: Literal["run", "serve"] = "run"
+    """The teachers' knowledge file (empty: the example colour skills); the learners meet its
+    sequences."""
+    vocabulary: str = ""
+    """Every peer's ``--vocabulary`` (empty: the search-and-rescue demo robot)."""
+    control: str = ""
+    """Every peer's ``--control`` tree (empty: the demo robot's, or, with a vocabulary, a
+    learner that runs only what it knows)."""
+    teacher: TeacherProgram = "run"
     """``run``: teachers are fleet members (``ktbt peer run --knowledge``: an agent, which
     teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which
     answer every query at once)."""

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from ktbt_proto.files import packaged, write_atomic
+from ktbt_proto.items import show_sequence
 from ktbt_proto.tools.fleet import netns, watch
 from ktbt_proto.tools.fleet.plan import FleetConfig, Host, Plan, make_plan, stream
 from ktbt_proto.tools.fleet.proxy import FaultLayer
@@ -58,7 +59,6 @@ OUTPUTS = (
     "monitor.out",
 )
 """What a run writes in its folder (and removes there before it starts)."""
-UP = re.compile(r"knows (\d+), will meet|serving (\d+) skills|router listening")
 
 
 def digest(subtree: str) -> str:
@@ -123,6 +123,8 @@ class Life:
     out: Path
     started: float
     known: set[str]
+    ready: Path
+    """Where this life says it is up (``ktbt peer ... --ready``): a JSON object, written whole."""
     up: float | None = None
 
 
@@ -196,10 +198,10 @@ class FleetRun:
         path.write_text(json.dumps(conf, indent=1))
         return path
 
-    def _command(self, member: PeerProcess) -> list[str]:
+    def _command(self, member: PeerProcess, ready: Path) -> list[str]:
         node, port = member.node, self.plan.port
         connect = [f"tcp/{link.proxy}:{port}" for link in self.plan.dials(node.name)]
-        conf = ["--config", str(self._zenoh_config(node))]
+        conf = ["--config", str(self._zenoh_config(node)), "--ready", str(ready)]
         python = [sys.executable, "-m", "ktbt_proto", "peer"]
         if node.role == "router":
             args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
@@ -217,16 +219,24 @@ class FleetRun:
             endpoints += ["--publish-events"]
         common = ["--id", node.name, "--log", str(member.log), *conf, *endpoints]
         knowledge = str(self.config.knowledge or EXAMPLE_KNOWLEDGE)
+        robot = ["--vocabulary", self.config.vocabulary] if self.config.vocabulary else []
         if node.role == "teacher" and self.teacher_program == "serve":
-            return [*python, "serve", "--knowledge", knowledge, *common]
-        args = [*python, "run", *common, "--save", str(member.save), "--duration", "31536000"]
+            return [*python, "serve", "--knowledge", knowledge, *robot, *common]
+        if self.config.control:
+            robot += ["--control", self.config.control]
+        args = [*python, "run", *common, *(robot or ["--demo"])]
+        args += ["--save", str(member.save), "--duration", "31536000"]
         if node.role == "teacher":
             args += ["--knowledge", knowledge]
+        else:  # the learners meet the knowledge file's sequences, and stop at nothing else
+            args += [a for key in self.items for a in ("--sequence", show_sequence(key))]
         return args
 
     def launch(self, member: PeerProcess) -> None:
         number = len(member.lives) + 1
         out = member.folder / f"{member.node.name}.out.{number}"
+        ready = member.folder / f"{member.node.name}.ready.{number}"
+        ready.unlink(missing_ok=True)
         if member.node.role == "teacher":
             known = set(self.items)
         elif member.node.role == "learner":
@@ -237,10 +247,10 @@ class FleetRun:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         with open(out, "wb") as sink:
             proc = subprocess.Popen(
-                self._command(member), stdout=sink, stderr=subprocess.STDOUT, env=env,
+                self._command(member, ready), stdout=sink, stderr=subprocess.STDOUT, env=env,
                 stdin=subprocess.DEVNULL, start_new_session=True,
             )  # fmt: skip
-        member.lives.append(Life(number, proc, out, self.record.now(), known))
+        member.lives.append(Life(number, proc, out, self.record.now(), known, ready))
         self.record.emit(
             "launch",
             peer=member.node.name,
@@ -289,16 +299,16 @@ class FleetRun:
 
     def _tail(self, member: PeerProcess) -> None:
         life = member.life
-        if life is not None and life.up is None:
-            text = life.out.read_bytes().decode("utf-8", "replace")
-            found = UP.search(text)
-            if found is not None:
-                life.up = self.record.now()
-                knows = found.group(1) or found.group(2)
-                self.record.emit(
-                    "up", peer=member.node.name, life=life.number,
-                    knows=int(knows) if knows else None,
-                )  # fmt: skip
+        if life is not None and life.up is None and life.ready.exists():
+            try:
+                knows = json.loads(life.ready.read_bytes())["knows"]
+            except (OSError, ValueError, TypeError, KeyError):
+                knows = None  # up all the same: the file is there
+            life.up = self.record.now()
+            self.record.emit(
+                "up", peer=member.node.name, life=life.number,
+                knows=knows if isinstance(knows, int) else None,
+            )  # fmt: skip
         if member.node.role == "router" or not member.log.exists():
             return
         with open(member.log, "rb") as f:

@@ -14,17 +14,19 @@ from typing import Annotated
 
 import typer
 
-from ktbt_proto.tools.cli import Config, Connect, Mode, ZenohMode
+from ktbt_proto.tools.cli.options import (
+    Connect,
+    JoinMode,
+    TrustFile,
+    ZenohConfig,
+    address,
+    example,
+    refuse,
+    zenoh_settings,
+)
 
 INSTALL = "ktbt monitor needs the monitor extra: pip install 'ktbt[monitor]'"
 LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
-
-
-def _address(text: str, option: str = "--http") -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not port.isdigit() or int(port) > 65535 or not host:
-        raise typer.BadParameter(f"{text!r} is not HOST:PORT (127.0.0.1:8470)", param_hint=option)
-    return host.strip("[]"), int(port)
 
 
 def _is_loopback(host: str) -> bool:
@@ -50,35 +52,35 @@ def monitor_command(
         str,
         typer.Option(
             "--http",
+            metavar="HOST:PORT",
             help="Where to serve the page, HOST:PORT; a host other than loopback is reachable "
             "from other machines (pages must then name it or an --allow-host).",
         ),
     ] = "127.0.0.1:8470",
     allow_host: Annotated[
         list[str] | None,
-        typer.Option("--allow-host", help="Another Host name a page may use (repeatable)."),
+        typer.Option(
+            "--allow-host", metavar="HOST", help="Another Host name a page may use (repeatable)."
+        ),
     ] = None,
-    config: Config = None,
-    mode: Mode = ZenohMode.peer,
+    config: ZenohConfig = None,
+    mode: JoinMode = "peer",
     uds: Annotated[
         Path | None,
         typer.Option(
             "--uds",
+            metavar="PATH",
             help="Also serve on this unix socket, for tools on this machine (as in a network "
             "namespace of their own) that cannot reach the --http address.",
         ),
     ] = None,
-    trust: Annotated[
-        Path | None,
-        typer.Option(
-            "--trust",
-            help="Peers' keys, 'NAME KEY' a line: their events must be signed by them (others' "
-            "first key is pinned).",
-        ),
-    ] = None,
+    trust: TrustFile = None,
 ) -> None:
-    """Serve a live view of the fleet in the browser: who is present, who knows what, each
-    transfer and refusal as it happens (spec/protocol.md section 10)."""
+    """Serve a live view of the fleet in the browser.
+
+    It shows who is present, who knows what, each transfer and refusal as it happens
+    (spec/protocol.md section 10). With --trust, the peers named there must sign their
+    events; others' first key is pinned."""
     try:
         import uvicorn
 
@@ -90,19 +92,16 @@ def monitor_command(
         raise typer.Exit(2) from None
     from ktbt_proto.exchange.signing import KeyFileError
     from ktbt_proto.exchange.trust import TrustStore
-    from ktbt_proto.tools.cli import _settings
     from ktbt_proto.tools.peer import until_signalled
 
     if not connect:
-        typer.echo("error: --connect ENDPOINT: the fleet to listen to", err=True)
-        raise typer.Exit(2)
-    settings = _settings(None, connect, config, False, mode.value)
+        raise refuse("--connect: required: the fleet to listen to (--connect ENDPOINT)")
+    settings = zenoh_settings(None, connect, config, False, mode)
     try:
         store = TrustStore.load(trust) if trust is not None else None
     except KeyFileError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    host, port = _address(http)
+        raise refuse(str(exc)) from None
+    host, port = address(http, "--http")
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -110,8 +109,7 @@ def monitor_command(
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
-        typer.echo(f"error: cannot serve on {http}: {exc.strerror or exc}", err=True)
-        raise typer.Exit(2) from None
+        raise refuse(f"cannot serve on {http}: {exc.strerror or exc}") from None
     port = sock.getsockname()[1]
     sockets = [sock]
     bound: tuple[int, int] | None = None
@@ -120,8 +118,7 @@ def monitor_command(
             unix, bound = _unix_socket(uds)
         except OSError as exc:
             sock.close()
-            typer.echo(f"error: cannot serve on {uds}: {exc.strerror or exc}", err=True)
-            raise typer.Exit(2) from None
+            raise refuse(f"cannot serve on {uds}: {exc.strerror or exc}") from None
         sockets.append(unix)
     fleet = FleetState(store)
     try:
@@ -129,8 +126,7 @@ def monitor_command(
     except Exception as exc:  # zenoh's own error: a bad endpoint or config
         for s in sockets:
             s.close()
-        typer.echo(f"error: cannot join the fleet at {', '.join(connect)}: {exc}", err=True)
-        raise typer.Exit(2) from None
+        raise refuse(f"cannot join the fleet at {', '.join(connect)}: {exc}") from None
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
     app = create_app(fleet, allowed_hosts(host, allow_host or []), listener.tree)
@@ -188,4 +184,6 @@ def _unix_socket(path: Path) -> tuple[socket.socket, tuple[int, int]]:
 
 def register(app: typer.Typer) -> None:
     """Entry point of ``ktbt.commands``: add ``monitor`` to the ``ktbt`` app."""
-    app.command("monitor")(monitor_command)
+    app.command("monitor", epilog=example("ktbt monitor --connect tcp/127.0.0.1:7447"))(
+        monitor_command
+    )

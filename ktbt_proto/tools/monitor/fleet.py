@@ -26,10 +26,11 @@ from datetime import UTC, datetime
 from typing import Any
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.events import FleetEvent, _clip, digest
+from ktbt_proto.exchange.events import FleetEvent, clip
 from ktbt_proto.exchange.messages import _ID
+from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.trust import TrustStore
-from ktbt_proto.items import parse_sequence
+from ktbt_proto.items import parse_sequence, sequence_digest
 
 MAX_PEERS = 512
 MAX_ITEMS = 512
@@ -142,12 +143,12 @@ class FleetState:
     def _drop(self, why: str, reason: str | None) -> None:
         self.drops[why] += 1
         if reason is not None:
-            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(_clip(reason, 200))
+            self.reasons.setdefault(why, deque(maxlen=REASONS)).append(clip(reason, 200))
 
     def _named(self, name: str, where: str) -> Peer | None:
         """The peer of a name from a key expression: a peer name (section 1) or refused."""
         if not _NAME.fullmatch(name):
-            self._drop("malformed", f"{where}: {_clip(name, 64)!r} is not a peer name")
+            self._drop("malformed", f"{where}: {clip(name, 64)!r} is not a peer name")
             return None
         return self._peer(name)
 
@@ -193,7 +194,7 @@ class FleetState:
         for sequence in sequences[:MAX_ITEMS]:
             try:
                 parse_sequence(sequence)
-                entries.append((digest(sequence), sequence))
+                entries.append((sequence_digest(sequence), sequence))
             except (StringBTError, UnicodeError, RecursionError) as exc:
                 errors.append(str(exc).splitlines()[0])
         with self._lock:
@@ -256,9 +257,9 @@ class FleetState:
                 if value is not None:
                     seen[name] = value
             if event.item is not None and event.sequence is not None:
-                whole = digest(event.sequence) == event.item
+                whole = sequence_digest(event.sequence) == event.item
                 if whole or event.sequence.endswith("..."):  # clipped (section 10)
-                    learns = event.event == "merged"
+                    learns = event.event == Event.MERGED
                     self._item(event.item, event.sequence, peer, clipped=not whole, learns=learns)
                 else:
                     self._drop(
@@ -284,12 +285,12 @@ class FleetState:
 
     def _follow(self, peer: Peer, event: FleetEvent, signed: bool, now: float) -> None:
         kind = event.event
-        if kind == "query-sent" and event.id is not None:
+        if kind == Event.QUERY_SENT and event.id is not None:
             if len(peer.open_queries) < 64:
                 peer.open_queries[event.id] = now
-        elif kind == "answer-received" and event.id is not None:
+        elif kind == Event.ANSWER_RECEIVED and event.id is not None:
             peer.open_queries.pop(event.id, None)
-        elif kind == "merged" and event.item is not None and event.item in self.items:
+        elif kind == Event.MERGED and event.item is not None and event.item in self.items:
             self._know(
                 peer,
                 event.item,
@@ -310,16 +311,16 @@ class FleetState:
                 {"k": "know", "peer": peer.name, "item": event.item, "how": "learned", "t": event.t}
             )
             self._spread(event.item, event.t)
-        elif kind == "forgotten" and event.item is not None:
+        elif kind == Event.FORGOTTEN and event.item is not None:
             if self._unknow(peer, event.item):
                 self._spread(event.item, event.t)
-        elif kind in ("refused", "error-received"):
+        elif kind in (Event.REFUSED, Event.ERROR_RECEIVED):
             refusal = {
                 "k": "refusal",
                 "t": event.t,
                 "peer": peer.name,
                 "reason": event.reason or "",
-                "where": event.where or ("peer" if kind == "error-received" else "agent"),
+                "where": event.where or ("peer" if kind == Event.ERROR_RECEIVED else "agent"),
                 "sender": event.sender,
             }
             self.refusals.append(refusal)
@@ -434,7 +435,7 @@ class FleetState:
         self._remove(victim)
         self._drop(
             "evicted",
-            f"{_clip(sequence, 60)}, known by {count}, for one {_clip(peer.name, 64)} knows",
+            f"{clip(sequence, 60)}, known by {count}, for one {clip(peer.name, 64)} knows",
         )
         return True
 

@@ -20,8 +20,9 @@ from typing import Any
 
 import pytest
 
-from ktbt_proto.exchange.events import FleetEvent, digest, encode_event, signed_bytes
+from ktbt_proto.exchange.events import FleetEvent, encode_event, signed_bytes
 from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.items import sequence_digest
 from tests.browser import chromium, unavailable
 from tests.fleet_helpers import sweep
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, serving, wait_until
@@ -126,7 +127,9 @@ def test_peers_transfers_refusals_and_departures_show_live(
 ) -> None:
     page, port, stack = fleet
     assert wait_until(lambda: page.status("t") == "present", 15)
-    assert wait_until(lambda: (page.cell("t", digest(GREEN)) or {}).get("how") == "known", 15)
+    assert wait_until(
+        lambda: (page.cell("t", sequence_digest(GREEN)) or {}).get("how") == "known", 15
+    )
 
     # A learner: the merge in its transfer log, and the cell's drawing in the page; selected,
     # its control tree, asked of it, with the learned item merged in.
@@ -139,8 +142,10 @@ def test_peers_transfers_refusals_and_departures_show_live(
         merged = next(
             json.loads(line) for line in log.read_text().splitlines() if '"merged"' in line
         )
-        assert wait_until(lambda: (page.cell("r1", digest(GREEN)) or {}).get("how") == "learned", 5)
-        cell = page.cell("r1", digest(GREEN))
+        assert wait_until(
+            lambda: (page.cell("r1", sequence_digest(GREEN)) or {}).get("how") == "learned", 5
+        )
+        cell = page.cell("r1", sequence_digest(GREEN))
         assert cell is not None
         lag = cell["at"] - _ms(merged["t"])
         assert lag <= 1000, f"shown {lag} ms after the merge"
@@ -168,7 +173,9 @@ def test_peers_transfers_refusals_and_departures_show_live(
                      endpoint(port), ready="serving")
     )  # fmt: skip
     assert wait_until(lambda: page.status("bad") == "present", 15)  # the matrix is rebuilt
-    assert page.cell("r1", digest(GREEN)) == cell  # first shown when it was, not at the rebuild
+    assert (
+        page.cell("r1", sequence_digest(GREEN)) == cell
+    )  # first shown when it was, not at the rebuild
     with ktbt_process(
         "peer", "run", "--id", "r2", "--connect", endpoint(port), "--log", str(log2),
         "--sequence", "Carrying", "--duration", "4", "--publish-events",
@@ -222,16 +229,23 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
 
         def event_of(peer: str, n: int, sequence: str) -> bytes:
             one = FleetEvent(
-                peer=peer, n=n, t=now, event="merged", item=digest(sequence), sequence=sequence
+                peer=peer,
+                n=n,
+                t=now,
+                event="merged",
+                item=sequence_digest(sequence),
+                sequence=sequence,
             )
             return encode_event(one)
 
         # connected, and the token's name, not a peer name, refused
         assert wait_until(lambda: "malformed" in page.dropped(), 10)
-        events.put(event(0, event="merged", item=digest(item), sequence=item, teacher="t"))
+        events.put(event(0, event="merged", item=sequence_digest(item), sequence=item, teacher="t"))
         events.put(event(1, event="refused", reason=reason))
         assert wait_until(lambda: any(reason in t for t in page.texts("#refusals li")), 10)
-        assert wait_until(lambda: (page.cell("h", digest(item)) or {}).get("how") == "learned", 5)
+        assert wait_until(
+            lambda: (page.cell("h", sequence_digest(item)) or {}).get("how") == "learned", 5
+        )
 
         junk = [b"not json", b"{" * 20_000, event(2, event="merged").replace(b'"h"', b'"x"')]
         for payload in junk:
@@ -282,11 +296,11 @@ def test_hostile_names_items_and_reasons_stay_text_and_junk_is_counted(
         for n, sequence in enumerate(fill):
             filler.put(event_of("e", n, sequence))
         assert wait_until(lambda: page.js("return window.ktbtMonitor.itemCount()") == 512, 15)
-        assert digest(fill[0]) in page.js("return window.ktbtMonitor.timelineItems()")
+        assert sequence_digest(fill[0]) in page.js("return window.ktbtMonitor.timelineItems()")
         newcomer = session.declare_publisher("ktbt/v1/events/g")
         newcomer.put(event_of("g", 0, "<c>(G0)"))  # e is the heaviest: its oldest goes
         lines = "return window.ktbtMonitor.timelineItems()"
-        assert wait_until(lambda: digest(fill[0]) not in page.js(lines), 10)
+        assert wait_until(lambda: sequence_digest(fill[0]) not in page.js(lines), 10)
         assert len(page.js(lines)) <= page.js("return window.ktbtMonitor.itemCount()") == 512
     finally:
         session.close()  # type: ignore[no-untyped-call]
@@ -330,7 +344,7 @@ def test_a_fleet_started_by_ktbt_fleet_run_shows_in_the_page(tmp_path: Path) -> 
             page = Page(driver)
             assert wait_until(lambda: record.exists() and '"run"' in record.read_text(), 30)
             run = json.loads(record.read_text().splitlines()[0])
-            items = [digest(k) for k in run["items"]]
+            items = [sequence_digest(k) for k in run["items"]]
             peers = [n["name"] for n in run["plan"]["nodes"]]
 
             def everyone_knows_everything() -> bool:

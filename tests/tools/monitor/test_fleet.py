@@ -8,9 +8,10 @@ import sys
 
 import pytest
 
-from ktbt_proto.exchange.events import FleetEvent, digest, signed_bytes
+from ktbt_proto.exchange.events import FleetEvent, signed_bytes
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import TrustStore
+from ktbt_proto.items import sequence_digest
 from ktbt_proto.tools.monitor import fleet as fleet_module
 from ktbt_proto.tools.monitor.fleet import FleetState
 from tests.zenoh_helpers import ROOT
@@ -62,29 +63,37 @@ def test_a_trust_store_names_the_key_a_peer_must_sign_with() -> None:
 
 def test_an_item_is_named_by_a_sequence_of_its_digest_and_a_clipped_one_is_replaced() -> None:
     fleet = FleetState()
-    fleet.event(ev("r1", 0, "merged", item=digest(GREEN), sequence="<c>(Lie)", teacher="t"))
-    assert digest(GREEN) not in fleet.items and fleet.drops["malformed"] == 1
-    fleet.event(ev("r1", 1, "merged", item=digest(GREEN), sequence="<c>(Target...", teacher="t"))
-    assert fleet.items[digest(GREEN)] == "<c>(Target..."
+    fleet.event(
+        ev("r1", 0, "merged", item=sequence_digest(GREEN), sequence="<c>(Lie)", teacher="t")
+    )
+    assert sequence_digest(GREEN) not in fleet.items and fleet.drops["malformed"] == 1
+    fleet.event(
+        ev("r1", 1, "merged", item=sequence_digest(GREEN), sequence="<c>(Target...", teacher="t")
+    )
+    assert fleet.items[sequence_digest(GREEN)] == "<c>(Target..."
     fleet.catalog("t", [GREEN])
-    assert fleet.items[digest(GREEN)] == GREEN
+    assert fleet.items[sequence_digest(GREEN)] == GREEN
 
 
 def test_a_merge_is_a_transfer_a_matrix_cell_and_a_point_of_the_timeline() -> None:
     fleet = FleetState()
     fleet.peer_joined("t")
     fleet.catalog("t", [GREEN])
-    fleet.event(sign(ev("r1", 0, "merged", item=digest(GREEN), sequence=GREEN, teacher="t")))
+    fleet.event(
+        sign(ev("r1", 0, "merged", item=sequence_digest(GREEN), sequence=GREEN, teacher="t"))
+    )
     version, state = fleet.snapshot()
     peers = {p["peer"]: p for p in state["peers"]}
-    assert peers["t"]["knows"] == {digest(GREEN): "known"}
-    assert peers["r1"]["knows"] == {digest(GREEN): "learned"}
+    assert peers["t"]["knows"] == {sequence_digest(GREEN): "known"}
+    assert peers["r1"]["knows"] == {sequence_digest(GREEN): "learned"}
     assert state["transfers"][0]["teacher"] == "t" and state["transfers"][0]["signed"]
     assert state["timeline"][-1]["count"] == 2
-    fleet.event(sign(ev("r1", 1, "forgotten", item=digest(GREEN), sequence=GREEN, reason="idle")))
+    fleet.event(
+        sign(ev("r1", 1, "forgotten", item=sequence_digest(GREEN), sequence=GREEN, reason="idle"))
+    )
     _, changes = fleet.changes_since(version)
     assert changes is not None
-    assert {"k": "know", "peer": "r1", "item": digest(GREEN), "how": None} in changes
+    assert {"k": "know", "peer": "r1", "item": sequence_digest(GREEN), "how": None} in changes
     assert changes[-1]["k"] == "peer"  # the peer's counters, once per batch
 
 
@@ -122,9 +131,12 @@ def test_tables_are_bounded_and_what_does_not_fit_is_counted(
 
     fleet = FleetState()  # items nobody knows make room for new ones
     for n in range(3):
-        fleet.event(ev("r1", n, "query-sent", id=f"q{n}", item=digest(f"<c>(Y{n})"),
+        fleet.event(ev("r1", n, "query-sent", id=f"q{n}", item=sequence_digest(f"<c>(Y{n})"),
                        sequence=f"<c>(Y{n})"))  # fmt: skip
-    assert list(fleet.items) == [digest("<c>(Y1)"), digest("<c>(Y2)")] and not fleet.drops
+    assert (
+        list(fleet.items) == [sequence_digest("<c>(Y1)"), sequence_digest("<c>(Y2)")]
+        and not fleet.drops
+    )
 
 
 def test_a_catalog_that_no_longer_lists_an_item_says_it_was_forgotten(
@@ -133,10 +145,10 @@ def test_a_catalog_that_no_longer_lists_an_item_says_it_was_forgotten(
     fleet = FleetState()
     fleet.catalog("t", [GREEN, "<c>(A)"])
     fleet.catalog("t", ["<c>(A)"])
-    assert digest(GREEN) in fleet.peers["t"].knows  # just listed: maybe a race, kept
+    assert sequence_digest(GREEN) in fleet.peers["t"].knows  # just listed: maybe a race, kept
     monkeypatch.setattr(fleet_module, "LOST_AFTER", -1.0)
     fleet.catalog("t", ["<c>(A)"])
-    assert list(fleet.peers["t"].knows) == [digest("<c>(A)")]
+    assert list(fleet.peers["t"].knows) == [sequence_digest("<c>(A)")]
 
 
 def test_a_page_that_fell_behind_gets_a_snapshot_and_batches_are_bounded(

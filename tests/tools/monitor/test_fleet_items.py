@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from ktbt_proto.exchange.events import FleetEvent, digest, signed_bytes
+from ktbt_proto.exchange.events import FleetEvent, signed_bytes
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import TrustStore
-from ktbt_proto.items import parse_sequence
+from ktbt_proto.items import parse_sequence, sequence_digest
 from ktbt_proto.tools.monitor import fleet as fleet_module
 from ktbt_proto.tools.monitor.fleet import FleetState
 
@@ -104,8 +104,8 @@ class Events:
 
     def send(self, peer: str, kind: str, sequence: str, **fields: object) -> None:
         event = FleetEvent.model_validate(
-            {"peer": peer, "n": self.n[peer], "t": T, "event": kind, "item": digest(sequence),
-             "sequence": sequence, **fields}
+            {"peer": peer, "n": self.n[peer], "t": T, "event": kind,
+             "item": sequence_digest(sequence), "sequence": sequence, **fields}
         )  # fmt: skip
         self.n[peer] += 1
         self.fleet.event(event)
@@ -130,11 +130,11 @@ def test_the_honest_fleets_items_survive_peers_listing_junk(flooders: int) -> No
             events.send(f"r{r}", "merged", colour, teacher="t")
     for liar in liars:  # and more junk, again and again: refused
         fleet.catalog(liar, junk(fleet_module.MAX_ITEMS, tag="K"))
-    colours = {digest(c) for c in COLOURS}
+    colours = {sequence_digest(c) for c in COLOURS}
     assert colours <= set(fleet.items)
     assert set(fleet.peers["t"].knows) == colours
     for r in range(10):
-        assert set(fleet.peers[f"r{r}"].knows) == {digest(c) for c in COLOURS[: 1 + r % 4]}
+        assert set(fleet.peers[f"r{r}"].knows) == {sequence_digest(c) for c in COLOURS[: 1 + r % 4]}
     assert len(fleet.transfers) == sum(1 + r % 4 for r in range(10))
     # The colours took the place of four junk items; the rest of the junk was refused.
     assert fleet.drops == {"evicted": 4, "full": flooders * fleet_module.MAX_ITEMS}
@@ -153,7 +153,7 @@ def test_an_item_only_named_never_takes_a_known_ones_place(
     fleet.catalog("t", COLOURS)
     for k, sequence in enumerate(junk(3)):
         events.send("mallory", "query-sent", sequence, id=f"q{k}")
-    assert set(fleet.items) == {digest(c) for c in COLOURS}
+    assert set(fleet.items) == {sequence_digest(c) for c in COLOURS}
     assert fleet.drops == {"full": 3}
     assert "named" in fleet.stats()["reasons"]["full"][0]
 
@@ -168,8 +168,11 @@ def test_equals_never_churn_and_the_heaviest_gives_way(monkeypatch: pytest.Monke
     assert "(it was looked at)" in fleet.stats()["reasons"]["full"][0]
     fleet.catalog("c", junk(1, "C"))  # a newcomer holding nothing takes a's oldest
     assert fleet.drops == {"full": 1, "evicted": 1}
-    assert digest("<c>(A0,x=0)") not in fleet.items and digest("<c>(C0,x=0)") in fleet.items
-    spread = [p["count"] for p in fleet.timeline if p["item"] == digest("<c>(A0,x=0)")]
+    assert (
+        sequence_digest("<c>(A0,x=0)") not in fleet.items
+        and sequence_digest("<c>(C0,x=0)") in fleet.items
+    )
+    spread = [p["count"] for p in fleet.timeline if p["item"] == sequence_digest("<c>(A0,x=0)")]
     assert spread[-1] == 0  # the timeline says nobody knows it now
 
 
@@ -239,7 +242,7 @@ def test_hostile_peers_never_crowd_out_the_honest_fleet(
         check(fleet)
         for name, sequences in knows.items():
             if sequences:
-                assert {digest(s) for s in sequences} <= set(fleet.peers[name].knows), name
+                assert {sequence_digest(s) for s in sequences} <= set(fleet.peers[name].knows), name
     event(f"table full: {len(fleet.items) == 24}, evicted: {fleet.drops['evicted'] > 0}")
     page.catch_up()
     assert page.state() == shown(fleet)
@@ -255,7 +258,7 @@ def test_names_that_only_sent_an_event_never_evict_a_present_peers_items() -> No
     fleet.catalog("teacher", skills)
     for k in range(511):
         events.send(f"s{k}", "merged", f"<c>(J{k},x={k})", teacher="x")
-    assert set(fleet.peers["teacher"].knows) == {digest(s) for s in skills}
+    assert set(fleet.peers["teacher"].knows) == {sequence_digest(s) for s in skills}
     assert len(fleet.items) == fleet_module.MAX_ITEMS and fleet.drops["evicted"] == 0
     check(fleet)
 

@@ -1,4 +1,5 @@
-"""A simulator run watched by the monitor (spec/protocol.md section 10): `ktbt sim view
+"""The stream of in-memory agents (``ktbt_proto.transport.stream``), as a simulator run watched
+by the monitor uses it (spec/protocol.md section 10): `ktbt sim view
 --publish-events`, headless, streams its robots' events, catalogs and trees to a real
 :class:`Listener`, whose matrix ends equal to what the robots know, learned from whom, with one
 transfer a merge. What the robots know is read off the same run replayed in this process (a
@@ -12,12 +13,13 @@ import subprocess
 import sys
 import threading
 from collections import Counter
+from dataclasses import replace
 from typing import Any
 
 import pytest
 
-from ktbt_proto.exchange.events import digest
 from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.items import sequence_digest
 from ktbt_proto.tools.monitor.fleet import FleetState
 from ktbt_proto.tools.monitor.listen import Listener
 from ktbt_proto.transport.stream import AgentStream
@@ -37,8 +39,9 @@ def replay(iterations: int) -> tuple[Any, list[dict[str, Any]]]:
     world = World(PRESETS["ktbt"], seed=0)
     merges: list[dict[str, Any]] = []
     for agent in world.agents:
-        agent.log = TransferLog(None)
-        agent.log.add_sink(lambda e: merges.append(e) if e["event"] == "merged" else None)
+        log = TransferLog(None)
+        agent.security = replace(agent.security, log=log)
+        log.add_sink(lambda e: merges.append(e) if e["event"] == "merged" else None)
     world.run(iterations)
     return world, merges
 
@@ -89,12 +92,15 @@ def test_a_simulator_run_streams_to_the_monitor_what_its_robots_know(
     world, merges = replay(ITERATIONS)
     assert len(merges) >= 5
     truth = {
-        agent.name: {digest(k.key): k.source for k in agent.knowledge} for agent in world.agents
+        agent.name: {sequence_digest(k.key): k.source for k in agent.knowledge}
+        for agent in world.agents
     }
     assert not fleet.drops and all(p.lost_events == 0 for p in fleet.peers.values())
     assert matrix(fleet) == truth
     transfers = Counter((t["learner"], t["teacher"], t["item"]) for t in fleet.transfers)
-    assert transfers == Counter((m["peer"], m["teacher"], digest(m["sequence"])) for m in merges)
+    assert transfers == Counter(
+        (m["peer"], m["teacher"], sequence_digest(m["sequence"])) for m in merges
+    )
     for agent in world.agents:
         assert agent.log is not None
         assert (
@@ -142,7 +148,9 @@ def test_a_stream_waits_for_a_monitor_and_serves_the_agents_trees() -> None:
         tree = world.agents[0].control.tree
         assert listener.tree("r0") == render(tree)
         world.run(ITERATIONS)
-        truth = {a.name: {digest(k.key): k.source for k in a.knowledge} for a in world.agents}
+        truth = {
+            a.name: {sequence_digest(k.key): k.source for k in a.knowledge} for a in world.agents
+        }
         assert wait_until(lambda: matrix(fleet) == truth, 10)
         assert listener.tree("r0") == render(world.agents[0].control.tree)
         # Each agent's catalog says what it knows now, its merges too.

@@ -1,0 +1,102 @@
+"""The application-timed agent: the application says when to ask, announce, read and answer
+(``spec/protocol.md`` section 4.1).
+
+The search-and-rescue simulator follows the authors' release, whose wait and cool-down counters
+are shared with deliveries and whose teachers choose whom to answer; it ticks no teach or learn
+tree and calls these methods instead. Every message is the same ``query`` or ``response`` as a
+tree-timed agent's, checked and merged by the same
+:class:`~ktbt_proto.exchange.core.AgentCore`, and answered with the same
+``ktbt_proto.exchange.answers.answer_to``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from functools import cached_property
+
+from ktbt_proto.exchange.core import AgentCore
+from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.items import sequence_key
+from ktbt_proto.tree import Condition
+
+__all__ = ["ApplicationTimedAgent"]
+
+
+class ApplicationTimedAgent(AgentCore):
+    """An agent its application times (section 4.1): :meth:`ask`, :meth:`announce`,
+    :meth:`receive`, :meth:`heard`, :meth:`answer` and :meth:`close_query`. The application sets
+    ``now`` (the tick its metrics are stamped with), ticks the control tree itself, and calls
+    :meth:`tend_memory` (section 4.2). It takes :class:`AgentCore`'s settings."""
+
+    HEARD_LIMIT = 1024
+    """Open queries remembered, one per asker (oldest dropped)."""
+
+    _open: Query | None = None
+    _answered = False
+
+    def ask(self, sequence: Iterable[Condition | str] | str) -> Query:
+        """Broadcast a query now and keep it open until :meth:`close_query` (a previous open
+        query is closed first); :meth:`receive` merges the first acceptable answer to it."""
+        if self._open is not None:
+            self.close_query()
+        query = Query(id=Query.new_id(), sender=self.name, sequence=sequence_key(sequence))
+        self._open, self._answered = query, False
+        self.transport.broadcast(query)
+        self.metrics.queries_sent += 1
+        self._record("query-sent", id=query.id, sequence=query.sequence)
+        return query
+
+    @property
+    def open_query(self) -> Query | None:
+        """The query :meth:`ask` sent and not yet closed (answered or not)."""
+        return self._open
+
+    def announce(self, to: str) -> None:
+        """Send the open, unanswered query again to one peer (one that just came into range),
+        so that it stays answerable for the asker's whole wait."""
+        if self._open is not None and not self._answered:
+            self.transport.send(to, self._open)
+
+    def close_query(self) -> None:
+        """The asker's wait is over: a query nobody answered counts as lost, and answers to it
+        that arrive later are late answers, counted apart (section 2)."""
+        if self._open is not None:
+            if not self._answered:
+                self.metrics.queries_lost += 1
+            self._closed_query(self._open.id)
+        self._open = None
+
+    def heard(self, sender: str) -> Query | None:
+        """The latest query received from ``sender`` by :meth:`receive`, if any."""
+        return self._heard.get(sender)
+
+    def receive(self) -> int:
+        """Read the transport without ticking any tree: queries are remembered by asker (for
+        :meth:`heard`); an answer to the open query is checked and merged (section 2), any
+        other answer is late, overheard (section 4.3) or refused. Returns how many answers it
+        accepted."""
+        return self._read()
+
+    @cached_property
+    def _heard(self) -> dict[str, Query]:
+        """The latest query from each asker, oldest asker first."""
+        return {}
+
+    def _query(self, query: Query) -> None:
+        heard = self._heard
+        heard.pop(query.sender, None)
+        heard[query.sender] = query
+        if len(heard) > self.HEARD_LIMIT:
+            del heard[next(iter(heard))]
+
+    def _response(self, response: Response) -> int:
+        asked = self._open
+        if asked is None or self._answered or asked.id != response.id:
+            return self._not_mine(response, mine=asked is not None and asked.id == response.id)
+        self.metrics.responses_received += 1
+        new = asked.sequence not in self.knowledge
+        if not self.accept(response, asked):
+            return 0
+        self._answered = True
+        self.metrics.learned_direct += new
+        return 1

@@ -23,7 +23,12 @@ from typing import Annotated, Any
 
 import typer
 
-ros2 = typer.Typer(help="KT-BT on ROS 2: build the interfaces, run a robot's lifecycle node.")
+from ktbt_proto.tools.cli.options import Timeout, example
+
+ros2 = typer.Typer(
+    help="KT-BT on ROS 2: build the interfaces, run a robot's lifecycle node.",
+    no_args_is_help=True,
+)
 
 TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
 
@@ -48,12 +53,13 @@ def _ready() -> None:
         raise typer.Exit(1) from None
 
 
-@ros2.command("build")
+@ros2.command("build", epilog=example("ktbt ros2 build"))
 def build_command(
-    force: Annotated[bool, typer.Option(help="Build even if up to date.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Build even if up to date.")] = False,
 ) -> None:
-    """Build ros2/ktbt_interfaces into this environment from the ROS 2 wheels (skipped when
-    up to date)."""
+    """Build the interfaces into this environment (cached).
+
+    ros2/ktbt_interfaces, from the ROS 2 wheels; skipped while up to date."""
     from ktbt_proto.interop.ros2 import interfaces
 
     try:
@@ -65,16 +71,24 @@ def build_command(
         _say(f"{interfaces.PACKAGE} is up to date")
 
 
-@ros2.command("run", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@ros2.command(
+    "run",
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
+    epilog=example("ktbt ros2 run --autostart --ros-args -r __ns:=/robot1 --params-file r1.yaml"),
+)
 def run_command(
     ctx: typer.Context,
     autostart: Annotated[
-        bool, typer.Option(help="Configure and activate at once (no lifecycle manager).")
+        bool,
+        typer.Option("--autostart", help="Configure and activate at once (no lifecycle manager)."),
     ] = False,
-    node_name: Annotated[str, typer.Option("--node-name", help="The node's name.")] = "ktbt",
+    node_name: Annotated[
+        str, typer.Option("--node-name", metavar="NAME", help="The node's name.")
+    ] = "ktbt",
 ) -> None:
-    """Run one robot's KT-BT agent as a managed (lifecycle) node until Ctrl-C. ROS arguments
-    follow: --ros-args -r __ns:=/robot1 --params-file robot1.yaml"""
+    """Run one robot's agent as a lifecycle node.
+
+    Until Ctrl-C; ROS arguments (a namespace, a parameter file) follow --ros-args."""
     _ready()
     import signal
     import threading
@@ -88,7 +102,10 @@ def run_command(
 
     extra = list(ctx.args)
     if extra and extra[0] != "--ros-args":
-        _say(f"error: unexpected {extra[0]!r}: ROS arguments come after --ros-args")
+        if extra[0].startswith("-"):
+            _say(f"error: {extra[0]}: no such option")
+        else:
+            _say(f"error: {extra[0]!r}: unexpected; ROS arguments come after --ros-args")
         raise typer.Exit(2)
     try:
         # Our own handlers: the node is cleaned up (its summary logged, its files closed)
@@ -167,10 +184,7 @@ def _call(client_node: Any, srv_type: Any, service: str, request: Any, timeout: 
         client_node.destroy_client(client)
 
 
-Timeout = Annotated[float, typer.Option(help="Seconds to wait for the node.")]
-
-
-@ros2.command("lifecycle")
+@ros2.command("lifecycle", epilog=example("ktbt ros2 lifecycle /robot1/ktbt activate"))
 def lifecycle_command(
     node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
     transition: Annotated[
@@ -178,7 +192,9 @@ def lifecycle_command(
     ],
     timeout: Timeout = 10.0,
 ) -> None:
-    """Change a managed node's state (or print it, with get) through its lifecycle services."""
+    """Change a lifecycle node's state, or print it.
+
+    Through the node's standard lifecycle_msgs services."""
     if transition not in (*TRANSITIONS, "get"):
         _say(f"error: {transition!r}: use {', '.join(TRANSITIONS)} or get")
         raise typer.Exit(2)
@@ -229,17 +245,20 @@ def _key(option: str, text: str) -> str:
         raise typer.Exit(2) from None
 
 
-@ros2.command("list")
+@ros2.command("list", epilog=example("ktbt ros2 list /robot1/ktbt --until 'TargetSeen(colour=2)'"))
 def list_command(
     node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
     until: Annotated[
         str | None,
-        typer.Option(help="Wait (up to --timeout) until the robot knows this sequence."),
+        typer.Option(
+            "--until", metavar="SEQUENCE", help="Wait (up to --timeout) until it knows this."
+        ),
     ] = None,
     timeout: Timeout = 10.0,
 ) -> None:
-    """What a robot knows, each item with its author, teacher and time (its ~/list_knowledge
-    service)."""
+    """What a robot knows.
+
+    Each item with its author and teacher, from the node's ~/list_knowledge service."""
     wanted = _key("--until", until) if until is not None else None
     node = _full(node)
     with _client_node() as client_node:
@@ -274,13 +293,15 @@ def list_command(
         typer.echo(f"  {_shown(item.sequence)}" + (f"  ({', '.join(origin)})" if origin else ""))
 
 
-@ros2.command("forget")
+@ros2.command("forget", epilog=example("ktbt ros2 forget /robot1/ktbt 'TargetSeen(colour=2)'"))
 def forget_command(
     node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
     sequence: Annotated[str, typer.Argument(help="The item's sequence: 'TargetSeen(colour=2)'.")],
     timeout: Timeout = 10.0,
 ) -> None:
-    """Make a robot forget a learned item (its ~/forget service)."""
+    """Make a robot forget a learned item.
+
+    Through the node's ~/forget service; innate knowledge is never forgotten."""
     key = _key("SEQUENCE", sequence)
     node = _full(node)
     with _client_node() as client_node:

@@ -75,12 +75,14 @@ def sequence_digest(key: str) -> str:
     return hashlib.sha256(key.encode("utf-8")).hexdigest()
 
 
-def item_digest(key: str, subtree: Tree | Node) -> str:
+def item_digest(key: str, subtree: Tree | Node | str) -> str:
     """The digest of a knowledge item, its sequence and its subtree: the first 16 hexadecimal
-    digits of SHA-256 over ``key``, a newline and the compact subtree (UTF-8). Two items with
-    the same digest teach the same thing; the fleet checks a saved item against its author's by
-    it, and the BehaviorTree.CPP sidecar names its files by it (``spec/stringbt.md`` 12.1)."""
-    text = f"{key}\n{format_tree(subtree, 'compact')}"
+    digits of SHA-256 over ``key``, a newline and the compact subtree (UTF-8; a ``str`` is taken
+    as the compact form already, as an answer or a save file carries it). Two items with the
+    same digest teach the same thing; the fleet checks a saved item against its author's by it,
+    and the BehaviorTree.CPP sidecar names its files by it (``spec/stringbt.md`` 12.1)."""
+    compact = subtree if isinstance(subtree, str) else format_tree(subtree, "compact")
+    text = f"{key}\n{compact}"
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 

@@ -49,9 +49,10 @@ arguments.degrees = { type = "int", ge = 1, le = 90 }
 """What ``door_registry().to_toml()`` writes."""
 
 
-def door_registry() -> kp.Registry:
-    """The door robot's registry, its behaviours logging into ``bb["log"]``."""
-    reg = kp.Registry()
+def door_registry(reg: kp.Registry | None = None) -> kp.Registry:
+    """The door robot's registry, its behaviours logging into ``bb["log"]``; registered into
+    ``reg`` if given (one loaded from the vocabulary file, say), a new one otherwise."""
+    reg = kp.Registry() if reg is None else reg
     reg.flags("DoorClosed")
 
     @reg.condition("HandleSeen")

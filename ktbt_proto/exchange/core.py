@@ -46,7 +46,6 @@ from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, read, vet
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import NetworkError, Transport
-from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.registry import Registry
 from ktbt_proto.runtime import LiveTree
 from ktbt_proto.tree import Condition, Node, Tree
@@ -140,10 +139,6 @@ class AgentCore:
         """The last tick at which something was learned (the idle rule's clock)."""
         self._closed: dict[str, None] = {}
         """The ids of this agent's latest closed queries (insertion-ordered, bounded)."""
-        if hasattr(transport, "screen"):
-            # A transport that keeps one answer per peer (zenoh) checks signatures first, so a
-            # forgery on a peer's key does not take that peer's place.
-            transport.screen = lambda r: refusal(r, self.security.policy, self.security.trust)
         if isinstance(control, ControlTree):
             raise TypeError(
                 f"Agent takes its control tree as stringBT or as a backend's factory such as "
@@ -168,6 +163,11 @@ class AgentCore:
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
+        attach = getattr(transport, "attach", None)
+        if attach is not None:
+            # A network transport serves what the agent knows, and checks signatures before an
+            # answer takes its sender's one place (zenoh: spec/protocol.md sections 3 and 4.5).
+            attach(self)
 
     def _clock(self) -> int:
         """The agent's clock: every timer of its trees measures against ``now``."""

@@ -188,15 +188,19 @@ class Identity:
     @classmethod
     def load(cls, path: str | Path) -> Identity:
         """Read a private key written by :meth:`save`; raises :class:`KeyFileError`."""
-        try:
-            data = read_bounded(path, MAX_KEY_FILE)
-        except TooLarge:
-            raise KeyFileError(
-                f"{path} is not a key file (larger than {MAX_KEY_FILE} bytes)"
-            ) from None
-        except OSError as exc:
-            raise KeyFileError(f"cannot read key {path}: {exc.strerror or exc}") from None
+        data = read_key_file(path, MAX_KEY_FILE, "key")
         return cls.from_seed(_pkcs8_seed(data, path))
+
+
+def read_key_file(path: str | Path, limit: int, what: str) -> bytes:
+    """A key or a trust store's bytes (``what`` names it), read bounded; raises
+    :class:`KeyFileError` in one line for a file that is missing, unreadable or too large."""
+    try:
+        return read_bounded(path, limit)
+    except TooLarge:
+        raise KeyFileError(f"cannot read {what} {path}: larger than {limit} bytes") from None
+    except OSError as exc:
+        raise KeyFileError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
 
 
 def _pkcs8_seed(data: bytes, path: str | Path) -> bytes:

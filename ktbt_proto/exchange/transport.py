@@ -31,6 +31,10 @@ class Transport(Protocol):
     ``receive`` never blocks: an agent drains it once per tick. Inboxes are bounded: when one
     is full the newcomer is refused and counted (``refused``), so a flood can neither exhaust
     memory nor push out what came first (spec/protocol.md section 2).
+
+    A transport may also have ``attach(agent)``, which an agent calls once it is built: a
+    network transport serves the agent's catalog and answers from its knowledge there (zenoh:
+    spec/protocol.md section 4.5).
     """
 
     name: str

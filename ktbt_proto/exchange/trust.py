@@ -14,8 +14,14 @@ from enum import StrEnum
 from pathlib import Path
 
 from ktbt_proto.exchange.messages import Response
-from ktbt_proto.exchange.signing import KeyFileError, hop_bytes, item_bytes, public_key, verify
-from ktbt_proto.files import TooLarge, read_bounded
+from ktbt_proto.exchange.signing import (
+    KeyFileError,
+    hop_bytes,
+    item_bytes,
+    public_key,
+    read_key_file,
+    verify,
+)
 
 MAX_TRUST_FILE = 1_000_000
 
@@ -56,14 +62,7 @@ class TrustStore:
 
     @classmethod
     def load(cls, path: str | Path) -> TrustStore:
-        try:
-            data = read_bounded(path, MAX_TRUST_FILE)
-        except TooLarge:
-            raise KeyFileError(
-                f"trust store {path} is larger than {MAX_TRUST_FILE} bytes"
-            ) from None
-        except OSError as exc:
-            raise KeyFileError(f"cannot read trust store {path}: {exc.strerror or exc}") from None
+        data = read_key_file(path, MAX_TRUST_FILE, "trust store")
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError:

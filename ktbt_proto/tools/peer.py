@@ -25,7 +25,7 @@ from pydantic import ValidationError as PydanticError
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
-from ktbt_proto.exchange.answers import answers, catalog, live_answers
+from ktbt_proto.exchange.answers import answers, catalog
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
 from ktbt_proto.exchange.messages import Query, Response
@@ -248,7 +248,7 @@ def ask(
     ``note`` is told, when no answer came, whether nobody was reachable or nobody knew: two
     different problems that look alike otherwise."""
     security = security or Security()
-    key = sequence_key(parse_conditions(sequence))
+    key = sequence_key(sequence)
     query = Query(id=Query.new_id(), sender=name, sequence=key)
     responses: list[Response] = []
 
@@ -406,12 +406,9 @@ def run_agent(
             ear=Ear(member.overhear),
             slot=slot,
         )
-        transport.catalog = catalog(robot.knowledge, security.identity)
-        # Every query it can answer is answered at once from what it knows, as `peer serve`
-        # does, not one asker per cool-down through the teach tree (section 4.5).
-        transport.lookup = live_answers(lambda: robot.knowledge, security.identity)
-        # The tree as of the last merge: a Tree is never changed in place, only replaced.
-        transport.tree = lambda: format_tree(robot.control.tree, "compact")
+        # The agent attached itself to the transport (ZenohTransport.attach): it answers every
+        # query it can at once from what it knows, as `peer serve` does, not one asker per
+        # cool-down through the teach tree, and serves its catalog and tree (section 4.5).
         if member.groot is not None:
             from ktbt_proto.interop.groot2 import Groot2Publisher
 

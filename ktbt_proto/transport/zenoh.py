@@ -21,6 +21,13 @@ dropped once its answer window passes); sessions are closed by :meth:`ZenohTrans
 (use the transport as a context manager). Zenoh's own errors (a get's timeout) are the
 network's, counted apart from what peers send (:class:`NetworkError`).
 
+An agent built on a transport attaches to it (:meth:`ZenohTransport.attach`): the transport then
+serves the agent's catalog and answers queries from what the agent knows at that moment, as a
+fleet member does (spec section 4.5), so a robot built by hand is a fleet member like
+``ktbt peer run``. Mistakes in the settings are one line each: an endpoint without its protocol
+is refused when the settings are made (:class:`EndpointError`), and a session zenoh cannot open
+(an address in use) raises :class:`SessionError`, without zenoh's Rust source locations.
+
 What a hostile peer can do is bounded here (spec section 3): replies are not consolidated, so a
 silent peer delays no one and an impostor cannot replace another peer's answer; a reply counts
 only on its sender's own key, once per get; queries arrive only through the queryable, and a
@@ -35,18 +42,19 @@ import hashlib
 import json
 import logging
 import os
+import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import zenoh
 from pydantic import ValidationError
 
-from ktbt_proto.exchange.answers import answer_to
+from ktbt_proto.exchange.answers import answer_to, catalog, live_answers
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
@@ -60,6 +68,11 @@ from ktbt_proto.exchange.messages import (
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
+from ktbt_proto.exchange.trust import refusal
+from ktbt_proto.formatter import format_tree
+
+if TYPE_CHECKING:
+    from ktbt_proto.exchange.core import AgentCore
 
 log = logging.getLogger("ktbt.zenoh")
 
@@ -97,11 +110,60 @@ Mode = Literal[MemberMode, "router"]
 """How a session joins; ``router`` serves fleets that span subnets (``ktbt peer router``)."""
 
 
+class EndpointError(ValueError):
+    """A ``listen`` or ``connect`` endpoint zenoh could not read, refused when the settings are
+    made (spec section 3). Its text is one line, ``SETTING: ENDPOINT ...: write ...``, so a
+    command line prints it as ``--SETTING: ...``; ``setting`` and ``endpoint`` are kept apart
+    too."""
+
+    def __init__(self, setting: str, endpoint: str, reason: str) -> None:
+        super().__init__(f"{setting}: {reason}")
+        self.setting = setting
+        self.endpoint = endpoint
+        self.reason = reason
+
+
+class SessionError(OSError):
+    """Zenoh could not open a session (an address in use, a protocol it does not know, a config
+    file it refuses): one line naming what failed, without zenoh's Rust source locations."""
+
+
+_PROTOCOL = re.compile(r"[a-z][a-z0-9-]*/\S")
+"""An endpoint's start: ``<protocol>/<address>`` (``tcp/127.0.0.1:7447``)."""
+
+
+def _endpoints(setting: str, value: Sequence[str] | str) -> tuple[str, ...]:
+    """``value``'s endpoints (one string is one endpoint), each of the form
+    ``<protocol>/<address>[?<metadata>][#<config>]``; anything else is an :class:`EndpointError`
+    that says what to write."""
+    endpoints = (value,) if isinstance(value, str) else tuple(value)
+    for endpoint in endpoints:
+        if not isinstance(endpoint, str):
+            raise EndpointError(setting, repr(endpoint), f"{endpoint!r} is not an endpoint")
+        if _PROTOCOL.match(endpoint):
+            continue
+        shown = repr(endpoint[:80]) if endpoint != endpoint.strip() else endpoint[:80]
+        bare = endpoint.strip()
+        if _PROTOCOL.match(bare):
+            what, fix = "has spaces around it", bare
+        elif "://" in bare:
+            what, fix = "is not a zenoh endpoint", bare.replace("://", "/", 1)
+        elif "/" not in bare and bare:
+            what, fix = "names no protocol", f"tcp/{bare}"
+        else:
+            what, fix = "is not a zenoh endpoint", "<protocol>/<address>, as tcp/127.0.0.1:7447"
+        raise EndpointError(setting, endpoint, f"{shown or repr('')} {what}: write {fix[:80]}")
+    return endpoints
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to reach the fleet. ``config`` is a zenoh JSON5 file (TLS, mTLS, user/password...);
     ``listen``/``connect`` endpoints, ``mode``, the zenoh id ``zid`` and the connection retry
-    are applied on top of it (spec section 3)."""
+    are applied on top of it (spec section 3). An endpoint is ``<protocol>/<address>``
+    (``tcp/127.0.0.1:7447``); one without its protocol is an :class:`EndpointError` here,
+    not an error of zenoh's when the session opens.
+    """
 
     listen: Sequence[str] = ()
     connect: Sequence[str] = ()
@@ -110,6 +172,10 @@ class ZenohSettings:
     multicast_scouting: bool = False
     zid: str | None = None
     """The session's zenoh id (``stable_zid(name)`` for a fleet member); None: a random one."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "listen", _endpoints("listen", self.listen))
+        object.__setattr__(self, "connect", _endpoints("connect", self.connect))
 
     def zenoh_config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
@@ -142,9 +208,31 @@ class ZenohSettings:
 
 def open_session(settings: ZenohSettings) -> zenoh.Session:
     """A session; the first one a process opens also sizes zenoh's receive workers
-    (``RX_WORKERS``), unless ``ZENOH_RUNTIME`` says otherwise."""
+    (``RX_WORKERS``), unless ``ZENOH_RUNTIME`` says otherwise. Zenoh's own error is a
+    :class:`SessionError` of one line (spec section 3)."""
     os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_WORKERS}))")
-    return zenoh.open(settings.zenoh_config())
+    try:
+        return zenoh.open(settings.zenoh_config())
+    except zenoh.ZError as exc:
+        raise SessionError(session_error(str(exc), settings)) from None
+
+
+_RUST_PLACE = re.compile(r" at /\S+?\.rs:\d+\.?")
+_JSON5_MESSAGE = re.compile(r'Json5Err\(Message \{ msg: "(.*?)", location: .*?\}\)', re.S)
+
+
+def session_error(text: str, settings: ZenohSettings) -> str:
+    """Zenoh's error text as one line for a person: an address in use names its endpoint and
+    says so; otherwise zenoh's own words, without the Rust source locations it appends."""
+    if "Address already in use" in text or "AddrInUse" in text:
+        taken = [e for e in settings.listen if e in text] or list(settings.listen)
+        where = ", ".join(taken) or "a listen endpoint"
+        return f"cannot listen on {where}: address in use (another peer or program listens there)"
+    text = _RUST_PLACE.sub("", text)
+    text = _JSON5_MESSAGE.sub(r"\1", text)
+    line = " ".join(text.split()).strip(" .[]") or "unknown error"
+    config = f" (config {settings.config})" if settings.config else ""
+    return f"zenoh could not open a session{config}: {line[:300]}"
 
 
 @dataclass(eq=False)
@@ -194,6 +282,10 @@ class ZenohTransport:
     tree: Callable[[], str] | None = None
     """The peer's control tree in compact stringBT, served on ``ktbt/v1/tree/<name>`` only with
     ``publish_events`` (section 10); above ``max_bytes`` it is refused with a reply error."""
+    answer_at_once: bool = True
+    """With an agent attached (:meth:`attach`), answer every query it can from what it knows
+    now, inside the callback, as a fleet member does (section 4.5); False: hand queries to the
+    agent, whose teach tree answers one asker per cool-down (section 4)."""
     refused: int = 0
     """Every message this transport refused (undecodable, on a wrong key, flooding...)."""
     network_errors: int = 0
@@ -255,6 +347,29 @@ class ZenohTransport:
         except BaseException:
             self._session.close()
             raise
+
+    def attach(self, agent: AgentCore) -> None:
+        """What an agent built on this transport calls (``AgentCore``): from then on the
+        transport checks replies against the agent's trust policy before they take their
+        sender's place (section 3), serves the agent's catalog and, with ``answer_at_once``,
+        answers queries from the agent's live knowledge, signed with its key pair, as ``ktbt
+        peer run`` does (section 4.5); its control tree is served with ``publish_events``
+        (section 10). What the transport was given already (a ``lookup``, a ``catalog``, an
+        ``identity``, a ``log``, a ``tree``) is kept. So ``ktbt peer list`` shows what a robot
+        built by hand knows."""
+        security = agent.security
+        self.screen = lambda r: refusal(r, agent.security.policy, agent.security.trust)
+        if self.identity is None:
+            self.identity = security.identity
+        if self.log is None:
+            self.log = security.log
+        if self.catalog is None:
+            self.catalog = lambda: catalog(agent.knowledge, security.identity)()
+        if self.lookup is None and self.answer_at_once:
+            self.lookup = live_answers(lambda: agent.knowledge, security.identity)
+        if self.tree is None:
+            # The tree as of the last merge: a Tree is never changed in place, only replaced.
+            self.tree = lambda: format_tree(agent.control.tree, "compact")
 
     # -- the Transport interface ----------------------------------------------------------------
 
@@ -443,7 +558,8 @@ class ZenohTransport:
         return answer
 
     def _reply_error(self, payload: bytes, asked: Message) -> None:
-        """A reply error. A peer's is an error message (a JSON object, section 1), logged; what
+        """A reply error. A peer's is an error message (a JSON object, section 1), logged at
+        WARNING (a peer refused this one's query: the user should see why); what
         zenoh itself sends (``Timeout``, as text) is the network's: counted apart, handed to the
         agent as a :class:`NetworkError`, never decoded as a peer's message nor refused."""
         if not payload.lstrip().startswith(b"{"):
@@ -457,7 +573,9 @@ class ZenohTransport:
         error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
         if error is None:
             return
-        log.info("%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message)
+        log.warning(
+            "%s: %s refused query %s: %s", self.name, error.sender, asked.id, error.message[:200]
+        )
         if self.log is not None:
             self.log.record(
                 "error-received", peer=self.name, sender=error.sender, reason=error.message

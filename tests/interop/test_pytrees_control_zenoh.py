@@ -1,5 +1,8 @@
 """The paper's SAR scenario: a py_trees robot learns over zenoh from a LiveTree robot, then ticks
-its new knowledge exactly as its teacher does (spec/protocol.md section 4.4).
+its new knowledge exactly as its teacher does (spec/protocol.md section 4.4). And the
+door-opening robot, a py_trees robot with its own behaviour classes and no stubs, learns its
+skill over zenoh from a ``ktbt peer serve`` process (serving stringBT, or a BehaviorTree.CPP
+robot's skills as XML) or a Python teacher, and runs it.
 
 Real zenoh sessions on loopback. After the transfer, both control trees get the same inputs
 every tick (sensed flags, the target in view, each action's outcome), scripted and then drawn by
@@ -8,6 +11,9 @@ hypothesis, and must give the same status, the same calls and the same halts, ti
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -16,8 +22,12 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
+from ktbt_proto.interop.btcpp import to_xml
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.zenoh import ZenohTransport
+from tests.door_robot import MEMORY as DOOR_MEMORY
+from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
+from tests.door_robot import door_blackboard, door_registry
 from tests.interop.test_pytrees_control import (
     ACTIONS,
     EXAMPLES,
@@ -26,10 +36,13 @@ from tests.interop.test_pytrees_control import (
     SEEN_2,
     Twin,
     behaviours,
+    door_behaviours,
+    door_conditions,
+    door_tree,
     py_trees_sar,
     sar_registry,
 )
-from tests.zenoh_helpers import free_port, see, wait_until
+from tests.zenoh_helpers import endpoint, free_port, ktbt_process, see, wait_until
 from tests.zenoh_helpers import settings as zenoh_settings
 
 pytestmark = pytest.mark.network  # zenoh sessions on loopback
@@ -140,3 +153,56 @@ def test_a_py_trees_robot_learns_over_zenoh_and_ticks_as_its_teacher() -> None:
         assert halts[0] == halts[1]
 
     ticks_alike()
+
+
+@contextmanager
+def door_teacher(kind: str, port: int, folder: Path) -> Iterator[None]:
+    """A teacher of the door skill on ``port``: a ``ktbt peer serve`` process serving a
+    knowledge file (stringBT, or a BehaviorTree.CPP robot's skills as XML, spec/stringbt.md
+    section 12.1), or a Python agent that is never ticked (it answers from what it knows, in
+    zenoh's callback, spec section 4.5)."""
+    if kind in ("serve", "serve-btcpp-xml"):
+        if kind == "serve":
+            knowledge = folder / "door.sbt"
+            knowledge.write_text(f"<sl><k>(prior){DOOR_MEMORY}<e><e>")
+        else:
+            knowledge = folder / "skills.xml"
+            knowledge.write_text(to_xml(kp.parse(DOOR_MEMORY)))
+        with ktbt_process(
+            "peer", "serve", "--id", "teacher", "--knowledge", str(knowledge),
+            "--listen", endpoint(port), ready="serving",
+        ):  # fmt: skip
+            yield
+    else:
+        with ZenohTransport("teacher", zenoh_settings(port)) as transport:
+            Agent("teacher", f"<sl><k>(new){DOOR_MEMORY}<e><e>", door_registry(), transport)
+            yield
+
+
+@pytest.mark.parametrize("teacher", ["serve", "serve-btcpp-xml", "python"])
+def test_the_door_robot_in_py_trees_learns_over_zenoh_and_runs_its_own_behaviours(
+    teacher: str, tmp_path: Path
+) -> None:
+    """Only its conditions are registered: its actions are its py_trees behaviour classes,
+    typed by their ``__init__`` (no stubs). It learns the memory form and ticks its own
+    GraspHandle, TurnHandle and Push in order, each once."""
+    pt, pl = free_port(), free_port()
+    bb = door_blackboard()
+    with (
+        door_teacher(teacher, pt, tmp_path),
+        ZenohTransport("door", zenoh_settings(pl, pt)) as transport,
+    ):
+        robot = Agent(
+            "door", py_trees_control(door_tree(), behaviours=door_behaviours(bb)),
+            door_conditions(), transport, timing=Timing(wait=500), blackboard=bb,
+        )  # fmt: skip
+        see(transport, "teacher")
+        robot.encounter(DOOR_SEQUENCE)
+        assert wait_until(lambda: robot.tick() is None or robot.knows(DOOR_SEQUENCE), 20), (
+            robot.metrics.refusals
+        )
+        assert robot.metrics.refused == 0 and bb["log"] == []
+        for _ in range(4):
+            robot.tick()
+    assert bb["log"] == ["grasp", "turn 30/60", "turn 60/60", "push"]
+    assert bb["DoorClosed"] is False

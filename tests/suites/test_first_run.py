@@ -319,7 +319,10 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
     prefix = without_privileges()
     paper = str(EXAMPLES / "paper_control.sbt")
     for args, expected in [
-        (("check", "--vocabulary", "u.toml", paper), "error: --vocabulary: u.toml not found"),
+        (
+            ("check", "--vocabulary", "u.toml", paper),
+            "error: --vocabulary: cannot read registry u.toml: ",
+        ),
         (("peer", "serve", "--knowledge", "u.sbt"), "error: cannot read --knowledge u.sbt: "),
         (("peer", "ask", "--sequence", "A", "--config", "u.json"), "error: cannot read --config"),
         (("show", "u.sbt"), "error: cannot read u.sbt: "),
@@ -358,3 +361,73 @@ def test_fmt_rewrites_in_place_in_a_folder_it_cannot_create_files_in(tmp_path: P
     assert done.returncode == 0, done.stderr
     assert tree.read_text() == "<sl>\n    <a>(A)\n    <a>(B)\n<e>\n"
     assert [p.name for p in folder.iterdir()] == ["t.sbt"]
+
+
+# -- the library's mistakes: one line each, never zenoh's Rust or a Python attribute error ------
+
+
+def test_an_endpoint_without_its_protocol_is_refused_when_the_settings_are_made() -> None:
+    """Zenoh said ``Json5Err`` with Rust source paths; the settings refuse it, saying what to
+    write, and ``--connect`` says the same in one line (exit 2)."""
+    from ktbt_proto.transport.zenoh import EndpointError, ZenohSettings
+
+    with pytest.raises(EndpointError) as info:
+        ZenohSettings(connect=["127.0.0.1:7447"])
+    assert str(info.value) == "connect: 127.0.0.1:7447 names no protocol: write tcp/127.0.0.1:7447"
+    assert isinstance(info.value, ValueError) and info.value.endpoint == "127.0.0.1:7447"
+    done = ktbt("peer", "ask", "--sequence", "TargetSeen(colour=2)", "--connect", "127.0.0.1:7447")
+    assert (done.returncode, done.stdout) == (2, "")
+    expected = "error: --connect: 127.0.0.1:7447 names no protocol: write tcp/127.0.0.1:7447"
+    assert one_line(done) == expected
+
+
+@pytest.mark.network
+def test_a_port_in_use_names_the_endpoint_in_one_line() -> None:
+    """A second listener on the same endpoint: zenoh's ``ZError`` with Rust paths becomes one
+    line naming the endpoint, from the library and from ``ktbt peer serve``."""
+    from ktbt_proto.transport.zenoh import SessionError, ZenohSettings, ZenohTransport
+
+    port = free_port()
+    taken = (
+        f"cannot listen on {endpoint(port)}: address in use (another peer or program listens there)"
+    )
+    with ZenohTransport("first", ZenohSettings(listen=[endpoint(port)])):
+        with pytest.raises(SessionError) as info:
+            ZenohTransport("second", ZenohSettings(listen=[endpoint(port)]))
+        assert str(info.value) == taken
+        knowledge = str(EXAMPLES / "knowledge" / "colours.sbt")
+        done = ktbt("peer", "serve", "--knowledge", knowledge, "--listen", endpoint(port))
+        assert done.returncode == 2 and done.stdout == ""
+        assert one_line(done) == f"error: {taken}"
+
+
+def test_a_py_trees_tree_given_the_wrong_way_is_one_line() -> None:
+    """``Agent(name, <BehaviourTree>)`` gave ``AttributeError: ... 'pos'`` and
+    ``py_trees_control(root)`` ``AttributeError: ... 'pre_tick_handlers'``: each is one line
+    now, saying what to pass."""
+    import py_trees
+
+    from ktbt_proto.interop.pytrees_control import py_trees_control
+
+    root = py_trees.composites.Selector("Root", memory=False, children=[
+        py_trees.composites.Selector("k:new", memory=False),
+        py_trees.behaviours.Running("Wander"),
+    ])  # fmt: skip
+    bt = py_trees.trees.BehaviourTree(root)
+    net = kp.MemoryNetwork()
+    with pytest.raises(TypeError) as built:
+        kp.Agent("r", bt, kp.Registry(), net.join("r"))  # type: ignore[arg-type]
+    assert str(built.value) == (
+        "Agent cannot run a BehaviourTree as its control tree: pass "
+        "py_trees_control(tree, behaviours={...}) from ktbt_proto.interop"
+    )
+    with pytest.raises(TypeError) as rooted:
+        py_trees_control(root)  # type: ignore[arg-type]
+    assert str(rooted.value) == (
+        "a py_trees control tree is a py_trees.trees.BehaviourTree, not the behaviour 'Root': "
+        "pass py_trees.trees.BehaviourTree(root)"
+    )
+    for error in (built.value, rooted.value):
+        assert "\n" not in str(error)
+    agent = kp.Agent("r2", py_trees_control(bt), kp.Registry(), net.join("r2"))
+    assert agent.tick() is kp.RUNNING  # given the right way, it runs

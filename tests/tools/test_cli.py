@@ -131,7 +131,7 @@ def test_check_clean_files_and_bad_inputs(tmp_path: Path) -> None:
     reg.write_text("conditions = 3\n")
     code, _, err = ktbt("check", "--vocabulary", str(reg), str(EXAMPLES / "sar_control.sbt"))
     assert code == 2 and "'conditions' must be a list of names" in err and "Traceback" not in err
-    assert err.startswith(f"error: --vocabulary {reg}: ") and len(err.splitlines()) == 1
+    assert err.startswith(f"error: --vocabulary: registry {reg}: ") and len(err.splitlines()) == 1
 
 
 @pytest.mark.parametrize("fmt", ["outline", "dot", "mermaid"])
@@ -283,9 +283,9 @@ MISTAKES = [
     (["peer", "run", "--vocabulary", "nope.toml"],
      "error: --vocabulary: nope.toml not found (a FILE.toml, or module:callable)"),
     (["peer", "serve", "--knowledge", "x.sbt", "--vocabulary", "no_such_robot:make"],
-     "error: --vocabulary no_such_robot:make: no module named 'no_such_robot'"),
+     "error: --vocabulary: registry no_such_robot:make: no module named 'no_such_robot'"),
     (["check", "--vocabulary", "tests.door_robot:no_registry", "x.sbt"],
-     "error: --vocabulary tests.door_robot:no_registry: tests.door_robot has no "
+     "error: --vocabulary: registry tests.door_robot:no_registry: tests.door_robot has no "
      "'no_registry'"),
     (["peer", "run", "--demo", "--vocabulary", "x.toml"],
      "error: --demo: the demo robot has its own; leave out --vocabulary and --control"),

@@ -18,7 +18,7 @@ from typing import Annotated
 import typer
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.files import write_atomic
+from ktbt_proto.files import read_at_most, write_atomic
 from ktbt_proto.formatter import Style, format_tree
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import merge
@@ -48,13 +48,11 @@ def _expand(paths: list[str]) -> Iterator[str]:
 def _read(path: str) -> bytes:
     """At most one byte more than the size limit: enough for the parser to refuse a file that
     is too large without ever holding all of it (``/dev/zero`` included)."""
-    limit = DEFAULT_LIMITS.max_size + 1
     if path == STDIN:
         if sys.stdin is None:
             raise OSError("standard input is closed")
-        return sys.stdin.buffer.read(limit)
-    with open(path, "rb") as f:
-        return f.read(limit)
+        return sys.stdin.buffer.read(DEFAULT_LIMITS.max_size + 1)
+    return read_at_most(path, DEFAULT_LIMITS.max_size)
 
 
 def _write(path: str, text: str) -> None:

@@ -243,7 +243,10 @@ def zenoh_settings(
             config.open("rb").close()
         except OSError as exc:
             raise refuse(f"cannot read --config {config}: {io_reason(exc)}") from None
-    return ZenohSettings(listen or (), connect or (), config, mode, multicast)
+    try:
+        return ZenohSettings(listen or (), connect or (), config, mode, multicast)
+    except ValueError as exc:  # an EndpointError: "connect: 127.0.0.1:7447 names no protocol..."
+        raise refuse(f"--{exc}") from None
 
 
 def knowledge_or_exit(path: Path, registry: Registry | None = None) -> KnowledgeBase:
@@ -284,8 +287,7 @@ def vocabulary_or_exit(spec: str) -> Registry:
     try:
         return load_vocabulary(spec)
     except ValueError as exc:
-        reason = str(exc).removeprefix(f"registry {spec}: ")
-        raise refuse(f"--vocabulary {spec}: {reason}") from None
+        raise refuse(f"--vocabulary: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ from ktbt_proto.tools.cli.options import (
     vocabulary_or_exit,
     zenoh_settings,
 )
+from ktbt_proto.transport.zenoh import SessionError
 
 peer_app = typer.Typer(
     help="Exchange knowledge with other robots over eclipse-zenoh.", no_args_is_help=True
@@ -62,11 +63,11 @@ def _peer_call(action: Callable[[], int]) -> None:
     except StringBTError as err:
         say(f"error: {err.code} {err.line}:{err.column}: {err.message}")
         code = 1
+    except SessionError as exc:  # the network's settings: a usage error, like a bad --listen
+        say(f"error: {exc}")
+        code = 2
     except (OSError, ValueError) as exc:
         say(f"error: {exc}")
-        code = 1
-    except Exception as exc:  # zenoh raises its own ZError for bad endpoints or configs
-        say(f"error: {type(exc).__name__}: {exc}")
         code = 1
     raise typer.Exit(code)
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hashlib
 import json
 import os
 import random
@@ -34,8 +33,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, TextIO
 
-from ktbt_proto.files import packaged, write_atomic
-from ktbt_proto.items import show_sequence
+from ktbt_proto.exchange.transferlog import Event
+from ktbt_proto.files import TooLarge, packaged, read_bounded, write_atomic
+from ktbt_proto.items import item_digest, show_sequence
 from ktbt_proto.tools.fleet import netns, watch
 from ktbt_proto.tools.fleet.plan import FleetConfig, Host, Plan, make_plan, stream
 from ktbt_proto.tools.fleet.proxy import FaultLayer
@@ -43,11 +43,8 @@ from ktbt_proto.transport.zenoh import stable_zid
 
 Say = Callable[[str], None]
 EXAMPLE_KNOWLEDGE = packaged("examples", "knowledge", "colours.sbt")
-COPIED = (
-    "query-sent", "answer-received", "answer-sent", "merged", "refused", "error-received",
-    "network-error", "forgotten", "late-answer",
-)  # fmt: skip
-"""The peers' exchange events copied into the record."""
+COPIED = frozenset(Event) - {Event.QUERY_RECEIVED}
+"""The peers' exchange events copied into the record (a query received is counted only)."""
 OUTPUTS = (
     "peers",
     "zenoh",
@@ -61,32 +58,27 @@ OUTPUTS = (
 """What a run writes in its folder (and removes there before it starts)."""
 
 
-def digest(subtree: str) -> str:
-    return hashlib.sha256(subtree.encode("utf-8")).hexdigest()[:16]
-
-
 def authored_items(path: str | Path) -> dict[str, str]:
-    """The teachers' items: sequence key -> digest of its compact subtree, as they send it."""
-    from ktbt_proto.formatter import format_tree
+    """The teachers' items: sequence key -> the item's digest (``items.item_digest``)."""
     from ktbt_proto.tools.peer import load_knowledge
 
-    return {item.key: digest(format_tree(item.subtree, "compact")) for item in load_knowledge(path)}
+    return {item.key: item_digest(item.key, item.subtree) for item in load_knowledge(path)}
 
 
 def read_saved(path: Path) -> dict[str, str] | str:
-    """A save file's items (sequence -> digest of the subtree as stored), or why it cannot be
-    read. Read as data, not through the library, so that damage shows as damage."""
+    """A save file's items (sequence -> the item's digest, of the subtree as stored), or why it
+    cannot be read. Read as data, not through the library, so that damage shows as damage."""
     from ktbt_proto.exchange.knowledge import MAX_FILE
 
     if not path.exists():
         return {}
     try:
-        with open(path, "rb") as f:
-            raw = f.read(MAX_FILE + 1)
-        if len(raw) > MAX_FILE:
-            return f"unreadable: larger than {MAX_FILE} bytes"
-        entries = json.loads(raw)["knowledge"]
-        items = {str(e["sequence"]): digest(str(e["subtree"])) for e in entries}
+        entries = json.loads(read_bounded(path, MAX_FILE))["knowledge"]
+        items = {
+            str(e["sequence"]): item_digest(str(e["sequence"]), str(e["subtree"])) for e in entries
+        }
+    except TooLarge:
+        return f"unreadable: larger than {MAX_FILE} bytes"
     except (ValueError, KeyError, TypeError) as exc:
         return f"unreadable: {exc!r}"[:200]
     if len(items) != len(entries):

@@ -37,7 +37,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
-from ktbt_proto.exchange.answers import catalog, live_answers
+from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.knowledge import sequence_key
@@ -362,8 +362,7 @@ class KtbtNode(LifecycleNode):
             where = control_path or "the demo's control tree"
             why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
             raise ValueError(why) from None
-        agent = self.agent
-        self.transport.lookup = live_answers(lambda: agent.knowledge, identity)
+        agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
         self._catalog = catalog(agent.knowledge, identity)
         self._made += [
             self.create_service(ListKnowledge, "~/list_knowledge", self._on_list),

@@ -55,6 +55,8 @@ from rclpy.qos import (
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
+from ktbt_proto.exchange.answers import live_answers
+from ktbt_proto.exchange.core import AgentCore
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -66,6 +68,7 @@ from ktbt_proto.exchange.messages import (
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, Received
+from ktbt_proto.exchange.trust import refusal
 
 QUERIES = "/ktbt/queries"
 ANSWERS = "/ktbt/answers"
@@ -186,6 +189,7 @@ class Ros2Transport:
         overhear: bool = False,
         overheard_limit: int = 64,
         active: bool = True,
+        answer_at_once: bool = True,
     ) -> None:
         self.node, self.name = node, name
         self.topics = topics or Topics()
@@ -199,9 +203,11 @@ class Ros2Transport:
         self.overhear, self.overheard_limit = overhear, overheard_limit
         self.active = active
         """False: neither ask nor answer (a lifecycle node that is not active)."""
+        self.answer_at_once = answer_at_once
+        """With an agent attached and no ``lookup``, answer from its knowledge at once."""
         self.screen: Callable[[Response], str | None] | None = None
         """The asker's trust policy, run before an answer takes its sender's one place in a
-        query (an agent sets it)."""
+        query (:meth:`attach` sets it)."""
         self.refused = 0
         """Every message this transport refused (undecodable, oversized, a replay, ...)."""
         self.network_errors = 0
@@ -297,6 +303,21 @@ class Ros2Transport:
             self.node.destroy_subscription(sub)
         for pub in (self._queries, self._answers, self._errors):
             self.node.destroy_publisher(pub)
+
+    def attach(self, agent: AgentCore) -> None:
+        """What an agent built on this transport calls (``AgentCore``): from then on answers
+        are checked against the agent's trust policy before they take their sender's place,
+        and, with ``answer_at_once``, queries are answered from the agent's live knowledge,
+        signed with its key pair, as ``ktbt peer run`` does (section 4.5). What the transport
+        was given already (a ``lookup``, an ``identity``, a ``log``) is kept."""
+        security = agent.security
+        self.screen = lambda r: refusal(r, security.policy, security.trust)
+        if self.identity is None:
+            self.identity = security.identity
+        if self.log is None:
+            self.log = security.log
+        if self.lookup is None and self.answer_at_once:
+            self.lookup = live_answers(lambda: agent.knowledge, self.identity)
 
     # -- presence -------------------------------------------------------------------------------
 

@@ -10,13 +10,14 @@ from typing import Any
 import pytest
 
 from ktbt_proto.files import packaged
-from tests.interop.ros2.rosns import SEQUENCE, Probe, RosNamespace
+from tests.interop.ros2.rosns import SEQUENCE, SUBTREE, Probe, RosNamespace
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
 COLOURS = packaged("examples", "knowledge", "colours.sbt")
 SKILL = "AssignCollectionPoint,colour=2"
 WANTED = SEQUENCE
+SKILL_TREE = SUBTREE
 
 
 def lifecycle(ns: RosNamespace, node: str, transition: str) -> str:
@@ -219,3 +220,46 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     listed = probe.until({"op": "call", "service": "/teacher/ktbt/list_knowledge",
                           "type": "ListKnowledge"})["response"]["items"]  # fmt: skip
     assert len(listed) == 4
+
+
+def test_a_signed_skill_is_learned_and_a_forgery_in_the_teachers_name_refused(
+    rosns: Any, tmp_path: Path
+) -> None:
+    """Signed knowledge over ROS (section 7): the learner under the `signed` policy refuses an
+    unsigned answer in the teacher's name to its own open query before it takes the teacher's
+    place, then learns the teacher's signed item, the author's key with it."""
+    from ktbt_proto.exchange.signing import Identity
+
+    ns: RosNamespace = rosns
+    key = tmp_path / "teacher.key"
+    public = Identity.generate().save(key).read_text().strip()
+    probe = Probe(ns)
+    probe.subscribe("/learner/ktbt/events", "FleetEvent")
+    ns.ktbt("ros2", "run", "--ros-args", "-r", "__ns:=/teacher", "-p", f"knowledge:={COLOURS}",
+            "-p", f"key:={key}", name="teacher")  # fmt: skip
+    ns.ktbt(
+        "ros2",
+        "run",
+        "--autostart",
+        "--ros-args",
+        "-r",
+        "__ns:=/learner",
+        "-p",
+        "sequences:=[TargetSeen(colour=2)]",
+        "-p",
+        "policy:=signed",
+        "-p",
+        "wait_ticks:=500",
+        name="learner",
+    )  # fmt: skip (a query open 5 s)
+    lifecycle(ns, "/teacher/ktbt", "configure")  # present, not answering yet
+    asked = probe.wait("/learner/ktbt/events", 60, event="query-sent")
+    forged = {"v": 1, "id": asked["id"], "sender": "teacher", "to": "learner",
+              "sequence": WANTED, "subtree": SKILL_TREE}  # fmt: skip
+    probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer", "fields": forged,
+                 "subscribers": 2})  # fmt: skip
+    refused = probe.wait("/learner/ktbt/events", 30, event="refused", where="transport")
+    assert refused["reason"] == "from teacher: the item is not signed by its author"
+    lifecycle(ns, "/teacher/ktbt", "activate")
+    merged = probe.wait("/learner/ktbt/events", 90, event="merged", teacher="teacher")
+    assert merged["author"] == public and merged["sequence"] == WANTED

@@ -13,10 +13,26 @@
 // load is refused (printed) and left out; the rest of the tree is built without it. A port
 // value that does not read fails its node.
 //
-// Options: --target C (the colour the robot sees, 0 for none), --ticks N (0: until stopped),
-// --period-ms P (between ticks). It prints "rebuilt N learned", "refused FILE: WHY", "failure
-// NODE: WHY" (a port that did not read), each call of an action ("call NAME port=value";
-// RandomWalk only when it starts) and each halt.
+// Its nodes are the search-and-rescue robot's (compiled in below) and, for a robot with its own
+// node names, every other condition and action that the <TreeNodesModel> of its control
+// document declares, each registered as a scripted leaf with the ports the model gives it
+// (int, double and bool ports are read as such, any other as text):
+//
+//   ktbt convert door_control.sbt door_control.xml   # the model declares every leaf it uses
+//   ktbt peer run --vocabulary door.toml --control door_control.sbt --export-learned learned/ ...
+//   learner door_control.xml learned/ --true DoorClosed --true 'HandleSeen side=left'
+//
+// A scripted action prints its call and succeeds; a scripted condition holds when a --true
+// names it, alone or with its ports as an action's call prints them (so `HandleSeen side=left`
+// holds and `HandleSeen side=right` does not). The model is the robot's, read once: a learned
+// file naming a node the model does not declare is refused like any node the robot lacks (a
+// learned file's own <TreeNodesModel> adds nothing). Add a leaf the control tree does not use
+// to its model by hand.
+//
+// Options: --target C (the colour the robot sees, 0 for none), --true CALL (repeated),
+// --ticks N (0: until stopped), --period-ms P (between ticks). It prints "rebuilt N learned",
+// "refused FILE: WHY", "failure NODE: WHY" (a port that did not read), each call of an action
+// ("call NAME port=value ..."; RandomWalk only when it starts) and each halt.
 #include <algorithm>
 #include <chrono>
 #include <csignal>
@@ -25,6 +41,7 @@
 #include <iostream>
 #include <map>
 #include <regex>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -46,6 +63,7 @@ namespace
 volatile std::sig_atomic_t stopping = 0;
 int seen_target = 0;  // the colour in view
 bool carrying = false;
+std::set<std::string> holding;  // the --true calls: the scripted conditions that hold
 
 void say(const std::string& line)
 {
@@ -126,6 +144,140 @@ public:
   }
 };
 
+/// A condition or action the control document's <TreeNodesModel> declares, with its ports
+/// (name and type) in the model's order.
+struct Leaf
+{
+  std::string kind, id;
+  std::vector<std::pair<std::string, std::string>> ports;
+};
+
+std::vector<Leaf> modelled;  // the control document's leaves, read once in main()
+
+/// The conditions and actions of the document's <TreeNodesModel>, if it has one.
+std::vector<Leaf> readModel(const std::string& xml)
+{
+  tinyxml2::XMLDocument doc;
+  if(doc.Parse(xml.c_str(), xml.size()) != tinyxml2::XML_SUCCESS)
+  {
+    throw std::runtime_error(std::string("control tree: ") + doc.ErrorStr());
+  }
+  std::vector<Leaf> leaves;
+  const auto* root = doc.RootElement();
+  const auto* model = root ? root->FirstChildElement("TreeNodesModel") : nullptr;
+  for(auto* node = model ? model->FirstChildElement() : nullptr; node;
+      node = node->NextSiblingElement())
+  {
+    const std::string kind = node->Name();
+    if((kind != "Condition" && kind != "Action") || node->Attribute("ID") == nullptr)
+    {
+      continue;  // decorators and controls: KT-BT's timers, registered from ktbt_btcpp.hpp
+    }
+    Leaf leaf{ kind, node->Attribute("ID"), {} };
+    for(auto* port = node->FirstChildElement("input_port"); port;
+        port = port->NextSiblingElement("input_port"))
+    {
+      if(port->Attribute("name") != nullptr)
+      {
+        const char* type = port->Attribute("type");
+        leaf.ports.emplace_back(port->Attribute("name"), type ? type : "");
+      }
+    }
+    leaves.push_back(std::move(leaf));
+  }
+  return leaves;
+}
+
+std::pair<std::string, BT::PortInfo> inputPort(const std::string& name, const std::string& type)
+{
+  if(type == "int")
+    return BT::InputPort<int>(name);
+  if(type == "double")
+    return BT::InputPort<double>(name);
+  if(type == "bool")
+    return BT::InputPort<bool>(name);
+  return BT::InputPort<std::string>(name);
+}
+
+/// Why the port does not read as a T, or nothing.
+template <typename T>
+std::string unread(BT::TreeNode& node, const std::string& name)
+{
+  auto value = node.getInput<T>(name);
+  return value ? std::string() : value.error();
+}
+
+/// "NAME port=value ...": the call as the leaf's ports give it, or false (and the node says
+/// why) when a port does not read as its type.
+bool callOf(BT::TreeNode& node, const Leaf& leaf, std::string& call)
+{
+  call = leaf.id;
+  for(const auto& [name, type] : leaf.ports)
+  {
+    std::string why = type == "int"    ? unread<int>(node, name) :
+                      type == "double" ? unread<double>(node, name) :
+                      type == "bool"   ? unread<bool>(node, name) :
+                                         std::string();
+    auto text = node.getInput<std::string>(name);
+    if(why.empty() && !text)
+    {
+      why = text.error();
+    }
+    if(!why.empty())
+    {
+      say("failure " + leaf.id + ": " + why);
+      return false;
+    }
+    call += " " + name + "=" + text.value();
+  }
+  return true;
+}
+
+/// Each modelled leaf the factory does not have yet, as a scripted leaf: an action prints its
+/// call and succeeds, a condition holds when --true names it alone or with its ports.
+void registerScripted(BT::BehaviorTreeFactory& factory)
+{
+  for(const Leaf& leaf : modelled)
+  {
+    if(factory.manifests().count(leaf.id) != 0)
+    {
+      continue;  // a compiled-in node (or a built-in one) keeps its own behaviour
+    }
+    BT::PortsList ports;
+    for(const auto& [name, type] : leaf.ports)
+    {
+      ports.insert(inputPort(name, type));
+    }
+    if(leaf.kind == "Condition")
+    {
+      factory.registerSimpleCondition(
+          leaf.id,
+          [leaf](BT::TreeNode& node) {
+            std::string call;
+            const bool holds = callOf(node, leaf, call) &&
+                               (holding.count(leaf.id) != 0 || holding.count(call) != 0);
+            return holds ? BT::NodeStatus::SUCCESS : BT::NodeStatus::FAILURE;
+          },
+          ports);
+    }
+    else
+    {
+      factory.registerSimpleAction(
+          leaf.id,
+          [leaf](BT::TreeNode& node) {
+            std::string call;
+            if(!callOf(node, leaf, call))
+            {
+              return BT::NodeStatus::FAILURE;
+            }
+            say("call " + call);
+            return BT::NodeStatus::SUCCESS;
+          },
+          ports);
+    }
+  }
+}
+
 /// The robot's own nodes, and KT-BT's: what learned knowledge may use.
 void registerRobot(BT::BehaviorTreeFactory& factory)
 {
@@ -139,6 +291,7 @@ void registerRobot(BT::BehaviorTreeFactory& factory)
                                { BT::InputPort<int>("colour") });
   factory.registerSimpleAction("DeliverToZone", deliverToZone);
   factory.registerNodeType<RandomWalk>("RandomWalk");
+  registerScripted(factory);
 }
 
 std::string readFile(const fs::path& path)
@@ -302,30 +455,60 @@ BT::Tree build(const std::string& base_xml, const fs::path& folder, const Listin
 
 int main(int argc, char** argv)
 {
+  const char* usage = "usage: learner CONTROL.xml LEARNED_DIR [--target C] [--true CALL]... "
+                      "[--ticks N] [--period-ms P]\n";
   if(argc < 3)
   {
-    std::cerr << "usage: learner CONTROL.xml LEARNED_DIR [--target C] [--ticks N] "
-                 "[--period-ms P]\n";
+    std::cerr << usage;
     return 2;
   }
   const fs::path control = argv[1], folder = argv[2];
   long ticks = 0, period_ms = 10;
-  for(int i = 3; i + 1 < argc; i += 2)
+  for(int i = 3; i < argc; i += 2)
   {
     const std::string option = argv[i];
-    const long value = std::stol(argv[i + 1]);
+    if(i + 1 == argc)
+    {
+      std::cerr << "error: " << option << ": needs a value\n" << usage;
+      return 2;
+    }
+    const std::string value = argv[i + 1];
+    if(option == "--true")
+    {
+      holding.insert(value);
+      continue;
+    }
+    long number = 0;
+    try
+    {
+      std::size_t read = 0;
+      number = std::stol(value, &read);
+      if(read != value.size())
+        throw std::invalid_argument(value);
+    }
+    catch(const std::exception&)
+    {
+      std::cerr << "error: " << option << ": not a whole number: " << value << "\n";
+      return 2;
+    }
     if(option == "--target")
-      seen_target = int(value);
+      seen_target = int(number);
     else if(option == "--ticks")
-      ticks = value;
+      ticks = number;
     else if(option == "--period-ms")
-      period_ms = value;
+      period_ms = number;
+    else
+    {
+      std::cerr << "error: " << option << ": no such option\n" << usage;
+      return 2;
+    }
   }
   std::signal(SIGTERM, [](int) { stopping = 1; });
   std::signal(SIGINT, [](int) { stopping = 1; });
   try
   {
     const std::string base = readFile(control);
+    modelled = readModel(base);
     Listing files = listing(folder);
     std::size_t kept = 0;
     BT::Tree tree = build(base, folder, files, kept);

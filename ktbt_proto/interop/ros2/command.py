@@ -1,0 +1,324 @@
+"""``ktbt ros2``: added to the ``ktbt`` command through the ``ktbt.commands`` entry point
+(spec/protocol.md section 11; docs/tutorials/ros2.md). Nothing of ROS is imported until a
+command runs, so ``ktbt`` works without ROS 2, and each command says in one line what is
+missing.
+
+- ``ktbt ros2 build``: build ``ktbt_interfaces`` into this environment (cached);
+- ``ktbt ros2 run [--autostart] [--ros-args ...]``: one robot's agent as a lifecycle node;
+- ``ktbt ros2 lifecycle NODE TRANSITION``: a transition (configure, activate, deactivate,
+  cleanup, shutdown) or ``get``, through the node's standard lifecycle_msgs services;
+- ``ktbt ros2 list NODE [--until SEQUENCE]`` and ``ktbt ros2 forget NODE SEQUENCE``: what a
+  robot knows, and forgetting an item, through its services;
+
+the last three for machines without the ``ros2`` command line.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any
+
+import typer
+
+from ktbt_proto.tools.cli.options import Timeout, example
+
+ros2 = typer.Typer(
+    help="KT-BT on ROS 2: build the interfaces, run a robot's lifecycle node.",
+    no_args_is_help=True,
+)
+
+TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
+
+
+def _say(text: str) -> None:
+    typer.echo(text, err=True)
+
+
+def _ready() -> None:
+    """rclpy and the interfaces importable, or one line and exit 1."""
+    from ktbt_proto.interop.ros2 import interfaces
+
+    try:
+        import rclpy  # noqa: F401
+    except ImportError:
+        _say(f"error: {interfaces.not_here()}")
+        raise typer.Exit(1) from None
+    try:
+        import ktbt_interfaces.msg  # noqa: F401
+    except ImportError:
+        _say("error: ktbt_interfaces is not built here: run ktbt ros2 build")
+        raise typer.Exit(1) from None
+
+
+@ros2.command("build", epilog=example("ktbt ros2 build"))
+def build_command(
+    force: Annotated[bool, typer.Option("--force", help="Build even if up to date.")] = False,
+) -> None:
+    """Build the interfaces into this environment (cached).
+
+    ros2/ktbt_interfaces, from the ROS 2 wheels; skipped while up to date."""
+    from ktbt_proto.interop.ros2 import interfaces
+
+    try:
+        built = interfaces.build(_say, force=force)
+    except interfaces.Ros2Unavailable as exc:
+        _say(f"error: {exc}")
+        raise typer.Exit(1) from None
+    if not built:
+        _say(f"{interfaces.PACKAGE} is up to date")
+
+
+@ros2.command(
+    "run",
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
+    epilog=example("ktbt ros2 run --autostart --ros-args -r __ns:=/robot1 --params-file r1.yaml"),
+)
+def run_command(
+    ctx: typer.Context,
+    autostart: Annotated[
+        bool,
+        typer.Option("--autostart", help="Configure and activate at once (no lifecycle manager)."),
+    ] = False,
+    node_name: Annotated[
+        str, typer.Option("--node-name", metavar="NAME", help="The node's name.")
+    ] = "ktbt",
+) -> None:
+    """Run one robot's agent as a lifecycle node.
+
+    Until Ctrl-C; ROS arguments (a namespace, a parameter file) follow --ros-args."""
+    _ready()
+    import signal
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
+
+    from ktbt_proto.interop.ros2.node import KtbtNode
+
+    extra = list(ctx.args)
+    if extra and extra[0] != "--ros-args":
+        if extra[0].startswith("-"):
+            _say(f"error: {extra[0]}: no such option")
+        else:
+            _say(f"error: {extra[0]!r}: unexpected; ROS arguments come after --ros-args")
+        raise typer.Exit(2)
+    try:
+        # Our own handlers: the node is cleaned up (its summary logged, its files closed)
+        # before the context goes, on Ctrl-C and on SIGTERM alike.
+        rclpy.init(args=[sys.argv[0], *extra], signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rclpy's own error for bad ROS arguments
+        _say(f"error: --ros-args: {exc}".splitlines()[0])
+        raise typer.Exit(2) from None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    code = 0
+    node: Any = None
+    try:
+        node = KtbtNode(node_name)
+        if autostart:
+            node.trigger_configure()
+            if node.agent is None:
+                code = 1
+            else:
+                node.trigger_activate()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while code == 0 and not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    except Exception as exc:  # a parameter file of the wrong types, say: one line
+        _say(f"error: {type(exc).__name__}: {exc}".splitlines()[0])
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+    raise typer.Exit(code)
+
+
+def _full(node: str) -> str:
+    return node if node.startswith("/") else "/" + node
+
+
+class _NoAnswer(Exception):
+    """A node's service could not be reached or did not answer; the message says which."""
+
+
+@contextmanager
+def _client_node() -> Iterator[Any]:
+    """A short-lived node of this command's own, in a context of its own."""
+    _ready()
+    import rclpy
+    from rclpy.utilities import try_shutdown
+
+    rclpy.init()
+    node = rclpy.create_node("ktbt_cli")
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        try_shutdown()
+
+
+def _call(client_node: Any, srv_type: Any, service: str, request: Any, timeout: float) -> Any:
+    """``service``'s answer to ``request``, waiting for the service at most ``timeout`` s and
+    as long again for the answer; raises :class:`_NoAnswer` with one line."""
+    import rclpy
+
+    client = client_node.create_client(srv_type, service)
+    try:
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise _NoAnswer(f"no service {service} found within {timeout:g} s")
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(client_node, future, timeout_sec=timeout)
+        result = future.result()
+        if result is None:
+            raise _NoAnswer(f"{service} did not answer within {timeout:g} s")
+        return result
+    finally:
+        client_node.destroy_client(client)
+
+
+@ros2.command("lifecycle", epilog=example("ktbt ros2 lifecycle /robot1/ktbt activate"))
+def lifecycle_command(
+    node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
+    transition: Annotated[
+        str, typer.Argument(help="configure, activate, deactivate, cleanup, shutdown, or get.")
+    ],
+    timeout: Timeout = 10.0,
+) -> None:
+    """Change a lifecycle node's state, or print it.
+
+    Through the node's standard lifecycle_msgs services."""
+    if transition not in (*TRANSITIONS, "get"):
+        _say(f"error: {transition!r}: use {', '.join(TRANSITIONS)} or get")
+        raise typer.Exit(2)
+    node = _full(node)
+    with _client_node() as client_node:
+        from lifecycle_msgs.srv import ChangeState, GetState
+
+        srv_type: Any = GetState if transition == "get" else ChangeState
+        request = srv_type.Request()
+        if transition != "get":
+            request.transition.label = transition
+        service = f"{node}/{'get_state' if transition == 'get' else 'change_state'}"
+        try:
+            done = _call(client_node, srv_type, service, request, timeout)
+        except _NoAnswer as exc:
+            _say(f"error: {exc}")
+            raise typer.Exit(1) from None
+    if transition == "get":
+        typer.echo(done.current_state.label)
+        return
+    if not done.success:
+        _say(f"error: {node} refused {transition} (see its log)")
+        raise typer.Exit(1)
+    typer.echo(f"{node}: {transition} done")
+
+
+def _shown(key: str) -> str:
+    """A sequence key as people type it; one that does not parse is shown quoted."""
+    from ktbt_proto.errors import StringBTError
+    from ktbt_proto.exchange.knowledge import show_sequence
+
+    try:
+        return show_sequence(key)
+    except StringBTError:
+        return repr(key)
+
+
+def _key(option: str, text: str) -> str:
+    """A sequence as typed, in wire form; a mistake is one line and exit 2."""
+    from ktbt_proto.errors import StringBTError
+    from ktbt_proto.exchange.knowledge import sequence_key
+    from ktbt_proto.merge import conditions
+
+    try:
+        return sequence_key(conditions([text]))
+    except StringBTError as err:
+        _say(f"error: {option} {text!r}: {err.code} {err.message}")
+        raise typer.Exit(2) from None
+
+
+@ros2.command("list", epilog=example("ktbt ros2 list /robot1/ktbt --until 'TargetSeen(colour=2)'"))
+def list_command(
+    node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
+    until: Annotated[
+        str | None,
+        typer.Option(
+            "--until", metavar="SEQUENCE", help="Wait (up to --timeout) until it knows this."
+        ),
+    ] = None,
+    timeout: Timeout = 10.0,
+) -> None:
+    """What a robot knows.
+
+    Each item with its author and teacher, from the node's ~/list_knowledge service."""
+    wanted = _key("--until", until) if until is not None else None
+    node = _full(node)
+    with _client_node() as client_node:
+        from ktbt_interfaces.srv import ListKnowledge
+
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                items = _call(
+                    client_node,
+                    ListKnowledge,
+                    f"{node}/list_knowledge",
+                    ListKnowledge.Request(),
+                    max(0.1, deadline - time.monotonic()),
+                ).items
+            except _NoAnswer as exc:
+                _say(f"error: {exc}")
+                raise typer.Exit(1) from None
+            if wanted is None or any(item.sequence == wanted for item in items):
+                break
+            if time.monotonic() >= deadline:
+                _say(f"error: {node} did not know {_shown(wanted)} within {timeout:g} s")
+                raise typer.Exit(1)
+            time.sleep(0.1)  # polling the robot's service, at most ten times a second
+    typer.echo(f"{node}: {len(items)} skill{'s' * (len(items) != 1)}")
+    for item in items:
+        origin = [
+            f"{name} {value}"
+            for name, value in (("author", item.author), ("teacher", item.teacher))
+            if value
+        ]
+        typer.echo(f"  {_shown(item.sequence)}" + (f"  ({', '.join(origin)})" if origin else ""))
+
+
+@ros2.command("forget", epilog=example("ktbt ros2 forget /robot1/ktbt 'TargetSeen(colour=2)'"))
+def forget_command(
+    node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
+    sequence: Annotated[str, typer.Argument(help="The item's sequence: 'TargetSeen(colour=2)'.")],
+    timeout: Timeout = 10.0,
+) -> None:
+    """Make a robot forget a learned item.
+
+    Through the node's ~/forget service; innate knowledge is never forgotten."""
+    key = _key("SEQUENCE", sequence)
+    node = _full(node)
+    with _client_node() as client_node:
+        from ktbt_interfaces.srv import Forget
+
+        try:
+            done = _call(
+                client_node, Forget, f"{node}/forget", Forget.Request(sequence=key), timeout
+            )
+        except _NoAnswer as exc:
+            _say(f"error: {exc}")
+            raise typer.Exit(1) from None
+    if not done.forgotten:
+        _say(f"error: {node}: {done.message}")
+        raise typer.Exit(1)
+    typer.echo(f"{node}: forgot {_shown(key)}")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(ros2, name="ros2")

@@ -1,0 +1,542 @@
+"""``ktbt ros2 run``: one robot's KT-BT agent as a managed (lifecycle) ROS 2 node
+(spec/protocol.md section 11, "ROS 2 binding").
+
+The node does what ``ktbt peer run`` does on zenoh (section 4.5): it starts with a control tree,
+a vocabulary and, if given, a knowledge file; meets each sequence in turn, asking the fleet with
+a bounded backoff while it is missing and at once when a new robot appears; and teaches what it
+knows, answering at once from its knowledge. As a managed node it does so only while active:
+
+- ``configure`` reads the parameters, loads the files and builds the agent and its topics;
+  anything wrong fails the transition with one line in the log;
+- ``activate`` starts ticking; an inactive node neither asks nor answers;
+- ``deactivate`` stops ticking; ``cleanup`` drops everything ``configure`` made.
+
+What it shows: its fleet events (section 10) on ``~/events``; its control tree, latched
+(TRANSIENT_LOCAL, depth 1), on ``~/tree`` with a ``changed`` flag, when it activates and after
+each merge or forget; its catalog, latched, on ``~/catalog``. Services: ``~/list_knowledge``
+and ``~/forget``. It logs through the node's logger, the library's own log records included.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import time
+from pathlib import Path
+from typing import Any, cast
+
+from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
+from ktbt_interfaces.srv import Forget, ListKnowledge
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+
+from ktbt_proto.errors import StringBTError
+from ktbt_proto.exchange.agent import Agent, Timing
+from ktbt_proto.exchange.answers import catalog
+from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.knowledge import sequence_key
+from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.signing import Identity, KeyFileError
+from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.trust import Policy, TrustStore
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.registry import load_vocabulary
+from ktbt_proto.syntax import parse
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.peer import (
+    LEARNER_CONTROL,
+    learning_slot,
+    load_knowledge,
+    shown,
+    with_knowledge,
+)
+
+DEMO_SEQUENCES = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
+"""What the node meets unless told: the demo robot's four colours."""
+
+SETUP = (
+    "agent_name",
+    "control",
+    "vocabulary",
+    "knowledge",
+    "save",
+    "key",
+    "policy",
+    "trust",
+    "log",
+    "overhear",
+    "wait_ticks",
+    "cooldown_ticks",
+    "queries_topic",
+    "answers_topic",
+    "errors_topic",
+)
+"""Parameters read when the node is configured: changed only while it is unconfigured."""
+EVENT_TEXT = (
+    "peer", "t", "event", "item", "sequence", "id", "sender", "to", "teacher", "author",
+    "reason", "where", "on", "key", "sig",
+)  # fmt: skip
+
+
+def latched() -> QoSProfile:
+    """``~/tree`` and ``~/catalog``: RELIABLE, TRANSIENT_LOCAL, depth 1, so a reader that
+    comes later gets the latest at once (as py_trees_ros's snapshots)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def events_qos() -> QoSProfile:
+    """``~/events``: RELIABLE, VOLATILE, depth 100: a watcher sees what happens from when it
+    starts (a gap in ``n`` is events lost), as on zenoh (section 10)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=100,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def event_msg(data: bytes) -> FleetEvent:
+    """The ROS message of an encoded fleet event (section 10's JSON): absent text is "", an
+    absent tick -1, so the JSON, and its signature, come back from the fields alone."""
+    fields = json.loads(data)
+    msg = FleetEvent(v=fields["v"], n=fields["n"], dropped=fields.get("dropped", 0))
+    for name in EVENT_TEXT:
+        setattr(msg, name, fields.get(name) or "")
+    msg.tick = fields.get("tick", -1)
+    return msg
+
+
+def event_json(msg: FleetEvent) -> bytes:
+    """Section 10's JSON of a received event, from its fields alone (what ``sig`` signs, with
+    ``sig`` added): :func:`ktbt_proto.exchange.events.decode_event` checks it."""
+    fields: dict[str, Any] = {"v": msg.v, "type": "event", "n": msg.n, "dropped": msg.dropped}
+    fields.update({name: getattr(msg, name) for name in EVENT_TEXT if getattr(msg, name)})
+    if msg.tick >= 0:
+        fields["tick"] = msg.tick
+    return json.dumps(fields, ensure_ascii=False).encode("utf-8")
+
+
+def problem(name: str, value: Any) -> str | None:
+    """What is wrong with a value of the node's parameter ``name``, in one line, or None."""
+    if name == "tick_rate" and not 0 < float(value) <= 1000:
+        return f"tick_rate {value}: use (0, 1000] Hz"
+    if name == "snapshot_period" and not 0 <= float(value) <= 3600:
+        return f"snapshot_period {value}: use [0, 3600] s (0: only on change)"
+    if name in ("wait_ticks", "cooldown_ticks") and not 1 <= int(value) <= 1_000_000:
+        return f"{name} {value}: use 1 to 1000000 ticks"
+    if name == "overhear" and value not in ("off", "update", "buffer"):
+        return f"overhear {value!r}: use off, update or buffer"
+    if name == "policy" and value not in [p.value for p in Policy]:
+        return f"policy {value!r}: use {', '.join(p.value for p in Policy)}"
+    if name.endswith("_topic") and not str(value).startswith("/"):
+        return f"{name} {value!r}: use an absolute name, shared by the fleet (/ktbt/queries)"
+    if name == "sequences":
+        for text in value:
+            try:
+                parse_conditions([text])
+            except StringBTError as err:
+                return f"sequences: {text!r}: {err.code} {err.message}"
+    return None
+
+
+class _ToNodeLogger(logging.Handler):
+    """The library's log records (``ktbt.*``) through the node's logger."""
+
+    def __init__(self, node: LifecycleNode) -> None:
+        super().__init__(logging.INFO)
+        self.logger = node.get_logger()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        if record.levelno >= logging.ERROR:
+            self.logger.error(text)
+        elif record.levelno >= logging.WARNING:
+            self.logger.warning(text)
+        else:
+            self.logger.info(text)
+
+
+class KtbtNode(LifecycleNode):
+    """One robot's agent as a managed node (see the module's docstring)."""
+
+    def __init__(self, node_name: str = "ktbt", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.logger = Node.get_logger(self)
+        """The node's logger (named for the node, namespace included)."""
+
+        def declare(name: str, default: Any, when: str) -> None:
+            # One descriptor each: rclpy writes the parameter's type into the one it is given.
+            self.declare_parameter(name, default, ParameterDescriptor(description=when))
+
+        setup, live = "read at configure", "applied at once"
+        declare("agent_name", "", setup)  # "": the namespace's last name, else the node's
+        declare("vocabulary", "", setup)  # FILE.toml or module:callable; "": the demo robot
+        declare("control", "", setup)  # a .sbt file; "": the demo's, or a learner's
+        declare("knowledge", "", setup)
+        declare("save", "", setup)
+        declare("key", "", setup)
+        declare("policy", "any", setup)
+        declare("trust", "", setup)
+        declare("log", "", setup)
+        declare("overhear", "off", setup)
+        declare("wait_ticks", 200, setup)
+        declare("cooldown_ticks", 50, setup)
+        declare("queries_topic", Topics().queries, setup)
+        declare("answers_topic", Topics().answers, setup)
+        declare("errors_topic", Topics().errors, setup)
+        declare("sequences", list(DEMO_SEQUENCES), live)
+        declare("tick_rate", 100.0, live)
+        declare("snapshot_period", 0.0, live)
+        self.add_on_set_parameters_callback(self._on_parameters)
+        self._handler = _ToNodeLogger(self)
+        library = logging.getLogger("ktbt")
+        library.addHandler(self._handler)
+        if library.level == logging.NOTSET or library.level > logging.INFO:
+            library.setLevel(logging.INFO)
+        self.agent: Agent | None = None
+        self.transport: Ros2Transport | None = None
+        self.log: TransferLog | None = None
+        self._made: list[Any] = []
+        self._timer: Any = None
+        self._snapshot_timer: Any = None
+        self._events: EventPublisher | None = None
+        self._todo: list[str] = []
+        self._version = 0
+        self._shown_tree: str | None = None
+        self._shown_catalog: list[str] | None = None
+
+    # -- parameters -----------------------------------------------------------------------------
+
+    def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Setup parameters change only while unconfigured; the live ones apply at once: the
+        sequences to meet, the tick rate and the snapshot period (timers made anew)."""
+        for param in params:
+            if param.name in SETUP and self.agent is not None:
+                why: str | None = f"{param.name} is read at configure: clean up first"
+            else:
+                why = problem(param.name, param.value)
+            if why is not None:
+                return SetParametersResult(successful=False, reason=why)
+        for param in params:
+            if param.name == "sequences":
+                self._todo = [sequence_key(parse_conditions([s])) for s in param.value]
+        if self._timer is not None and any(
+            p.name in ("tick_rate", "snapshot_period") for p in params
+        ):
+            values = {p.name: p.value for p in params}
+            self._start_timers(
+                float(values.get("tick_rate", self._param("tick_rate"))),
+                float(values.get("snapshot_period", self._param("snapshot_period"))),
+            )
+        return SetParametersResult(successful=True)
+
+    def _param(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def agent_name(self) -> str:
+        name = str(self._param("agent_name"))
+        if not name:
+            namespace = self.get_namespace().strip("/")
+            name = namespace.rsplit("/", 1)[-1] if namespace else self.get_name()
+        if not re.fullmatch(NAME, name):
+            raise ValueError(f"agent_name {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
+        return name
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Build the robot from its parameters; anything wrong fails the transition with one
+        line in the log, and the node stays unconfigured."""
+        try:
+            self._configure()
+        except Exception as exc:  # a bad file or value: one line, never a traceback
+            if isinstance(exc, OSError) and exc.filename is not None:
+                reason = f"{exc.filename}: {exc.strerror}"
+            elif isinstance(exc, OSError | ValueError | KeyFileError | StringBTError):
+                reason = str(exc)
+            else:
+                reason = f"{type(exc).__name__}: {exc}"
+            self.logger.error(f"configure failed: {' '.join(reason.split())[:300]}")
+            self._cleanup()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def _configure(self) -> None:
+        for param_name in (*SETUP, "sequences", "tick_rate", "snapshot_period"):
+            why = problem(param_name, self._param(param_name))
+            if why is not None:
+                raise ValueError(why)
+        name = self.agent_name()
+        vocabulary, control_path = str(self._param("vocabulary")), str(self._param("control"))
+        if control_path and not vocabulary:
+            raise ValueError(f"control {control_path}: give vocabulary too (the names it runs)")
+        registry = load_vocabulary(vocabulary) if vocabulary else demo_registry()
+        if control_path:
+            control = Path(control_path).read_text(encoding="utf-8")
+        else:
+            control = LEARNER_CONTROL if vocabulary else DEMO_CONTROL
+        try:
+            slot = learning_slot(parse(control))
+        except StringBTError as err:
+            where = control_path or "the control tree"
+            why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
+            raise ValueError(why) from None
+        if slot is None:
+            raise ValueError(f"control {control_path}: no placeholder (<k>(new)) to learn into")
+        knowledge = load_knowledge(self._param("knowledge")) if self._param("knowledge") else None
+        key = str(self._param("key"))
+        identity = Identity.load(key) if key else None
+        policy = Policy(str(self._param("policy")))
+        trust_path = str(self._param("trust"))
+        trust = TrustStore.load(trust_path) if trust_path else None
+        if policy == Policy.TRUSTED and trust is None:
+            raise ValueError("policy trusted needs a trust file (parameter trust)")
+        overhear = cast(Overhear, str(self._param("overhear")))
+        self._todo = [sequence_key(parse_conditions([s])) for s in self._param("sequences")]
+        wait_ticks, cooldown_ticks = (
+            int(self._param("wait_ticks")),
+            int(self._param("cooldown_ticks")),
+        )
+        log_path = str(self._param("log"))
+        self.log = TransferLog(log_path or None)
+        topics = Topics(
+            str(self._param("queries_topic")),
+            str(self._param("answers_topic")),
+            str(self._param("errors_topic")),
+        )
+        events = self.create_publisher(
+            FleetEvent,
+            "~/events",
+            events_qos(),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        self._made.append(events)
+        self._events = EventPublisher(name, lambda data: events.publish(event_msg(data)), identity)
+        self.log.add_sink(self._events)
+        overrides = QoSOverridingOptions.with_default_policies
+        self._tree_pub = self.create_publisher(
+            TreeSnapshot, "~/tree", latched(), qos_overriding_options=overrides()
+        )
+        self._catalog_pub = self.create_publisher(
+            Catalog, "~/catalog", latched(), qos_overriding_options=overrides()
+        )
+        self._made += [self._tree_pub, self._catalog_pub]
+        self.transport = Ros2Transport(
+            self,
+            name,
+            topics,
+            query_timeout=wait_ticks / float(self._param("tick_rate")),
+            identity=identity,
+            log=self.log,
+            overhear=overhear != "off",
+            active=False,
+        )
+        save = str(self._param("save"))
+        try:
+            self.agent = Agent(
+                name,
+                with_knowledge(control, knowledge, slot),
+                registry,
+                self.transport,
+                timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
+                knowledge_path=save or None,
+                security=Security(identity, policy, trust, self.log),
+                ear=Ear(overhear),
+                slot=slot,
+            )
+        except StringBTError as err:  # the control tree, with its knowledge, against the registry
+            where = control_path or "the demo's control tree"
+            why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
+            raise ValueError(why) from None
+        agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
+        self._catalog = catalog(agent.knowledge, identity)
+        self._made += [
+            self.create_service(ListKnowledge, "~/list_knowledge", self._on_list),
+            self.create_service(Forget, "~/forget", self._on_forget),
+        ]
+        for _, reason in agent.metrics.refusals:  # a damaged save file, say
+            self.logger.warning(f"{name} refused: {reason}")
+        self._announced = set(agent.metrics.learned)
+        self._backoff = Backoff(seed=name)
+        self._lost, self._joined = agent.metrics.queries_lost, self.transport.joined
+        self.logger.info(
+            f"{name}: configured, knows {len(agent.knowledge)}, will meet {len(self._todo)} "
+            f"sequences; queries on {topics.queries}, answers on {topics.answers}"
+        )
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        assert self.transport is not None
+        self.transport.active = True
+        self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
+        self._show()
+        self.logger.info(f"{self.transport.name}: active")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_timers()
+        if self.transport is not None:
+            self.transport.active = False
+            self.logger.info(f"{self.transport.name}: inactive")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _start_timers(self, tick_rate: float, snapshot_period: float) -> None:
+        """Tick at ``tick_rate`` (a query stays open ``wait_ticks`` ticks), and publish a
+        snapshot every ``snapshot_period`` seconds if positive."""
+        self._stop_timers()
+        self._timer = self.create_timer(1.0 / tick_rate, self._tick)
+        if snapshot_period > 0:
+            self._snapshot_timer = self.create_timer(snapshot_period, self._show)
+        if self.transport is not None:
+            self.transport.query_timeout = int(self._param("wait_ticks")) / tick_rate
+
+    def _stop_timers(self) -> None:
+        for timer in (self._timer, self._snapshot_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._timer = self._snapshot_timer = None
+
+    def _cleanup(self) -> None:
+        """Undo ``configure``; the summary of what the agent did goes to the log."""
+        self._stop_timers()
+        if self.agent is not None and self.transport is not None:
+            m = self.agent.metrics
+            self.logger.info(
+                f"{self.agent.name}: queries sent {m.queries_sent}, answers "
+                f"{m.responses_received}, lost {m.queries_lost}, refused "
+                f"{m.refused + self.transport.refused}, taught "
+                f"{m.responses_sent + self.transport.answered}, late answers {m.late_answers}"
+            )
+        if self.transport is not None:
+            self.transport.close()
+        for entity in self._made:
+            if hasattr(entity, "srv_type"):
+                self.destroy_service(entity)
+            else:
+                self.destroy_publisher(entity)
+        self._made = []
+        if self.log is not None:
+            if self._events is not None:
+                self.log.remove_sink(self._events)
+            self.log.close()
+        self.agent, self.transport, self.log, self._events = None, None, None, None
+        self._shown_tree = self._shown_catalog = None
+
+    def destroy_node(self) -> None:
+        self._cleanup()
+        logging.getLogger("ktbt").removeHandler(self._handler)
+        super().destroy_node()  # type: ignore[no-untyped-call]
+
+    # -- running --------------------------------------------------------------------------------
+
+    def _tick(self) -> None:
+        """One tick of ``ktbt peer run``'s loop (section 4.5), then what changed is shown."""
+        agent, transport = self.agent, self.transport
+        if agent is None or transport is None:
+            return
+        now = time.monotonic()
+        todo, backoff = self._todo, self._backoff
+        while todo and agent.knows(todo[0]):
+            todo.pop(0)
+        if transport.joined != self._joined:  # a new neighbour: it may know
+            self._joined = transport.joined
+            backoff.reset(now)
+        if agent.metrics.queries_lost != self._lost:
+            self._lost = agent.metrics.queries_lost
+            backoff.lost(now)
+        agent.encounter([todo[0]] if todo and backoff.ready(now) else None)
+        agent.tick()
+        for key in agent.metrics.learned.keys() - self._announced:
+            tick, source = agent.metrics.learned[key]
+            self.logger.info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
+            self._announced.add(key)
+            backoff.reset(now)
+        self._show()
+
+    def _show(self) -> None:
+        """Publish the tree snapshot and the catalog when they changed (and the snapshot, on
+        the snapshot period, when they did not: ``changed`` false)."""
+        agent = self.agent
+        if agent is None:
+            return
+        text = format_tree(agent.control.tree, "compact")
+        changed = text != self._shown_tree
+        entries = self._catalog()
+        keys = [e["sequence"] if isinstance(e, dict) else e for e in entries]
+        periodic = self._snapshot_timer is not None and not changed
+        if changed or periodic:
+            self._version += 1
+            self._tree_pub.publish(
+                TreeSnapshot(
+                    stamp=self.get_clock().now().to_msg(),
+                    peer=agent.name,
+                    changed=changed,
+                    version=self._version,
+                    tree=text,
+                )
+            )
+            self._shown_tree = text
+        if keys != self._shown_catalog:
+            self._catalog_pub.publish(Catalog(peer=agent.name, items=self._entries()))
+            self._shown_catalog = keys
+
+    def _entries(self) -> list[CatalogEntry]:
+        return [
+            CatalogEntry(
+                **{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")}
+            )
+            if isinstance(e, dict)
+            else CatalogEntry(sequence=e)
+            for e in self._catalog()
+        ]
+
+    # -- services -------------------------------------------------------------------------------
+
+    def _on_list(self, request: Any, response: Any) -> Any:
+        response.items = self._entries() if self.agent is not None else []
+        return response
+
+    def _on_forget(self, request: Any, response: Any) -> Any:
+        agent = self.agent
+        if agent is None:
+            response.forgotten, response.message = False, "the node is not configured"
+            return response
+        try:
+            key = sequence_key(parse_conditions([request.sequence]))
+        except StringBTError as err:
+            response.forgotten, response.message = False, f"sequence: {err}"
+            return response
+        item = agent.knowledge.lookup(key)
+        response.forgotten = agent.forget(key)
+        if not response.forgotten:
+            response.message = (
+                f"{shown(key)} is not known"
+                if item is None
+                else f"{shown(key)} is innate: only learned items are forgotten"
+            )
+        else:
+            self.logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
+            self._announced.discard(key)
+            self._show()
+        return response

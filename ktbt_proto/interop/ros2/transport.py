@@ -1,0 +1,541 @@
+"""The ROS 2 transport: the agent's :class:`Transport` over rclpy topics (spec/protocol.md
+section 11, "ROS 2 binding").
+
+Three fleet-wide topics carry the protocol's messages as ``ktbt_interfaces`` types:
+
+- the query topic (``/ktbt/queries``): every robot publishes its queries there and reads
+  everyone's;
+- the answer topic (``/ktbt/answers``): every answer, addressed to its asker by ``to``; a robot
+  reads all of them, takes those addressed to it, and overhears the others (section 4.3) when
+  it is asked to, so overhearing needs no topic of its own;
+- the error topic (``/ktbt/errors``): the error reply to a malformed query.
+
+The names are absolute, so robots in namespaces of their own (``/robot1/ktbt``) share them, and
+configurable, so two fleets on one ROS domain can be kept apart. The QoS of all three
+(:func:`exchange_qos`) is RELIABLE, VOLATILE, KEEP_LAST 64: a query or an answer matters only
+while its asker waits, so a robot that joins later must not be handed old ones (VOLATILE), and
+each is small and rare, so the network may retransmit it (RELIABLE); 64 bounds what a slow
+reader's queue holds. Each publisher and subscription accepts ROS's standard QoS overrides by
+parameter (``qos_overrides./ktbt/queries.publisher.reliability: best_effort``).
+
+Messages are read raw (serialized CDR), so that whatever arrives is checked in this order: size
+first (more than the message limit plus :data:`CDR_SLACK` is refused before it is
+deserialized), then deserialization, then section 1's schema through the one decoder
+(:func:`ktbt_proto.exchange.messages.decode`), applied to the JSON form the message's fields
+give. A message refused is counted (``refused``), logged at WARNING through the node's logger
+with its reason, and recorded in the transfer log, never raised. Inboxes and the table of
+queries seen are bounded as on zenoh (section 2), the newcomer refused when full. ROS has no
+error of its own about a query (no get that times out), so ``network_errors`` stays 0.
+
+An inactive transport (``active`` false: a lifecycle node not active) neither asks nor
+answers: it publishes nothing, and everything it reads is dropped unread.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from ktbt_interfaces.msg import Answer as AnswerMsg
+from ktbt_interfaces.msg import ErrorReply as ErrorMsg
+from ktbt_interfaces.msg import Query as QueryMsg
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
+
+from ktbt_proto.exchange.answers import live_answers
+from ktbt_proto.exchange.core import AgentCore
+from ktbt_proto.exchange.messages import (
+    MAX_MESSAGE_BYTES,
+    ErrorReply,
+    MessageRefused,
+    Query,
+    Response,
+    decode,
+)
+from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transport import Message, Received
+from ktbt_proto.exchange.trust import refusal
+
+QUERIES = "/ktbt/queries"
+ANSWERS = "/ktbt/answers"
+ERRORS = "/ktbt/errors"
+CDR_SLACK = 1024
+"""Bytes a serialized message may take beyond the JSON limit: CDR's header, string lengths and
+padding (a few dozen bytes for our messages)."""
+NAME = r"[A-Za-z0-9_.-]{1,64}"
+"""A robot's name (section 1)."""
+PRESENCE_PERIOD = 0.5
+"""Seconds between two reads of the ROS graph for who is present."""
+
+_M = TypeVar("_M", Query, Response, ErrorReply)
+Lookup = Callable[[str], SignedItem | None]
+"""Sequence key -> the signed item to answer with, or None (``exchange.answers``)."""
+
+
+@dataclass(frozen=True)
+class Topics:
+    """The fleet's three topics; absolute names, shared by every robot of the fleet."""
+
+    queries: str = QUERIES
+    answers: str = ANSWERS
+    errors: str = ERRORS
+
+    def __post_init__(self) -> None:
+        for field_name in ("queries", "answers", "errors"):
+            value = getattr(self, field_name)
+            if not value.startswith("/"):
+                raise ValueError(
+                    f"topic {field_name} {value!r}: use an absolute name (/ktbt/{field_name}), "
+                    "shared by the fleet whatever each robot's namespace"
+                )
+
+
+def exchange_qos() -> QoSProfile:
+    """The QoS of the query, answer and error topics (see the module's docstring)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=64,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+_OPTIONAL = ("author", "signature", "key", "hop")
+
+
+def wire_json(msg: Any, kind: str) -> bytes:
+    """The JSON form (section 1) of a received ROS message of ``kind`` (query, response,
+    error): its fields by name, an empty optional field left out."""
+    fields: dict[str, Any] = {"v": msg.v, "type": kind, "id": msg.id, "sender": msg.sender}
+    if kind == "query":
+        fields["sequence"] = msg.sequence
+    elif kind == "response":
+        fields["sequence"] = msg.sequence
+        fields["subtree"] = msg.subtree
+        for name in _OPTIONAL:
+            value = getattr(msg, name)
+            if value:
+                fields[name] = value
+    else:
+        fields["code"] = msg.code
+        fields["message"] = msg.message
+    return json.dumps(fields, ensure_ascii=False).encode("utf-8")
+
+
+def to_msg(message: Message, to: str = "") -> Any:
+    """The ROS message for a protocol message; ``to``: the asker an answer or error is for."""
+    if isinstance(message, Query):
+        return QueryMsg(
+            v=message.v, id=message.id, sender=message.sender, sequence=message.sequence
+        )
+    if isinstance(message, Response):
+        return AnswerMsg(
+            v=message.v,
+            id=message.id,
+            sender=message.sender,
+            to=to,
+            sequence=message.sequence,
+            subtree=message.subtree,
+            **{name: getattr(message, name) or "" for name in _OPTIONAL},
+        )
+    return ErrorMsg(
+        v=message.v,
+        id=message.id,
+        sender=message.sender,
+        to=to,
+        code=message.code,
+        message=message.message,
+    )
+
+
+class Ros2Transport:
+    """A robot on a ROS 2 graph, implementing the agent's :class:`Transport` through ``node``.
+
+    With ``lookup``, a query is answered inside the subscription's callback from what the
+    robot knows now (as a zenoh fleet member is, section 4.5); without, it is handed to the
+    agent, whose teach tree answers through :meth:`send`. ``query_timeout``: how long one of
+    this robot's queries stays open (its answers counted once per sender), in seconds.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        name: str,
+        topics: Topics | None = None,
+        *,
+        lookup: Lookup | None = None,
+        query_timeout: float = 2.0,
+        answer_window: float = 1.0,
+        max_pending: int = 256,
+        inbox_limit: int = 1024,
+        max_asking: int = 32,
+        max_bytes: int = MAX_MESSAGE_BYTES,
+        identity: Identity | None = None,
+        log: TransferLog | None = None,
+        overhear: bool = False,
+        overheard_limit: int = 64,
+        active: bool = True,
+        answer_at_once: bool = True,
+    ) -> None:
+        self.node, self.name = node, name
+        self.topics = topics or Topics()
+        self.lookup = lookup
+        self.query_timeout, self.answer_window = query_timeout, answer_window
+        self.max_pending, self.inbox_limit, self.max_asking = max_pending, inbox_limit, max_asking
+        self.max_bytes = max_bytes
+        self.identity = identity
+        """With a key pair, the answers ``lookup`` gives are hop-signed (section 7)."""
+        self.log = log
+        self.overhear, self.overheard_limit = overhear, overheard_limit
+        self.active = active
+        """False: neither ask nor answer (a lifecycle node that is not active)."""
+        self.answer_at_once = answer_at_once
+        """With an agent attached and no ``lookup``, answer from its knowledge at once."""
+        self.screen: Callable[[Response], str | None] | None = None
+        """The asker's trust policy, run before an answer takes its sender's one place in a
+        query (:meth:`attach` sets it)."""
+        self.refused = 0
+        """Every message this transport refused (undecodable, oversized, a replay, ...)."""
+        self.network_errors = 0
+        """Always 0: ROS reports no error about a query (kept for the agent's summary)."""
+        self.answered = 0
+        """Queries ``lookup`` answered inside the callback."""
+        self.joined = 0
+        """Robots that appeared on the query topic since this one started (the ROS graph)."""
+        self.closed = False
+        self._lock = threading.Lock()
+        self._inbox: deque[Received] = deque()
+        self._overheard: deque[Response] = deque()
+        self._open: dict[str, tuple[str, float, set[str]]] = {}
+        """This robot's open queries: id -> (sequence, deadline, senders heard)."""
+        self._asked: deque[str] = deque(maxlen=256)
+        self._seen: dict[tuple[str, str], float] = {}
+        """Queries from others still in their answer window: (sender, id) -> deadline."""
+        self._present: set[str] = set()
+        self._next_presence = 0.0
+
+        # A profile and options of its own for each entity: rclpy writes the overridden
+        # values into the profile it is given.
+        def qos() -> dict[str, Any]:
+            return {
+                "qos_profile": exchange_qos(),
+                "qos_overriding_options": QoSOverridingOptions.with_default_policies(),
+            }
+
+        topics = self.topics
+        self._queries = node.create_publisher(QueryMsg, topics.queries, **qos())
+        self._answers = node.create_publisher(AnswerMsg, topics.answers, **qos())
+        self._errors = node.create_publisher(ErrorMsg, topics.errors, **qos())
+        self._subscriptions = [
+            node.create_subscription(QueryMsg, topics.queries, self._on_query, raw=True, **qos()),
+            node.create_subscription(AnswerMsg, topics.answers, self._on_answer, raw=True, **qos()),
+            node.create_subscription(ErrorMsg, topics.errors, self._on_error, raw=True, **qos()),
+        ]
+        self._present = self.peers()
+
+    # -- the Transport interface ----------------------------------------------------------------
+
+    def broadcast(self, message: Message) -> None:
+        """Publish a query on the fleet's query topic; answers arrive in the inbox."""
+        if self.closed or not self.active or not isinstance(message, Query):
+            return
+        now = time.monotonic()
+        with self._lock:
+            self._expire(now)
+            again = self._open.get(message.id)  # the same query, repeated while it waits
+            full = again is None and len(self._open) >= self.max_asking
+            if not full:
+                heard = again[2] if again is not None else set()
+                self._open[message.id] = (message.sequence, now + self.query_timeout, heard)
+                if again is None:
+                    self._asked.append(message.id)
+        if full:
+            self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
+            return
+        self._queries.publish(to_msg(message))
+
+    def send(self, to: str, message: Message) -> None:
+        """Answer ``to``'s query (or tell it of an error) on the answer (error) topic, where
+        every robot that overhears also reads it."""
+        if self.closed or not self.active:
+            return
+        if isinstance(message, Response):
+            self._answers.publish(to_msg(message, to))
+        elif isinstance(message, ErrorReply):
+            self._errors.publish(to_msg(message, to))
+
+    def receive(self) -> list[Received]:
+        now = time.monotonic()
+        if now >= self._next_presence:
+            self._next_presence = now + PRESENCE_PERIOD
+            present = self.peers()
+            with self._lock:
+                self.joined += len(present - self._present)
+                self._present = present
+        with self._lock:
+            self._expire(now)
+            messages = list(self._inbox)
+            messages.extend(self._overheard)
+            self._inbox.clear()
+            self._overheard.clear()
+        return messages
+
+    def close(self) -> None:
+        """Destroy the publishers and subscriptions (the node stays)."""
+        if self.closed:
+            return
+        self.closed = True
+        for sub in self._subscriptions:
+            self.node.destroy_subscription(sub)
+        for pub in (self._queries, self._answers, self._errors):
+            self.node.destroy_publisher(pub)
+
+    def attach(self, agent: AgentCore) -> None:
+        """What an agent built on this transport calls (``AgentCore``): from then on answers
+        are checked against the agent's trust policy before they take their sender's place,
+        and, with ``answer_at_once``, queries are answered from the agent's live knowledge,
+        signed with its key pair, as ``ktbt peer run`` does (section 4.5). What the transport
+        was given already (a ``lookup``, an ``identity``, a ``log``) is kept."""
+        security = agent.security
+        self.screen = lambda r: refusal(r, security.policy, security.trust)
+        if self.identity is None:
+            self.identity = security.identity
+        if self.log is None:
+            self.log = security.log
+        if self.lookup is None and self.answer_at_once:
+            self.lookup = live_answers(lambda: agent.knowledge, self.identity)
+
+    # -- presence -------------------------------------------------------------------------------
+
+    def peers(self) -> set[str]:
+        """The other nodes reading the query topic, by full name (``/robot1/ktbt``): who is
+        present, from the ROS graph."""
+        me = self.node.get_fully_qualified_name()
+        found = set()
+        for info in self.node.get_subscriptions_info_by_topic(self.topics.queries):
+            namespace = info.node_namespace.rstrip("/")
+            full = f"{namespace}/{info.node_name}"
+            if full != me:
+                found.add(full)
+        return found
+
+    # -- what arrives -----------------------------------------------------------------------------
+
+    def _refuse(self, reason: str, **fields: Any) -> None:
+        """Count, log (WARNING) and record one refusal (section 2: every refusal is counted)."""
+        with self._lock:
+            self.refused += 1
+        self.node.get_logger().warning(f"{self.name} refused: {reason}")
+        if self.log is not None:
+            self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
+
+    def _read(
+        self,
+        data: bytes,
+        msg_type: Any,
+        kind: type[_M],
+        topic: str,
+        wanted: Callable[[Any], bool] | None = None,
+    ) -> tuple[Any, _M] | None:
+        """A raw message from ``topic`` as the protocol message ``kind``, with the ROS message
+        it came as; anything else is refused, with its reason. ``wanted``: whether this robot
+        reads a message that deserialized (one addressed to another is dropped unread)."""
+        what = f"on {topic}"
+        if len(data) > self.max_bytes + CDR_SLACK:
+            self._refuse(f"{what}: {len(data)} bytes, more than the limit", key=topic)
+            return None
+        try:
+            msg = deserialize_message(data, msg_type)
+        except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
+            self._refuse(f"{what}: not a {msg_type.__name__} ({type(exc).__name__})", key=topic)
+            return None
+        if wanted is not None and not wanted(msg):
+            return None
+        label = {Query: "query", Response: "response", ErrorReply: "error"}[kind]
+        try:
+            message = decode(wire_json(msg, label), self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"{what}: {exc.reason}", key=topic)
+            return None
+        except (UnicodeError, ValueError) as exc:
+            self._refuse(f"{what}: {type(exc).__name__}", key=topic)
+            return None
+        assert isinstance(message, kind)
+        return msg, message
+
+    def _deliver(self, message: Received) -> None:
+        """Into the inbox, unless it is full: then the newcomer is refused."""
+        with self._lock:
+            full = len(self._inbox) >= self.inbox_limit
+            if not full:
+                self._inbox.append(message)
+        if full:
+            self._refuse(f"inbox full ({self.inbox_limit} messages): a {message.type} is dropped")
+
+    def _on_query(self, data: bytes) -> None:
+        if self.closed or not self.active:
+            return
+        read = self._read(data, QueryMsg, Query, self.topics.queries)
+        if read is None:
+            self._error_reply(data)
+            return
+        query = read[1]
+        if query.sender == self.name:
+            return  # our own query, heard back
+        if self.lookup is not None:
+            if self.log is not None:
+                self.log.record(
+                    "query-received",
+                    peer=self.name,
+                    sender=query.sender,
+                    id=query.id,
+                    sequence=query.sequence,
+                )
+            self._answer_at_once(query, self.lookup)
+            return
+        now = time.monotonic()
+        key = (query.sender, query.id)
+        with self._lock:
+            self._expire(now)
+            replay = key in self._seen
+            full = not replay and len(self._seen) >= self.max_pending
+            if not replay and not full:
+                self._seen[key] = now + self.answer_window
+        if replay:
+            self._refuse(f"query {query.id} from {query.sender} is already open")
+            return
+        if not full:  # else left unanswered, as a teacher in cool-down would
+            self._deliver(query)
+
+    def _error_reply(self, data: bytes) -> None:
+        """The error reply to a query that could not be read, addressed to its sender when
+        that much of it could be read."""
+        to = ""
+        try:
+            sender = deserialize_message(data, QueryMsg).sender
+            to = sender if re.fullmatch(NAME, sender) else ""
+        except Exception:  # nothing of it could be read
+            pass
+        error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
+        self._errors.publish(to_msg(error, to))
+
+    def _answer_at_once(self, query: Query, lookup: Lookup) -> None:
+        found = lookup(query.sequence)
+        if found is None:
+            return
+        response = Response.of(
+            query.id, self.name, query.sequence, found.subtree, found.author, found.signature
+        )
+        if self.identity is not None:
+            response = self.identity.sign_reply(response)
+        self._answers.publish(to_msg(response, query.sender))
+        self.answered += 1
+        if self.log is not None:
+            self.log.record(
+                "answer-sent",
+                peer=self.name,
+                to=query.sender,
+                id=query.id,
+                sequence=query.sequence,
+                author=found.author,
+            )
+
+    def _on_answer(self, data: bytes) -> None:
+        if self.closed or not self.active:
+            return
+        read = self._read(
+            data,
+            AnswerMsg,
+            Response,
+            self.topics.answers,
+            lambda msg: msg.to == self.name or (self.overhear and msg.sender != self.name),
+        )
+        if read is None:
+            return
+        msg, answer = read
+        if answer.sender == self.name:
+            return  # our own answer, heard back
+        if msg.to == self.name:
+            self._answer_to_me(answer)
+        elif self.overhear:
+            self._overheard_answer(answer)
+
+    def _answer_to_me(self, answer: Response) -> None:
+        """An answer addressed to this robot: to an open query, it must answer the sequence
+        asked, pass the trust policy, and be its sender's first; any other (late, or to no
+        query of ours) is the agent's to judge (section 2)."""
+        with self._lock:
+            opened = self._open.get(answer.id)
+        if opened is not None:
+            sequence, _, heard = opened
+            if answer.sequence != sequence:
+                self._refuse(f"an answer from {answer.sender} answers another question")
+                return
+            why = self.screen(answer) if self.screen is not None else None
+            if why is not None:
+                self._refuse(f"from {answer.sender}: {why}")
+                return
+            with self._lock:
+                again = answer.sender in heard
+                heard.add(answer.sender)
+            if again:
+                self._refuse(f"another answer from {answer.sender} to the same query")
+                return
+        self._deliver(answer)
+
+    def _overheard_answer(self, answer: Response) -> None:
+        """An answer to another robot (section 4.3): checked as an answer is, then queued for
+        the agent, a newcomer to a full queue refused."""
+        with self._lock:
+            mine = answer.id in self._asked
+        if mine:
+            return
+        why = self.screen(answer) if self.screen is not None else None
+        if why is not None:
+            self._refuse(f"overheard from {answer.sender}: {why}")
+            return
+        with self._lock:
+            full = len(self._overheard) >= self.overheard_limit
+            if not full:
+                self._overheard.append(answer)
+        if full:
+            self._refuse(
+                f"{self.overheard_limit} overheard answers waiting: one from {answer.sender} "
+                "is dropped"
+            )
+
+    def _on_error(self, data: bytes) -> None:
+        if self.closed or not self.active:
+            return
+        read = self._read(
+            data, ErrorMsg, ErrorReply, self.topics.errors, lambda msg: msg.to == self.name
+        )
+        if read is None:
+            return
+        error = read[1]
+        self.node.get_logger().info(f"{error.sender} refused a query of ours: {error.message}")
+        if self.log is not None:
+            self.log.record(
+                "error-received", peer=self.name, sender=error.sender, reason=error.message
+            )
+
+    def _expire(self, now: float) -> None:
+        """Forget open queries and seen queries whose time is over (under the lock)."""
+        for qid in [q for q, (_, deadline, _) in self._open.items() if deadline < now]:
+            del self._open[qid]
+        for key in [k for k, deadline in self._seen.items() if deadline < now]:
+            del self._seen[key]

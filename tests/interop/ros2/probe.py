@@ -1,0 +1,216 @@
+"""The tests' ROS participant (run by ``rosns.Probe`` inside a test's network namespace): one
+JSON request a line on stdin, one JSON answer a line on stdout. Everything waited on has the
+request's deadline (``timeout``) and is polled on observable conditions, never slept for.
+
+Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, match): the first
+message received on the topic (past the first ``skip``) whose fields match (and hold none of
+``absent``); ``messages`` (topic); ``publishers`` and ``subscribers`` (topic, count): wait
+until the topic has that many; ``publish`` (topic, type, fields or ``raw`` hex bytes,
+subscribers: wait for that many first); ``call`` (service, type, request); ``params`` (node,
+names): a node's parameter values; ``set_params`` (node, values): set them, each one's result.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from ktbt_interfaces import msg as ktbt_msg
+from ktbt_interfaces import srv as ktbt_srv
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
+
+SERVICES: dict[str, Any] = {
+    "Forget": ktbt_srv.Forget,
+    "ListKnowledge": ktbt_srv.ListKnowledge,
+    "GetParameters": GetParameters,
+}
+
+
+def plain(value: Any) -> Any:
+    """A ROS message as JSON-ready values."""
+    if hasattr(value, "get_fields_and_field_types"):
+        return {name: plain(getattr(value, name)) for name in value.get_fields_and_field_types()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if isinstance(value, bytes | bytearray):
+        return value.hex()
+    return value
+
+
+def matches(message: dict[str, Any], match: dict[str, Any]) -> bool:
+    for key, want in match.items():
+        got = message.get(key)
+        if isinstance(want, str) and isinstance(got, str):
+            if want not in got:
+                return False
+        elif got != want:
+            return False
+    return True
+
+
+class ProbeNode:
+    def __init__(self) -> None:
+        self.node = rclpy.create_node("ktbt_probe")
+        self.lock = threading.Lock()
+        self.received: dict[str, list[dict[str, Any]]] = {}
+        self.subs: dict[str, Any] = {}
+        self.pubs: dict[str, Any] = {}
+
+    def qos(self, latched: bool) -> QoSProfile:
+        return QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1 if latched else 100,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+        )
+
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        op, timeout = req["op"], float(req.get("timeout", 30))
+        deadline = time.monotonic() + timeout
+        if op == "ping":
+            return {"ok": True}
+        if op == "sub":
+            topic = req["topic"]
+            self.received.setdefault(topic, [])
+
+            def keep(message: Any, topic: str = topic) -> None:
+                with self.lock:
+                    self.received[topic].append(plain(message))
+
+            self.subs[topic] = self.node.create_subscription(
+                getattr(ktbt_msg, req["type"]), topic, keep, self.qos(bool(req.get("latched")))
+            )
+            return {"ok": True}
+        if op in ("wait", "messages"):
+            topic = req["topic"]
+            while True:
+                with self.lock:
+                    seen = list(self.received.get(topic, []))
+                if op == "messages":
+                    return {"ok": True, "messages": seen}
+                for message in seen[int(req.get("skip", 0)) :]:
+                    absent = req.get("absent", {})
+                    if matches(message, req["match"]) and not any(
+                        str(v) in str(message.get(k)) for k, v in absent.items()
+                    ):
+                        return {"ok": True, "msg": message}
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "timeout", "last": seen[-5:]}
+                time.sleep(0.02)
+        if op == "publishers":  # with each one's reliability
+            while len(infos := self.node.get_publishers_info_by_topic(req["topic"])) < req["count"]:
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "timeout"}
+                time.sleep(0.02)
+            return {"ok": True, "reliability": [i.qos_profile.reliability.name for i in infos]}
+        if op == "subscribers":  # wait until the topic has that many subscriptions
+            while len(self.node.get_subscriptions_info_by_topic(req["topic"])) < req["count"]:
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "timeout"}
+                time.sleep(0.02)
+            return {"ok": True}
+        if op == "publish":
+            topic = req["topic"]
+            msg_type = getattr(ktbt_msg, req["type"])
+            pub = self.pubs.get(topic)
+            if pub is None:
+                pub = self.pubs[topic] = self.node.create_publisher(
+                    msg_type, topic, self.qos(False)
+                )
+            while pub.get_subscription_count() < req.get("subscribers", 1):
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "no subscriber"}
+                time.sleep(0.02)
+            if "raw" in req:
+                pub.publish(bytes.fromhex(req["raw"]))
+            else:
+                pub.publish(msg_type(**req["fields"]))
+            return {"ok": True}
+        if op == "call":
+            srv_type = SERVICES[req["type"]]
+            client = self.node.create_client(srv_type, req["service"])
+            try:
+                if not client.wait_for_service(timeout_sec=timeout):
+                    return {"ok": False, "error": "no service"}
+                request = srv_type.Request(**req.get("request", {}))
+                future = client.call_async(request)
+                done = threading.Event()
+                future.add_done_callback(lambda _: done.set())
+                if not done.wait(max(0.0, deadline - time.monotonic())):
+                    return {"ok": False, "error": "no answer"}
+                return {"ok": True, "response": plain(future.result())}
+            finally:
+                self.node.destroy_client(client)
+        if op == "set_params":  # each result: (successful, reason)
+            srv = SetParameters
+            client = self.node.create_client(srv, f"{req['node']}/set_parameters")
+            try:
+                if not client.wait_for_service(timeout_sec=timeout):
+                    return {"ok": False, "error": "no service"}
+                params = [
+                    Parameter(k, value=v).to_parameter_msg() for k, v in req["values"].items()
+                ]
+                future = client.call_async(srv.Request(parameters=params))
+                done = threading.Event()
+                future.add_done_callback(lambda _: done.set())
+                if not done.wait(max(0.0, deadline - time.monotonic())):
+                    return {"ok": False, "error": "no answer"}
+                results = future.result().results
+                return {"ok": True, "results": [[r.successful, r.reason] for r in results]}
+            finally:
+                self.node.destroy_client(client)
+        if op == "params":
+            names = req["names"]
+            answer = self.handle(
+                {
+                    "op": "call",
+                    "service": f"{req['node']}/get_parameters",
+                    "type": "GetParameters",
+                    "request": {"names": names},
+                    "timeout": timeout,
+                }
+            )
+            if not answer["ok"]:
+                return answer
+            values = {}
+            for name, value in zip(names, answer["response"]["values"], strict=True):
+                kind = value["type"]
+                field = {1: "bool_value", 2: "integer_value", 3: "double_value",
+                         4: "string_value", 9: "string_array_value"}.get(kind)  # fmt: skip
+                values[name] = value[field] if field else None
+            return {"ok": True, "values": values}
+        return {"ok": False, "error": f"unknown op {op!r}"}
+
+
+def main() -> None:
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # SIGTERM ends it at once
+    probe = ProbeNode()
+    executor = SingleThreadedExecutor()
+    executor.add_node(probe.node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        for line in sys.stdin:
+            try:
+                answer = probe.handle(json.loads(line))
+            except Exception as exc:  # report it to the test, which fails with it
+                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            sys.stdout.write(json.dumps(answer) + "\n")
+            sys.stdout.flush()
+    finally:
+        executor.shutdown()
+        probe.node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

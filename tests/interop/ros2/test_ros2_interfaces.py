@@ -1,0 +1,112 @@
+"""The ROS 2 interfaces carry the protocol exactly (spec/protocol.md section 11): a signed
+answer and a signed fleet event go through their ROS messages, serialized as DDS sends them,
+and come back equal, their signatures verifying from the fields alone; the build is cached;
+the project still imports lark 1.x after the ROS wheels."""
+
+from __future__ import annotations
+
+import platform
+import sysconfig
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ktbt_proto.exchange.events import EventPublisher, decode_event
+from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode
+from ktbt_proto.exchange.signing import Identity, hop_bytes, item_bytes, verify
+from ktbt_proto.interop.ros2 import interfaces
+from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
+
+# The tests that use ROS are slow: the first in an environment builds the interfaces.
+
+
+def through_dds(msg: Any) -> Any:
+    """``msg`` serialized as DDS sends it and read back."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    return deserialize_message(serialize_message(msg), type(msg))
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() -> None:
+    from ktbt_proto.interop.ros2.transport import to_msg, wire_json
+
+    author, sender = Identity.generate(), Identity.generate()
+    item = author.sign_item(SEQUENCE, SUBTREE)
+    sent = sender.sign_reply(
+        Response.of("q1", "teacher", SEQUENCE, item.subtree, item.author, item.signature)
+    )
+    msg = through_dds(to_msg(sent, "learner"))
+    assert msg.to == "learner"
+    received = decode(wire_json(msg, "response"))
+    assert received == sent
+    assert isinstance(received, Response)
+    assert verify(author.public, received.signature or "", item_bytes(SEQUENCE, received.subtree))
+    assert verify(sender.public, received.hop or "", hop_bytes(received.model_copy(
+        update={"key": None, "hop": None})))  # fmt: skip
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
+    from ktbt_proto.interop.ros2.transport import to_msg, wire_json
+
+    for message, kind in (
+        (Response.of("q1", "teacher", SEQUENCE, SUBTREE), "response"),
+        (Query(id="q1", sender="learner", sequence=SEQUENCE), "query"),
+        (ErrorReply(id="0", sender="teacher", code="refused", message="malformed"), "error"),
+    ):
+        assert decode(wire_json(through_dds(to_msg(message, "x")), kind)) == message
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_a_signed_fleet_event_survives_its_ros_message() -> None:
+    from ktbt_proto.interop.ros2.node import event_json, event_msg
+
+    identity = Identity.generate()
+    sent: list[bytes] = []
+    publisher = EventPublisher("learner", sent.append, identity)
+    publisher({"t": "2026-12-01T21:00:00.125+00:00", "event": "merged", "sequence": SEQUENCE,
+               "teacher": "teacher", "tick": 0})  # fmt: skip
+    publisher({"t": "2026-12-01T21:00:01.000+00:00", "event": "refused", "reason": "junk",
+               "where": "transport"})  # fmt: skip
+    for data in sent:
+        msg = through_dds(event_msg(data))
+        assert decode_event(event_json(msg)) == decode_event(data)  # the signature verified
+    assert through_dds(event_msg(sent[1])).tick == -1
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_a_relative_topic_is_refused_with_one_line() -> None:
+    from ktbt_proto.interop.ros2.transport import Topics
+
+    with pytest.raises(ValueError, match=r"topic queries 'ktbt/queries': use an absolute name"):
+        Topics(queries="ktbt/queries")
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_the_build_is_cached_and_lark_is_1x_after_the_ros_install() -> None:
+    said: list[str] = []
+    if interfaces.system_ros() is None:
+        assert interfaces.build(said.append) is False  # built by the fixture: up to date
+        assert not any("building" in line for line in said)
+    major = interfaces.lark_version().split(".")[0]
+    assert major.isdigit() and int(major) >= 1, interfaces.lark_version()
+    site = Path(sysconfig.get_paths()["purelib"])
+    assert not (site / "lark-stubs").exists(), "lark-parser 0.12's stubs hide lark 1.x's types"
+
+
+def test_a_platform_without_wheels_is_told_what_to_do_in_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(platform, "machine", lambda: "aarch64")  # the module reads it
+    assert not interfaces.has_wheels()
+    line = interfaces.not_here()
+    assert "\n" not in line
+    assert line.startswith("no ROS 2 wheels for aarch64 linux, CPython 3.")
+    assert "install ROS 2 Jazzy" in line and "colcon" in line

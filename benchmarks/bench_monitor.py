@@ -392,8 +392,7 @@ def publish_cost(rounds: int) -> dict[str, Any]:
     from benchmarks import bench_transfer as bt
     from benchmarks.timing import gc_paused
     from ktbt_proto.exchange.signing import Identity
-    from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
-    from ktbt_proto.tools.peer import load_knowledge
+    from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
     from ktbt_proto.transport.zenoh import ZenohTransport, peers
 
     kb = load_knowledge(bt.KNOWLEDGE_PATH)

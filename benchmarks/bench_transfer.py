@@ -48,8 +48,7 @@ from ktbt_proto.exchange.messages import Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
-from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
-from ktbt_proto.tools.peer import load_knowledge
+from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json

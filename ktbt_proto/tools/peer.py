@@ -21,8 +21,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from pydantic import ValidationError as PydanticError
-
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog
@@ -34,15 +32,13 @@ from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
-from ktbt_proto.files import read_at_most, write_atomic
+from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.sidecar import LearnedExport, read_skills
+from ktbt_proto.interop.robot import shown, with_knowledge
+from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.items import parse_sequence
-from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import conditions as parse_conditions
-from ktbt_proto.merge import merge
 from ktbt_proto.registry import Registry
-from ktbt_proto.syntax import parse
 from ktbt_proto.transport.zenoh import (
     ZenohSettings,
     ZenohTransport,
@@ -51,29 +47,16 @@ from ktbt_proto.transport.zenoh import (
     peers,
     stable_zid,
 )
-from ktbt_proto.tree import Condition, Placeholder, SequenceNode, Tree
+from ktbt_proto.tree import Condition, SequenceNode
 from ktbt_proto.validate import find_problems
 
 Say = Callable[[str], None]
 
 log = logging.getLogger("ktbt.peer")
 
-LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
-"""The control tree of a robot given a vocabulary but no ``--control``: it runs only what it
-knows (what a learner beside a BehaviorTree.CPP program, ``--export-learned``, needs)."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
-
-
-def learning_slot(tree: Tree) -> str | None:
-    """The placeholder a robot learns into: ``<k>(new)`` if its control tree has one, else its
-    last placeholder (the lowest priority in a selector); None without any (spec/protocol.md
-    section 4.5)."""
-    names = [n.name for n, _ in tree.walk() if isinstance(n, Placeholder)]
-    if not names:
-        return None
-    return "new" if "new" in names else names[-1]
 
 
 @dataclass(frozen=True)
@@ -110,15 +93,6 @@ class Member:
         )
 
 
-def shown(key: str) -> str:
-    """A sequence key as people read and type it (``TargetSeen(colour=2)``); a key that does
-    not parse (a hostile peer's catalog) is shown quoted, as it came."""
-    try:
-        return show_sequence(key)
-    except StringBTError:
-        return repr(key)
-
-
 @contextmanager
 def until_signalled() -> Iterator[threading.Event]:
     """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly."""
@@ -140,39 +114,6 @@ def announce_ready(path: Path | None, peer: str, knows: int | None) -> None:
     reads this, never the human-readable output, which may change."""
     if path is not None:
         write_atomic(path, json.dumps({"peer": peer, "knows": knows}) + "\n")
-
-
-def load_knowledge(path: str | Path) -> KnowledgeBase:
-    """A knowledge file: stringBT whose ``<k>(...)`` placeholders hold the items to serve, or
-    (``.xml``) a BehaviorTree.CPP robot's skills (:func:`ktbt_proto.interop.sidecar.read_skills`).
-    At most one byte past the size limit is read (``/dev/zero`` is refused, not read until
-    memory runs out). Items too large to send, signed and all, are refused here, not at every
-    query."""
-    data = read_at_most(path, DEFAULT_LIMITS.max_size)
-    if Path(path).suffix.lower() == ".xml":
-        kb = read_skills(data)
-    else:
-        kb = KnowledgeBase.from_tree(parse(data))
-    for item in kb:
-        subtree = format_tree(item.subtree, "compact")
-        try:  # the largest a reply can be: longest id and name, both signatures
-            Response(
-                id="i" * 64,
-                sender="s" * 64,
-                sequence=item.key,
-                subtree=subtree,
-                author="A" * 43,
-                signature="A" * 86,
-                key="A" * 43,
-                hop="A" * 86,
-            )
-        except PydanticError:
-            raise ValueError(f"{path}: the subtree for {item.key} is too large to send") from None
-    if not len(kb):
-        raise ValueError(
-            f"{path}: no knowledge items (inside a <k>(...): <sq>, the conditions, the actions)"
-        )
-    return kb
 
 
 def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[str]]:
@@ -294,23 +235,6 @@ def provenance(answer: Response) -> str:
     if answer.key is not None:
         words.append(f"sent with key {answer.key}")
     return f" ({', '.join(words)})" if words else ""
-
-
-def with_knowledge(
-    control: str | Tree, knowledge: KnowledgeBase | None, fallback: str = "prior"
-) -> str | Tree:
-    """The control tree with ``knowledge``'s items in their placeholders (``fallback`` when the
-    tree has no placeholder of an item's name, ``prior`` if it has one): what the agent starts
-    knowing, and teaches."""
-    if knowledge is None or not len(knowledge):
-        return control
-    tree = parse(control) if isinstance(control, str) else control
-    names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
-    fallback = "prior" if "prior" in names else fallback
-    for item in knowledge:
-        slot = item.segment if item.segment in names else fallback
-        tree = merge(tree, item.subtree, slot, when=item.conditions)
-    return tree
 
 
 class Listed:

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.interop.robot import load_knowledge
 from ktbt_proto.items import (
     actions_rerun,
     find_warnings,
@@ -26,7 +27,6 @@ from ktbt_proto.items import (
     split_item,
     stray_nodes,
 )
-from ktbt_proto.tools.peer import load_knowledge
 from ktbt_proto.transport import MemoryNetwork
 from tests.door_robot import FLAT as DOOR_FLAT
 from tests.door_robot import MEMORY as DOOR_MEMORY

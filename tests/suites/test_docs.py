@@ -22,8 +22,10 @@ become free ports, so the test never collides with another process; ``ktbt demo`
 ``ktbt sim run`` get ``--trials 1 --iterations 200`` appended (the last value of an option
 wins), since the studies take minutes at full size; ``ktbt sim view`` gets SDL's dummy video
 driver and ``--iterations 20``, since a window would wait for someone to close it, or with
-``--record`` ``--frames 3 --every 10``, since a full recording simulates 30,000 iterations.
-Whatever a block leaves behind must be ignored by the repository's ``.gitignore``, so following
+``--record`` ``--frames 3 --every 10``, since a full recording simulates 30,000 iterations;
+a block that runs ``ktbt ros2`` runs in a network namespace of its own with only loopback up,
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a ``ROS_DOMAIN_ID`` of its own, since DDS
+discovers by multicast. Whatever a block leaves behind must be ignored by the repository's ``.gitignore``, so following
 the documentation leaves a clone clean.
 """
 
@@ -36,6 +38,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -255,8 +258,19 @@ def bash(script: str, folder: Path, check: bool = True) -> subprocess.CompletedP
     }
     # Background peers are stopped however the script ends.
     prologue = "set -euo pipefail\ntrap 'kill $(jobs -p) 2>/dev/null || true; wait' EXIT\n"
+    command = ["bash", "-c", prologue + script]
+    if "ktbt ros2" in script:
+        # DDS discovers by multicast: a block that starts ROS 2 nodes runs in a network
+        # namespace of its own with only loopback up, in a domain of its own.
+        env |= {
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+            "ROS_DOMAIN_ID": str(os.getpid() % 100 + 101),
+            "ROS_LOG_DIR": tempfile.mkdtemp(prefix="ktbt-docs-ros-"),
+        }
+        up = 'ip link set lo up && exec "$@"'
+        command = ["unshare", "-n" if os.geteuid() == 0 else "-rn", "sh", "-c", up, "sh", *command]
     return subprocess.run(
-        ["bash", "-c", prologue + script],
+        command,
         cwd=folder,
         env=env,
         capture_output=True,
@@ -265,7 +279,7 @@ def bash(script: str, folder: Path, check: bool = True) -> subprocess.CompletedP
     )
 
 
-SLOW = ("ktbt sim", "ktbt demo", "ktbt fleet run", "btview")
+SLOW = ("ktbt sim", "ktbt demo", "ktbt fleet run", "btview", "ktbt ros2")
 
 
 def slow(block: Block) -> bool:

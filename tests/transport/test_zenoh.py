@@ -17,7 +17,7 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode, encode
-from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
+from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
 from tests.zenoh_helpers import (
     ROOT,

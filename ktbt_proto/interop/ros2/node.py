@@ -47,18 +47,19 @@ from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
-from ktbt_proto.merge import conditions as parse_conditions
-from ktbt_proto.registry import load_vocabulary
-from ktbt_proto.syntax import parse
-from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
-from ktbt_proto.tools.peer import (
+from ktbt_proto.interop.robot import (
+    DEMO_CONTROL,
     LEARNER_CONTROL,
+    demo_registry,
     learning_slot,
     load_knowledge,
     shown,
     with_knowledge,
 )
+from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.registry import load_vocabulary
+from ktbt_proto.syntax import parse
 
 DEMO_SEQUENCES = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
 """What the node meets unless told: the demo robot's four colours."""

@@ -254,7 +254,7 @@ def knowledge_or_exit(path: Path, registry: Registry | None = None) -> Knowledge
     With the robot's ``registry``, an item it could not execute is refused too, with the code
     a peer's receive check gives (spec/protocol.md section 2): a robot never teaches, nor
     starts with, what it would refuse to learn."""
-    from ktbt_proto.tools.peer import load_knowledge
+    from ktbt_proto.interop.robot import load_knowledge
     from ktbt_proto.validate import find_problems
 
     try:
@@ -308,13 +308,13 @@ def robot_or_exit(
     """The robot the options describe. ``--demo``, or neither ``--vocabulary`` nor
     ``--control``: the search-and-rescue demo robot (``ktbt_proto.tools.demo``), said in one
     line on stderr unless asked for or ``quiet``. ``--vocabulary`` alone: a learner that runs
-    only what it knows (``ktbt_proto.tools.peer.LEARNER_CONTROL``, the sidecar's case). A
+    only what it knows (``ktbt_proto.interop.robot.LEARNER_CONTROL``, the sidecar's case). A
     control tree that does not parse, names what the vocabulary lacks or has no placeholder
     is refused in one line naming ``--control``, exit 2 (spec/protocol.md section 4.5)."""
     from ktbt_proto.files import read_at_most
+    from ktbt_proto.interop.robot import LEARNER_CONTROL, learning_slot
     from ktbt_proto.limits import DEFAULT_LIMITS
     from ktbt_proto.syntax import parse
-    from ktbt_proto.tools.peer import LEARNER_CONTROL, learning_slot
     from ktbt_proto.validate import find_problems
 
     if demo and (vocabulary is not None or control is not None):
@@ -322,7 +322,7 @@ def robot_or_exit(
     if vocabulary is None and control is not None:
         raise refuse(f"--control {control}: give --vocabulary too (the names its tree runs)")
     if vocabulary is None:
-        from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
+        from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
 
         if not (demo or quiet):
             say(DEMO_NOTE)

@@ -66,8 +66,11 @@ def _peer_call(action: Callable[[], int]) -> None:
     except SessionError as exc:  # the network's settings: a usage error, like a bad --listen
         say(f"error: {exc}")
         code = 2
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, ImportError) as exc:  # ImportError: an extra not installed
         say(f"error: {exc}")
+        code = 1
+    except Exception as exc:  # what zenoh raises at run time is its own ZError: one line too
+        say(f"error: {type(exc).__name__}: {exc}")
         code = 1
     raise typer.Exit(code)
 

@@ -25,8 +25,8 @@ driver and ``--iterations 20``, since a window would wait for someone to close i
 ``--record`` ``--frames 3 --every 10``, since a full recording simulates 30,000 iterations;
 a block that runs ``ktbt ros2`` runs in a network namespace of its own with only loopback up,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a ``ROS_DOMAIN_ID`` of its own, since DDS
-discovers by multicast. Whatever a block leaves behind must be ignored by the repository's ``.gitignore``, so following
-the documentation leaves a clone clean.
+discovers by multicast. Whatever a block leaves behind must be ignored by the repository's
+``.gitignore``, so following the documentation leaves a clone clean.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """A fleet of real ``ktbt peer`` processes on one machine, every link through a fault layer
 (``ktbt fleet run``), the properties checked over its record, and the study of how fast
-knowledge spreads under which faults (``make soak``). README section "A fleet on one machine".
+knowledge spreads under which faults (``make soak``). docs/howto/fleet.md.
 
 Modules, in the order data flows: ``plan`` (what to run: peers, links, addresses, the seeded
 fault schedule), ``proxy`` (the user-space TCP proxy per link: delay, silent partition, hard cut,

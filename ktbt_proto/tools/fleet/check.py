@@ -1,5 +1,5 @@
 """The properties of a fleet run, checked over its record as Jepsen's checkers read a history
-(``events.jsonl``; README section "A fleet on one machine").
+(``events.jsonl``; docs/howto/fleet.md).
 
 Each property gives a verdict: ``pass``, ``fail`` (with what broke it) or ``skipped`` (with
 why: a skipped fault is never a passed one). A fault the scenario asked for passes only when

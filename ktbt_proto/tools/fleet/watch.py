@@ -1,5 +1,5 @@
 """``ktbt fleet run --monitor``: ``ktbt monitor`` watching a fleet run from this machine's
-loopback (README section "A fleet on one machine").
+loopback (docs/howto/fleet.md).
 
 The monitor reaches every fleet member (every router, when peers are clients) over a unix
 socket in a folder of the run's own: a network namespace does not separate sockets bound to a

@@ -1,7 +1,9 @@
 """The ROS 2 interfaces carry the protocol exactly (spec/protocol.md section 11): a signed
 answer and a signed fleet event go through their ROS messages, serialized as DDS sends them,
 and come back equal, their signatures verifying from the fields alone; the build is cached;
-the project still imports lark 1.x after the ROS wheels."""
+the project still imports lark 1.x after the ROS wheels. These tests serialize messages with
+rclpy and start no ROS node, so no DDS participant discovers anything: the tests that start
+nodes run them in a network namespace of their own (``rosns.RosNamespace``)."""
 
 from __future__ import annotations
 

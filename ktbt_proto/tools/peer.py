@@ -294,7 +294,7 @@ def run_agent(
     duration: float = 30.0,
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
-    export_learned: str | None = None,
+    export_learned: str | LearnedExport | None = None,
 ) -> int:
     """A fleet member that learns and teaches, running ``control`` with ``registry`` and
     learning into the placeholder ``slot``: it starts with ``knowledge`` (if any) and what
@@ -306,9 +306,9 @@ def run_agent(
     and every ``CATALOG_PERIOD`` seconds (section 4.5); ``exit_when_done`` then stops once it
     knows every one found, and it has found one. Refusals are logged (to stderr and, with a
     transfer log, there) and the summary counts all of them, transport ones too; the
-    network's own errors are counted apart. ``export_learned``: a folder to mirror learned
-    items into as BT.CPP documents (spec/stringbt.md section 12.1); the member's ``groot``:
-    serve the control tree to Groot2 (spec/groot2.md)."""
+    network's own errors are counted apart. ``export_learned``: a folder (or an export made
+    already) to mirror learned items into as BT.CPP documents (spec/stringbt.md section
+    12.1); the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
     security = member.security
     name = member.name
     with (
@@ -338,7 +338,9 @@ def run_agent(
 
             stack.enter_context(Groot2Publisher(robot, member.groot, stop=stop))
             say(f"{name}: Groot2 on port {member.groot} (btview snapshot -p {member.groot})")
-        export = LearnedExport(export_learned) if export_learned is not None else None
+        export = (
+            LearnedExport(export_learned) if isinstance(export_learned, str) else export_learned
+        )
         if export is not None:  # what a resumed --save file holds already
             export.sync(robot.knowledge)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say

@@ -732,6 +732,17 @@ def trees_from_xml(data: str | bytes, *, limits: Limits = DEFAULT_LIMITS) -> dic
     return trees
 
 
+def document_tree_ids(data: str | bytes) -> tuple[list[str], str | None]:
+    """The ``<BehaviorTree>`` IDs of a BT.CPP document and its ``main_tree_to_execute``, read
+    as Nav2's ``BehaviorTreeEngine::parseTreeInfo`` reads them before it registers a file from
+    its ``bt_search_directories`` (the sidecar checks the IDs it writes against them: spec/
+    stringbt.md section 12.2). Only the root's children are looked at, so any BT.CPP
+    document reads, whatever its nodes. Raises a :class:`StringBTError` for malformed XML."""
+    root = _reader(data, DEFAULT_LIMITS).read()
+    ids = [el.attrs["ID"] for el in root.children if el.tag == "BehaviorTree" and "ID" in el.attrs]
+    return ids, root.attrs.get("main_tree_to_execute")
+
+
 # -- files -----------------------------------------------------------------------------------
 
 

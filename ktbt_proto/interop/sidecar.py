@@ -14,6 +14,13 @@ like one of its built-ins) is refused with its reason, logged once and not writt
 only observes the agent's knowledge base (:meth:`LearnedExport.sync`, after each tick): it
 changes nothing in the agent.
 
+The folder may be one of Nav2's ``bt_search_directories`` (spec/stringbt.md, section 12.2),
+beside the trees Nav2 already reads: Nav2 registers every ``.xml`` file there and builds the
+tree a ``NavigateToPose`` goal names by its ID, so each file is a whole BT.CPP document with
+its ``main_tree_to_execute``, a tree's ID may be given per condition sequence (``tree_ids``)
+instead of the derived one, and an ID another file of the folder already holds is refused (Nav2
+would skip one of the two files): at the start, one clear error; later, the item is refused.
+
 A BT.CPP program teaches the same way round: :func:`read_skills` reads its skills from one
 document holding one ``<BehaviorTree>`` per item, in the shape :class:`LearnedExport` writes (the
 item ``Sequence(conditions, subtree)`` as the tree's root; a ``ktbt-<placeholder>-<digest>`` ID
@@ -27,18 +34,25 @@ from __future__ import annotations
 import logging
 import os
 import re
-from collections.abc import Iterable
+import tempfile
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase, remove_stale_temporaries
 from ktbt_proto.files import fsync_folder, write_atomic
-from ktbt_proto.interop.btcpp import btcpp_name, to_xml, trees_from_xml
+from ktbt_proto.interop.btcpp import (
+    BUILTINS,
+    btcpp_name,
+    document_tree_ids,
+    to_xml,
+    trees_from_xml,
+)
 from ktbt_proto.items import item_digest, split_item
 from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
-from ktbt_proto.tree import Placeholder
+from ktbt_proto.tree import Action, Condition, Placeholder, walk
 
-__all__ = ["LearnedExport", "read_skills"]
+__all__ = ["LearnedExport", "read_skills", "tree_id"]
 
 log = logging.getLogger(__name__)
 
@@ -49,10 +63,33 @@ _TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9]+\.[0-9a-f]+\.tmp")
 
 
 _TREE_ID = re.compile(r"ktbt-(?P<slot>[A-Za-z0-9_-]+)-[0-9a-f]{16}")
+_GIVEN_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
+"""A tree ID given for Nav2: no dot, so it never ends in ``.xml`` (Nav2 takes such a name for a
+file), and never ``ktbt-...``, the derived IDs' prefix."""
 
 
-def tree_id(item: Knowledge) -> str:
+def tree_id(item: Knowledge, given: Mapping[str, str] | None = None) -> str:
+    """The ID of the item's ``<BehaviorTree>``: the one ``given`` for its condition sequence
+    (by key), else ``ktbt-<placeholder>-<digest>``, a function of the item alone (spec/
+    stringbt.md sections 12.1 and 12.2)."""
+    if given and item.key in given:
+        return given[item.key]
     return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item.key, item.subtree)}"
+
+
+def _check_given(tree_ids: Mapping[str, str]) -> None:
+    seen: dict[str, str] = {}
+    for key, ident in tree_ids.items():
+        if not _GIVEN_ID.fullmatch(ident) or ident.startswith("ktbt-"):
+            raise ValueError(
+                f"tree ID {ident!r}: a letter or _, then letters, digits, _ or -, "
+                "not starting with 'ktbt-'"
+            )
+        if ident in BUILTINS:
+            raise ValueError(f"tree ID {ident!r} is a BT.CPP built-in node's name")
+        if ident in seen:
+            raise ValueError(f"tree ID {ident!r} is given to two sequences")
+        seen[ident] = key
 
 
 def read_skills(data: str | bytes, slot: str = "prior") -> KnowledgeBase:
@@ -89,16 +126,24 @@ class LearnedExport:
     the number it was given, never raised into the agent's loop.
     """
 
-    def __init__(self, folder: str | os.PathLike[str]) -> None:
+    def __init__(
+        self, folder: str | os.PathLike[str], tree_ids: Mapping[str, str] | None = None
+    ) -> None:
+        """Raises ``OSError`` (naming the folder) for a folder that cannot be made or written
+        into, ``ValueError`` for a ``tree_ids`` ID (by condition sequence key) that is not a
+        usable name, is given twice or is held by another file of the folder."""
         self.folder = Path(folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
+        _usable(self.folder)
+        self.tree_ids = dict(tree_ids or {})
+        _check_given(self.tree_ids)
         self.files: dict[tuple[str, str], Path] = {}  # (placeholder, digest) -> file
+        self.ids: dict[tuple[str, str], str] = {}  # (placeholder, digest) -> its tree's ID
         self.errors = 0
         """Writes and removals that failed (the folder's own errors, not a peer's)."""
         self.refused: dict[tuple[str, str], str] = {}
-        """Items BT.CPP could not load (a name it reserves, say), with the reason: logged once,
-        never written while the agent knows them. The agent may still run them; the BT.CPP
-        program does not get them."""
+        """Items BT.CPP could not load (a name it reserves, say), or whose tree ID another
+        file of the folder holds, with the reason: logged once, never written while the agent
+        knows them. The agent may still run them; the BT.CPP program does not get them."""
         self._numbers: dict[tuple[str, str], int] = {}  # reserved, also for a failed write
         self._next = 1
         for path in sorted(self.folder.iterdir()):
@@ -106,17 +151,42 @@ class LearnedExport:
             if match is not None:
                 key = (match["slot"], match["digest"])
                 self.files[key] = path
+                self.ids[key] = _main_id(path) or ""  # unreadable: written again if still known
                 self._numbers[key] = int(match["number"])
                 self._next = max(self._next, int(match["number"]) + 1)
             left = _TEMPORARY.fullmatch(path.name)
             if left is not None and _FILE.fullmatch(left["name"]):
                 for tmp in remove_stale_temporaries(self.folder / left["name"]):
                     log.info("removed %s (left by an interrupted write)", tmp.name)
+        others = self._others()
+        for ident in self.tree_ids.values():
+            if ident in others:
+                raise ValueError(
+                    f"tree ID {ident!r} is already the tree of {others[ident]}; "
+                    "Nav2 would load only one of the two files"
+                )
         self._known: frozenset[tuple[str, str]] | None = None
 
+    def _others(self) -> dict[str, Path]:
+        """The tree IDs of the folder's other ``.xml`` files (not this export's), each as Nav2
+        reads it; a file that does not read holds none, as for Nav2."""
+        mine = set(self.files.values())
+        held: dict[str, Path] = {}
+        for path in sorted(self.folder.glob("*.xml")):
+            if path in mine or not path.is_file():
+                continue
+            try:
+                ids, _ = document_tree_ids(path.read_bytes())
+            except (OSError, StringBTError):
+                continue
+            for ident in ids:
+                held.setdefault(ident, path)
+        return held
+
     def sync(self, knowledge: Iterable[Knowledge]) -> None:
-        """Write the learned items (``source`` set) that have no file yet, in the order given,
-        and remove the files of items no longer there. Cheap when nothing changed."""
+        """Write the learned items (``source`` set) that have no file yet (or whose file holds
+        another tree ID: ``tree_ids`` changed since), in the order given, and remove the files
+        of items no longer there. Cheap when nothing changed."""
         learned = [item for item in knowledge if item.source is not None]
         known = frozenset((item.segment, item_digest(item.key, item.subtree)) for item in learned)
         if known == self._known:
@@ -130,18 +200,31 @@ class LearnedExport:
                 self._failed(f"cannot remove {self.files[key]}: {exc}")
                 continue
             log.info("removed %s (forgotten)", self.files.pop(key).name)
+            self.ids.pop(key, None)
             self._numbers.pop(key, None)
             changed = True
         for key in [key for key in self._numbers if key not in known]:
             del self._numbers[key]  # a failed write of an item forgotten since
+        others: dict[str, Path] | None = None  # read once per sync that writes
+        wanted: dict[tuple[str, str], str] = {}  # each item's tree ID
         for item in learned:
             key = (item.segment, item_digest(item.key, item.subtree))
-            if key in self.files or key in self.refused:
+            ident = wanted[key] = tree_id(item, self.tree_ids)
+            if (key in self.files and self.ids.get(key) == ident) or key in self.refused:
+                continue
+            if others is None:
+                others = self._others()
+            held = [k for k in self.files if k != key and self.ids.get(k) == ident]
+            if held:  # the file of the item this one replaced, whose removal failed above
                 continue
             try:
                 if not NAME_RE.fullmatch(item.segment):
                     raise ValueError(f"placeholder {item.segment!r} is not a stringBT name")
-                document = to_xml(item.item(), tree_id=tree_id(item))
+                if ident in others:
+                    raise ValueError(f"its tree ID {ident!r} is the tree of {others[ident]}")
+                if any(btcpp_name(leaf.name) == ident for leaf in _leaves(item)):
+                    raise ValueError(f"its tree ID {ident!r} names one of its own nodes")
+                document = to_xml(item.item(), tree_id=ident)
             except (StringBTError, ValueError) as err:
                 why = f"{err.code.value} {err.message}" if isinstance(err, StringBTError) else err
                 self.refused[key] = str(why)
@@ -157,16 +240,40 @@ class LearnedExport:
                 self._failed(f"cannot write {path}: {exc}")
                 continue
             self.files[key] = path
-            log.info("wrote %s", path.name)
+            self.ids[key] = ident
+            log.info("wrote %s (tree %s)", path.name, ident)
         if changed:
             try:
                 fsync_folder(self.folder)
             except OSError as exc:
                 self._failed(f"cannot flush {self.folder}: {exc}")
-        written = set(self.files)
-        if written <= known and known <= written | self.refused.keys():  # all done: skip next time
+        current = {key for key, ident in wanted.items() if self.ids.get(key) == ident}
+        if set(self.files) <= known and known <= current | self.refused.keys():  # all done
             self._known = known
 
     def _failed(self, message: str) -> None:
         self.errors += 1
         log.warning("export of learned knowledge: %s", message)
+
+
+def _usable(folder: Path) -> None:
+    """Make ``folder`` if it is missing, and write a temporary file into it (a ``.tmp``, which
+    Nav2 does not read) so that a folder the export could never write into fails at once."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".ktbt-", suffix=".tmp"):
+            pass
+    except OSError as exc:
+        raise OSError(exc.errno, f"{folder}: {exc.strerror or exc}") from None
+
+
+def _main_id(path: Path) -> str | None:
+    """The tree a file of this export runs (its ``main_tree_to_execute``), or None."""
+    try:
+        return document_tree_ids(path.read_bytes())[1]
+    except (OSError, StringBTError):
+        return None
+
+
+def _leaves(item: Knowledge) -> list[Condition | Action]:
+    return [node for node, _ in walk(item.item()) if isinstance(node, Condition | Action)]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -50,6 +50,9 @@ from ktbt_proto.tools.cli.options import (
     zenoh_settings,
 )
 from ktbt_proto.transport.zenoh import SessionError
+
+if TYPE_CHECKING:
+    from ktbt_proto.interop.sidecar import LearnedExport
 
 peer_app = typer.Typer(
     help="Exchange knowledge with other robots over eclipse-zenoh.", no_args_is_help=True
@@ -209,6 +212,16 @@ def peer_run(
             file_okay=False,
         ),
     ] = None,
+    tree_id: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--tree-id",
+            metavar="ID=CONDITIONS",
+            help="The <BehaviorTree> ID of that sequence's exported file, for a Nav2 goal to "
+            "name, e.g. 'OpenLeftDoor=HandleSeen(side=left)' (repeatable; default "
+            "ktbt-<placeholder>-<digest>).",
+        ),
+    ] = None,
     publish_events: PublishEvents = False,
     groot: GrootPort = None,
     ready: ReadyFile = None,
@@ -234,6 +247,7 @@ def peer_run(
         acceptable_or_exit("--sequence", text, registry)
     start = knowledge_or_exit(knowledge, registry) if knowledge is not None else None
     secure = security(key, policy, trust, log)
+    export = _export_or_exit(export_learned, tree_id or [])
     member = peer.Member(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
     )
@@ -249,9 +263,36 @@ def peer_run(
             duration=duration,
             exit_when_done=exit_when_done,
             knowledge_path=str(knowledge_file) if knowledge_file else None,
-            export_learned=str(export_learned) if export_learned else None,
+            export_learned=export,
         )
     )
+
+
+def _export_or_exit(folder: Path | None, given: list[str]) -> LearnedExport | None:
+    """The export --export-learned asks for, with the tree IDs --tree-id gives (ID=CONDITIONS,
+    spec/stringbt.md section 12.2): a folder it cannot write into, an ID it cannot use or that
+    another file of the folder holds, is one line naming the option and exit 2."""
+    from ktbt_proto.interop.sidecar import LearnedExport
+    from ktbt_proto.items import sequence_key
+
+    if folder is None:
+        if given:
+            raise refuse("--tree-id: names the tree of an exported file; give --export-learned")
+        return None
+    ids: dict[str, str] = {}
+    for text in given:
+        ident, equals, conditions = text.partition("=")
+        if not equals or not conditions.strip():
+            raise refuse(f"--tree-id {text!r}: write ID=CONDITIONS, e.g. 'OpenDoor=DoorClosed'")
+        key = sequence_key(sequence_or_exit("--tree-id", conditions))
+        if ids.setdefault(key, ident.strip()) != ident.strip():
+            raise refuse(f"--tree-id: two IDs for {conditions.strip()!r}")
+    try:
+        return LearnedExport(folder, ids)
+    except OSError as exc:
+        raise refuse(f"--export-learned: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise refuse(f"--tree-id: {exc}") from None
 
 
 @peer_app.command("router", epilog=example("ktbt peer router --listen tcp/0.0.0.0:7447"))

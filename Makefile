@@ -80,10 +80,12 @@ fuzz: $(VENV)/.installed-dev
 
 # BehaviorTree.CPP itself as the judge of our XML, and a C++ robot learning beside a KT-BT agent
 # (not part of `make test`): the library is built from source once per version and compiler into
-# ~/.cache/ktbt (minutes the first time), then the differential and sidecar tests run against it.
+# ~/.cache/ktbt (minutes the first time), then the differential and sidecar tests run against it,
+# and Nav2's way of loading a folder of trees by ID (test_btcpp_nav2.py).
 interop: $(VENV)/.installed-dev
 	$(BIN)/python -m tests.btcpp.build
-	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/interop/test_btcpp_engine.py tests/interop/test_btcpp_learner.py
+	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/interop/test_btcpp_engine.py tests/interop/test_btcpp_learner.py \
+		tests/interop/test_btcpp_nav2.py
 
 # The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
 # and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,

@@ -146,10 +146,11 @@ def engine() -> Path:
 
 def program(name: str, *sources: Path) -> Path:
     """Compile ``sources`` with ``ktbt_btcpp/`` on the include path, linked against the engine;
-    cached by the digest of the sources and the header library."""
+    cached by the digest of the sources, the headers beside them and the header library."""
     prefix = engine()
     digest = hashlib.sha256()
-    for path in (*sources, *sorted(HEADERS.glob("*.hpp"))):
+    beside = sorted({header for source in sources for header in source.parent.glob("*.hpp")})
+    for path in (*sources, *beside, *sorted(HEADERS.glob("*.hpp"))):
         digest.update(path.read_bytes())
     binary = prefix / "programs" / f"{name}-{digest.hexdigest()[:16]}"
     if binary.exists():

@@ -205,8 +205,8 @@ def test_view_without_a_display_says_so_at_once() -> None:
 @pytest.mark.slow
 def test_ctrl_c_stops_a_sweep_at_once_and_it_resumes(tmp_path: Path) -> None:
     out = tmp_path / "results"
-    command = [sys.executable, "-m", "ktbt_proto", "sim", "run", "ktbt", "--trials", "30",
-               "--iterations", "3000", "--workers", "2", "--out", str(out)]  # fmt: skip
+    command = [sys.executable, "-m", "ktbt_proto", "sim", "run", "ktbt", "--trials", "8",
+               "--iterations", "1500", "--workers", "2", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(
         command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         start_new_session=True,  # its own process group, as a terminal's foreground job
@@ -225,18 +225,18 @@ def test_ctrl_c_stops_a_sweep_at_once_and_it_resumes(tmp_path: Path) -> None:
             proc.wait()
     saved = len(finished(folder))
     assert proc.returncode == 130
-    assert 0 < saved < 30
+    assert 0 < saved < 8
     assert err.splitlines()[-1] == (
-        f"interrupted: {saved} of 30 trials are saved in {out}; run the same command again "
-        f"to resume with the {30 - saved} missing"
+        f"interrupted: {saved} of 8 trials are saved in {out}; run the same command again "
+        f"to resume with the {8 - saved} missing"
     )
     assert not list(folder.glob("*.tmp*"))  # no torn file left behind
     again = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     summary = again.stdout.splitlines()[-1]  # after the progress bar
-    assert summary.startswith(f"ran {30 - saved} trials in ")
+    assert summary.startswith(f"ran {8 - saved} trials in ")
     assert f"({saved} {'was' if saved == 1 else 'were'} already there)" in summary
-    assert finished(folder) == set(range(30))
+    assert finished(folder) == set(range(8))
 
 
 # -- the viewer -----------------------------------------------------------------------------

@@ -1,0 +1,147 @@
+"""The zenoh <-> ROS 2 bridge (spec/protocol.md section 11, "Bridge"), with real processes in
+one network namespace: a zenoh teacher teaches a ROS learner, and a ROS teacher a zenoh
+learner, each learner under the ``trusted`` policy, so the item it takes carries its author's
+signature across the bridge; hostile input from each side is refused and counted, and the
+bridge goes on. One set of processes serves the module."""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.signing import Identity, item_bytes, verify
+from tests.interop.ros2.rosns import Probe, RosNamespace
+from tests.zenoh_helpers import endpoint, free_port
+
+pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
+
+GREEN, YELLOW = "TargetSeen(colour=2)", "TargetSeen(colour=3)"
+GREEN_KEY, YELLOW_KEY = "<c>(TargetSeen,colour=2)", "<c>(TargetSeen,colour=3)"
+YELLOW_SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=3)<e>"
+
+
+def knowledge(path: Path, colour: int) -> Path:
+    path.write_text(
+        f"<k>(prior)<sq><c>(TargetSeen, colour={colour})<a>(PickTreasure)"
+        f"<a>(AssignCollectionPoint, colour={colour})<e><e>\n"
+    )
+    return path
+
+
+@dataclass
+class Fleets:
+    ns: RosNamespace
+    probe: Probe
+    tmp: Path
+    teacher_port: int
+    zenoh_author: str
+    ros_author: str
+    bridge: Any
+    zenoh_learner: Any
+
+
+@pytest.fixture(scope="module")
+def fleets(ros2_built: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleets]:
+    tmp = tmp_path_factory.mktemp("bridge")
+    ns = RosNamespace(tmp)
+    try:
+        zt, rt = Identity.generate(), Identity.generate()
+        zt.save(tmp / "zt.key")
+        rt.save(tmp / "rt.key")
+        trust = tmp / "trust.txt"
+        trust.write_text(f"{zt.public}\n{rt.public}\n")
+        pt, pl = free_port(), free_port()
+        probe = Probe(ns)
+        probe.subscribe("/rl/ktbt/events", "FleetEvent")
+        # zenoh: a teacher that knows green, signed
+        ns.ktbt("peer", "run", "--id", "zt", "--listen", endpoint(pt), "--key",
+                str(tmp / "zt.key"), "--knowledge", str(knowledge(tmp / "green.sbt", 2)),
+                "--sequence", GREEN, "--duration", "250", name="zt")  # fmt: skip
+        # ROS: a teacher that knows yellow, signed; a learner of green under `trusted`
+        ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rt",
+                "-p", f"knowledge:={knowledge(tmp / 'yellow.sbt', 3)}",
+                "-p", f"key:={tmp / 'rt.key'}", "-p", f"sequences:=[{YELLOW}]",
+                name="rt")  # fmt: skip
+        ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rl",
+                "-p", f"sequences:=[{GREEN}]", "-p", "policy:=trusted",
+                "-p", f"trust:={trust}", name="rl")  # fmt: skip
+        bridge = ns.ktbt("ros2", "bridge", "--connect", endpoint(pt), name="bridge")
+        # zenoh: a learner of yellow under `trusted`, which ends once it knows it
+        learner = ns.ktbt("peer", "run", "--id", "zl", "--listen", endpoint(pl), "--connect",
+                          endpoint(pt), "--sequence", YELLOW, "--policy", "trusted",
+                          "--trust", str(trust), "--save", str(tmp / "zl.json"),
+                          "--exit-when-done", "--duration", "200", name="zl")  # fmt: skip
+        yield Fleets(ns, probe, tmp, pt, zt.public, rt.public, bridge, learner)
+    finally:
+        ns.close()
+
+
+def test_a_zenoh_teacher_teaches_a_ros_learner_through_the_bridge(fleets: Fleets) -> None:
+    merged = fleets.probe.wait("/rl/ktbt/events", 180, event="merged", teacher="zt")
+    assert merged["sequence"] == GREEN_KEY
+    assert merged["author"] == fleets.zenoh_author  # zt's own signature, believed under trusted
+
+
+def test_a_ros_teacher_teaches_a_zenoh_learner_through_the_bridge(fleets: Fleets) -> None:
+    assert fleets.zenoh_learner.wait(timeout=200) == 0, fleets.ns.log("zl")
+    assert f"zl: learned {YELLOW} from rt" in fleets.ns.log("zl")
+    (item,) = KnowledgeBase.load(fleets.tmp / "zl.json")
+    assert (item.key, item.source, item.author) == (YELLOW_KEY, "rt", fleets.ros_author)
+    assert item.signature is not None
+    assert verify(fleets.ros_author, item.signature, item_bytes(YELLOW_KEY, YELLOW_SUBTREE))
+
+
+HOSTILE_ZENOH = """
+import json, sys, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+with zenoh.open(conf) as session:
+    for payload in (b"not json", b'{"v": 2, "type": "query", "id": "h", "sender": "h",'
+                    b' "sequence": "<c>(A)"}'):
+        for reply in session.get("ktbt/v1/knowledge/rt", payload=payload, timeout=10):
+            said = reply.err.payload.to_bytes() if reply.ok is None else b"an answer"
+            print(said.decode(errors="replace"), flush=True)
+"""
+
+
+def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -> None:
+    ns, probe = fleets.ns, fleets.probe
+    fleets.probe.wait("/rl/ktbt/events", 180, event="merged", teacher="zt")  # it is up
+    # ROS: bytes that are no Query, a query of another version, a catalog naming no robot.
+    garbage = "00010000" + "ff" * 60  # a CDR header, then a string claiming 4 GB
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage,
+                 "subscribers": 3})  # fmt: skip
+    v2 = {"v": 2, "id": "h1", "sender": "probe", "sequence": GREEN_KEY}
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 3,
+                 "fields": v2})  # fmt: skip
+    probe.until({"op": "publish", "topic": "/evil/catalog", "type": "Catalog",
+                 "fields": {"peer": "not a name!"}, "subscribers": 1,
+                 "latched": True})  # fmt: skip
+    # zenoh: a query that is not JSON and one of another version, to the ROS teacher's mirror.
+    script = fleets.tmp / "hostile.py"
+    script.write_text(HOSTILE_ZENOH)
+    ns.start([sys.executable, str(script), endpoint(fleets.teacher_port)], "hostile")
+    hostile = ns.processes[-1]
+    assert hostile.wait(timeout=60) == 0, ns.log("hostile")
+    said = ns.log("hostile")
+    assert said.count('"code":"refused"') == 2, said
+    # The bridge refused each, logged it, and goes on; stopped, it says how many it refused.
+    fleets.bridge.send_signal(signal.SIGTERM)
+    assert fleets.bridge.wait(timeout=30) == 0
+    log = ns.log("bridge")
+    assert "Traceback" not in log
+    assert "on /ktbt/queries: not a Query" in log and "query.v: Input should be 1" in log
+    assert "a catalog on /evil/catalog names no robot" in log
+    assert log.count("rt refused: a query:") == 2
+    summary = [line for line in log.splitlines() if "relayed queries" in line][-1]
+    refused = int(summary.split("refused ")[1].split(";")[0])
+    assert refused >= 6, summary
+    assert "answers 1 to ROS" in summary or "answers" in summary

@@ -40,6 +40,7 @@ Nothing a peer sends ends the bridge.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import re
@@ -102,6 +103,22 @@ def ros_name(name: str, taken: set[str]) -> str:
     return base
 
 
+_LOOPBACK = re.compile(r"^[a-z0-9-]+/(127\.[0-9.]+|localhost|\[::1\]):")
+
+
+def mirror_settings(settings: ZenohSettings) -> ZenohSettings:
+    """A mirror's zenoh settings: it connects where the bridge connects (and to the bridge's
+    own listen endpoints), and listens on a port of the system's choosing, on loopback when
+    the fleet is reached on loopback, else on every interface. Zenoh's gossip tells the fleet's
+    peers where it listens, so a peer that only connects (``ktbt peer run --connect``) reaches
+    it too: peers do not route for one another (section 3)."""
+    own = [re.sub(r"/0\.0\.0\.0:", "/127.0.0.1:", e) for e in settings.listen]
+    reached = [*settings.connect, *own]
+    local = bool(reached) and all(_LOOPBACK.match(e) for e in reached)
+    here = "tcp/127.0.0.1:0" if local else "tcp/0.0.0.0:0"
+    return replace(settings, listen=(here,), connect=tuple(reached), zid=None)
+
+
 @dataclass
 class Relayed:
     """A query being relayed: who asked, what, and until when its answers are taken."""
@@ -139,10 +156,7 @@ class Bridge:
         max_robots: int = MAX_ROBOTS,
     ) -> None:
         self.node, self.settings = node, settings
-        # The mirrors only connect: to the fleet, and to the bridge's own session if it
-        # listens (zenoh's gossip then links them to the peers that connect to it).
-        here = [e.replace("/0.0.0.0:", "/127.0.0.1:") for e in settings.listen]
-        self._mirror_settings = replace(settings, listen=(), connect=(*settings.connect, *here))
+        self._mirror_settings = mirror_settings(settings)
         self.topics = topics or Topics()
         self.query_timeout, self.max_robots = query_timeout, max_robots
         self.counts = Counts()
@@ -255,7 +269,7 @@ class Bridge:
             if topic.startswith(self.proxy_space + "/"):
                 continue
             self._catalog_subs[topic] = self.node.create_subscription(
-                Catalog, topic, lambda msg, t=topic: self._on_catalog(t, msg), latched()
+                Catalog, topic, functools.partial(self._on_catalog, topic), latched()
             )
         for topic in list(self._catalog_subs):
             if self.node.count_publishers(topic) == 0:
@@ -325,7 +339,7 @@ class Bridge:
                 proxy, sub, pub = self.proxies.pop(name)
                 proxy.destroy_subscription(sub)
                 proxy.destroy_publisher(pub)
-                proxy.destroy_node()  # type: ignore[no-untyped-call]
+                proxy.destroy_node()
                 self._proxy_shown.pop(name, None)
         for name in sorted(present - self.proxies.keys()):
             if name in self.mirrors or not re.fullmatch(NAME, name):
@@ -472,12 +486,12 @@ class Bridge:
         for proxy, sub, pub in self.proxies.values():
             proxy.destroy_subscription(sub)
             proxy.destroy_publisher(pub)
-            proxy.destroy_node()  # type: ignore[no-untyped-call]
+            proxy.destroy_node()
         self.proxies.clear()
         for sub in self._catalog_subs.values():
             self.node.destroy_subscription(sub)
         self._catalog_subs.clear()
         self.node.destroy_publisher(self._queries)
         self.ros.close()
-        self._presence.undeclare()
+        self._presence.undeclare()  # type: ignore[no-untyped-call]
         self._session.close()  # type: ignore[no-untyped-call]

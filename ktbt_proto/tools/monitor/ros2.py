@@ -28,6 +28,7 @@ import rclpy
 from ktbt_interfaces.msg import Catalog, FleetEvent, TreeSnapshot
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.utilities import try_shutdown
 
 from ktbt_proto.exchange.events import PREFIX
 from ktbt_proto.interop.ros2.node import event_json, events_qos, latched
@@ -169,5 +170,5 @@ class RosListener:
         self._stop.set()
         self._thread.join(timeout=5)
         self._executor.shutdown(timeout_sec=1)
-        self.node.destroy_node()  # type: ignore[no-untyped-call]
-        rclpy.try_shutdown(context=self._context)
+        self.node.destroy_node()
+        try_shutdown(context=self._context)

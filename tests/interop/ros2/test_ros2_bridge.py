@@ -59,7 +59,6 @@ def fleets(ros2_built: None, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         trust.write_text(f"{zt.public}\n{rt.public}\n")
         pt, pl = free_port(), free_port()
         probe = Probe(ns)
-        probe.subscribe("/rl/ktbt/events", "FleetEvent")
         # zenoh: a teacher that knows green, signed
         ns.ktbt("peer", "run", "--id", "zt", "--listen", endpoint(pt), "--key",
                 str(tmp / "zt.key"), "--knowledge", str(knowledge(tmp / "green.sbt", 2)),
@@ -83,10 +82,20 @@ def fleets(ros2_built: None, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         ns.close()
 
 
+def learned(fleets: Fleets) -> str:
+    """What the ROS learner knows once it knows green (its ~/list_knowledge service)."""
+    done = fleets.ns.run("ros2", "list", "/rl/ktbt", "--until", GREEN, "--timeout", "150",
+                         timeout=200)  # fmt: skip
+    assert done.returncode == 0, done.stderr + fleets.ns.log("bridge")
+    return done.stdout
+
+
 def test_a_zenoh_teacher_teaches_a_ros_learner_through_the_bridge(fleets: Fleets) -> None:
-    merged = fleets.probe.wait("/rl/ktbt/events", 180, event="merged", teacher="zt")
-    assert merged["sequence"] == GREEN_KEY
-    assert merged["author"] == fleets.zenoh_author  # zt's own signature, believed under trusted
+    # zt's own signature, believed under trusted: the author is zt's key
+    assert learned(fleets) == (
+        f"/rl/ktbt: 1 skill\n  {GREEN}  (author {fleets.zenoh_author}, teacher zt)\n"
+    )
+    assert "rl: learned TargetSeen(colour=2) from zt" in fleets.ns.log("rl")
 
 
 def test_a_ros_teacher_teaches_a_zenoh_learner_through_the_bridge(fleets: Fleets) -> None:
@@ -99,22 +108,26 @@ def test_a_ros_teacher_teaches_a_zenoh_learner_through_the_bridge(fleets: Fleets
 
 
 HOSTILE_ZENOH = """
-import json, sys, zenoh
+import json, sys, time, zenoh
 conf = zenoh.Config()
 conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
 conf.insert_json5("scouting/multicast/enabled", "false")
+v2 = {"v": 2, "type": "query", "id": "h", "sender": "h", "sequence": "<c>(A)"}
+payloads = [b"not json", json.dumps(v2).encode()]
+deadline = time.monotonic() + 60
 with zenoh.open(conf) as session:
-    for payload in (b"not json", b'{"v": 2, "type": "query", "id": "h", "sender": "h",'
-                    b' "sequence": "<c>(A)"}'):
-        for reply in session.get("ktbt/v1/knowledge/rt", payload=payload, timeout=10):
+    while payloads and time.monotonic() < deadline:  # until gossip links it to rt's mirror
+        for reply in session.get("ktbt/v1/knowledge/rt", payload=payloads[0], timeout=2):
             said = reply.err.payload.to_bytes() if reply.ok is None else b"an answer"
             print(said.decode(errors="replace"), flush=True)
+            payloads.pop(0)
+            break
 """
 
 
 def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -> None:
     ns, probe = fleets.ns, fleets.probe
-    fleets.probe.wait("/rl/ktbt/events", 180, event="merged", teacher="zt")  # it is up
+    learned(fleets)  # everything is up
     # ROS: bytes that are no Query, a query of another version, a catalog naming no robot.
     garbage = "00010000" + "ff" * 60  # a CDR header, then a string claiming 4 GB
     probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage,
@@ -143,5 +156,5 @@ def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -
     assert log.count("rt refused: a query:") == 2
     summary = [line for line in log.splitlines() if "relayed queries" in line][-1]
     refused = int(summary.split("refused ")[1].split(";")[0])
-    assert refused >= 6, summary
-    assert "answers 1 to ROS" in summary or "answers" in summary
+    assert refused >= 5, summary  # 2 from ROS's topics, a catalog, 2 from zenoh
+    assert "answers 1 to ROS, 1 to zenoh" in summary  # what the learners learned

@@ -192,6 +192,8 @@ class Bridge:
         self._from_ros: OrderedDict[tuple[str, str], Relayed] = OrderedDict()
         """ROS queries relayed to zenoh: (asker, id) -> the query."""
         self._next_graph = 0.0
+        self._ended_refused = 0
+        """What the mirrors of robots gone had refused."""
         self._stop = threading.Event()
         self._session = open_session(settings)
         try:
@@ -216,7 +218,7 @@ class Bridge:
     def refused(self) -> int:
         """Everything refused: the bridge's own refusals and its transports'."""
         mirrors = sum(m.refused for m in list(self.mirrors.values()))
-        return self.counts.refused + self.ros.refused + mirrors
+        return self.counts.refused + self.ros.refused + mirrors + self._ended_refused
 
     def summary(self) -> str:
         c = self.counts
@@ -323,6 +325,7 @@ class Bridge:
     def _end_mirror(self, name: str) -> None:
         mirror = self.mirrors.pop(name, None)
         if mirror is not None:
+            self._ended_refused += mirror.refused
             mirror.close()
             log.info("%s: ROS robot %s left", self.name, name)
 

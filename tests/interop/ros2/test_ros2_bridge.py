@@ -20,7 +20,13 @@ from ktbt_proto.exchange.signing import Identity, item_bytes, verify
 from tests.interop.ros2.rosns import Probe, RosNamespace
 from tests.zenoh_helpers import endpoint, free_port
 
-pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
+
+def processes(test: Any) -> Any:
+    """The marks of a test of real processes."""
+    for mark in (pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)):
+        test = mark(test)
+    return test
+
 
 GREEN, YELLOW = "TargetSeen(colour=2)", "TargetSeen(colour=3)"
 GREEN_KEY, YELLOW_KEY = "<c>(TargetSeen,colour=2)", "<c>(TargetSeen,colour=3)"
@@ -90,6 +96,34 @@ def learned(fleets: Fleets) -> str:
     return done.stdout
 
 
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        ([], "error: --connect: required: the zenoh fleet to bridge (--connect ENDPOINT)"),
+        (["--connect", "tcp/127.0.0.1:7447", "--answers-topic", "/ktbt/queries"],
+         "error: --queries-topic: the three topics must differ"),
+        (["--connect", "tcp/127.0.0.1:7447", "--query-timeout", "0"],
+         "error: --query-timeout: 0: use (0, 60] seconds"),
+        (["--connect", "tcp/127.0.0.1:7447", "--max-robots", "0"],
+         "error: --max-robots: 0: use 1 to 1024"),
+        (["--connect", "tcp/127.0.0.1:7447", "--node-name", "a/b"],
+         "error: --node-name: 'a/b': use letters, digits and '_' (a ROS node name)"),
+        (["--connect", "tcp/127.0.0.1:7447", "--bogus"], "error: --bogus: no such option"),
+        (["--connect", "tcp/127.0.0.1:7447", "extra"],
+         "error: 'extra': unexpected; ROS arguments come after --ros-args"),
+    ],
+)  # fmt: skip
+def test_a_bad_option_is_one_line_and_exit_2(args: list[str], said: str) -> None:
+    from typer.testing import CliRunner
+
+    from ktbt_proto.tools.cli.root import app, load_plugins
+
+    load_plugins()
+    done = CliRunner().invoke(app, ["ros2", "bridge", *args])
+    assert (done.exit_code, done.stderr) == (2, said + "\n")
+
+
+@processes
 def test_a_zenoh_teacher_teaches_a_ros_learner_through_the_bridge(fleets: Fleets) -> None:
     # zt's own signature, believed under trusted: the author is zt's key
     assert learned(fleets) == (
@@ -98,6 +132,7 @@ def test_a_zenoh_teacher_teaches_a_ros_learner_through_the_bridge(fleets: Fleets
     assert "rl: learned TargetSeen(colour=2) from zt" in fleets.ns.log("rl")
 
 
+@processes
 def test_a_ros_teacher_teaches_a_zenoh_learner_through_the_bridge(fleets: Fleets) -> None:
     assert fleets.zenoh_learner.wait(timeout=200) == 0, fleets.ns.log("zl")
     assert f"zl: learned {YELLOW} from rt" in fleets.ns.log("zl")
@@ -125,6 +160,7 @@ with zenoh.open(conf) as session:
 """
 
 
+@processes
 def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -> None:
     ns, probe = fleets.ns, fleets.probe
     learned(fleets)  # everything is up

@@ -1,5 +1,6 @@
 """``ktbt monitor --ros2`` in a real headless Chromium: ROS 2 robots (``ktbt ros2 run``) found
-through the ROS graph show beside zenoh peers, and a ROS robot's learning shows in the matrix.
+through the ROS graph show beside zenoh peers, and a ROS robot's learning shows in the matrix;
+an event naming another robot on a robot's topics is dropped as on a wrong key.
 
 The robots and the monitor run in one network namespace (``RosNamespace``, so DDS stays on
 its loopback); the monitor also serves its page on a unix socket, which the browser, outside
@@ -20,7 +21,7 @@ from ktbt_proto.files import packaged
 from ktbt_proto.items import sequence_digest
 from tests.browser import chromium, unavailable
 from tests.interop.ros2.conftest import ros2_built  # noqa: F401 - a fixture
-from tests.interop.ros2.rosns import SEQUENCE, RosNamespace
+from tests.interop.ros2.rosns import SEQUENCE, Probe, RosNamespace
 from tests.tools.monitor.test_browser import Page, _up
 from tests.zenoh_helpers import wait_until
 
@@ -102,7 +103,7 @@ def test_a_ros2_robot_learning_shows_in_the_page(
                 return (page.cell("learner", item) or {}).get("how") == "learned"
 
             assert wait_until(learned, 90), ns.log("learner")
-            assert page.status("learner") == "present"
+            assert wait_until(lambda: page.status("learner") == "present", 30)
             whos = page.js(
                 "return [...document.querySelectorAll('#transfers li')]"
                 "  .map(li => [...li.querySelectorAll('.who')].map(e => e.textContent));"
@@ -113,6 +114,15 @@ def test_a_ros2_robot_learning_shows_in_the_page(
             assert wait_until(lambda: "TargetSeen(colour=2)" in page.stat("detail-control"), 15), (
                 page.stat("detail-control")
             )
+            # Another name on the teacher's topics is not believed: dropped as on a wrong key.
+            probe = Probe(ns)
+            impostor = {"v": 1, "n": 0, "peer": "impostor", "t": "2026-12-01T21:00:00+00:00",
+                        "event": "query-sent", "tick": -1}  # fmt: skip
+            probe.until({"op": "publish", "topic": "/teacher/ktbt/events", "type": "FleetEvent",
+                         "fields": impostor, "subscribers": 1})  # fmt: skip
+            assert wait_until(lambda: "wrong key" in page.dropped(), 30), page.dropped()
+            assert "impostor" in " ".join(page.dropped()["wrong key"])
+            assert page.status("impostor") is None
         assert "Traceback" not in ns.log("monitor")
     finally:
         ns.close()

@@ -76,6 +76,11 @@ def relay(uds: Path) -> Iterator[int]:
         thread.join(timeout=5)
 
 
+def lifecycle(ns: RosNamespace, transition: str) -> None:
+    done = ns.run("ros2", "lifecycle", "/learner/ktbt", transition, "--timeout", "60", timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
 def test_a_ros2_robot_learning_shows_in_the_page(
     ros2_built: None,  # noqa: F811
     tmp_path: Path,
@@ -96,8 +101,14 @@ def test_a_ros2_robot_learning_shows_in_the_page(
             item = sequence_digest(SEQUENCE)
             assert wait_until(lambda: page.status("teacher") == "present", 60)
             assert wait_until(lambda: (page.cell("teacher", item) or {}).get("how") == "known", 30)
-            ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/learner",
+            # The learner starts learning once the monitor follows its events (they are not
+            # kept for a later reader: a learning before then shows as what it knows).
+            probe = Probe(ns)
+            ns.ktbt("ros2", "run", "--ros-args", "-r", "__ns:=/learner",
                     "-p", "sequences:=[TargetSeen(colour=2)]", name="learner")  # fmt: skip
+            lifecycle(ns, "configure")
+            probe.until({"op": "subscribers", "topic": "/learner/ktbt/events", "count": 1}, 60)
+            lifecycle(ns, "activate")
 
             def learned() -> Any:
                 return (page.cell("learner", item) or {}).get("how") == "learned"
@@ -115,7 +126,6 @@ def test_a_ros2_robot_learning_shows_in_the_page(
                 page.stat("detail-control")
             )
             # Another name on the teacher's topics is not believed: dropped as on a wrong key.
-            probe = Probe(ns)
             impostor = {"v": 1, "n": 0, "peer": "impostor", "t": "2026-12-01T21:00:00+00:00",
                         "event": "query-sent", "tick": -1}  # fmt: skip
             probe.until({"op": "publish", "topic": "/teacher/ktbt/events", "type": "FleetEvent",

@@ -6,6 +6,7 @@ bridge goes on. One set of processes serves the module."""
 
 from __future__ import annotations
 
+import json
 import signal
 import sys
 from collections.abc import Iterator
@@ -18,7 +19,7 @@ import pytest
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
 from tests.interop.ros2.rosns import Probe, RosNamespace
-from tests.zenoh_helpers import endpoint, free_port
+from tests.zenoh_helpers import endpoint, free_port, wait_until
 
 
 def processes(test: Any) -> Any:
@@ -160,6 +161,58 @@ with zenoh.open(conf) as session:
 """
 
 
+FORGER = """
+import json, sys, threading, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+forged = json.loads(sys.argv[2])
+
+def answer(query):
+    asked = json.loads(query.payload.to_bytes())
+    reply = {**forged, "id": asked["id"], "sequence": asked["sequence"]}
+    query.reply("ktbt/v1/knowledge/evil", json.dumps(reply).encode())
+    print("answered", asked["id"], flush=True)
+
+with zenoh.open(conf) as session:
+    token = session.liveliness().declare_token("ktbt/v1/peers/evil")
+    queryable = session.declare_queryable("ktbt/v1/knowledge/evil", answer)
+    print("up", flush=True)
+    threading.Event().wait()  # until the namespace ends it
+"""
+
+
+@processes
+def test_a_forgery_is_never_carried_across(fleets: Fleets) -> None:
+    """A zenoh peer answers a ROS robot's query with an item whose author's signature is of
+    another subtree: the bridge refuses it, and nothing reaches the ROS answer topic."""
+    ns, probe = fleets.ns, fleets.probe
+    learned(fleets)
+    evil = Identity.generate()
+    blue = "<c>(TargetSeen,colour=4)"
+    other = evil.sign(item_bytes(blue, "<a>(Other)"))  # a signature of another subtree
+    forged = {"v": 1, "type": "response", "id": "x", "sender": "evil", "sequence": blue,
+              "subtree": "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>",
+              "author": evil.public, "signature": other}  # fmt: skip
+    script = fleets.tmp / "forger.py"
+    script.write_text(FORGER)
+    ns.start([sys.executable, str(script), endpoint(fleets.teacher_port), json.dumps(forged)],
+             "forger")  # fmt: skip
+    assert wait_until(lambda: "zenoh peer evil is on ROS" in ns.log("bridge"), 60)
+    probe.subscribe("/ktbt/answers", "Answer")
+    asked = {"v": 1, "id": "forged-1", "sender": "asker", "sequence": blue}
+    refused = "an answer on zenoh from evil: the author's signature does not match the item"
+    for n in range(30):  # until gossip links the asker's new mirror to the forger
+        asked["id"] = f"forged-{n}"
+        probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query",
+                     "fields": asked, "subscribers": 3})  # fmt: skip
+        if wait_until(lambda: refused in ns.log("bridge"), 2):
+            break
+    assert refused in ns.log("bridge"), ns.log("forger") + ns.log("bridge")
+    assert [m for m in probe.messages("/ktbt/answers") if m["sender"] == "evil"] == []
+
+
 @processes
 def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -> None:
     ns, probe = fleets.ns, fleets.probe
@@ -192,5 +245,5 @@ def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -
     assert log.count("rt refused: a query:") == 2
     summary = [line for line in log.splitlines() if "relayed queries" in line][-1]
     refused = int(summary.split("refused ")[1].split(";")[0])
-    assert refused >= 5, summary  # 2 from ROS's topics, a catalog, 2 from zenoh
+    assert refused >= 6, summary  # 2 from ROS's topics, a catalog, 2 from zenoh, a forgery
     assert "answers 1 to ROS, 1 to zenoh" in summary  # what the learners learned

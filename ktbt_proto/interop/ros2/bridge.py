@@ -78,6 +78,8 @@ CATALOG_TYPE = "ktbt_interfaces/msg/Catalog"
 CATALOG_ENTRY_FIELDS = ("sequence", "author", "teacher", "received_at")
 GRAPH_PERIOD = 0.5
 """Seconds between two reads of the ROS graph (catalog topics, robots gone)."""
+MIRROR_IDLE = 60.0
+"""Seconds a ROS robot known only by its queries stays mirrored after its last query."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the zenoh fleet's catalogs."""
 
@@ -193,6 +195,11 @@ class Bridge:
         """ROS queries relayed to zenoh: (asker, id) -> the query."""
         self._next_graph = 0.0
         self._ended_refused = 0
+        self._asking: dict[str, float] = {}
+        """A ROS robot that asked -> when it last did (a robot without a catalog topic is
+        mirrored until it has been silent :data:`MIRROR_IDLE` s)."""
+        self._ignored: set[str] = set()
+        """Catalog topics beyond what the bridge follows (refused once each)."""
         """What the mirrors of robots gone had refused."""
         self._stop = threading.Event()
         self._session = open_session(settings)
@@ -268,11 +275,21 @@ class Bridge:
         for topic, types in self.node.get_topic_names_and_types():
             if CATALOG_TYPE not in types or topic in self._catalog_subs:
                 continue
-            if topic.startswith(self.proxy_space + "/"):
+            if topic.startswith(self.proxy_space + "/") or topic in self._ignored:
+                continue
+            if len(self._catalog_subs) >= 2 * self.max_robots:
+                if len(self._ignored) < 4 * self.max_robots:
+                    self._ignored.add(topic)
+                    self._refuse(f"catalog topic {topic[:80]}: {len(self._catalog_subs)} followed")
                 continue
             self._catalog_subs[topic] = self.node.create_subscription(
                 Catalog, topic, functools.partial(self._on_catalog, topic), latched()
             )
+        now = time.monotonic()
+        for name in [n for n, t in self._asking.items() if t < now - MIRROR_IDLE]:
+            del self._asking[name]
+            if name not in self._topic_robot.values():
+                self._end_mirror(name)  # a robot known only by its queries, silent a while
         for topic in list(self._catalog_subs):
             if self.node.count_publishers(topic) == 0:
                 self.node.destroy_subscription(self._catalog_subs.pop(topic))
@@ -351,9 +368,13 @@ class Bridge:
                 self._refuse(f"zenoh peer {name}: {self.max_robots} peers already bridged")
                 break
             taken = {p[0].get_name() for p in self.proxies.values()}
-            proxy = Node(
-                ros_name(name, taken), namespace=self.proxy_space, context=self.node.context
-            )
+            try:
+                proxy = Node(
+                    ros_name(name, taken), namespace=self.proxy_space, context=self.node.context
+                )
+            except Exception as exc:  # rclpy refused the name: one line, the peer unbridged
+                self._refuse(f"zenoh peer {name}: no ROS node ({type(exc).__name__})")
+                continue
             # Present on ROS: a reader of the query topic (its queries are the bridge's to
             # read: this subscription is never spun, DDS keeps at most its depth).
             sub = proxy.create_subscription(
@@ -423,6 +444,8 @@ class Bridge:
         if (query.sender, query.id) in self._from_zenoh or query.sender in self.proxies:
             return  # published by the bridge itself: heard back
         mirror = self._mirror(query.sender)
+        if mirror is not None:
+            self._asking[query.sender] = now
         if mirror is None or not self._remember(self._from_ros, query):
             return
         mirror.broadcast(query)

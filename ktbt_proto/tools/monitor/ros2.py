@@ -21,6 +21,7 @@ web side never waits on ROS.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -66,6 +67,9 @@ class RosListener:
         """Topic -> its subscription."""
         self._owner: dict[str, str] = {}
         """A node's path (``/robot1/ktbt``) -> the robot named first on its topics."""
+        self._paths: set[str] = set()
+        """The nodes followed, by path."""
+        self._refused: set[str] = set()
         self._trees: dict[str, str] = {}
         """A robot's name -> its latest tree, compact stringBT."""
         self._lock = threading.Lock()
@@ -77,7 +81,7 @@ class RosListener:
         next_read = 0.0
         while not self._stop.is_set():
             try:
-                now = self.node.get_clock().now().nanoseconds / 1e9
+                now = time.monotonic()
                 if now >= next_read:
                     next_read = now + GRAPH_PERIOD
                     self._read_graph()
@@ -97,11 +101,13 @@ class RosListener:
             path, _, leaf = topic.rpartition("/")
             if leaf != kinds[0]:
                 continue  # the robots' own names: ~/events, ~/catalog, ~/tree
-            if len({t.rpartition("/")[0] for t in self._subs}) >= MAX_NODES and path not in {
-                t.rpartition("/")[0] for t in self._subs
-            }:
-                self.fleet.drop("full", f"ROS node {path[:100]}: {MAX_NODES} nodes followed")
-                continue
+            if path not in self._paths:
+                if len(self._paths) >= MAX_NODES:
+                    if path not in self._refused and len(self._refused) < MAX_NODES:
+                        self._refused.add(path)  # said once
+                        self.fleet.drop("full", f"ROS node {path[:100]}: {MAX_NODES} followed")
+                    continue
+                self._paths.add(path)
             self._subscribe(topic, path, kinds[0])
         for topic in [t for t in self._subs if t.endswith("/catalog")]:
             if self.node.count_publishers(topic) == 0:

@@ -173,6 +173,8 @@ class Bridge:
             answer_at_once=False,
             query_timeout=query_timeout,
         )
+        # Zenoh's queries, published in their askers' names (the transport's own publisher
+        # sends only queries of the bridge's own, whose answers it would not pass on).
         self._queries = node.create_publisher(QueryMsg, self.topics.queries, exchange_qos())
         self.proxy_space = node.get_fully_qualified_name().rstrip("/") + "/zenoh"
         self.mirrors: dict[str, ZenohTransport] = {}
@@ -195,12 +197,12 @@ class Bridge:
         """ROS queries relayed to zenoh: (asker, id) -> the query."""
         self._next_graph = 0.0
         self._ended_refused = 0
+        """What the mirrors of robots gone had refused."""
         self._asking: dict[str, float] = {}
         """A ROS robot that asked -> when it last did (a robot without a catalog topic is
         mirrored until it has been silent :data:`MIRROR_IDLE` s)."""
         self._ignored: set[str] = set()
         """Catalog topics beyond what the bridge follows (refused once each)."""
-        """What the mirrors of robots gone had refused."""
         self._stop = threading.Event()
         self._session = open_session(settings)
         try:

@@ -9,6 +9,8 @@ missing.
   cleanup, shutdown) or ``get``, through the node's standard lifecycle_msgs services;
 - ``ktbt ros2 list NODE [--until SEQUENCE]`` and ``ktbt ros2 forget NODE SEQUENCE``: what a
   robot knows, and forgetting an item, through its services;
+- ``ktbt ros2 bridge --connect ENDPOINT``: relay knowledge between a zenoh fleet and a ROS 2
+  fleet, both ways (``ktbt_proto.interop.ros2.bridge``);
 
 the last three for machines without the ``ros2`` command line.
 """
@@ -23,7 +25,16 @@ from typing import Annotated, Any
 
 import typer
 
-from ktbt_proto.tools.cli.options import Timeout, example
+from ktbt_proto.tools.cli.options import (
+    Connect,
+    JoinMode,
+    Listen,
+    Timeout,
+    ZenohConfig,
+    example,
+    refuse,
+    zenoh_settings,
+)
 
 ros2 = typer.Typer(
     help="KT-BT on ROS 2: build the interfaces, run a robot's lifecycle node.",
@@ -318,6 +329,134 @@ def forget_command(
         _say(f"error: {node}: {done.message}")
         raise typer.Exit(1)
     typer.echo(f"{node}: forgot {_shown(key)}")
+
+
+def _topic(option: str, value: str) -> str:
+    """A fleet topic given on the command line: absolute, or one line and exit 2."""
+    if not value.startswith("/") or not value.strip("/"):
+        raise refuse(f"{option}: {value!r}: use an absolute topic name, as /ktbt/queries")
+    return value
+
+
+@ros2.command(
+    "bridge",
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
+    epilog=example("ktbt ros2 bridge --connect tcp/127.0.0.1:7447"),
+)
+def bridge_command(
+    ctx: typer.Context,
+    connect: Connect = None,
+    listen: Listen = None,
+    config: ZenohConfig = None,
+    mode: JoinMode = "peer",
+    node_name: Annotated[
+        str, typer.Option("--node-name", metavar="NAME", help="The bridge's ROS node name.")
+    ] = "ktbt_bridge",
+    queries_topic: Annotated[
+        str, typer.Option("--queries-topic", metavar="TOPIC", help="The ROS fleet's query topic.")
+    ] = "/ktbt/queries",
+    answers_topic: Annotated[
+        str,
+        typer.Option("--answers-topic", metavar="TOPIC", help="The ROS fleet's answer topic."),
+    ] = "/ktbt/answers",
+    errors_topic: Annotated[
+        str, typer.Option("--errors-topic", metavar="TOPIC", help="The ROS fleet's error topic.")
+    ] = "/ktbt/errors",
+    query_timeout: Annotated[
+        float,
+        typer.Option(
+            "--query-timeout",
+            metavar="SECONDS",
+            help="How long a relayed query waits for answers, (0, 60].",
+        ),
+    ] = 2.0,
+    max_robots: Annotated[
+        int,
+        typer.Option("--max-robots", metavar="N", help="Robots bridged each way at most, 1-1024."),
+    ] = 64,
+) -> None:
+    """Relay knowledge between a zenoh fleet and a ROS 2 fleet, both ways.
+
+    Queries cross to the other side and answers come back to the asker, signatures intact;
+    each side's robots are present on the other (spec/protocol.md section 11, "Bridge").
+    Until Ctrl-C; ROS arguments follow --ros-args."""
+    if not connect and not listen:
+        raise refuse("--connect: required: the zenoh fleet to bridge (--connect ENDPOINT)")
+    settings = zenoh_settings(listen, connect, config, False, mode)
+    topics_given = [
+        _topic("--queries-topic", queries_topic),
+        _topic("--answers-topic", answers_topic),
+        _topic("--errors-topic", errors_topic),
+    ]
+    if len(set(topics_given)) != 3:
+        raise refuse("--queries-topic: the three topics must differ")
+    if not 0 < query_timeout <= 60:
+        raise refuse(f"--query-timeout: {query_timeout:g}: use (0, 60] seconds")
+    if not 1 <= max_robots <= 1024:
+        raise refuse(f"--max-robots: {max_robots}: use 1 to 1024")
+    import re
+
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,54}", node_name):
+        raise refuse(f"--node-name: {node_name!r}: use letters, digits and '_' (a ROS node name)")
+    extra = list(ctx.args)
+    if extra and extra[0] != "--ros-args":
+        if extra[0].startswith("-"):
+            raise refuse(f"{extra[0]}: no such option")
+        raise refuse(f"{extra[0]!r}: unexpected; ROS arguments come after --ros-args")
+    _ready()
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
+
+    from ktbt_proto.interop.ros2.bridge import Bridge
+    from ktbt_proto.interop.ros2.transport import Topics
+    from ktbt_proto.tools.peer import configure_logging, until_signalled
+    from ktbt_proto.transport.zenoh import SessionError
+
+    configure_logging()
+    try:
+        rclpy.init(args=[sys.argv[0], *extra], signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rclpy's own error for bad ROS arguments
+        raise refuse(f"--ros-args: {exc}".splitlines()[0]) from None
+    code = 0
+    node: Any = None
+    bridge: Any = None
+    try:
+        with until_signalled() as stop:
+            node = rclpy.create_node(node_name)
+            try:
+                bridge = Bridge(
+                    node,
+                    settings,
+                    Topics(*topics_given),
+                    query_timeout=query_timeout,
+                    max_robots=max_robots,
+                )
+            except SessionError as exc:
+                raise refuse(str(exc)) from None
+            _say(
+                f"{bridge.name}: bridging zenoh ({', '.join([*(connect or []), *(listen or [])])})"
+                f" and ROS 2 ({topics_given[0]}, {topics_given[1]}); Ctrl-C to stop"
+            )
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            while not stop.is_set():
+                executor.spin_once(timeout_sec=0.02)
+                bridge.step()
+    except typer.Exit:
+        raise
+    except Exception as exc:  # never a traceback: one line
+        _say(f"error: {type(exc).__name__}: {exc}".splitlines()[0])
+        code = 1
+    finally:
+        if bridge is not None:
+            _say(bridge.summary())
+            bridge.close()
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+    raise typer.Exit(code)
 
 
 def register(app: typer.Typer) -> None:

@@ -10,7 +10,7 @@ import ipaddress
 import os
 import socket
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -75,12 +75,21 @@ def monitor_command(
         ),
     ] = None,
     trust: TrustFile = None,
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2",
+            help="Also show the ROS 2 robots (ktbt ros2 run) found through the ROS graph "
+            "(ROS_DOMAIN_ID as for any ROS node).",
+        ),
+    ] = False,
 ) -> None:
     """Serve a live view of the fleet in the browser.
 
     It shows who is present, who knows what, each transfer and refusal as it happens
     (spec/protocol.md section 10). With --trust, the peers named there must sign their
-    events; others' first key is pinned."""
+    events; others' first key is pinned. With --ros2, ROS 2 robots show beside zenoh
+    peers, and --connect may be left out."""
     try:
         import uvicorn
 
@@ -94,9 +103,20 @@ def monitor_command(
     from ktbt_proto.exchange.trust import TrustStore
     from ktbt_proto.tools.peer import until_signalled
 
-    if not connect:
-        raise refuse("--connect: required: the fleet to listen to (--connect ENDPOINT)")
+    if not connect and not ros2:
+        raise refuse("--connect: required: the fleet to listen to (--connect ENDPOINT, or --ros2)")
     settings = zenoh_settings(None, connect, config, False, mode)
+    if ros2:
+        from ktbt_proto.interop.ros2.interfaces import not_here
+
+        try:
+            import rclpy  # noqa: F401
+        except ImportError:
+            raise refuse(f"--ros2: {not_here()}") from None
+        try:
+            import ktbt_interfaces.msg  # noqa: F401
+        except ImportError:
+            raise refuse("--ros2: ktbt_interfaces is not built here: run ktbt ros2 build") from None
     try:
         store = TrustStore.load(trust) if trust is not None else None
     except KeyFileError as exc:
@@ -122,14 +142,26 @@ def monitor_command(
         sockets.append(unix)
     fleet = FleetState(store)
     try:
+        # Without --connect (a ROS 2 fleet alone) the zenoh session joins no one: it only
+        # checks what the ROS listener hears.
         listener = Listener(fleet, settings)
     except Exception as exc:  # zenoh's own error: a bad endpoint or config
         for s in sockets:
             s.close()
-        raise refuse(f"cannot join the fleet at {', '.join(connect)}: {exc}") from None
+        raise refuse(f"cannot join the fleet at {', '.join(connect or [])}: {exc}") from None
+    ros: Any = None
+    if ros2:
+        from ktbt_proto.tools.monitor.ros2 import RosListener
+
+        ros = RosListener(fleet, listener.hear)
+
+    def tree(name: str) -> str | None:
+        shown_tree = ros.tree(name) if ros is not None else None
+        return shown_tree if shown_tree is not None else listener.tree(name)
+
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
-    app = create_app(fleet, allowed_hosts(host, allow_host or []), listener.tree)
+    app = create_app(fleet, allowed_hosts(host, allow_host or []), tree)
     # An open page's stream never ends by itself: at a stop, give connections a second.
     server = uvicorn.Server(
         uvicorn.Config(app, log_level="warning", lifespan="off", timeout_graceful_shutdown=1)
@@ -140,13 +172,17 @@ def monitor_command(
         typer.echo(f"monitor: http://{shown}:{port}/ (reachable from other machines: not loopback)")
     if uds is not None:
         typer.echo(f"  and on the unix socket {uds}")
-    typer.echo(f"  listening to the fleet at {', '.join(connect)}; Ctrl-C to stop")
+    heard = [f"the fleet at {', '.join(connect)}"] if connect else []
+    heard += ["the ROS 2 graph"] if ros2 else []
+    typer.echo(f"  listening to {' and '.join(heard)}; Ctrl-C to stop")
     try:
         # uvicorn handles SIGINT and SIGTERM while it runs, then raises the signal again once
         # stopped: caught here, so the listener's session is closed below.
         with until_signalled():
             server.run(sockets=sockets)
     finally:
+        if ros is not None:
+            ros.close()
         listener.close()
         for s in sockets:
             s.close()

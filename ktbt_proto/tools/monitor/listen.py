@@ -42,6 +42,17 @@ TREE_TIMEOUT = 1.0
 """Seconds a tree is waited for."""
 
 
+def shown_tree(fleet: FleetState, name: str, payload: bytes | str) -> str | None:
+    """A peer's control tree as ``ktbt show``'s outline, or None (counted malformed) if it is
+    not stringBT within :data:`TREE_LIMITS`."""
+    try:
+        return render(parse(payload, limits=TREE_LIMITS))
+    except (StringBTError, RecursionError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        fleet.drop("malformed", f"tree of {name}: {why}")
+        return None
+
+
 class Listener:
     """Feeds ``fleet`` from the zenoh network described by ``settings`` until closed."""
 
@@ -73,18 +84,27 @@ class Listener:
             self.fleet.peer_left(name)
 
     def _on_event(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload
+        if len(payload) > MAX_EVENT_BYTES:  # before copying it out of zenoh
+            self.fleet.drop("oversized", f"{len(payload)} bytes on {str(sample.key_expr)[:100]}")
+            return
+        self.hear(str(sample.key_expr), payload.to_bytes())
+
+    def hear(self, key: str, data: bytes) -> None:
+        """One event as it came on ``key`` (``ktbt/v1/events/<peer>``, or the key a ROS robot's
+        ``~/events`` stands for: :mod:`ktbt_proto.tools.monitor.ros2`), checked the one way
+        whichever network carried it: the fleet's rate, size, decoding and signature, the key
+        naming its peer, the key and signer's rate."""
         with self._lock:
             flooding = not self._all.take()
         if flooding:
             self.fleet.drop("flood", "the whole fleet's events beyond the monitor's rate")
             return
-        key = str(sample.key_expr)
-        payload = sample.payload
-        if len(payload) > MAX_EVENT_BYTES:
-            self.fleet.drop("oversized", f"{len(payload)} bytes on {key[:100]}")
+        if len(data) > MAX_EVENT_BYTES:
+            self.fleet.drop("oversized", f"{len(data)} bytes on {key[:100]}")
             return
         try:
-            event = decode_event(payload.to_bytes())
+            event = decode_event(data)
         except MessageRefused as exc:
             forged = exc.reason.endswith("does not verify")
             self.fleet.drop("forged" if forged else "malformed", exc.reason)
@@ -145,12 +165,9 @@ class Listener:
                 if on != key:
                     self.fleet.drop("malformed", f"a tree for {name} on {on[:100]}")
                     continue
-                payload = reply.ok.payload.to_bytes()
-                try:
-                    return render(parse(payload, limits=TREE_LIMITS))
-                except (StringBTError, RecursionError) as exc:
-                    why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                    self.fleet.drop("malformed", f"tree of {name}: {why}")
+                shown = shown_tree(self.fleet, name, reply.ok.payload.to_bytes())
+                if shown is not None:
+                    return shown
         except zenoh.ZError:
             self.fleet.drop("network", f"a tree query to {name} failed")
         return None

@@ -6,8 +6,9 @@ Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, ma
 message received on the topic (past the first ``skip``) whose fields match (and hold none of
 ``absent``); ``messages`` (topic); ``publishers`` and ``subscribers`` (topic, count): wait
 until the topic has that many; ``publish`` (topic, type, fields or ``raw`` hex bytes,
-subscribers: wait for that many first); ``call`` (service, type, request); ``params`` (node,
-names): a node's parameter values; ``set_params`` (node, values): set them, each one's result.
+subscribers: wait for that many first; ``latched``: its publisher latched); ``call`` (service,
+type, request); ``params`` (node, names): a node's parameter values; ``set_params`` (node,
+values): set them, each one's result.
 """
 
 from __future__ import annotations
@@ -124,7 +125,7 @@ class ProbeNode:
             pub = self.pubs.get(topic)
             if pub is None:
                 pub = self.pubs[topic] = self.node.create_publisher(
-                    msg_type, topic, self.qos(False)
+                    msg_type, topic, self.qos(bool(req.get("latched")))
                 )
             while pub.get_subscription_count() < req.get("subscribers", 1):
                 if time.monotonic() > deadline:

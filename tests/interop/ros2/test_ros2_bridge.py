@@ -1,0 +1,249 @@
+"""The zenoh <-> ROS 2 bridge (spec/protocol.md section 11, "Bridge"), with real processes in
+one network namespace: a zenoh teacher teaches a ROS learner, and a ROS teacher a zenoh
+learner, each learner under the ``trusted`` policy, so the item it takes carries its author's
+signature across the bridge; hostile input from each side is refused and counted, and the
+bridge goes on. One set of processes serves the module."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.signing import Identity, item_bytes, verify
+from tests.interop.ros2.rosns import Probe, RosNamespace
+from tests.zenoh_helpers import endpoint, free_port, wait_until
+
+
+def processes(test: Any) -> Any:
+    """The marks of a test of real processes."""
+    for mark in (pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)):
+        test = mark(test)
+    return test
+
+
+GREEN, YELLOW = "TargetSeen(colour=2)", "TargetSeen(colour=3)"
+GREEN_KEY, YELLOW_KEY = "<c>(TargetSeen,colour=2)", "<c>(TargetSeen,colour=3)"
+YELLOW_SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=3)<e>"
+
+
+def knowledge(path: Path, colour: int) -> Path:
+    path.write_text(
+        f"<k>(prior)<sq><c>(TargetSeen, colour={colour})<a>(PickTreasure)"
+        f"<a>(AssignCollectionPoint, colour={colour})<e><e>\n"
+    )
+    return path
+
+
+@dataclass
+class Fleets:
+    ns: RosNamespace
+    probe: Probe
+    tmp: Path
+    teacher_port: int
+    zenoh_author: str
+    ros_author: str
+    bridge: Any
+    zenoh_learner: Any
+
+
+@pytest.fixture(scope="module")
+def fleets(ros2_built: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleets]:
+    tmp = tmp_path_factory.mktemp("bridge")
+    ns = RosNamespace(tmp)
+    try:
+        zt, rt = Identity.generate(), Identity.generate()
+        zt.save(tmp / "zt.key")
+        rt.save(tmp / "rt.key")
+        trust = tmp / "trust.txt"
+        trust.write_text(f"{zt.public}\n{rt.public}\n")
+        pt, pl = free_port(), free_port()
+        probe = Probe(ns)
+        # zenoh: a teacher that knows green, signed
+        ns.ktbt("peer", "run", "--id", "zt", "--listen", endpoint(pt), "--key",
+                str(tmp / "zt.key"), "--knowledge", str(knowledge(tmp / "green.sbt", 2)),
+                "--sequence", GREEN, "--duration", "250", name="zt")  # fmt: skip
+        # ROS: a teacher that knows yellow, signed; a learner of green under `trusted`
+        ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rt",
+                "-p", f"knowledge:={knowledge(tmp / 'yellow.sbt', 3)}",
+                "-p", f"key:={tmp / 'rt.key'}", "-p", f"sequences:=[{YELLOW}]",
+                name="rt")  # fmt: skip
+        ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rl",
+                "-p", f"sequences:=[{GREEN}]", "-p", "policy:=trusted",
+                "-p", f"trust:={trust}", name="rl")  # fmt: skip
+        bridge = ns.ktbt("ros2", "bridge", "--connect", endpoint(pt), name="bridge")
+        # zenoh: a learner of yellow under `trusted`, which ends once it knows it
+        learner = ns.ktbt("peer", "run", "--id", "zl", "--listen", endpoint(pl), "--connect",
+                          endpoint(pt), "--sequence", YELLOW, "--policy", "trusted",
+                          "--trust", str(trust), "--save", str(tmp / "zl.json"),
+                          "--exit-when-done", "--duration", "200", name="zl")  # fmt: skip
+        yield Fleets(ns, probe, tmp, pt, zt.public, rt.public, bridge, learner)
+    finally:
+        ns.close()
+
+
+def learned(fleets: Fleets) -> str:
+    """What the ROS learner knows once it knows green (its ~/list_knowledge service)."""
+    done = fleets.ns.run("ros2", "list", "/rl/ktbt", "--until", GREEN, "--timeout", "150",
+                         timeout=200)  # fmt: skip
+    assert done.returncode == 0, done.stderr + fleets.ns.log("bridge")
+    return done.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        ([], "error: --connect: required: the zenoh fleet to bridge (--connect ENDPOINT)"),
+        (["--connect", "tcp/127.0.0.1:7447", "--answers-topic", "/ktbt/queries"],
+         "error: --queries-topic: the three topics must differ"),
+        (["--connect", "tcp/127.0.0.1:7447", "--query-timeout", "0"],
+         "error: --query-timeout: 0: use (0, 60] seconds"),
+        (["--connect", "tcp/127.0.0.1:7447", "--max-robots", "0"],
+         "error: --max-robots: 0: use 1 to 1024"),
+        (["--connect", "tcp/127.0.0.1:7447", "--node-name", "a/b"],
+         "error: --node-name: 'a/b': use letters, digits and '_' (a ROS node name)"),
+        (["--connect", "tcp/127.0.0.1:7447", "--bogus"], "error: --bogus: no such option"),
+        (["--connect", "tcp/127.0.0.1:7447", "extra"],
+         "error: 'extra': unexpected; ROS arguments come after --ros-args"),
+    ],
+)  # fmt: skip
+def test_a_bad_option_is_one_line_and_exit_2(args: list[str], said: str) -> None:
+    from typer.testing import CliRunner
+
+    from ktbt_proto.tools.cli.root import app, load_plugins
+
+    load_plugins()
+    done = CliRunner().invoke(app, ["ros2", "bridge", *args])
+    assert (done.exit_code, done.stderr) == (2, said + "\n")
+
+
+@processes
+def test_a_zenoh_teacher_teaches_a_ros_learner_through_the_bridge(fleets: Fleets) -> None:
+    # zt's own signature, believed under trusted: the author is zt's key
+    assert learned(fleets) == (
+        f"/rl/ktbt: 1 skill\n  {GREEN}  (author {fleets.zenoh_author}, teacher zt)\n"
+    )
+    assert "rl: learned TargetSeen(colour=2) from zt" in fleets.ns.log("rl")
+
+
+@processes
+def test_a_ros_teacher_teaches_a_zenoh_learner_through_the_bridge(fleets: Fleets) -> None:
+    assert fleets.zenoh_learner.wait(timeout=200) == 0, fleets.ns.log("zl")
+    assert f"zl: learned {YELLOW} from rt" in fleets.ns.log("zl")
+    (item,) = KnowledgeBase.load(fleets.tmp / "zl.json")
+    assert (item.key, item.source, item.author) == (YELLOW_KEY, "rt", fleets.ros_author)
+    assert item.signature is not None
+    assert verify(fleets.ros_author, item.signature, item_bytes(YELLOW_KEY, YELLOW_SUBTREE))
+
+
+HOSTILE_ZENOH = """
+import json, sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+v2 = {"v": 2, "type": "query", "id": "h", "sender": "h", "sequence": "<c>(A)"}
+payloads = [b"not json", json.dumps(v2).encode()]
+deadline = time.monotonic() + 60
+with zenoh.open(conf) as session:
+    while payloads and time.monotonic() < deadline:  # until gossip links it to rt's mirror
+        for reply in session.get("ktbt/v1/knowledge/rt", payload=payloads[0], timeout=2):
+            said = reply.err.payload.to_bytes() if reply.ok is None else b"an answer"
+            print(said.decode(errors="replace"), flush=True)
+            payloads.pop(0)
+            break
+"""
+
+
+FORGER = """
+import json, sys, threading, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+forged = json.loads(sys.argv[2])
+
+def answer(query):
+    asked = json.loads(query.payload.to_bytes())
+    reply = {**forged, "id": asked["id"], "sequence": asked["sequence"]}
+    query.reply("ktbt/v1/knowledge/evil", json.dumps(reply).encode())
+    print("answered", asked["id"], flush=True)
+
+with zenoh.open(conf) as session:
+    token = session.liveliness().declare_token("ktbt/v1/peers/evil")
+    queryable = session.declare_queryable("ktbt/v1/knowledge/evil", answer)
+    print("up", flush=True)
+    threading.Event().wait()  # until the namespace ends it
+"""
+
+
+@processes
+def test_a_forgery_is_never_carried_across(fleets: Fleets) -> None:
+    """A zenoh peer answers a ROS robot's query with an item whose author's signature is of
+    another subtree: the bridge refuses it, and nothing reaches the ROS answer topic."""
+    ns, probe = fleets.ns, fleets.probe
+    learned(fleets)
+    evil = Identity.generate()
+    blue = "<c>(TargetSeen,colour=4)"
+    other = evil.sign(item_bytes(blue, "<a>(Other)"))  # a signature of another subtree
+    forged = {"v": 1, "type": "response", "id": "x", "sender": "evil", "sequence": blue,
+              "subtree": "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>",
+              "author": evil.public, "signature": other}  # fmt: skip
+    script = fleets.tmp / "forger.py"
+    script.write_text(FORGER)
+    ns.start([sys.executable, str(script), endpoint(fleets.teacher_port), json.dumps(forged)],
+             "forger")  # fmt: skip
+    assert wait_until(lambda: "zenoh peer evil is on ROS" in ns.log("bridge"), 60)
+    probe.subscribe("/ktbt/answers", "Answer")
+    asked = {"v": 1, "id": "forged-1", "sender": "asker", "sequence": blue}
+    refused = "an answer on zenoh from evil: the author's signature does not match the item"
+    for n in range(30):  # until gossip links the asker's new mirror to the forger
+        asked["id"] = f"forged-{n}"
+        probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query",
+                     "fields": asked, "subscribers": 3})  # fmt: skip
+        if wait_until(lambda: refused in ns.log("bridge"), 2):
+            break
+    assert refused in ns.log("bridge"), ns.log("forger") + ns.log("bridge")
+    assert [m for m in probe.messages("/ktbt/answers") if m["sender"] == "evil"] == []
+
+
+@processes
+def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -> None:
+    ns, probe = fleets.ns, fleets.probe
+    learned(fleets)  # everything is up
+    # ROS: bytes that are no Query, a query of another version, a catalog naming no robot.
+    garbage = "00010000" + "ff" * 60  # a CDR header, then a string claiming 4 GB
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage,
+                 "subscribers": 3})  # fmt: skip
+    v2 = {"v": 2, "id": "h1", "sender": "probe", "sequence": GREEN_KEY}
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 3,
+                 "fields": v2})  # fmt: skip
+    probe.until({"op": "publish", "topic": "/evil/catalog", "type": "Catalog",
+                 "fields": {"peer": "not a name!"}, "subscribers": 1,
+                 "latched": True})  # fmt: skip
+    # zenoh: a query that is not JSON and one of another version, to the ROS teacher's mirror.
+    script = fleets.tmp / "hostile.py"
+    script.write_text(HOSTILE_ZENOH)
+    ns.start([sys.executable, str(script), endpoint(fleets.teacher_port)], "hostile")
+    hostile = ns.processes[-1]
+    assert hostile.wait(timeout=60) == 0, ns.log("hostile")
+    said = ns.log("hostile")
+    assert said.count('"code":"refused"') == 2, said
+    # The bridge refused each, logged it, and goes on; stopped, it says how many it refused.
+    fleets.bridge.send_signal(signal.SIGTERM)
+    assert fleets.bridge.wait(timeout=30) == 0
+    log = ns.log("bridge")
+    assert "Traceback" not in log
+    assert "on /ktbt/queries: not a Query" in log and "query.v: Input should be 1" in log
+    assert "a catalog on /evil/catalog names no robot" in log
+    assert log.count("rt refused: a query:") == 2
+    summary = [line for line in log.splitlines() if "relayed queries" in line][-1]
+    refused = int(summary.split("refused ")[1].split(";")[0])
+    assert refused >= 6, summary  # 2 from ROS's topics, a catalog, 2 from zenoh, a forgery
+    assert "answers 1 to ROS, 1 to zenoh" in summary  # what the learners learned

@@ -106,11 +106,17 @@ def with_knowledge(
         return control
     tree = parse(control) if isinstance(control, str) else control
     names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
-    fallback = "prior" if "prior" in names else fallback
     for item in knowledge:
-        slot = item.segment if item.segment in names else fallback
-        tree = merge(tree, item.subtree, slot, when=item.conditions)
+        tree = merge(tree, item.subtree, item_slot(names, item.segment, fallback), item.conditions)
     return tree
+
+
+def item_slot(names: set[str], segment: str, fallback: str) -> str:
+    """Where an item a robot starts with goes, its control tree having the placeholders
+    ``names``: the one its ``segment`` names, else ``prior``, else ``fallback``."""
+    if segment in names:
+        return segment
+    return "prior" if "prior" in names else fallback
 
 
 class Listed:

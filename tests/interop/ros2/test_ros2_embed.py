@@ -30,7 +30,7 @@ ECHO = os.environ.get("KTBT_ECHO_TO")
 """A folder to write what ``ros2 topic echo`` would show of the learner (the tutorial's)."""
 
 
-def wait_for_line(ns: RosNamespace, name: str, text: str, timeout: float = 60) -> str:
+def wait_for_line(ns: RosNamespace, name: str, text: str, timeout: float = 120) -> str:
     """The first line of a process's output holding ``text``; fails at the deadline."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

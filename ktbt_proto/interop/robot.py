@@ -2,11 +2,14 @@
 the ROS 2 node): its knowledge file (stringBT, or a BehaviorTree.CPP robot's skills as XML),
 its control tree with that knowledge in its placeholders, the placeholder it learns into, and
 the search-and-rescue demo robot used when a robot is given no vocabulary of its own
-(``spec/protocol.md`` section 4.5).
+(``spec/protocol.md`` section 4.5), and the sequences a learner told none meets, read from its
+fleet's catalogs (:class:`Listed`).
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -15,18 +18,26 @@ from pydantic import ValidationError as PydanticError
 
 from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.files import read_at_most
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import read_skills
-from ktbt_proto.items import show_sequence
+from ktbt_proto.items import parse_sequence, show_sequence
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import merge
 from ktbt_proto.registry import Registry
 from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
-from ktbt_proto.tree import Placeholder, Tree
+from ktbt_proto.tree import Placeholder, SequenceNode, Tree
+from ktbt_proto.validate import find_problems
+
+log = logging.getLogger("ktbt.robot")
+
+CATALOG_PERIOD = 2.0
+"""Seconds between two readings of the fleet's catalogs by a learner told no sequences
+(``ktbt peer run`` without ``--sequence``, ``ktbt ros2 run`` without ``sequences``; besides one
+whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
 LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
 """The control tree of a robot given a vocabulary but no ``--control``: it runs only what it
@@ -95,11 +106,60 @@ def with_knowledge(
         return control
     tree = parse(control) if isinstance(control, str) else control
     names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
-    fallback = "prior" if "prior" in names else fallback
     for item in knowledge:
-        slot = item.segment if item.segment in names else fallback
-        tree = merge(tree, item.subtree, slot, when=item.conditions)
+        tree = merge(tree, item.subtree, item_slot(names, item.segment, fallback), item.conditions)
     return tree
+
+
+def item_slot(names: set[str], segment: str, fallback: str) -> str:
+    """Where an item a robot starts with goes, its control tree having the placeholders
+    ``names``: the one its ``segment`` names, else ``prior``, else ``fallback``."""
+    if segment in names:
+        return segment
+    return "prior" if "prior" in names else fallback
+
+
+class Listed:
+    """The sequences a learner told none meets (spec/protocol.md section 4.5), whatever
+    carries the catalogs (zenoh's catalog queryables, ROS 2's latched ``~/catalog`` topics):
+    those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
+    sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
+    INFO line."""
+
+    def __init__(self, name: str, registry: Registry, say: Callable[[str], None]) -> None:
+        self.name, self.registry, self.say = name, registry, say
+        self.found: list[str] = []
+        self.skipped: set[str] = set()
+
+    def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
+        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
+        new = []
+        for peer, entries in sorted(listed.items()):
+            for entry in entries:
+                given = entry["sequence"]
+                if given in self.skipped:
+                    continue
+                try:
+                    conds = parse_sequence(given)
+                    problems = find_problems(SequenceNode(conds), self.registry)
+                except StringBTError as err:
+                    problems = [err]
+                    conds = ()
+                key = sequence_key(conds) if not problems else given
+                if key in self.found or key in self.skipped:
+                    continue
+                if problems:
+                    self.skipped.add(given)
+                    log.info(
+                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
+                        "(%s %s)",
+                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
+                    )  # fmt: skip
+                    continue
+                self.found.append(key)
+                new.append(key)
+                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
+        return new
 
 
 Colour = Annotated[int, Field(ge=1, le=4)]

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog
 from ktbt_proto.exchange.backoff import Backoff
@@ -34,9 +33,8 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.robot import shown, with_knowledge
+from ktbt_proto.interop.robot import CATALOG_PERIOD, Listed, shown, with_knowledge
 from ktbt_proto.interop.sidecar import LearnedExport
-from ktbt_proto.items import parse_sequence
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.zenoh import (
@@ -47,16 +45,9 @@ from ktbt_proto.transport.zenoh import (
     peers,
     stable_zid,
 )
-from ktbt_proto.tree import Condition, SequenceNode
-from ktbt_proto.validate import find_problems
+from ktbt_proto.tree import Condition
 
 Say = Callable[[str], None]
-
-log = logging.getLogger("ktbt.peer")
-
-CATALOG_PERIOD = 2.0
-"""Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
-(besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
 
 @dataclass(frozen=True)
@@ -235,48 +226,6 @@ def provenance(answer: Response) -> str:
     if answer.key is not None:
         words.append(f"sent with key {answer.key}")
     return f" ({', '.join(words)})" if words else ""
-
-
-class Listed:
-    """The sequences a learner without ``--sequence`` meets (spec/protocol.md section 4.5):
-    those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
-    sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
-    INFO line."""
-
-    def __init__(self, name: str, registry: Registry, say: Say) -> None:
-        self.name, self.registry, self.say = name, registry, say
-        self.found: list[str] = []
-        self.skipped: set[str] = set()
-
-    def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
-        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
-        new = []
-        for peer, entries in sorted(listed.items()):
-            for entry in entries:
-                given = entry["sequence"]
-                if given in self.skipped:
-                    continue
-                try:
-                    conds = parse_sequence(given)
-                    problems = find_problems(SequenceNode(conds), self.registry)
-                except StringBTError as err:
-                    problems = [err]
-                    conds = ()
-                key = sequence_key(conds) if not problems else given
-                if key in self.found or key in self.skipped:
-                    continue
-                if problems:
-                    self.skipped.add(given)
-                    log.info(
-                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
-                        "(%s %s)",
-                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
-                    )  # fmt: skip
-                    continue
-                self.found.append(key)
-                new.append(key)
-                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
-        return new
 
 
 def run_agent(

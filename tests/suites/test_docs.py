@@ -58,7 +58,7 @@ FENCE = re.compile(r"^(`{3,})([^\s`]*)[^\n]*\n(.*?)^\1[ \t]*$", re.S | re.M)
 RUN = {"python", "sh", "console", "stringbt", "toml"}
 NOT_RUN = re.compile(r"^(#|//) not run: \S")
 FILE = re.compile(r"^# file: (\S+)\s*$")
-MOST_NOT_RUN = 6
+MOST_NOT_RUN = 7
 SMALL = " --trials 1 --iterations 200"
 
 

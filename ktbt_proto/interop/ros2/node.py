@@ -19,50 +19,53 @@ and ``~/forget``. It logs through the node's logger, the library's own log recor
 
 from __future__ import annotations
 
-import json
 import logging
 import re
 import time
 from pathlib import Path
 from typing import Any, cast
 
-from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
 from ktbt_interfaces.srv import Forget, ListKnowledge
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.backoff import Backoff
-from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.knowledge import sequence_key
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
-from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.robot import (
+    CATALOG_PERIOD,
     DEMO_CONTROL,
     LEARNER_CONTROL,
+    Listed,
     demo_registry,
     learning_slot,
     load_knowledge,
     shown,
     with_knowledge,
 )
+from ktbt_proto.interop.ros2.showing import (
+    FleetCatalogs,
+    Shown,
+    event_json,
+    event_msg,
+    events_qos,
+    latched,
+)
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.syntax import parse
 
-DEMO_SEQUENCES = [f"TargetSeen(colour={c})" for c in (1, 2, 3, 4)]
-"""What the node meets unless told: the demo robot's four colours."""
+__all__ = ["SETUP", "KtbtNode", "event_json", "event_msg", "events_qos", "latched", "problem"]
 
 SETUP = (
     "agent_name",
@@ -82,53 +85,6 @@ SETUP = (
     "errors_topic",
 )
 """Parameters read when the node is configured: changed only while it is unconfigured."""
-EVENT_TEXT = (
-    "peer", "t", "event", "item", "sequence", "id", "sender", "to", "teacher", "author",
-    "reason", "where", "on", "key", "sig",
-)  # fmt: skip
-
-
-def latched() -> QoSProfile:
-    """``~/tree`` and ``~/catalog``: RELIABLE, TRANSIENT_LOCAL, depth 1, so a reader that
-    comes later gets the latest at once (as py_trees_ros's snapshots)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
-
-
-def events_qos() -> QoSProfile:
-    """``~/events``: RELIABLE, VOLATILE, depth 100: a watcher sees what happens from when it
-    starts (a gap in ``n`` is events lost), as on zenoh (section 10)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=100,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
-
-
-def event_msg(data: bytes) -> FleetEvent:
-    """The ROS message of an encoded fleet event (section 10's JSON): absent text is "", an
-    absent tick -1, so the JSON, and its signature, come back from the fields alone."""
-    fields = json.loads(data)
-    msg = FleetEvent(v=fields["v"], n=fields["n"], dropped=fields.get("dropped", 0))
-    for name in EVENT_TEXT:
-        setattr(msg, name, fields.get(name) or "")
-    msg.tick = fields.get("tick", -1)
-    return msg
-
-
-def event_json(msg: FleetEvent) -> bytes:
-    """Section 10's JSON of a received event, from its fields alone (what ``sig`` signs, with
-    ``sig`` added): :func:`ktbt_proto.exchange.events.decode_event` checks it."""
-    fields: dict[str, Any] = {"v": msg.v, "type": "event", "n": msg.n, "dropped": msg.dropped}
-    fields.update({name: getattr(msg, name) for name in EVENT_TEXT if getattr(msg, name)})
-    if msg.tick >= 0:
-        fields["tick"] = msg.tick
-    return json.dumps(fields, ensure_ascii=False).encode("utf-8")
 
 
 def problem(name: str, value: Any) -> str | None:
@@ -146,7 +102,7 @@ def problem(name: str, value: Any) -> str | None:
     if name.endswith("_topic") and not str(value).startswith("/"):
         return f"{name} {value!r}: use an absolute name, shared by the fleet (/ktbt/queries)"
     if name == "sequences":
-        for text in value:
+        for text in value or ():
             try:
                 parse_conditions([text])
             except StringBTError as err:
@@ -199,7 +155,12 @@ class KtbtNode(LifecycleNode):
         declare("queries_topic", Topics().queries, setup)
         declare("answers_topic", Topics().answers, setup)
         declare("errors_topic", Topics().errors, setup)
-        declare("sequences", list(DEMO_SEQUENCES), live)
+        # Unset (typed, no value): meet what the fleet's catalogs list (section 4.5).
+        self.declare_parameter(
+            "sequences",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(description=f"{live}; unset: what the fleet's catalogs list"),
+        )
         declare("tick_rate", 100.0, live)
         declare("snapshot_period", 0.0, live)
         self.add_on_set_parameters_callback(self._on_parameters)
@@ -214,11 +175,10 @@ class KtbtNode(LifecycleNode):
         self._made: list[Any] = []
         self._timer: Any = None
         self._snapshot_timer: Any = None
-        self._events: EventPublisher | None = None
+        self._shown: Shown | None = None
+        self._catalogs: FleetCatalogs | None = None
+        self._listed: Listed | None = None
         self._todo: list[str] = []
-        self._version = 0
-        self._shown_tree: str | None = None
-        self._shown_catalog: list[str] | None = None
 
     # -- parameters -----------------------------------------------------------------------------
 
@@ -235,6 +195,7 @@ class KtbtNode(LifecycleNode):
         for param in params:
             if param.name == "sequences":
                 self._todo = [sequence_key(parse_conditions([s])) for s in param.value]
+                self._listed = None  # told what to meet: the catalogs are no longer read
         if self._timer is not None and any(
             p.name in ("tick_rate", "snapshot_period") for p in params
         ):
@@ -246,7 +207,7 @@ class KtbtNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _param(self, name: str) -> Any:
-        return self.get_parameter(name).value
+        return self.get_parameter_or(name, Parameter(name, value=None)).value
 
     def agent_name(self) -> str:
         name = str(self._param("agent_name"))
@@ -307,7 +268,11 @@ class KtbtNode(LifecycleNode):
         if policy == Policy.TRUSTED and trust is None:
             raise ValueError("policy trusted needs a trust file (parameter trust)")
         overhear = cast(Overhear, str(self._param("overhear")))
-        self._todo = [sequence_key(parse_conditions([s])) for s in self._param("sequences")]
+        sequences = self._param("sequences")
+        if sequences is None:
+            self._listed, self._todo = Listed(name, registry, self.logger.info), []
+        else:
+            self._todo = [sequence_key(parse_conditions([s])) for s in sequences]
         wait_ticks, cooldown_ticks = (
             int(self._param("wait_ticks")),
             int(self._param("cooldown_ticks")),
@@ -319,23 +284,6 @@ class KtbtNode(LifecycleNode):
             str(self._param("answers_topic")),
             str(self._param("errors_topic")),
         )
-        events = self.create_publisher(
-            FleetEvent,
-            "~/events",
-            events_qos(),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )
-        self._made.append(events)
-        self._events = EventPublisher(name, lambda data: events.publish(event_msg(data)), identity)
-        self.log.add_sink(self._events)
-        overrides = QoSOverridingOptions.with_default_policies
-        self._tree_pub = self.create_publisher(
-            TreeSnapshot, "~/tree", latched(), qos_overriding_options=overrides()
-        )
-        self._catalog_pub = self.create_publisher(
-            Catalog, "~/catalog", latched(), qos_overriding_options=overrides()
-        )
-        self._made += [self._tree_pub, self._catalog_pub]
         self.transport = Ros2Transport(
             self,
             name,
@@ -364,7 +312,10 @@ class KtbtNode(LifecycleNode):
             why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
             raise ValueError(why) from None
         agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
-        self._catalog = catalog(agent.knowledge, identity)
+        self._shown = Shown(self, name, catalog(agent.knowledge, identity), self.log, identity)
+        if self._listed is not None:
+            self._catalogs = FleetCatalogs(self, self._shown.catalog_topic)
+        self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
         self._made += [
             self.create_service(ListKnowledge, "~/list_knowledge", self._on_list),
             self.create_service(Forget, "~/forget", self._on_forget),
@@ -374,9 +325,14 @@ class KtbtNode(LifecycleNode):
         self._announced = set(agent.metrics.learned)
         self._backoff = Backoff(seed=name)
         self._lost, self._joined = agent.metrics.queries_lost, self.transport.joined
+        meets = (
+            f"{len(self._todo)} sequences"
+            if self._listed is None
+            else "what the fleet's catalogs list"
+        )
         self.logger.info(
-            f"{name}: configured, knows {len(agent.knowledge)}, will meet {len(self._todo)} "
-            f"sequences; queries on {topics.queries}, answers on {topics.answers}"
+            f"{name}: configured, knows {len(agent.knowledge)}, will meet {meets}; "
+            f"queries on {topics.queries}, answers on {topics.answers}"
         )
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -408,7 +364,9 @@ class KtbtNode(LifecycleNode):
         self._stop_timers()
         self._timer = self.create_timer(1.0 / tick_rate, self._tick)
         if snapshot_period > 0:
-            self._snapshot_timer = self.create_timer(snapshot_period, self._show)
+            self._snapshot_timer = self.create_timer(
+                snapshot_period, lambda: self._show(periodic=True)
+            )
         if self.transport is not None:
             self.transport.query_timeout = int(self._param("wait_ticks")) / tick_rate
 
@@ -431,6 +389,10 @@ class KtbtNode(LifecycleNode):
             )
         if self.transport is not None:
             self.transport.close()
+        if self._shown is not None:
+            self._shown.close()
+        if self._catalogs is not None:
+            self._catalogs.close()
         for entity in self._made:
             if hasattr(entity, "srv_type"):
                 self.destroy_service(entity)
@@ -438,11 +400,9 @@ class KtbtNode(LifecycleNode):
                 self.destroy_publisher(entity)
         self._made = []
         if self.log is not None:
-            if self._events is not None:
-                self.log.remove_sink(self._events)
             self.log.close()
-        self.agent, self.transport, self.log, self._events = None, None, None, None
-        self._shown_tree = self._shown_catalog = None
+        self.agent, self.transport, self.log = None, None, None
+        self._shown = self._catalogs = self._listed = None
 
     def destroy_node(self) -> None:
         self._cleanup()
@@ -458,6 +418,7 @@ class KtbtNode(LifecycleNode):
             return
         now = time.monotonic()
         todo, backoff = self._todo, self._backoff
+        self._read_catalogs(now)
         while todo and agent.knows(todo[0]):
             todo.pop(0)
         if transport.joined != self._joined:  # a new neighbour: it may know
@@ -475,47 +436,29 @@ class KtbtNode(LifecycleNode):
             backoff.reset(now)
         self._show()
 
-    def _show(self) -> None:
-        """Publish the tree snapshot and the catalog when they changed (and the snapshot, on
-        the snapshot period, when they did not: ``changed`` false)."""
-        agent = self.agent
-        if agent is None:
+    def _read_catalogs(self, now: float) -> None:
+        """Told no sequences, follow the catalog topics that appeared (when a robot joins, and
+        every ``CATALOG_PERIOD``), and take in what a changed catalog lists (section 4.5)."""
+        catalogs, listed, transport = self._catalogs, self._listed, self.transport
+        if catalogs is None or listed is None or transport is None:
             return
-        text = format_tree(agent.control.tree, "compact")
-        changed = text != self._shown_tree
-        entries = self._catalog()
-        keys = [e["sequence"] if isinstance(e, dict) else e for e in entries]
-        periodic = self._snapshot_timer is not None and not changed
-        if changed or periodic:
-            self._version += 1
-            self._tree_pub.publish(
-                TreeSnapshot(
-                    stamp=self.get_clock().now().to_msg(),
-                    peer=agent.name,
-                    changed=changed,
-                    version=self._version,
-                    tree=text,
-                )
-            )
-            self._shown_tree = text
-        if keys != self._shown_catalog:
-            self._catalog_pub.publish(Catalog(peer=agent.name, items=self._entries()))
-            self._shown_catalog = keys
+        if transport.joined != self._joined or now - self._read_at >= CATALOG_PERIOD:
+            self._read_at = now
+            catalogs.refresh()
+        if catalogs.version != self._catalogs_read:
+            self._catalogs_read = catalogs.version
+            self._todo += listed.read(catalogs.read())
 
-    def _entries(self) -> list[CatalogEntry]:
-        return [
-            CatalogEntry(
-                **{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")}
-            )
-            if isinstance(e, dict)
-            else CatalogEntry(sequence=e)
-            for e in self._catalog()
-        ]
+    def _show(self, periodic: bool = False) -> None:
+        """Publish the tree snapshot and the catalog when they changed (the snapshot on the
+        snapshot period even if not: ``changed`` false)."""
+        if self.agent is not None and self._shown is not None:
+            self._shown.show(self.agent.control.tree, periodic)
 
     # -- services -------------------------------------------------------------------------------
 
     def _on_list(self, request: Any, response: Any) -> Any:
-        response.items = self._entries() if self.agent is not None else []
+        response.items = self._shown.entries() if self._shown is not None else []
         return response
 
     def _on_forget(self, request: Any, response: Any) -> Any:

@@ -9,6 +9,9 @@ until the topic has that many; ``publish`` (topic, type, fields or ``raw`` hex b
 subscribers: wait for that many first; ``latched``: its publisher latched); ``call`` (service,
 type, request); ``params`` (node, names): a node's parameter values; ``set_params`` (node,
 values): set them, each one's result.
+
+:func:`echo` renders received messages as ``ros2 topic echo`` prints them (YAML, ``---`` after
+each), for the tutorial's captured output: the ``ros2`` command line has no wheel.
 """
 
 from __future__ import annotations
@@ -45,6 +48,18 @@ def plain(value: Any) -> Any:
     if isinstance(value, bytes | bytearray):
         return value.hex()
     return value
+
+
+def echo(messages: list[dict[str, Any]]) -> str:
+    """Messages as ``ros2 topic echo`` prints them: each as block YAML in field order (what
+    ros2cli's ``message_to_yaml`` does), then ``---``."""
+    import yaml  # type: ignore[import-untyped]
+
+    return "".join(
+        yaml.safe_dump(m, sort_keys=False, default_flow_style=False, allow_unicode=True,
+                       width=10_000) + "---\n"
+        for m in messages
+    )  # fmt: skip
 
 
 def matches(message: dict[str, Any], match: dict[str, Any]) -> bool:

@@ -1,0 +1,307 @@
+"""A KT-BT agent attached to its user's own rclpy node and py_trees tree (spec/protocol.md
+section 11, "Embedding"): :func:`attach`.
+
+The user keeps their node, their tree and the timer that ticks it, as with py_trees_ros
+(whose ``BehaviourTree.setup(node=...)`` takes an existing node and hands it to every
+behaviour's ``setup``). What ``attach`` adds to the node:
+
+- the fleet's topics (:class:`~ktbt_proto.interop.ros2.transport.Ros2Transport`): the robot
+  answers every query it can at once, from what it knows at that moment, inside the
+  subscription's callback (section 4.5);
+- one timer, on the node's executor, that asks for what the robot is missing (the sequences
+  given, else what the fleet's catalogs list that its vocabulary can execute) with section
+  4.5's backoff, and checks and merges the answers (section 2);
+- what it shows (:class:`~ktbt_proto.interop.ros2.showing.Shown`) under ``~/ktbt``:
+  ``events``, ``tree`` and ``catalog``, so the user's own topics keep their names.
+
+The tree learns through :class:`~ktbt_proto.interop.pytrees_control.PyTreesControl` (section
+4.4): a learned item is inserted into the placeholder (``Selector(name="k:new",
+memory=False)``) from a pre-tick handler, so between two of the user's ticks, and each of its
+behaviours is set up with ``setup(node=node)`` first, as py_trees_ros sets up its own: a
+learned leaf that is the user's ROS behaviour (an action client, say) finds its node there.
+The agent is timed by this timer (an
+:class:`~ktbt_proto.exchange.application.ApplicationTimedAgent`, section 4.1): it never ticks
+the user's tree. Every callback is in the node's default callback group, so with any executor
+none runs while the user's timer (in that group too) ticks the tree.
+
+What the user can get wrong is refused before anything is added to the node, each with one
+line: a tree that is not a ``BehaviourTree`` or has no placeholder (``TypeError``,
+``ValueError``), a robot name or topic that is not one (``ValueError``), a sequence or a
+knowledge item its vocabulary cannot execute (``StringBTError``, with its code).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterable
+from dataclasses import replace
+from pathlib import Path
+
+from py_trees import trees
+from rclpy.node import Node
+
+from ktbt_proto.blackboard import Blackboard
+from ktbt_proto.control import ControlFactory
+from ktbt_proto.errors import StringBTError
+from ktbt_proto.exchange.answers import catalog
+from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
+from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.interop.pytrees import Behaviours
+from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
+from ktbt_proto.interop.robot import (
+    CATALOG_PERIOD,
+    Listed,
+    item_slot,
+    learning_slot,
+    load_knowledge,
+    shown,
+)
+from ktbt_proto.interop.ros2.showing import FleetCatalogs, Shown
+from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.registry import Registry
+from ktbt_proto.tree import Placeholder, SequenceNode
+from ktbt_proto.validate import find_problems
+
+__all__ = ["Embedded", "attach"]
+
+PREFIX = "~/ktbt"
+"""Where an embedded robot's events, tree and catalog go, under its user's node."""
+
+
+def attach(
+    node: Node,
+    tree: trees.BehaviourTree,
+    registry: Registry,
+    *,
+    name: str | None = None,
+    knowledge: KnowledgeBase | str | Path | None = None,
+    behaviours: Behaviours | None = None,
+    sequences: Iterable[str] | None = None,
+    topics: Topics | None = None,
+    security: Security | None = None,
+    overhear: Overhear = "off",
+    wait: float = 2.0,
+    period: float = 0.1,
+) -> Embedded:
+    """Attach a KT-BT agent to ``node`` that learns into and teaches from ``tree``; the user
+    goes on ticking ``tree`` from their own timer (see the module's docstring).
+
+    ``registry``: the robot's vocabulary, which received knowledge is checked against (section
+    2); ``behaviours``: its own py_trees behaviours by leaf name (known as actions, built with
+    the leaf's arguments, :func:`~ktbt_proto.interop.pytrees_control.known_behaviours}`).
+    ``name``: the robot's name in messages (default: the node's). ``knowledge``: items (or a
+    knowledge file) it starts with and teaches. ``sequences``: what it meets, in turn; None:
+    what the fleet's catalogs list that its vocabulary can execute (section 4.5). ``topics``:
+    the fleet's (default ``/ktbt/...``); ``security``: key pair, trust policy and store,
+    transfer log (sections 7, 8); ``overhear``: section 4.3. ``wait``: seconds a query stays
+    open; ``period``: seconds between two runs of the agent's timer. Close the handle (or use
+    it as a context manager) to take everything off the node again."""
+    if not isinstance(node, Node):
+        raise TypeError(f"attach takes the user's rclpy Node, not a {type(node).__name__}")
+    if not isinstance(registry, Registry):
+        raise TypeError(
+            f"registry: a ktbt_proto Registry (Registry.load('robot.toml')), not a "
+            f"{type(registry).__name__}"
+        )
+    robot = node.get_name() if name is None else name
+    if not isinstance(robot, str) or re.fullmatch(NAME, robot) is None:
+        raise ValueError(f"name {robot!r}: use 1 to 64 letters, digits, '_', '.', '-'")
+    if not (0 < wait <= 3600 and 0 < period <= 60):
+        raise ValueError(f"wait {wait} s, period {period} s: use (0, 3600] and (0, 60]")
+    factory = py_trees_control(tree, behaviours=behaviours, setup_kwargs={"node": node})
+    vocabulary = known_behaviours(registry, behaviours or {})
+    todo = None if sequences is None else [_meetable(s, vocabulary) for s in sequences]
+    items = load_knowledge(knowledge) if isinstance(knowledge, str | Path) else knowledge
+    return Embedded(
+        node,
+        tree,
+        robot,
+        registry,
+        factory,
+        items,
+        todo,
+        topics,
+        security or Security(),
+        overhear,
+        wait,
+        period,
+    )
+
+
+def _meetable(text: str, vocabulary: Registry) -> str:
+    """A sequence to meet, as its key; one its vocabulary cannot execute could never be
+    learned, so it is refused now (``StringBTError``, its code and the part at fault)."""
+    conds = parse_conditions([text])
+    problems = find_problems(SequenceNode(conds), vocabulary)
+    if problems:
+        first = problems[0]
+        raise StringBTError(first.code, f"sequence {text!r}: {first.message}")
+    return sequence_key(conds)
+
+
+class Embedded:
+    """A KT-BT agent attached to a user's node and tree (made by :func:`attach`): ``agent``
+    (its knowledge, metrics and blackboard), ``transport``, ``name``. :meth:`close` takes it
+    off the node and the tree."""
+
+    def __init__(
+        self,
+        node: Node,
+        tree: trees.BehaviourTree,
+        name: str,
+        registry: Registry,
+        factory: ControlFactory,
+        knowledge: KnowledgeBase | None,
+        todo: list[str] | None,
+        topics: Topics | None,
+        security: Security,
+        overhear: Overhear,
+        wait: float,
+        period: float,
+    ) -> None:
+        self.node, self.tree, self.name, self.wait = node, tree, name, wait
+        self._own_log = security.log is None
+        log = security.log if security.log is not None else TransferLog(None)
+        self.transport = Ros2Transport(
+            node,
+            name,
+            topics,
+            query_timeout=wait,
+            identity=security.identity,
+            log=log,
+            overhear=overhear != "off",
+        )
+        try:
+            self.agent = ApplicationTimedAgent(
+                name,
+                factory,
+                registry,
+                self.transport,
+                security=replace(security, log=log),
+                ear=Ear(overhear),
+            )
+            self._control: PyTreesControl = self.agent.control  # type: ignore[assignment]
+            slot = learning_slot(self._control.tree)
+            assert slot is not None  # py_trees_control refused a tree without a placeholder
+            self.agent.slot = slot
+            if knowledge is not None:
+                self._start_with(knowledge, slot)
+        except BaseException:
+            self.transport.close()
+            self._unhook()
+            raise
+        agent = self.agent
+        self.shown = Shown(node, name, catalog(agent.knowledge, security.identity), log,
+                           security.identity, PREFIX)  # fmt: skip
+        self._listed = (
+            Listed(name, agent.registry, node.get_logger().info) if todo is None else None
+        )
+        self._catalogs = (
+            FleetCatalogs(node, self.shown.catalog_topic) if self._listed is not None else None
+        )
+        self.todo: list[str] = todo or []
+        """What it is still to meet, in turn."""
+        self._backoff = Backoff(seed=name)
+        self._deadline = 0.0
+        self._joined = self.transport.joined
+        self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
+        self._announced = set(agent.metrics.learned)
+        self.closed = False
+        self._timer = node.create_timer(period, self._run)
+        self.shown.show(self._control.tree)
+        node.get_logger().info(
+            f"{name}: KT-BT attached, knows {len(agent.knowledge)}, learns into k:{slot}, "
+            f"will meet {'what the fleet lists' if todo is None else f'{len(todo)} sequences'}"
+        )
+
+    def _start_with(self, knowledge: KnowledgeBase, slot: str) -> None:
+        """The items it starts knowing, in the placeholders they name (else ``prior``, else its
+        learning placeholder), checked against its vocabulary as a merge is."""
+        names = {n.name for n, _ in self._control.tree.walk() if isinstance(n, Placeholder)}
+        for item in knowledge:
+            self._control.merge(item.subtree, item_slot(names, item.segment, slot), item.conditions)
+            self.agent.knowledge.add(item)
+
+    @property
+    def blackboard(self) -> Blackboard:
+        """The blackboard its registry's conditions and actions read (flags, say)."""
+        return self.agent.blackboard
+
+    def knows(self, sequence: Iterable[str] | str) -> bool:
+        return self.agent.knows(sequence)
+
+    def meet(self, *sequences: str) -> None:
+        """Meet these sequences too (checked as :func:`attach` checks its ``sequences``)."""
+        vocabulary = self.agent.registry
+        self.todo += [_meetable(s, vocabulary) for s in sequences]
+
+    def _run(self) -> None:
+        """One run of the agent's timer: catalogs, answers, the open query's end, the next
+        query (section 4.5), then what changed is shown."""
+        agent, transport, backoff = self.agent, self.transport, self._backoff
+        now = time.monotonic()
+        agent.now = self.tree.count
+        if self._catalogs is not None and self._listed is not None:
+            if transport.joined != self._joined or now - self._read_at >= CATALOG_PERIOD:
+                self._read_at = now
+                self._catalogs.refresh()
+            if self._catalogs.version != self._catalogs_read:
+                self._catalogs_read = self._catalogs.version
+                self.todo += self._listed.read(self._catalogs.read())
+        agent.receive()
+        asked = agent.open_query
+        if transport.joined != self._joined:  # a new neighbour: it may know
+            self._joined = transport.joined
+            backoff.reset(now)
+            if asked is not None and not agent.knows(asked.sequence):
+                transport.broadcast(asked)  # the same query, so the newcomer hears it
+        if asked is not None and (agent.knows(asked.sequence) or now >= self._deadline):
+            if not agent.knows(asked.sequence):
+                backoff.lost(now)
+            agent.close_query()
+        todo = self.todo
+        while todo and agent.knows(todo[0]):
+            todo.pop(0)
+        if agent.open_query is None and todo and backoff.ready(now):
+            agent.ask(todo[0])
+            self._deadline = now + self.wait
+        for key in agent.metrics.learned.keys() - self._announced:
+            tick, source = agent.metrics.learned[key]
+            self.node.get_logger().info(
+                f"{self.name}: learned {shown(key)} from {source} at tick {tick}"
+            )
+            self._announced.add(key)
+            backoff.reset(now)
+        self.shown.show(self._control.tree)
+
+    def _unhook(self) -> None:
+        control = getattr(self, "_control", None)
+        if control is not None and control._apply in self.tree.pre_tick_handlers:
+            self.tree.pre_tick_handlers.remove(control._apply)
+
+    def close(self) -> None:
+        """Take the agent off the node (its timer, topics and publishers) and the tree (its
+        pre-tick handler): the node and the tree go on as the user's, items learned kept."""
+        if self.closed:
+            return
+        self.closed = True
+        self.node.destroy_timer(self._timer)
+        if self._catalogs is not None:
+            self._catalogs.close()
+        self.shown.close()
+        self.transport.close()
+        self._unhook()
+        if self._own_log and self.agent.log is not None:
+            self.agent.log.close()
+
+    def __enter__(self) -> Embedded:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()

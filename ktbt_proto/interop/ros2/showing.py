@@ -1,0 +1,249 @@
+"""What a KT-BT robot shows on ROS 2, and what it reads of the others' (spec/protocol.md section
+11, "ROS 2 binding"), whoever runs it: the lifecycle node (``ktbt ros2 run``) and a robot
+embedded in its user's own node (:mod:`ktbt_proto.interop.ros2.embed`) alike.
+
+- :class:`Shown`: its fleet events (section 10) on ``events``, its control tree on ``tree`` and
+  its catalog on ``catalog``, under one prefix (``~`` for the lifecycle node, ``~/ktbt`` for an
+  embedded robot, so that the user's own topics keep their names);
+- :class:`FleetCatalogs`: the other robots' latched catalogs, found on the ROS graph by their
+  type, which a learner told no sequences reads to know what to ask for (section 4.5, as
+  ``ktbt peer run`` reads zenoh's catalog queryables).
+
+A catalog is a peer's word: it is read raw, bounded (:data:`MAX_CATALOG_BYTES`, at most
+:data:`MAX_CATALOGS` topics followed, :data:`MAX_ENTRIES` entries each), and what it lists is
+only ever asked for; the answers are checked as any other (section 2).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
+
+from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.interop.ros2.transport import NAME
+from ktbt_proto.tree import Tree
+
+__all__ = [
+    "CATALOG_TYPE",
+    "EVENT_TEXT",
+    "FleetCatalogs",
+    "Shown",
+    "event_json",
+    "event_msg",
+    "events_qos",
+    "latched",
+]
+
+EVENT_TEXT = (
+    "peer", "t", "event", "item", "sequence", "id", "sender", "to", "teacher", "author",
+    "reason", "where", "on", "key", "sig",
+)  # fmt: skip
+CATALOG_TYPE = "ktbt_interfaces/msg/Catalog"
+"""The type by which a robot's catalog topic is found on the graph, whatever its name."""
+MAX_CATALOGS = 64
+"""Catalog topics a robot follows at most (the first found)."""
+MAX_ENTRIES = 1024
+"""Entries read of one catalog (the first)."""
+MAX_CATALOG_BYTES = 1 << 20
+"""A serialized catalog longer than this is refused unread."""
+
+Entries = Callable[[], list[str | dict[str, Any]]]
+"""What a robot's catalog lists now (``ktbt_proto.exchange.answers.catalog``)."""
+
+
+def latched() -> QoSProfile:
+    """``~/tree`` and ``~/catalog``: RELIABLE, TRANSIENT_LOCAL, depth 1, so a reader that
+    comes later gets the latest at once (as py_trees_ros's snapshots)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def events_qos() -> QoSProfile:
+    """``~/events``: RELIABLE, VOLATILE, depth 100: a watcher sees what happens from when it
+    starts (a gap in ``n`` is events lost), as on zenoh (section 10)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=100,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def event_msg(data: bytes) -> FleetEvent:
+    """The ROS message of an encoded fleet event (section 10's JSON): absent text is "", an
+    absent tick -1, so the JSON, and its signature, come back from the fields alone."""
+    fields = json.loads(data)
+    msg = FleetEvent(v=fields["v"], n=fields["n"], dropped=fields.get("dropped", 0))
+    for name in EVENT_TEXT:
+        setattr(msg, name, fields.get(name) or "")
+    msg.tick = fields.get("tick", -1)
+    return msg
+
+
+def event_json(msg: FleetEvent) -> bytes:
+    """Section 10's JSON of a received event, from its fields alone (what ``sig`` signs, with
+    ``sig`` added): :func:`ktbt_proto.exchange.events.decode_event` checks it."""
+    fields: dict[str, Any] = {"v": msg.v, "type": "event", "n": msg.n, "dropped": msg.dropped}
+    fields.update({name: getattr(msg, name) for name in EVENT_TEXT if getattr(msg, name)})
+    if msg.tick >= 0:
+        fields["tick"] = msg.tick
+    return json.dumps(fields, ensure_ascii=False).encode("utf-8")
+
+
+class Shown:
+    """A robot's events, tree snapshot and catalog on ``node``, as ``PREFIX/events``,
+    ``PREFIX/tree`` and ``PREFIX/catalog`` (section 11): the events of ``log`` as they are
+    recorded (signed with ``identity`` if given), the tree and the catalog when :meth:`show`
+    finds them changed. Each publisher takes ROS's QoS overrides by parameter."""
+
+    def __init__(
+        self,
+        node: Node,
+        name: str,
+        entries: Entries,
+        log: TransferLog,
+        identity: Identity | None = None,
+        prefix: str = "~",
+    ) -> None:
+        self.node, self.name, self.log = node, name, log
+        self._entries = entries
+        overrides = QoSOverridingOptions.with_default_policies
+        events = node.create_publisher(
+            FleetEvent, f"{prefix}/events", events_qos(), qos_overriding_options=overrides()
+        )
+        self._tree = node.create_publisher(
+            TreeSnapshot, f"{prefix}/tree", latched(), qos_overriding_options=overrides()
+        )
+        self._catalog = node.create_publisher(
+            Catalog, f"{prefix}/catalog", latched(), qos_overriding_options=overrides()
+        )
+        self.catalog_topic = self._catalog.topic_name
+        """This robot's own catalog topic, full name (what :class:`FleetCatalogs` skips)."""
+        self._publishers = [events, self._tree, self._catalog]
+        self._events = EventPublisher(name, lambda data: events.publish(event_msg(data)), identity)
+        log.add_sink(self._events)
+        self.version = 0
+        """Snapshots published so far."""
+        self._shown_tree: str | None = None
+        self._shown_catalog: list[str] | None = None
+
+    def show(self, tree: Tree, periodic: bool = False) -> None:
+        """Publish the tree snapshot and the catalog if they changed since last shown; with
+        ``periodic``, the snapshot even if it did not (``changed`` false)."""
+        text = format_tree(tree, "compact")
+        changed = text != self._shown_tree
+        if changed or periodic:
+            self.version += 1
+            self._tree.publish(
+                TreeSnapshot(
+                    stamp=self.node.get_clock().now().to_msg(),
+                    peer=self.name,
+                    changed=changed,
+                    version=self.version,
+                    tree=text,
+                )
+            )
+            self._shown_tree = text
+        listed = self.entries()
+        keys = [entry.sequence for entry in listed]
+        if keys != self._shown_catalog:
+            self._catalog.publish(Catalog(peer=self.name, items=listed))
+            self._shown_catalog = keys
+
+    def entries(self) -> list[CatalogEntry]:
+        """What the robot knows, as catalog entries (``~/list_knowledge`` answers with them)."""
+        return [
+            CatalogEntry(
+                **{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")}
+            )
+            if isinstance(e, dict)
+            else CatalogEntry(sequence=e)
+            for e in self._entries()
+        ]
+
+    def close(self) -> None:
+        """Stop publishing (the node stays)."""
+        self.log.remove_sink(self._events)
+        for publisher in self._publishers:
+            self.node.destroy_publisher(publisher)
+        self._publishers = []
+
+
+class FleetCatalogs:
+    """The other robots' catalogs, as a learner told no sequences reads them (section 4.5):
+    every topic of type ``ktbt_interfaces/msg/Catalog`` on the graph but ``own`` is followed,
+    latched, as :meth:`refresh` finds it; :meth:`read` gives what each lists, by peer, in the
+    form :class:`ktbt_proto.interop.robot.Listed` reads. ``version`` counts the catalogs
+    received, so a learner reads again when one changed. A catalog that is too large or does
+    not deserialize is refused with a WARNING, and read no further."""
+
+    def __init__(self, node: Node, own: str = "") -> None:
+        self.node, self.own = node, own
+        self.version = 0
+        self.refused = 0
+        self._lock = threading.Lock()
+        self._subscriptions: dict[str, Any] = {}
+        self._found: dict[str, tuple[str, list[dict[str, str]]]] = {}
+        """Topic -> (the peer it names, its entries)."""
+
+    def refresh(self) -> int:
+        """Follow the catalog topics that appeared on the graph; how many are followed."""
+        for topic, types in self.node.get_topic_names_and_types():
+            if len(self._subscriptions) >= MAX_CATALOGS:
+                break
+            if CATALOG_TYPE not in types or topic == self.own or topic in self._subscriptions:
+                continue
+            self._subscriptions[topic] = self.node.create_subscription(
+                Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True
+            )
+        return len(self._subscriptions)
+
+    def _on_catalog(self, topic: str, data: bytes) -> None:
+        if len(data) > MAX_CATALOG_BYTES:
+            self._refuse(f"catalog on {topic}: {len(data)} bytes, more than {MAX_CATALOG_BYTES}")
+            return
+        try:
+            msg = deserialize_message(data, Catalog)
+        except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
+            self._refuse(f"catalog on {topic}: not a Catalog ({type(exc).__name__})")
+            return
+        peer = msg.peer if re.fullmatch(NAME, msg.peer) else topic
+        entries = [{"sequence": e.sequence} for e in msg.items[:MAX_ENTRIES]]
+        with self._lock:
+            self._found[topic] = (peer, entries)
+            self.version += 1
+
+    def _refuse(self, reason: str) -> None:
+        self.refused += 1
+        self.node.get_logger().warning(f"refused: {reason}")
+
+    def read(self) -> dict[str, list[dict[str, str]]]:
+        """What each peer's catalog lists now, by peer (two topics naming one peer are told
+        apart by the later one's topic)."""
+        out: dict[str, list[dict[str, str]]] = {}
+        with self._lock:
+            for topic, (peer, entries) in sorted(self._found.items()):
+                out[topic if peer in out else peer] = entries
+        return out
+
+    def close(self) -> None:
+        for subscription in self._subscriptions.values():
+            self.node.destroy_subscription(subscription)
+        self._subscriptions = {}

@@ -242,15 +242,21 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
         both = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=seed), 7447)
         churn_only = make_plan(FleetConfig(peers=10, churn=0.2, seed=seed), 7447)
         assert both.victims == churn_only.victims
-    assert len(a.links) == 45 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
+    # Both ends of every peer link dial, each through a proxy of its own (or the higher only).
+    assert len(a.links) == 90 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
+    assert {(li.dialer, li.listener) for li in a.links} == {
+        (li.listener, li.dialer) for li in a.links
+    }
+    assert len(make_plan(FleetConfig(peers=10, dial="one"), 1).links) == 45
     assert {a.half[n.name] for n in a.peers} == {0, 1}
-    assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4
+    assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 8
     router = make_plan(FleetConfig(peers=40, topology="router"), 1)
     assert len(router.routers) == 2 and len(router.links) == 41
     assert seconds("200ms") == pytest.approx(0.2) and seconds("2m") == 120
     nan = float("nan")
     for bad in ({"peers": 1}, {"teachers": 0}, {"loss": 1.5}, {"topology": "star"},
-                {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}):  # fmt: skip
+                {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}, {"dial": "all"},
+                {"retry_ms": 5}):  # fmt: skip
         with pytest.raises(PlanError):
             FleetConfig(**bad)
     with pytest.raises(PlanError):

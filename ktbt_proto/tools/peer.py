@@ -358,6 +358,10 @@ def run_agent(
             now = time.monotonic()
             robot.now += 1
             robot.receive()
+            for key in robot.metrics.learned.keys() - announced:
+                tick, source = robot.metrics.learned[key]
+                say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
+                announced.add(key)
             appeared = transport.appeared()
             if listed is not None and (appeared or now - read_at >= CATALOG_PERIOD):
                 read_at = now
@@ -370,10 +374,6 @@ def run_agent(
             robot.tend_memory()
             if export is not None:
                 export.sync(robot.knowledge)
-            for key in robot.metrics.learned.keys() - announced:
-                tick, source = robot.metrics.learned[key]
-                say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
-                announced.add(key)
             stop.wait(period)
         m = robot.metrics
         say(

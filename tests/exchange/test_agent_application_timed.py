@@ -136,7 +136,7 @@ def test_one_query_for_several_sequences_is_answered_for_each_and_merges_each_on
 def test_a_single_sequence_query_is_what_it_always_was() -> None:
     learner, teacher, _ = trio()
     query = learner.ask(SEQUENCE)
-    assert query.more is None and b"\"more\"" not in encode(query)
+    assert query.more is None and b'"more"' not in encode(query)
     teacher.receive()
     heard = teacher.heard("l")
     assert heard is not None and teacher.answer(heard)

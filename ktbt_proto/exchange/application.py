@@ -11,7 +11,7 @@ tree-timed agent's, checked and merged by the same
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from functools import cached_property
 
 from ktbt_proto.exchange.core import AgentCore
@@ -35,19 +35,25 @@ class ApplicationTimedAgent(AgentCore):
     _answered: frozenset[str] = frozenset()
     """The sequences of the open query answered so far."""
 
-    def ask(self, sequence: Iterable[Condition | str] | str, *more: str) -> Query:
-        """Broadcast a query now and keep it open until :meth:`close_query` (a previous open
+    def ask(
+        self, sequence: Iterable[Condition | str] | str, *more: str, to: Sequence[str] = ()
+    ) -> Query:
+        """Send a query now and keep it open until :meth:`close_query` (a previous open
         query is closed first); :meth:`receive` merges the first acceptable answer to it for
         each sequence it asks. ``more``: further sequences, in canonical form, asked in the
-        same query (spec/protocol.md section 1)."""
+        same query (spec/protocol.md section 1). ``to``: the peers to ask, each alone (as
+        :meth:`announce` does); empty, the query is broadcast."""
         if self._open is not None:
             self.close_query()
         query = Query.asking(self.name, [sequence_key(sequence), *more])
         self._open, self._answered = query, frozenset()
-        self.transport.broadcast(query)
         self.metrics.queries_sent += 1
-        extra = {"more": list(query.more)} if query.more else {}
-        self._record("query-sent", id=query.id, sequence=query.sequence, **extra)
+        for peer in to:
+            self.announce(peer)
+        if not to:
+            self.transport.broadcast(query)
+            extra = {"more": list(query.more)} if query.more else {}
+            self._record("query-sent", id=query.id, sequence=query.sequence, **extra)
         return query
 
     @property

@@ -58,6 +58,10 @@ CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
+ASK_ALONE = 8
+"""Peers that appear together asked each alone at most (section 4.5); more are asked in one
+broadcast, which holds one get where they would hold one each."""
+
 
 @dataclass(frozen=True)
 class Member:
@@ -394,9 +398,12 @@ class Learner:
     timer. It asks for every sequence it lacks in one query (section 1) as soon as it lacks
     one; a peer that appears (its liveliness, section 3) is sent the open query at once, and
     the query stays open a whole ``wait`` from then; a query closes when every sequence it
-    names is answered, or when its wait is over. After a query nobody answered, it holds back
-    ``cooldown`` seconds and then the ``backoff``'s hold; it asks at once again when a peer
-    appears or it learns something."""
+    names is answered, or when its wait is over. With no query open, the peers that appear
+    are asked at once, each alone (those present before were asked already; a broadcast would
+    wake every one of them, all at the moment a teacher joins a large fleet), or in one
+    broadcast when more than ``ASK_ALONE`` appeared together. After a query
+    nobody answered, it holds back ``cooldown`` seconds and then the ``backoff``'s hold;
+    after one answered (in part), it asks at once for what is left."""
 
     robot: ApplicationTimedAgent
     backoff: Backoff
@@ -414,13 +421,15 @@ class Learner:
                 self.backoff.reset(now)
             else:
                 self.backoff.lost(now + self.cooldown)
-        if appeared:
-            if robot.open_query is not None:  # a newcomer hears the open query at once
-                for peer in appeared:
-                    robot.announce(peer)
-                self.opened = now
-            else:
-                self.backoff.reset(now)
+        if appeared and robot.open_query is not None:  # newcomers hear the open query at once
+            for peer in appeared:
+                robot.announce(peer)
+            self.opened = now
+        elif appeared and missing:  # the newcomers alone: the others were asked already
+            alone = appeared if len(appeared) <= ASK_ALONE else []
+            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
+            self.backoff.reset(now)
+            self.opened = now
         if missing and robot.open_query is None and self.backoff.ready(now):
             robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
             self.opened = now

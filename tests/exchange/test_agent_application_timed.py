@@ -108,6 +108,17 @@ def test_announce_reaches_a_peer_that_did_not_hear_the_broadcast() -> None:
     assert teacher.metrics.queries_received == 1
 
 
+def test_a_query_asked_to_named_peers_reaches_them_alone() -> None:
+    learner, teacher, other = trio()
+    query = learner.ask(SEQUENCE, to=["t"])
+    teacher.receive(), other.receive()
+    heard = teacher.heard("l")
+    assert isinstance(heard, Query) and heard.id == query.id and other.heard("l") is None
+    assert learner.metrics.queries_sent == 1 and learner.open_query == query
+    teacher.answer(heard)
+    assert learner.receive() == 1 and learner.knows(SEQUENCE)
+
+
 def test_one_query_for_several_sequences_is_answered_for_each_and_merges_each_once() -> None:
     """A query may name several sequences (spec/protocol.md section 1): the teacher answers
     each it knows, the learner merges each once, and a repeated answer is late."""

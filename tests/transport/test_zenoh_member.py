@@ -12,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
+import ktbt_proto as kp
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.messages import Query
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
 from ktbt_proto.tools.peer import Member
 from ktbt_proto.transport.zenoh import stable_zid
@@ -159,6 +161,37 @@ def test_a_learner_started_before_any_teacher_learns_when_one_appears(tmp_path: 
     # The answered query went out once the teacher was seen: to it alone, or a new one.
     sent = [i for i, e in enumerate(events) if e["event"] == "query-sent" and e["id"] == asked]
     assert max(sent) > seen
+
+
+def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
+    """A newcomer is asked at once, alone: the peers present before were asked already, and a
+    broadcast would wake them all again (spec/protocol.md section 4.5). Past ``ASK_ALONE``
+    newcomers at once, one broadcast asks them all."""
+    from ktbt_proto.exchange.application import ApplicationTimedAgent
+    from ktbt_proto.tools.peer import ASK_ALONE, Learner
+    from ktbt_proto.transport import MemoryNetwork
+    from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
+
+    net = MemoryNetwork()
+    robot = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    other = ApplicationTimedAgent("x", CONTROL, registry(), net.join("x"))
+    learner = Learner(robot, Backoff(seed="l"), wait=2.0, cooldown=0.5)
+    missing = [kp.sequence_key(SEQUENCE)]
+    learner.backoff.lost(0.0)  # an unanswered query before: it would not broadcast now
+    learner.step(0.1, missing, ["t"])
+    teacher.receive(), other.receive()
+    heard = teacher.heard("l")
+    assert isinstance(heard, Query) and other.heard("l") is None
+    teacher.answer(heard)
+    robot.receive()
+    learner.step(0.2, [], [])
+    assert robot.knows(SEQUENCE) and robot.open_query is None
+    crowd = [f"n{i}" for i in range(ASK_ALONE + 1)]
+    robot2 = ApplicationTimedAgent("m", CONTROL, registry(), net.join("m"))
+    Learner(robot2, Backoff(seed="m"), wait=2.0, cooldown=0.5).step(0.0, missing, crowd)
+    other.receive()
+    assert other.heard("m") is not None  # broadcast: heard by a peer not named
 
 
 def test_backoff_doubles_to_its_bound_and_resets() -> None:

@@ -4,10 +4,13 @@ round). Pure data, so that the same seed gives the same fleet and the same fault
 
 Learners come first, teachers last (``p0``..., then ``t``...). Addresses: peer ``k`` listens on
 ``127.1.x.y``, router ``r`` on ``127.3.0.(r+1)``, and link ``l``'s proxy on ``127.2.x.y`` (all
-of 127.0.0.0/8 is local). With ``dial="both"`` (the default) both ends of a peer link dial each
-other, each through a proxy of its own: a newcomer connects out at once to the peers it knows,
-as well as being connected to when their next retry comes (spec/protocol.md section 3); with
-``dial="one"`` only the higher peer dials the lower (peer ``i`` dials ``j < i``).
+of 127.0.0.0/8 is local). With ``dial="one"`` (the default) the newer peer of a pair dials
+the older (peer ``i`` dials ``j < i``; peers start in that order, so a newcomer connects out
+at once to the peers it knows, spec/protocol.md section 3, and a restarted peer is dialled
+again within its neighbours' retry period). With ``dial="both"`` both ends of a peer link
+dial each other, each through a proxy of its own: twice the links and proxies, and at 40
+peers a storm of links opened, closed and dialled again that holds the fleet for tens of
+seconds (docs/results/fleet.md, size-40-both).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Any, Literal
 Topology = Literal["mesh", "line", "router"]
 TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router")
 Dial = Literal["one", "both"]
-"""Who dials a peer link: the higher peer only, or both ends."""
+"""Who dials a peer link: the newer (higher) peer only, or both ends."""
 PartitionKind = Literal["silent", "reset", "none"]
 """``none``: the same halves and schedule, nothing held or cut (a baseline for the half
 with the teacher)."""
@@ -81,8 +84,8 @@ class FleetConfig:
     teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which
     answer every query at once)."""
     name: str = "fleet"
-    dial: Dial = "both"
-    """``both``: both ends of a peer link dial each other; ``one``: the higher peer only."""
+    dial: Dial = "one"
+    """``one``: the newer (higher) peer of a link dials; ``both``: both ends dial each other."""
     retry_ms: int = 250
     """Every peer's ``--retry``: the period at which it dials a dead endpoint again."""
     watch: str = ""

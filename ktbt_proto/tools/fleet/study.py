@@ -32,10 +32,13 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("line-10", {"peers": 10, "topology": "line"}, ""),
     ("router-20", {"peers": 20, "topology": "router"}, ""),
     ("member-10", {"peers": 10, "teacher": "run"}, ""),
+    ("size-40-both", {"peers": 40, "dial": "both"}, ""),
 ]
 """Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
 is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
-cool-down); learners are always ``ktbt peer run`` agents that teach onward."""
+cool-down); learners are always ``ktbt peer run`` agents that teach onward. The newer peer of
+every pair dials the older, except in ``size-40-both``, where both ends dial (what that
+costs, beside size-40; last, so that its load does not weigh on the others)."""
 LIMITS = {"size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0}
 
 

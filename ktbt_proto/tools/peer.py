@@ -58,9 +58,9 @@ CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner without ``--sequence``
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
-ASK_ALONE = 8
+ASK_ALONE = 1
 """Peers that appear together asked each alone at most (section 4.5); more are asked in one
-broadcast, which holds one get where they would hold one each."""
+broadcast: one message, where they would take one each."""
 
 
 @dataclass(frozen=True)
@@ -399,9 +399,9 @@ class Learner:
     one; a peer that appears (its liveliness, section 3) is sent the open query at once, and
     the query stays open a whole ``wait`` from then; a query closes when every sequence it
     names is answered, or when its wait is over. With no query open, the peers that appear
-    are asked at once, each alone (those present before were asked already; a broadcast would
-    wake every one of them, all at the moment a teacher joins a large fleet), or in one
-    broadcast when more than ``ASK_ALONE`` appeared together. After a query
+    are asked at once: one newcomer alone (those present before were asked already; a
+    broadcast would wake every one of them, all at the moment a teacher joins a large fleet),
+    several that appeared together in one broadcast (one message). After a query
     nobody answered, it holds back ``cooldown`` seconds and then the ``backoff``'s hold;
     after one answered (in part), it asks at once for what is left."""
 
@@ -425,7 +425,7 @@ class Learner:
             for peer in appeared:
                 robot.announce(peer)
             self.opened = now
-        elif appeared and missing:  # the newcomers alone: the others were asked already
+        elif appeared and missing:  # the newcomer alone: the others were asked already
             alone = appeared if len(appeared) <= ASK_ALONE else []
             robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
             self.backoff.reset(now)

@@ -252,7 +252,7 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
         (li.listener, li.dialer) for li in mutual.links
     }
     assert {a.half[n.name] for n in a.peers} == {0, 1}
-    assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 8
+    assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4
     router = make_plan(FleetConfig(peers=40, topology="router"), 1)
     assert len(router.routers) == 2 and len(router.links) == 41
     assert seconds("200ms") == pytest.approx(0.2) and seconds("2m") == 120

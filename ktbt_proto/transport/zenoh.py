@@ -331,6 +331,10 @@ class ZenohTransport:
         self._asking = 0
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
+        self._given: dict[tuple[str, str], tuple[float, set[str]]] = {}
+        """Queries answered at once: (sender, id) -> (when, the sequences answered), the
+        latest ``max_pending``; the same query again within ``answer_window`` gets no second
+        answer to those (the first is on its way: section 3)."""
         self._pending: dict[tuple[str, str], tuple[Any, float, int]] = {}
         """Queries handed to the agent: (sender, id) -> (query, deadline, answers still
         possible), so a query naming several sequences stays open for an answer to each."""
@@ -712,8 +716,21 @@ class ZenohTransport:
     def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
         """A knowledge server's answers, given inside the callback, one reply for each
         sequence of the query it knows (section 1), each made by ``answer_to`` as every answer
-        is (spec section 2 and section 7)."""
+        is (spec section 2 and section 7). A sequence answered to the same query (sender and
+        id) within the answer window is not answered again: an asker sends its open query to a
+        peer that appears, which may have had the broadcast already (section 4.5)."""
+        now, key = time.monotonic(), (message.sender, message.id)
+        with self._lock:
+            when, given = self._given.pop(key, (now, set()))
+            if now - when > self.answer_window:
+                when, given = now, set()
+            self._given[key] = (when, given)
+            if len(self._given) > self.max_pending:
+                del self._given[next(iter(self._given))]
         for sequence in message.sequences:
+            if sequence in given:
+                log.debug("%s: %s answered to query %s already", self.name, sequence, key)
+                continue
             found = lookup(sequence)
             if found is None:
                 continue
@@ -726,6 +743,7 @@ class ZenohTransport:
                 continue
             payload = encode(response)
             query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
+            given.add(sequence)
             self.answered += 1
             self._publish(payload)
             if self.log is not None:

@@ -391,15 +391,19 @@ def _faults(h: History) -> list[Verdict]:
 
 
 def _fastest_answer(h: History) -> float | None:
-    """The quickest answer after its query: an answer from the peer a query was sent to
-    alone (``to``) is timed from that sending, any other from the broadcast."""
+    """The quickest answer after its query, timed from the first sending of that query that
+    could have reached the answer's sender: the broadcast, or the query sent to it alone
+    (``to``), whichever came first. An open query is sent again to a peer that appears, which
+    may have heard the broadcast already: its answer to the broadcast is not a quick answer to
+    the second sending."""
     sent: dict[tuple[str, Any, Any], float] = {}
     for e in h.of(Event.QUERY_SENT):
         sent.setdefault((e["peer"], e.get("id"), e.get("to")), e["t"])
     times = []
     for e in h.of(Event.ANSWER_RECEIVED):
         key = (e["peer"], e.get("id"))
-        began = sent.get((*key, e.get("sender")), sent.get((*key, None)))
+        sendings = [sent.get((*key, e.get("sender"))), sent.get((*key, None))]
+        began = min((t for t in sendings if t is not None), default=None)
         if began is not None:
             times.append(e["t"] - began)
     return min(times) if times else None

@@ -31,15 +31,25 @@ def signed_answer(item: Knowledge, identity: Identity | None) -> SignedItem:
 
 
 def answer_to(
-    query: Query, sender: str, item: Knowledge | SignedItem, identity: Identity | None
+    query: Query,
+    sender: str,
+    item: Knowledge | SignedItem,
+    identity: Identity | None,
+    sequence: str | None = None,
 ) -> Response:
-    """The response ``sender`` gives to ``query`` from ``item`` (an item it holds, or one
-    already made by :func:`signed_answer`), hop-signed with ``identity`` when it has a key pair
-    (section 7). Raises pydantic's ``ValidationError`` if it is too large to send (section 1):
-    no peer could accept it."""
+    """The response ``sender`` gives to ``query`` for ``sequence`` (one of those it asks,
+    section 1; its first by default) from ``item`` (an item it holds, or one already made by
+    :func:`signed_answer`), hop-signed with ``identity`` when it has a key pair (section 7).
+    Raises pydantic's ``ValidationError`` if it is too large to send (section 1): no peer could
+    accept it."""
     signed = item if isinstance(item, SignedItem) else signed_answer(item, identity)
     response = Response.of(
-        query.id, sender, query.sequence, signed.subtree, signed.author, signed.signature
+        query.id,
+        sender,
+        query.sequence if sequence is None else sequence,
+        signed.subtree,
+        signed.author,
+        signed.signature,
     )
     return identity.sign_reply(response) if identity is not None else response
 

@@ -11,7 +11,7 @@ tree-timed agent's, checked and merged by the same
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from functools import cached_property
 
 from ktbt_proto.exchange.core import AgentCore
@@ -32,19 +32,36 @@ class ApplicationTimedAgent(AgentCore):
     """Open queries remembered, one per asker (oldest dropped)."""
 
     _open: Query | None = None
-    _answered = False
+    _answered: frozenset[str] = frozenset()
+    """The sequences of the open query answered so far."""
 
-    def ask(self, sequence: Iterable[Condition | str] | str) -> Query:
-        """Broadcast a query now and keep it open until :meth:`close_query` (a previous open
-        query is closed first); :meth:`receive` merges the first acceptable answer to it."""
+    def ask(
+        self, sequence: Iterable[Condition | str] | str, *more: str, to: Sequence[str] = ()
+    ) -> Query:
+        """Send a query now and keep it open until :meth:`close_query` (a previous open
+        query is closed first); :meth:`receive` merges the first acceptable answer to it for
+        each sequence it asks. ``more``: further sequences, in canonical form, asked in the
+        same query (spec/protocol.md section 1). ``to``: the peers to ask, each alone (as
+        :meth:`announce` does); empty, the query is broadcast."""
         if self._open is not None:
             self.close_query()
-        query = Query(id=Query.new_id(), sender=self.name, sequence=sequence_key(sequence))
-        self._open, self._answered = query, False
-        self.transport.broadcast(query)
+        query = Query.asking(self.name, [sequence_key(sequence), *more])
+        self._open, self._answered = query, frozenset()
         self.metrics.queries_sent += 1
-        self._record("query-sent", id=query.id, sequence=query.sequence)
+        for peer in to:
+            self.announce(peer)
+        if not to:
+            self.transport.broadcast(query)
+            extra = {"more": list(query.more)} if query.more else {}
+            self._record("query-sent", id=query.id, sequence=query.sequence, **extra)
         return query
+
+    @property
+    def unanswered(self) -> list[str]:
+        """The open query's sequences not answered yet (none without an open query)."""
+        if self._open is None:
+            return []
+        return [s for s in self._open.sequences if s not in self._answered]
 
     @property
     def open_query(self) -> Query | None:
@@ -54,12 +71,16 @@ class ApplicationTimedAgent(AgentCore):
     def announce(self, to: str) -> None:
         """Send the open, unanswered query again to one peer (one that just came into range),
         so that it stays answerable for the asker's whole wait."""
-        if self._open is not None and not self._answered:
-            self.transport.send(to, self._open)
+        query = self._open
+        if query is not None and self.unanswered:
+            self.transport.send(to, query)
+            extra = {"more": list(query.more)} if query.more else {}
+            self._record("query-sent", id=query.id, sequence=query.sequence, to=to, **extra)
 
     def close_query(self) -> None:
-        """The asker's wait is over: a query nobody answered counts as lost, and answers to it
-        that arrive later are late answers, counted apart (section 2)."""
+        """The asker's wait is over: a query nobody answered (for none of its sequences)
+        counts as lost, and answers to it that arrive later are late answers, counted apart
+        (section 2)."""
         if self._open is not None:
             if not self._answered:
                 self.metrics.queries_lost += 1
@@ -91,12 +112,12 @@ class ApplicationTimedAgent(AgentCore):
 
     def _response(self, response: Response) -> int:
         asked = self._open
-        if asked is None or self._answered or asked.id != response.id:
+        if asked is None or asked.id != response.id or response.sequence in self._answered:
             return self._not_mine(response, mine=asked is not None and asked.id == response.id)
         self.metrics.responses_received += 1
-        new = asked.sequence not in self.knowledge
+        new = response.sequence not in self.knowledge
         if not self.accept(response, asked):
             return 0
-        self._answered = True
+        self._answered |= {response.sequence}
         self.metrics.learned_direct += new
         return 1

@@ -219,29 +219,32 @@ class AgentCore:
     # -- answering ------------------------------------------------------------------------------
 
     def answer(self, query: Query) -> bool:
-        """Answer ``query`` (one this agent heard) if its sequence is known, with the response
-        ``answer_to`` makes (section 2, signed as section 7 says); True if sent. Whom to answer
-        and when is the driver's rule (section 4 or 4.1)."""
-        item = self.knowledge.lookup(query.sequence)
-        if item is None:
-            return False
-        try:
-            response = answer_to(query, self.name, item, self.security.identity)
-        except ValidationError as exc:  # too large to send: no peer could accept it
-            reason = exc.errors()[0].get("msg", "invalid")
-            self.refuse(f"cannot answer {query.sequence[:80]} to {query.sender}: {reason}")
-            return False
-        self.transport.send(query.sender, response)
-        self.last_answer = response
-        self.metrics.responses_sent += 1
-        self._record(
-            "answer-sent",
-            to=query.sender,
-            id=query.id,
-            sequence=query.sequence,
-            author=response.author,
-        )
-        return True
+        """Answer ``query`` (one this agent heard): one response for each of its sequences that
+        is known (section 1), made by ``answer_to`` (section 2, signed as section 7 says); True
+        if one was sent. Whom to answer and when is the driver's rule (section 4 or 4.1)."""
+        sent = False
+        for sequence in query.sequences:
+            item = self.knowledge.lookup(sequence)
+            if item is None:
+                continue
+            try:
+                response = answer_to(query, self.name, item, self.security.identity, sequence)
+            except ValidationError as exc:  # too large to send: no peer could accept it
+                reason = exc.errors()[0].get("msg", "invalid")
+                self.refuse(f"cannot answer {sequence[:80]} to {query.sender}: {reason}")
+                continue
+            self.transport.send(query.sender, response)
+            self.last_answer = response
+            self.metrics.responses_sent += 1
+            self._record(
+                "answer-sent",
+                to=query.sender,
+                id=query.id,
+                sequence=sequence,
+                author=response.author,
+            )
+            sent = True
+        return sent
 
     # -- queries of its own, closed, and their late answers (section 2) ------------------------
 
@@ -406,9 +409,11 @@ class AgentCore:
             sequence=response.sequence,
             author=response.author,
         )
+        # The answer is to one of the sequences asked (a query may name several: section 1).
+        wanted = response.sequence if response.sequence in asked.sequences else asked.sequence
         try:
-            vet(response, asked.sequence, self.security.policy, self.security.trust)
-            if asked.sequence in self.knowledge:  # known already (perhaps innate): nothing to do
+            vet(response, wanted, self.security.policy, self.security.trust)
+            if wanted in self.knowledge:  # known already (perhaps innate): nothing to do
                 return True
             conds, subtree = read(response, RECEIVE_LIMITS, self.registry)
             if not self._make_room():

@@ -7,6 +7,7 @@ message or raises :class:`MessageRefused` with a reason a receiver can log; noth
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -67,8 +68,17 @@ def _wire_fields(data: Any, info: ValidationInfo) -> Any:
     return data
 
 
+MAX_MORE = 63
+"""Further sequences one query may name (``more``), so that a query asks for 64 at most."""
+
+
 class Query(_Message):
-    """ "Who knows what to do when these conditions hold?" (the paper's s_q)."""
+    """ "Who knows what to do when these conditions hold?" (the paper's s_q).
+
+    One query may ask for several sequences (spec/protocol.md section 1): ``sequence``, then
+    ``more``, each distinct; a peer answers each one it knows with a response of its own
+    (same ``id``, that ``sequence``). A query without ``more`` is the single-sequence query of
+    every earlier peer, and is answered exactly as before."""
 
     type: Literal["query"] = "query"
     sequence: str = Field(
@@ -76,6 +86,30 @@ class Query(_Message):
         max_length=4096,
         description="The condition sequence, in canonical compact stringBT: <c>(A)<c>(!B)...",
     )
+    more: tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_MORE,
+        description="Further sequences asked in the same query, each distinct (section 1).",
+    )
+
+    @model_validator(mode="after")
+    def _distinct(self) -> Query:
+        if self.more is not None and len(set(self.more) | {self.sequence}) != 1 + len(self.more):
+            raise ValueError("a query names each sequence once")
+        return self
+
+    @property
+    def sequences(self) -> tuple[str, ...]:
+        """Every sequence this query asks for, ``sequence`` first."""
+        return (self.sequence, *(self.more or ()))
+
+    @classmethod
+    def asking(cls, sender: str, sequences: Sequence[str]) -> Query:
+        """A new query (a fresh id) for ``sequences``, in canonical form, distinct, at most
+        ``1 + MAX_MORE`` of them: one query, however many are missing (section 1)."""
+        first, *rest = dict.fromkeys(sequences)
+        return cls(id=cls.new_id(), sender=sender, sequence=first, more=tuple(rest) or None)
 
     @staticmethod
     def new_id() -> str:

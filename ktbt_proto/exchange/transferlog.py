@@ -43,6 +43,10 @@ class Event(StrEnum):
     """The network's own failure, never a peer's refusal."""
     LATE_ANSWER = "late-answer"
     """An answer to a query already closed: counted, not merged (section 4)."""
+    SESSION_UP = "session-up"
+    """The peer's session is open (section 3): the first mark of a transfer's timeline."""
+    PEER_SEEN = "peer-seen"
+    """Another peer's liveliness appeared (``sender``: its name; section 3)."""
 
 
 MAX_LINE = 1_000_000

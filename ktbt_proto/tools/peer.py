@@ -21,11 +21,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import answers, catalog
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
-from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.exchange.messages import MAX_MORE, Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
 from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.security import Security
@@ -48,6 +48,12 @@ from ktbt_proto.transport.zenoh import (
 from ktbt_proto.tree import Condition
 
 Say = Callable[[str], None]
+
+log = logging.getLogger("ktbt.peer")
+
+ASK_ALONE = 1
+"""Peers that appear together asked each alone at most (section 4.5); more are asked in one
+broadcast: one message, where they would take one each."""
 
 
 @dataclass(frozen=True)
@@ -260,19 +266,17 @@ def run_agent(
     12.1); the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
     security = member.security
     name = member.name
+    wait, cooldown = wait_ticks / tick_rate, cooldown_ticks / tick_rate
     with (
         until_signalled() as stop,
         ExitStack() as stack,
-        member.transport(
-            query_timeout=wait_ticks / tick_rate, identity=security.identity
-        ) as transport,
+        member.transport(query_timeout=wait, identity=security.identity) as transport,
     ):
-        robot = Agent(
+        robot = ApplicationTimedAgent(
             name,
             with_knowledge(control, knowledge, slot),
             registry,
             transport,
-            timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
             knowledge_path=knowledge_path,
             # with --publish-events, the transport has a log even without --log
             security=replace(security, log=transport.log),
@@ -280,8 +284,8 @@ def run_agent(
             slot=slot,
         )
         # The agent attached itself to the transport (ZenohTransport.attach): it answers every
-        # query it can at once from what it knows, as `peer serve` does, not one asker per
-        # cool-down through the teach tree, and serves its catalog and tree (section 4.5).
+        # query it can at once from what it knows, as `peer serve` does, and serves its
+        # catalog and tree (section 4.5).
         if member.groot is not None:
             from ktbt_proto.interop.groot2 import Groot2Publisher
 
@@ -297,7 +301,7 @@ def run_agent(
         wait_for_peers(transport, 3.0)
         deadline = time.monotonic() + duration
         listed = Listed(name, registry, say) if sequences is None else None
-        todo = list(sequences) if sequences is not None else []
+        todo = [sequence_key([s]) for s in sequences] if sequences is not None else []
         period = 1.0 / tick_rate
         if listed is None:
             say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
@@ -305,35 +309,28 @@ def run_agent(
             say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
         announce_ready(member.ready, name, len(robot.knowledge))
         announced = set(robot.metrics.learned)
-        backoff = Backoff(seed=name)
-        lost, joined = robot.metrics.queries_lost, transport.joined
+        learner = Learner(robot, Backoff(seed=name), wait, cooldown)
         read_at = -math.inf
         while not stop.is_set() and time.monotonic() < deadline:
             now = time.monotonic()
-            if listed is not None and (
-                transport.joined != joined or now - read_at >= CATALOG_PERIOD
-            ):
-                read_at = now
-                todo += listed.read(catalogs(transport, timeout=0.5))
-            while todo and robot.knows([todo[0]]):
-                todo.pop(0)
-            if not todo and exit_when_done and (listed is None or listed.found):
-                break
-            if transport.joined != joined:  # a new neighbour: it may know
-                joined = transport.joined
-                backoff.reset(now)
-            if robot.metrics.queries_lost != lost:
-                lost = robot.metrics.queries_lost
-                backoff.lost(now)
-            robot.encounter([todo[0]] if todo and backoff.ready(now) else None)
-            robot.tick()
-            if export is not None:
-                export.sync(robot.knowledge)
+            robot.now += 1
+            robot.receive()
             for key in robot.metrics.learned.keys() - announced:
                 tick, source = robot.metrics.learned[key]
                 say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
                 announced.add(key)
-                backoff.reset(now)
+            appeared = transport.appeared()
+            if listed is not None and (appeared or now - read_at >= CATALOG_PERIOD):
+                read_at = now
+                todo += listed.read(catalogs(transport, timeout=0.5))
+            todo = [key for key in todo if key not in robot.knowledge]
+            if not todo and exit_when_done and (listed is None or listed.found):
+                break
+            learner.step(now, todo, appeared)
+            robot.control.tick()
+            robot.tend_memory()
+            if export is not None:
+                export.sync(robot.knowledge)
             stop.wait(period)
         m = robot.metrics
         say(
@@ -346,6 +343,49 @@ def run_agent(
             say(f"  knows {show_sequence(item.conditions)}")
         met = listed.found if listed is not None else list(sequences or ())
         return 0 if all(robot.knows([s]) for s in met) else 1
+
+
+@dataclass
+class Learner:
+    """When a fleet member asks (spec/protocol.md section 4.5): driven by events, not by a
+    timer. It asks for every sequence it lacks in one query (section 1) as soon as it lacks
+    one; a peer that appears (its liveliness, section 3) is sent the open query at once, and
+    the query stays open a whole ``wait`` from then; a query closes when every sequence it
+    names is answered, or when its wait is over. With no query open, the peers that appear
+    are asked at once: one newcomer alone (those present before were asked already; a
+    broadcast would wake every one of them, all at the moment a teacher joins a large fleet),
+    several that appeared together in one broadcast (one message). After a query
+    nobody answered, it holds back ``cooldown`` seconds and then the ``backoff``'s hold;
+    after one answered (in part), it asks at once for what is left."""
+
+    robot: ApplicationTimedAgent
+    backoff: Backoff
+    wait: float
+    cooldown: float
+    opened: float = 0.0
+
+    def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
+        robot = self.robot
+        query = robot.open_query
+        if query is not None and (not robot.unanswered or now - self.opened >= self.wait):
+            answered = len(robot.unanswered) < len(query.sequences)
+            robot.close_query()
+            if answered:
+                self.backoff.reset(now)
+            else:
+                self.backoff.lost(now + self.cooldown)
+        if appeared and robot.open_query is not None:  # newcomers hear the open query at once
+            for peer in appeared:
+                robot.announce(peer)
+            self.opened = now
+        elif appeared and missing:  # the newcomer alone: the others were asked already
+            alone = appeared if len(appeared) <= ASK_ALONE else []
+            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
+            self.backoff.reset(now)
+            self.opened = now
+        if missing and robot.open_query is None and self.backoff.ready(now):
+            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
+            self.opened = now
 
 
 def router(settings: ZenohSettings, say: Say, ready: Path | None = None) -> int:

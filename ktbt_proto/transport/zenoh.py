@@ -90,8 +90,17 @@ every healthy link of the session meanwhile. With more workers the dead links ar
 side and the healthy ones carry on (spec section 3)."""
 CLIENT_WAIT_MS = 10_000
 """How long a client waits for its router at start."""
-RETRY_MAX_MS = 2_000
-"""An endpoint that does not answer is retried for ever, at most this many ms apart."""
+RETRY_MS = 250
+"""An endpoint that does not answer is retried for ever, this many ms apart (``--retry``):
+a neighbour that comes back is found within this, at the cost of about 1000/RETRY_MS
+connection attempts a second to each endpoint that stays dead (measured: docs/results/fleet.md;
+spec section 3)."""
+LEASE_MS = 4_000
+"""A link that carries nothing, not even keep-alives, for this long is closed (zenoh's
+``transport/link/tx/lease``; its default is 10 s), so that a silent link is given up, and
+dialled again, within seconds (spec section 3)."""
+KEEP_ALIVE = 4
+"""Keep-alives a lease (zenoh's default): one every LEASE_MS / 4 ms on an idle link."""
 
 
 def stable_zid(name: str) -> str:
@@ -172,8 +181,16 @@ class ZenohSettings:
     multicast_scouting: bool = False
     zid: str | None = None
     """The session's zenoh id (``stable_zid(name)`` for a fleet member); None: a random one."""
+    retry_ms: int = RETRY_MS
+    """The period at which an endpoint that does not answer is dialled again (section 3)."""
+    lease_ms: int = LEASE_MS
+    """How long a silent link lives (section 3)."""
 
     def __post_init__(self) -> None:
+        if not 10 <= self.retry_ms <= 600_000:
+            raise ValueError("retry: a period from 10 ms to 600 s")
+        if not 500 <= self.lease_ms <= 600_000:
+            raise ValueError("lease: from 500 ms to 600 s")
         object.__setattr__(self, "listen", _endpoints("listen", self.listen))
         object.__setattr__(self, "connect", _endpoints("connect", self.connect))
 
@@ -199,9 +216,15 @@ class ZenohSettings:
         conf.insert_json5(
             "connect/retry",
             json.dumps(
-                {"period_init_ms": 250, "period_max_ms": RETRY_MAX_MS, "period_increase_factor": 2}
+                {
+                    "period_init_ms": self.retry_ms,
+                    "period_max_ms": self.retry_ms,
+                    "period_increase_factor": 1,
+                }
             ),
         )
+        conf.insert_json5("transport/link/tx/lease", json.dumps(self.lease_ms))
+        conf.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         return conf
 
@@ -307,9 +330,18 @@ class ZenohTransport:
         self._sink: EventPublisher | None = None
         self._asking = 0
         self._lock = threading.Lock()
-        self._pending: dict[tuple[str, str], tuple[Any, float]] = {}
+        self._appeared: deque[str] = deque()
+        self._given: dict[tuple[str, str], tuple[float, set[str]]] = {}
+        """Queries answered at once: (sender, id) -> (when, the sequences answered), the
+        latest ``max_pending``; the same query again within ``answer_window`` gets no second
+        answer to those (the first is on its way: section 3)."""
+        self._pending: dict[tuple[str, str], tuple[Any, float, int]] = {}
+        """Queries handed to the agent: (sender, id) -> (query, deadline, answers still
+        possible), so a query naming several sequences stays open for an answer to each."""
         self.closed = False
         self._session = open_session(self.settings)
+        if self.log is not None:  # the first mark of a transfer's timeline (section 8)
+            self.log.record("session-up", peer=self.name)
         # Each entity's callbacks run in one Python thread of its own, for the entity's life
         # (zenoh's default): faster than taking the GIL from zenoh's own threads.
         try:
@@ -400,9 +432,17 @@ class ZenohTransport:
         """Answer a query this peer received, or put the message in ``to``'s inbox."""
         if self.closed:
             return
+        if isinstance(message, Query):  # the open query, to one more peer (section 4.1)
+            self._get(message, self.query_timeout, to)
+            return
         payload = encode(message)
         with self._lock:
             pending = self._pending.pop((to, message.id), None)
+            if pending is not None and pending[2] > 1 and isinstance(message, Response):
+                self._pending[(to, message.id)] = (pending[0], pending[1], pending[2] - 1)
+                done = False
+            else:
+                done = True
         if pending is not None:
             query = pending[0]
             try:
@@ -411,7 +451,8 @@ class ZenohTransport:
                 else:
                     query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
             finally:
-                query.drop()
+                if done:
+                    query.drop()
         else:
             self._session.put(f"{PREFIX}/inbox/{to}", payload)
         if isinstance(message, Response):
@@ -437,7 +478,7 @@ class ZenohTransport:
         self.closed = True
         with self._lock:
             pending, self._pending = self._pending, {}
-        for query, _ in pending.values():
+        for query, *_ in pending.values():
             query.drop()
         if self._sink is not None and self.log is not None:
             self.log.remove_sink(self._sink)
@@ -485,11 +526,12 @@ class ZenohTransport:
             log.debug("%s: query failed", self.name, exc_info=True)
         return answers
 
-    def _get(self, message: Message, timeout: float) -> None:
-        """One get, which holds no thread: each reply is handled as it arrives by a callback run
-        in zenoh's own thread (replies are not consolidated), and the get's end by the
-        callback's drop. A reply is an answer only if it is a response to this query, on its
-        sender's own key, and the first from that key; answers go to the inbox."""
+    def _get(self, message: Message, timeout: float, to: str | None = None) -> None:
+        """One get, to every peer or to peer ``to`` alone, which holds no thread: each reply
+        is handled as it arrives by a callback run in zenoh's own thread (replies are not
+        consolidated), and the get's end by the callback's drop. A reply is an answer only if
+        it is a response to this query, on its sender's own key, and the first from that key
+        for its sequence; answers go to the inbox."""
         if self.closed:
             return
         with self._lock:
@@ -516,7 +558,7 @@ class ZenohTransport:
 
         try:
             self._session.get(
-                f"{PREFIX}/knowledge/*",
+                f"{PREFIX}/knowledge/{to or '*'}",
                 zenoh.handlers.Callback(on_reply, on_end, indirect=False),
                 payload=encode(message),
                 target=zenoh.QueryTarget.ALL,
@@ -542,16 +584,18 @@ class ZenohTransport:
         if key != f"{PREFIX}/knowledge/{answer.sender}":
             self._refuse(f"a reply naming {answer.sender} came on {key[:80]}", key=key)
             return None
-        if answer.id != asked.id or answer.sequence != getattr(asked, "sequence", None):
+        asked_for = asked.sequences if isinstance(asked, Query) else ()
+        if answer.id != asked.id or answer.sequence not in asked_for:
             self._refuse(f"a reply from {answer.sender} answers another question", key=key)
             return None
         why = self.screen(answer) if self.screen is not None else None
         if why is not None:
             self._refuse(f"from {answer.sender}: {why}", key=key)
             return None
+        place = f"{key}\0{answer.sequence}"  # one place per sender and sequence asked
         with self._lock:
-            again = key in heard
-            heard.add(key)
+            again = place in heard
+            heard.add(place)
         if again:
             self._refuse(f"another reply from {answer.sender} to the same query", key=key)
             return None
@@ -596,12 +640,25 @@ class ZenohTransport:
         return message
 
     def _on_presence(self, sample: Any) -> None:
-        """A peer's liveliness token appeared (or went): a new neighbour is counted."""
-        if sample.kind == zenoh.SampleKind.PUT and not str(sample.key_expr).endswith(
-            f"/{self.name}"
-        ):
+        """A peer's liveliness token appeared (or went): a new neighbour is counted, logged
+        (``peer-seen``, section 8) and kept for :meth:`appeared`, so that a learner asks it at
+        once (section 4.5)."""
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind == zenoh.SampleKind.PUT and name != self.name:
             with self._lock:
                 self.joined += 1
+                if len(self._appeared) < self.max_pending:
+                    self._appeared.append(name)
+            if self.log is not None:
+                self.log.record("peer-seen", peer=self.name, sender=name)
+
+    def appeared(self) -> list[str]:
+        """The peers whose liveliness appeared since the last call (section 4.5), at most
+        ``max_pending`` of them; the oldest first."""
+        with self._lock:
+            names = list(self._appeared)
+            self._appeared.clear()
+        return names
 
     # -- being asked ------------------------------------------------------------------------------
 
@@ -624,12 +681,14 @@ class ZenohTransport:
             return
         if self.lookup is not None:
             if self.log is not None:
+                more = {"more": list(message.more)} if message.more else {}
                 self.log.record(
                     "query-received",
                     peer=self.name,
                     sender=message.sender,
                     id=message.id,
                     sequence=message.sequence,
+                    **more,
                 )
             try:
                 self._answer_at_once(query, message, self.lookup)
@@ -645,7 +704,8 @@ class ZenohTransport:
             else:
                 full, taken = False, key in self._pending
                 if not taken:
-                    self._pending[key] = (query, time.monotonic() + self.answer_window)
+                    deadline = time.monotonic() + self.answer_window
+                    self._pending[key] = (query, deadline, len(message.sequences))
         if full or taken:
             query.drop()
             if taken:  # a replay: the query already open keeps its place
@@ -654,31 +714,47 @@ class ZenohTransport:
         self._deliver(message)
 
     def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
-        """A knowledge server's answer, given inside the callback, made by ``answer_to`` as
-        every answer is (spec section 2 and section 7)."""
-        found = lookup(message.sequence)
-        if found is None:
-            return
-        item = found if isinstance(found, SignedItem) else SignedItem(found)
-        try:
-            response = answer_to(message, self.name, item, self.identity)
-        except ValidationError as exc:  # too large to send: no peer could accept it
-            reason = exc.errors()[0].get("msg", "invalid")
-            log.warning("%s cannot answer %s: %s", self.name, message.sequence[:80], reason)
-            return
-        payload = encode(response)
-        query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
-        self.answered += 1
-        self._publish(payload)
-        if self.log is not None:
-            self.log.record(
-                "answer-sent",
-                peer=self.name,
-                to=message.sender,
-                id=message.id,
-                sequence=message.sequence,
-                author=item.author,
-            )
+        """A knowledge server's answers, given inside the callback, one reply for each
+        sequence of the query it knows (section 1), each made by ``answer_to`` as every answer
+        is (spec section 2 and section 7). A sequence answered to the same query (sender and
+        id) within the answer window is not answered again: an asker sends its open query to a
+        peer that appears, which may have had the broadcast already (section 4.5)."""
+        now, key = time.monotonic(), (message.sender, message.id)
+        with self._lock:
+            when, given = self._given.pop(key, (now, set()))
+            if now - when > self.answer_window:
+                when, given = now, set()
+            self._given[key] = (when, given)
+            if len(self._given) > self.max_pending:
+                del self._given[next(iter(self._given))]
+        for sequence in message.sequences:
+            if sequence in given:
+                log.debug("%s: %s answered to query %s already", self.name, sequence, key)
+                continue
+            found = lookup(sequence)
+            if found is None:
+                continue
+            item = found if isinstance(found, SignedItem) else SignedItem(found)
+            try:
+                response = answer_to(message, self.name, item, self.identity, sequence)
+            except ValidationError as exc:  # too large to send: no peer could accept it
+                reason = exc.errors()[0].get("msg", "invalid")
+                log.warning("%s cannot answer %s: %s", self.name, sequence[:80], reason)
+                continue
+            payload = encode(response)
+            query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
+            given.add(sequence)
+            self.answered += 1
+            self._publish(payload)
+            if self.log is not None:
+                self.log.record(
+                    "answer-sent",
+                    peer=self.name,
+                    to=message.sender,
+                    id=message.id,
+                    sequence=sequence,
+                    author=item.author,
+                )
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
@@ -728,7 +804,7 @@ class ZenohTransport:
     def _expire(self) -> None:
         now = time.monotonic()
         with self._lock:
-            expired = [k for k, (_, deadline) in self._pending.items() if deadline < now]
+            expired = [k for k, (_, deadline, _) in self._pending.items() if deadline < now]
             queries = [self._pending.pop(k)[0] for k in expired]
         for query in queries:
             query.drop()

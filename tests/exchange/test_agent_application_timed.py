@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.exchange.messages import Query, Response, encode
 from ktbt_proto.transport import MemoryNetwork
-from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
+from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, SKILL, registry
 
 
 def trio(
@@ -106,3 +106,49 @@ def test_announce_reaches_a_peer_that_did_not_hear_the_broadcast() -> None:
     learner.announce("t")  # answered: nothing more is sent
     teacher.receive()
     assert teacher.metrics.queries_received == 1
+
+
+def test_a_query_asked_to_named_peers_reaches_them_alone() -> None:
+    learner, teacher, other = trio()
+    query = learner.ask(SEQUENCE, to=["t"])
+    teacher.receive(), other.receive()
+    heard = teacher.heard("l")
+    assert isinstance(heard, Query) and heard.id == query.id and other.heard("l") is None
+    assert learner.metrics.queries_sent == 1 and learner.open_query == query
+    teacher.answer(heard)
+    assert learner.receive() == 1 and learner.knows(SEQUENCE)
+
+
+def test_one_query_for_several_sequences_is_answered_for_each_and_merges_each_once() -> None:
+    """A query may name several sequences (spec/protocol.md section 1): the teacher answers
+    each it knows, the learner merges each once, and a repeated answer is late."""
+    net = MemoryNetwork()
+    both = f"<sl><k>(prior){SKILL}<sq><c>(TargetSeen, colour=3)<a>(Pick, colour=3)<e><e>"
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent(
+        "t", both + "<k>(new)<e><a>(Walk)<e>", registry(), net.join("t")
+    )
+    green, blue = "<c>(TargetSeen,colour=2)", "<c>(TargetSeen,colour=3)"
+    query = learner.ask(green, blue, "<c>(TargetSeen,colour=4)")
+    assert query.sequences == (green, blue, "<c>(TargetSeen,colour=4)")
+    teacher.receive()
+    heard = teacher.heard("l")
+    assert heard is not None and teacher.answer(heard)
+    teacher.answer(heard)  # the same answers again
+    assert teacher.metrics.responses_sent == 4
+    assert learner.receive() == 2
+    assert learner.knows([green]) and learner.knows([blue])
+    assert learner.unanswered == ["<c>(TargetSeen,colour=4)"]
+    assert learner.metrics.late_answers == 2 and learner.metrics.refused == 0
+    learner.close_query()
+    assert learner.metrics.queries_lost == 0  # answered, if not for every sequence
+
+
+def test_a_single_sequence_query_is_what_it_always_was() -> None:
+    learner, teacher, _ = trio()
+    query = learner.ask(SEQUENCE)
+    assert query.more is None and b'"more"' not in encode(query)
+    teacher.receive()
+    heard = teacher.heard("l")
+    assert heard is not None and teacher.answer(heard)
+    assert learner.receive() == 1 and learner.unanswered == []

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -57,3 +59,28 @@ def test_garbage_is_only_ever_refused(payload: bytes) -> None:
         assert refused.reason and "\n" not in refused.reason and len(refused.reason) <= 200
     else:
         assert decode(encode(message)) == message
+
+
+VECTORS = Path(__file__).resolve().parents[2] / "spec" / "vectors" / "messages.json"
+
+
+@pytest.mark.parametrize("vector", json.loads(VECTORS.read_text()), ids=lambda v: str(v["name"]))
+def test_message_vectors(vector: dict[str, Any]) -> None:
+    """spec/vectors/messages.json: queries naming one sequence or several (section 1)."""
+    data = json.dumps(vector["message"]).encode()
+    if not vector["valid"]:
+        with pytest.raises(MessageRefused):
+            decode(data)
+        return
+    message = decode(data)
+    if "asks" in vector:
+        assert isinstance(message, Query) and list(message.sequences) == vector["asks"]
+        assert json.loads(encode(message)) == vector["message"]
+
+
+def test_a_query_names_at_most_64_sequences_each_once() -> None:
+    keys = [f"<c>(S{i})" for i in range(65)]
+    assert Query.asking("r", keys[:64]).sequences == tuple(keys[:64])
+    assert Query.asking("r", ["<c>(A)", "<c>(A)", "<c>(B)"]).sequences == ("<c>(A)", "<c>(B)")
+    with pytest.raises(ValueError):
+        Query.asking("r", keys)

@@ -68,6 +68,16 @@ def test_ask_answer_presence_and_refusals_in_one_process() -> None:
             )
         ]
         assert learner.ask(Query(id="q2", sender="learner", sequence="<c>(X)"), 1) == []
+        # One query for several sequences: an answer for each one known (section 1).
+        blue = "<c>(TargetSeen,colour=3)"
+        many = Query.asking("learner", [GREEN, "<c>(X)", blue])
+        got = learner.ask(many, timeout=2)
+        assert sorted(r.sequence for r in got) == sorted([GREEN, blue])
+        assert {r.id for r in got} == {many.id}
+        # The same query again at once (sent to a peer as it appears, which had the broadcast
+        # already) is not answered twice; a new query is (spec/protocol.md section 3).
+        assert learner.ask(many, timeout=1) == []
+        assert len(learner.ask(Query.asking("learner", [GREEN, blue]), timeout=2)) == 2
         # A malformed query gets an error reply, and the teacher counts the refusal.
         replies = list(learner._session.get("ktbt/v1/knowledge/*", payload=b"{oops", timeout=2))
         assert replies and all(r.err is not None for r in replies)  # the asker's own, too

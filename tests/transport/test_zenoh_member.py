@@ -12,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
+import ktbt_proto as kp
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.messages import Query
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
 from ktbt_proto.tools.peer import Member
 from ktbt_proto.transport.zenoh import stable_zid
@@ -128,12 +130,16 @@ def test_a_save_file_it_cannot_read_is_set_aside_and_never_overwritten(tmp_path:
 
 
 @pytest.mark.slow
-def test_a_learner_started_before_any_teacher_learns_when_one_appears() -> None:
-    """Its endpoint is retried for ever, its queries are lost and it backs off; the teacher's
-    appearance (its liveliness token) has it ask again."""
+def test_a_learner_started_before_any_teacher_learns_when_one_appears(tmp_path: Path) -> None:
+    """Both dial: the learner dials the teacher's endpoint (retried for ever) and the teacher
+    dials the learner's. The learner asks for both sequences it lacks in one query, and the
+    teacher's appearance (its liveliness) has it send that query to the teacher at once,
+    which answers each sequence (spec/protocol.md sections 1, 3 and 4.5)."""
     pt, pl = free_port(), free_port()
+    log = tmp_path / "r.log"
+    wanted = ("--sequence", "TargetSeen(colour=3)", "--sequence", "TargetSeen(colour=4)")
     with ktbt_process(
-        *run("r", pl, "--connect", endpoint(pt), "--sequence", "TargetSeen(colour=3)"),
+        *run("r", pl, "--connect", endpoint(pt), *wanted, "--log", str(log)),
         "--exit-when-done", "--duration", "90",
         ready="will meet",
     ) as learner:  # fmt: skip
@@ -142,8 +148,50 @@ def test_a_learner_started_before_any_teacher_learns_when_one_appears() -> None:
             assert learner.wait(timeout=60) == 0
             out = learner.stdout.read()
     assert "r: learned TargetSeen(colour=3) from teacher" in out
-    lost = int(out.split("lost ", 1)[1].split(",")[0])
-    assert lost >= 1  # it did ask before the teacher was there
+    events = [json.loads(line) for line in log.read_text().splitlines()]
+    kinds = [e["event"] for e in events]
+    assert kinds[0] == "session-up"
+    first = next(e for e in events if e["event"] == "query-sent")
+    assert first["more"] == ["<c>(TargetSeen,colour=4)"]  # both in one query
+    seen = kinds.index("peer-seen")
+    assert events[seen]["sender"] == "teacher"
+    merged = [e for e in events if e["event"] == "merged"]
+    asked = next(e for e in events if e["event"] == "answer-received")["id"]
+    assert {e["teacher"] for e in merged} == {"teacher"} and len(merged) == 2
+    # The answered query went out once the teacher was seen: to it alone, or a new one.
+    sent = [i for i, e in enumerate(events) if e["event"] == "query-sent" and e["id"] == asked]
+    assert max(sent) > seen
+
+
+def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
+    """A newcomer is asked at once, alone: the peers present before were asked already, and a
+    broadcast would wake them all again (spec/protocol.md section 4.5). Several newcomers at
+    once are asked in one broadcast."""
+    from ktbt_proto.exchange.application import ApplicationTimedAgent
+    from ktbt_proto.tools.peer import ASK_ALONE, Learner
+    from ktbt_proto.transport import MemoryNetwork
+    from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
+
+    net = MemoryNetwork()
+    robot = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    other = ApplicationTimedAgent("x", CONTROL, registry(), net.join("x"))
+    learner = Learner(robot, Backoff(seed="l"), wait=2.0, cooldown=0.5)
+    missing = [kp.sequence_key(SEQUENCE)]
+    learner.backoff.lost(0.0)  # an unanswered query before: it would not broadcast now
+    learner.step(0.1, missing, ["t"])
+    teacher.receive(), other.receive()
+    heard = teacher.heard("l")
+    assert isinstance(heard, Query) and other.heard("l") is None
+    teacher.answer(heard)
+    robot.receive()
+    learner.step(0.2, [], [])
+    assert robot.knows(SEQUENCE) and robot.open_query is None
+    crowd = [f"n{i}" for i in range(ASK_ALONE + 1)]
+    robot2 = ApplicationTimedAgent("m", CONTROL, registry(), net.join("m"))
+    Learner(robot2, Backoff(seed="m"), wait=2.0, cooldown=0.5).step(0.0, missing, crowd)
+    other.receive()
+    assert other.heard("m") is not None  # broadcast: heard by a peer not named
 
 
 def test_backoff_doubles_to_its_bound_and_resets() -> None:

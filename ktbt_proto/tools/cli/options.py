@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -141,6 +141,17 @@ ZenohConfig = Annotated[
 Multicast = Annotated[
     bool, typer.Option("--multicast/--no-multicast", help="Multicast scouting on the LAN.")
 ]
+RetryPeriod = Annotated[
+    int,
+    typer.Option(
+        "--retry",
+        metavar="MS",
+        min=10,
+        max=600_000,
+        help="Dial an endpoint that does not answer again every MS ms (about 1000/MS "
+        "attempts a second to each dead one).",
+    ),
+]
 JoinMode = Annotated[MemberMode, typer.Option("--mode", help="peer, or client (through a router).")]
 KeyFile = Annotated[
     Path | None,
@@ -231,6 +242,7 @@ def zenoh_settings(
     config: Path | None,
     multicast: bool,
     mode: Mode = "peer",
+    retry_ms: int | None = None,
 ) -> ZenohSettings:
     """The zenoh settings the network options describe; a config file that cannot be read is
     one line, exit 2 (spec/protocol.md section 3)."""
@@ -244,7 +256,8 @@ def zenoh_settings(
         except OSError as exc:
             raise refuse(f"cannot read --config {config}: {io_reason(exc)}") from None
     try:
-        return ZenohSettings(listen or (), connect or (), config, mode, multicast)
+        settings = ZenohSettings(listen or (), connect or (), config, mode, multicast)
+        return settings if retry_ms is None else replace(settings, retry_ms=retry_ms)
     except ValueError as exc:  # an EndpointError: "connect: 127.0.0.1:7447 names no protocol..."
         raise refuse(f"--{exc}") from None
 

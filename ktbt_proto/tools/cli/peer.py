@@ -34,6 +34,7 @@ from ktbt_proto.tools.cli.options import (
     PublishAnswers,
     PublishEvents,
     ReadyFile,
+    RetryPeriod,
     Timeout,
     TrustFile,
     VocabularyOption,
@@ -49,7 +50,7 @@ from ktbt_proto.tools.cli.options import (
     vocabulary_or_exit,
     zenoh_settings,
 )
-from ktbt_proto.transport.zenoh import SessionError
+from ktbt_proto.transport.zenoh import RETRY_MS, SessionError
 
 if TYPE_CHECKING:
     from ktbt_proto.interop.sidecar import LearnedExport
@@ -94,6 +95,7 @@ def peer_serve(
     connect: Connect = None,
     config: ZenohConfig = None,
     multicast: Multicast = False,
+    retry: RetryPeriod = RETRY_MS,
     mode: JoinMode = "peer",
 ) -> None:
     """Answer queries for the knowledge in a file until stopped.
@@ -103,7 +105,7 @@ def peer_serve(
     Answers are signed with --key; with --overhear, it also serves what it overhears."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast, mode)
+    settings = zenoh_settings(listen, connect, config, multicast, mode, retry)
     registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
     served = knowledge_or_exit(knowledge, registry)
     secure = security(key, Policy.ANY, None, log)
@@ -229,6 +231,7 @@ def peer_run(
     connect: Connect = None,
     config: ZenohConfig = None,
     multicast: Multicast = False,
+    retry: RetryPeriod = RETRY_MS,
     mode: JoinMode = "peer",
 ) -> None:
     """Run a robot: it learns what it meets and teaches what it knows.
@@ -240,7 +243,7 @@ def peer_run(
     that file's items."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast, mode)
+    settings = zenoh_settings(listen, connect, config, multicast, mode, retry)
     robot = robot_or_exit(vocabulary, control, demo)
     registry = robot.registry
     for text in sequence or ():
@@ -302,11 +305,12 @@ def peer_router(
     connect: Connect = None,
     config: ZenohConfig = None,
     multicast: Multicast = False,
+    retry: RetryPeriod = RETRY_MS,
 ) -> None:
     """Run a zenoh router, for fleets that span subnets."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast)
+    settings = zenoh_settings(listen, connect, config, multicast, retry_ms=retry)
     _peer_call(lambda: peer.router(settings, typer.echo, ready))
 
 

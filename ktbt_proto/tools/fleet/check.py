@@ -391,13 +391,123 @@ def _faults(h: History) -> list[Verdict]:
 
 
 def _fastest_answer(h: History) -> float | None:
-    sent = {(e["peer"], e.get("id")): e["t"] for e in h.of(Event.QUERY_SENT)}
-    times = [
-        e["t"] - sent[(e["peer"], e.get("id"))]
-        for e in h.of(Event.ANSWER_RECEIVED)
-        if (e["peer"], e.get("id")) in sent
-    ]
+    """The quickest answer after its query, timed from the first sending of that query that
+    could have reached the answer's sender: the broadcast, or the query sent to it alone
+    (``to``), whichever came first. An open query is sent again to a peer that appears, which
+    may have heard the broadcast already: its answer to the broadcast is not a quick answer to
+    the second sending."""
+    sent: dict[tuple[str, Any, Any], float] = {}
+    for e in h.of(Event.QUERY_SENT):
+        sent.setdefault((e["peer"], e.get("id"), e.get("to")), e["t"])
+    times = []
+    for e in h.of(Event.ANSWER_RECEIVED):
+        key = (e["peer"], e.get("id"))
+        sendings = [sent.get((*key, e.get("sender"))), sent.get((*key, None))]
+        began = min((t for t in sendings if t is not None), default=None)
+        if began is not None:
+            times.append(e["t"] - began)
     return min(times) if times else None
+
+
+STAGES = (
+    ("start", "link"),
+    ("link", "session"),
+    ("session", "seen"),
+    ("seen", "query"),
+    ("query", "answer"),
+    ("answer", "merge"),
+)
+"""The stages of one transfer's timeline (docs/results/fleet.md), in the order they happen
+when the teacher comes last: its process start, the link between the two up (zenoh dials while
+it opens the session), its session up (open returned; its liveliness is declared then), the
+learner seeing that liveliness, the query that was answered sent, the answer received, the
+merge. A stage whose end came before its start (a link that came up after the session) is left
+out of that transfer's stages; the next stage holds the time."""
+
+
+def timelines(h: History) -> list[dict[str, Any]]:
+    """For every item a learner merged, the marks of its timeline (seconds since the run
+    began; None where the record has no such mark): ``start`` (the teacher's process launch),
+    ``session`` (its session up), ``link`` (the latest link between the two up, by the proxy,
+    before the liveliness was seen), ``seen`` (the learner saw the teacher's liveliness),
+    ``query`` (the query that was answered sent, to the teacher alone or to all), ``answer``,
+    ``merge``; and ``knew``, when the teacher knew the item (a learner teaching onward)."""
+    by_peer: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for e in h.events:
+        if "peer" in e:
+            by_peer[e["peer"]].append(e)
+    links = h.of("link-up")
+    teachers = {n["name"] for n in h.plan["nodes"] if n["role"] == "teacher"}
+
+    def last(events: list[dict[str, Any]], until: float, **match: Any) -> dict[str, Any] | None:
+        found = None
+        for e in events:
+            if e["t"] > until:
+                break
+            if all(e.get(k) == v for k, v in match.items()):
+                found = e
+        return found
+
+    out = []
+    for m in h.of(Event.MERGED):
+        learner, teacher, t = m["peer"], m.get("teacher"), m["t"]
+        if teacher is None or m["sequence"] not in h.items:
+            continue
+        mine, theirs = by_peer[learner], by_peer.get(teacher, [])
+        marks: dict[str, Any] = {"learner": learner, "teacher": teacher, "merge": t}
+        answer = last(mine, t, kind=Event.ANSWER_RECEIVED, sender=teacher,
+                      sequence=m["sequence"])  # fmt: skip
+        marks["answer"] = answer["t"] if answer else None
+        query = None
+        if answer is not None:
+            query = last(mine, answer["t"], kind=Event.QUERY_SENT, id=answer.get("id"), to=teacher)
+            query = query or last(mine, answer["t"], kind=Event.QUERY_SENT, id=answer.get("id"))
+        marks["query"] = query["t"] if query else None
+        launch = last(theirs, t, kind="launch")
+        start = launch["t"] if launch else None
+        marks["start"] = start
+        session = next(
+            (e for e in theirs if e["kind"] == Event.SESSION_UP and start is not None
+             and e["t"] >= start - 0.05 and e["t"] <= t),
+            None,
+        )  # fmt: skip
+        marks["session"] = session["t"] if session else None
+        seen = last(mine, marks["query"] or t, kind=Event.PEER_SEEN, sender=teacher)
+        marks["seen"] = seen["t"] if seen else None
+        link = None
+        for e in links:
+            if e["t"] > (marks["seen"] or t):
+                break
+            if {e["dialer"], e["listener"]} == {learner, teacher}:
+                link = e
+        marks["link"] = link["t"] if link else None
+        if teacher in teachers:
+            marks["knew"] = start
+        else:
+            knew = last(theirs, t, kind=Event.MERGED, sequence=m["sequence"])
+            marks["knew"] = knew["t"] if knew else start
+        out.append(marks)
+    return out
+
+
+def stage_times(lines: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Median and worst of each stage over ``lines`` (seconds; a stage whose marks a line
+    lacks, or that ran backwards, such as a teacher seen before it knew the item, is left out
+    for that line)."""
+    out: dict[str, dict[str, float]] = {}
+    for a, b in STAGES:
+        spans = sorted(
+            line[b] - line[a]
+            for line in lines
+            if line.get(a) is not None and line.get(b) is not None and line[b] >= line[a]
+        )
+        if spans:
+            out[f"{a}-{b}"] = {
+                "median": round(statistics.median(spans), 4),
+                "worst": round(spans[-1], 4),
+                "count": len(spans),
+            }
+    return out
 
 
 def _partition(h: History, starts: dict[str, Any], ends: dict[str, Any]) -> Verdict:
@@ -532,7 +642,11 @@ def metrics(h: History) -> dict[str, Any]:
     teacher_half = convergence_time(h, half) if half and up is not None else None
     floor = h.one("floor") or {}
     rounds = round_times(h)
+    lines = timelines(h)
+    after = [line for line in lines if line["merge"] >= ref]
     return {
+        "stages": stage_times(lines),
+        "stages_after_reference": stage_times(after),
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),
         "all_up_s": None if up is None else up["t"],
         "reference_s": ref,

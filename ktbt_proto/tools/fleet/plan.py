@@ -4,8 +4,13 @@ round). Pure data, so that the same seed gives the same fleet and the same fault
 
 Learners come first, teachers last (``p0``..., then ``t``...). Addresses: peer ``k`` listens on
 ``127.1.x.y``, router ``r`` on ``127.3.0.(r+1)``, and link ``l``'s proxy on ``127.2.x.y`` (all
-of 127.0.0.0/8 is local). A link is dialled by its higher peer to its lower one only (peer
-``i`` dials ``j < i``): mutual dialling can split a zenoh session.
+of 127.0.0.0/8 is local). With ``dial="one"`` (the default) the newer peer of a pair dials
+the older (peer ``i`` dials ``j < i``; peers start in that order, so a newcomer connects out
+at once to the peers it knows, spec/protocol.md section 3, and a restarted peer is dialled
+again within its neighbours' retry period). With ``dial="both"`` both ends of a peer link
+dial each other, each through a proxy of its own: twice the links and proxies, and at 40
+peers a storm of links opened, closed and dialled again that holds the fleet for tens of
+seconds (docs/results/fleet.md, size-40-both).
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ from typing import Any, Literal
 
 Topology = Literal["mesh", "line", "router"]
 TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router")
+Dial = Literal["one", "both"]
+"""Who dials a peer link: the newer (higher) peer only, or both ends."""
 PartitionKind = Literal["silent", "reset", "none"]
 """``none``: the same halves and schedule, nothing held or cut (a baseline for the half
 with the teacher)."""
@@ -77,6 +84,10 @@ class FleetConfig:
     teaches one asker per cool-down); ``serve``: knowledge servers (``ktbt peer serve``, which
     answer every query at once)."""
     name: str = "fleet"
+    dial: Dial = "one"
+    """``one``: the newer (higher) peer of a link dials; ``both``: both ends dial each other."""
+    retry_ms: int = 250
+    """Every peer's ``--retry``: the period at which it dials a dead endpoint again."""
     watch: str = ""
     """The folder of the monitor's unix sockets (``--monitor``): every peer also listens there
     and publishes its fleet events; empty: no monitor."""
@@ -99,6 +110,10 @@ class FleetConfig:
             raise PlanError("--partition needs --topology mesh or line (halves of peer links)")
         if self.teacher not in ("run", "serve"):
             raise PlanError("--teacher must be run or serve")
+        if self.dial not in ("one", "both"):
+            raise PlanError("--dial must be one or both")
+        if not 10 <= self.retry_ms <= 600_000:
+            raise PlanError("--retry is a period from 10 ms to 600 s")
         if self.partition_kind not in ("silent", "reset", "none"):
             raise PlanError("--partition-kind must be silent, reset or none")
 
@@ -226,13 +241,18 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
                  dialer.address)
         )  # fmt: skip
 
+    both = config.dial == "both"
     if config.topology == "mesh":
         for i, a in enumerate(peers):
             for b in peers[:i]:
                 link(a, b)
+                if both:
+                    link(b, a)
     elif config.topology == "line":
         for i in range(1, len(peers)):
             link(peers[i], peers[i - 1])
+            if both:
+                link(peers[i - 1], peers[i])
     else:
         routers = plan.routers
         for r in range(1, len(routers)):

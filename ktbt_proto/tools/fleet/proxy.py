@@ -16,6 +16,7 @@ import socket
 import struct
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
@@ -51,6 +52,9 @@ class LinkProxy:
     delay: float = 0.0
     state: State = "open"
     counters: Counters = field(default_factory=Counters)
+    linked: Callable[[Link], None] | None = None
+    """Told each time a connection of this link reaches its listener: the link is up (a mark
+    of a transfer's timeline)."""
 
     def __post_init__(self) -> None:
         self._open = asyncio.Event()
@@ -127,6 +131,8 @@ class LinkProxy:
             pair = (writer, up_writer)
             self._conns.add(pair)
             self.counters.connections += 1
+            if self.linked is not None:
+                self.linked(self.link)
             if early:
                 up_writer.write(early)
             pumps = {
@@ -261,8 +267,14 @@ def _reset(writer: asyncio.StreamWriter) -> None:
 class FaultLayer:
     """The proxies of every link of a fleet."""
 
-    def __init__(self, links: list[Link], port: int, delay: float = 0.0) -> None:
-        self.proxies = {link.index: LinkProxy(link, port, delay) for link in links}
+    def __init__(
+        self,
+        links: list[Link],
+        port: int,
+        delay: float = 0.0,
+        linked: Callable[[Link], None] | None = None,
+    ) -> None:
+        self.proxies = {link.index: LinkProxy(link, port, delay, linked=linked) for link in links}
 
     async def start(self) -> None:
         for proxy in self.proxies.values():

@@ -164,7 +164,7 @@ class FleetRun:
         self.items = authored_items(config.knowledge or EXAMPLE_KNOWLEDGE)
         self.plan: Plan = make_plan(config, _port())
         self.members = {n.name: PeerProcess(n, out / "peers") for n in self.plan.nodes}
-        self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay)
+        self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay, self._linked)
         self.record = Record(out / "events.jsonl", self.t0)
         self.pause = stream(config.seed, "churn-pauses")
         self.teacher_program = "run" if config.teacher == "run" else "serve"
@@ -194,6 +194,7 @@ class FleetRun:
         node, port = member.node, self.plan.port
         connect = [f"tcp/{link.proxy}:{port}" for link in self.plan.dials(node.name)]
         conf = ["--config", str(self._zenoh_config(node)), "--ready", str(ready)]
+        conf += ["--retry", str(self.config.retry_ms)]
         python = [sys.executable, "-m", "ktbt_proto", "peer"]
         if node.role == "router":
             args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
@@ -296,9 +297,12 @@ class FleetRun:
                 knows = json.loads(life.ready.read_bytes())["knows"]
             except (OSError, ValueError, TypeError, KeyError):
                 knows = None  # up all the same: the file is there
-            life.up = self.record.now()
+            try:  # when the process wrote it, not when this loop looked
+                life.up = round(min(life.ready.stat().st_mtime - self.t0, self.record.now()), 3)
+            except OSError:
+                life.up = self.record.now()
             self.record.emit(
-                "up", peer=member.node.name, life=life.number,
+                "up", t=life.up, peer=member.node.name, life=life.number,
                 knows=knows if isinstance(knows, int) else None,
             )  # fmt: skip
         if member.node.role == "router" or not member.log.exists():
@@ -323,7 +327,8 @@ class FleetRun:
             if event not in COPIED:
                 continue
             fields = {
-                k: entry.get(k) for k in ("sequence", "sender", "to", "id", "teacher", "where")
+                k: entry.get(k)
+                for k in ("sequence", "more", "sender", "to", "id", "teacher", "where")
             }
             if event == "refused":
                 fields["reason"] = str(entry.get("reason", ""))[:200]
@@ -336,6 +341,11 @@ class FleetRun:
                 event, t=t, peer=member.node.name, life=life.number if life else 0,
                 **{k: v for k, v in fields.items() if v is not None},
             )  # fmt: skip
+
+    def _linked(self, link: Any) -> None:
+        """A connection of ``link`` reached its listener (the proxy says so): the link is up,
+        a mark of the timelines (check.timelines)."""
+        self.record.emit("link-up", link=link.index, dialer=link.dialer, listener=link.listener)
 
     def knows(self, member: PeerProcess) -> set[str]:
         life = member.life
@@ -467,8 +477,9 @@ class FleetRun:
             self.launch(self.members[name])
         if not await self.wait_up(teachers, cfg.up_limit):
             return "the teachers did not come up"
-        self.record.emit("all-up")
-        self.reference = self.record.now()
+        up = [self.members[n].life for n in teachers]
+        self.reference = max((life.up or 0.0) for life in up if life is not None)
+        self.record.emit("all-up", t=self.reference)
         if injected:
             await asyncio.sleep(max(0.0, cfg.partition - (time.monotonic() - started)))
             evidence = self._link_counters(crossing)

@@ -209,6 +209,11 @@ def test_answers_faster_than_the_delay_fail_it() -> None:
         if e["kind"] == "query-sent":
             e["t"] -= 0.5
     assert verdicts(events)["fault: delay"] == "pass"
+    # The open query sent again to the teacher as it appears, just before its answer to the
+    # broadcast arrives: that answer is timed from the broadcast.
+    again = [{**e, "t": e["t"] + 0.49, "to": "t2"} for e in events if e["kind"] == "query-sent"]
+    events = sorted(events + again, key=lambda e: e["t"])
+    assert verdicts(events)["fault: delay"] == "pass"
 
 
 def test_growing_memory_across_churn_rounds_fails() -> None:
@@ -242,7 +247,15 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
         both = make_plan(FleetConfig(peers=10, partition=5, churn=0.2, seed=seed), 7447)
         churn_only = make_plan(FleetConfig(peers=10, churn=0.2, seed=seed), 7447)
         assert both.victims == churn_only.victims
+    # The newer (higher) peer of every link dials the older; or both ends, a proxy each.
     assert len(a.links) == 45 and all(a.half[n.name] == 0 for n in a.peers if n.role == "teacher")
+    order = {n.name: n.index for n in a.peers}
+    assert all(order[li.dialer] > order[li.listener] for li in a.links)
+    mutual = make_plan(FleetConfig(peers=10, dial="both"), 1)
+    assert len(mutual.links) == 90
+    assert {(li.dialer, li.listener) for li in mutual.links} == {
+        (li.listener, li.dialer) for li in mutual.links
+    }
     assert {a.half[n.name] for n in a.peers} == {0, 1}
     assert len(make_plan(FleetConfig(peers=5, topology="line"), 1).links) == 4
     router = make_plan(FleetConfig(peers=40, topology="router"), 1)
@@ -250,7 +263,8 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
     assert seconds("200ms") == pytest.approx(0.2) and seconds("2m") == 120
     nan = float("nan")
     for bad in ({"peers": 1}, {"teachers": 0}, {"loss": 1.5}, {"topology": "star"},
-                {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}):  # fmt: skip
+                {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}, {"dial": "all"},
+                {"retry_ms": 5}):  # fmt: skip
         with pytest.raises(PlanError):
             FleetConfig(**bad)
     with pytest.raises(PlanError):

@@ -52,10 +52,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import zenoh
-from pydantic import ValidationError
 
-from ktbt_proto.exchange.answers import answer_to, catalog, live_answers
+from ktbt_proto.exchange.answers import catalog, live_answers
 from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.inbox import AnswersGiven, Inbox, Lookup
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -65,7 +65,7 @@ from ktbt_proto.exchange.messages import (
     decode,
     encode,
 )
-from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
 from ktbt_proto.exchange.trust import refusal
@@ -78,9 +78,6 @@ log = logging.getLogger("ktbt.zenoh")
 
 PREFIX = "ktbt/v1"
 _M = TypeVar("_M", Query, Response, ErrorReply)
-Lookup = Callable[[str], str | SignedItem | None]
-"""Sequence key -> compact subtree (signed by its author, or not), or None: answers queries
-straight from the callback."""
 
 
 RX_WORKERS = 32
@@ -321,31 +318,33 @@ class ZenohTransport:
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
-        self._inbox: deque[Received] = deque()
-        self._overheard: deque[Response] = deque()
-        self._asked: deque[str] = deque(maxlen=256)
-        """The ids of this peer's latest queries: a published copy of an answer to one of them
-        is not overheard (the answer itself comes as a reply)."""
+        self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit)
+        self._given = AnswersGiven(self.name, self.answer_window, self.max_pending, log.warning)
         self._publisher: Any = None
         self._sink: EventPublisher | None = None
         self._asking = 0
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
-        self._given: dict[tuple[str, str], tuple[float, set[str]]] = {}
-        """Queries answered at once: (sender, id) -> (when, the sequences answered), the
-        latest ``max_pending``; the same query again within ``answer_window`` gets no second
-        answer to those (the first is on its way: section 3)."""
         self._pending: dict[tuple[str, str], tuple[Any, float, int]] = {}
         """Queries handed to the agent: (sender, id) -> (query, deadline, answers still
         possible), so a query naming several sequences stays open for an answer to each."""
         self.closed = False
         self._session = open_session(self.settings)
-        if self.log is not None:  # the first mark of a transfer's timeline (section 8)
-            self.log.record("session-up", peer=self.name)
         # Each entity's callbacks run in one Python thread of its own, for the entity's life
         # (zenoh's default): faster than taking the GIL from zenoh's own threads.
         try:
-            self._declared: list[Any] = [
+            self._declared: list[Any] = []
+            if self.publish_events:  # first, so that the events' count starts with session-up
+                self.log = self.log or TransferLog(None)
+                events, publisher = EventPublisher.on_session(
+                    self._session, self.name, identity=self.identity
+                )
+                self._declared.append(publisher)
+                self.log.add_sink(events)
+                self._sink = events
+            if self.log is not None:  # the first mark of a transfer's timeline (section 8)
+                self.log.record("session-up", peer=self.name)
+            self._declared += [
                 self._session.declare_queryable(f"{PREFIX}/knowledge/{self.name}", self._on_query),
                 self._session.declare_queryable(f"{PREFIX}/catalog/{self.name}", self._on_catalog),
                 self._session.declare_subscriber(f"{PREFIX}/inbox/{self.name}", self._on_inbox),
@@ -358,13 +357,6 @@ class ZenohTransport:
                 self._publisher = self._session.declare_publisher(f"{PREFIX}/answers/{self.name}")
                 self._declared.append(self._publisher)
             if self.publish_events:
-                self.log = self.log or TransferLog(None)
-                events, publisher = EventPublisher.on_session(
-                    self._session, self.name, identity=self.identity
-                )
-                self._declared.append(publisher)
-                self.log.add_sink(events)
-                self._sink = events
                 self._declared.append(
                     self._session.declare_queryable(f"{PREFIX}/tree/{self.name}", self._on_tree)
                 )
@@ -418,16 +410,6 @@ class ZenohTransport:
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
-    def _deliver(self, message: Received) -> None:
-        """Into the inbox, unless it is full: then the newcomer is refused, and what arrived
-        first (the first answer, which wins) is kept."""
-        with self._lock:
-            full = len(self._inbox) >= self.inbox_limit
-            if not full:
-                self._inbox.append(message)
-        if full:
-            self._refuse(f"inbox full ({self.inbox_limit} messages): a {message.type} is dropped")
-
     def send(self, to: str, message: Message) -> None:
         """Answer a query this peer received, or put the message in ``to``'s inbox."""
         if self.closed:
@@ -465,12 +447,7 @@ class ZenohTransport:
 
     def receive(self) -> list[Received]:
         self._expire()
-        with self._lock:
-            messages = list(self._inbox)
-            messages.extend(self._overheard)
-            self._inbox.clear()
-            self._overheard.clear()
-        return messages
+        return self._inbox.drain()
 
     def close(self) -> None:
         if self.closed:
@@ -505,8 +482,7 @@ class ZenohTransport:
         the moment it arrives."""
         answers: list[Response] = []
         heard: set[str] = set()
-        with self._lock:
-            self._asked.append(query.id)
+        self._inbox.asked(query.id)
         try:  # the caller's own thread waits, reading the replies as they arrive
             replies = self._session.get(
                 f"{PREFIX}/knowledge/*",
@@ -538,7 +514,8 @@ class ZenohTransport:
             full = self._asking >= self.max_asking
             if not full:
                 self._asking += 1
-                self._asked.append(message.id)
+        if not full:
+            self._inbox.asked(message.id)
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
             return
@@ -549,7 +526,7 @@ class ZenohTransport:
             if not self.closed:
                 answer = self._reply(reply, message, heard)
                 if answer is not None:
-                    self._deliver(answer)
+                    self._inbox.deliver(answer)
 
         def on_end() -> None:
             with self._lock:
@@ -612,7 +589,7 @@ class ZenohTransport:
             with self._lock:
                 self.network_errors += 1
             log.debug("%s: query %s: network error: %s", self.name, asked.id, reason)
-            self._deliver(NetworkError(asked.id, reason))
+            self._inbox.deliver(NetworkError(asked.id, reason))
             return
         error = self._decoded(payload, ErrorReply, f"an error reply to {asked.id}")
         if error is None:
@@ -711,50 +688,16 @@ class ZenohTransport:
             if taken:  # a replay: the query already open keeps its place
                 self._refuse(f"query {message.id} from {message.sender} is already open")
             return
-        self._deliver(message)
+        self._inbox.deliver(message)
 
     def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
-        """A knowledge server's answers, given inside the callback, one reply for each
-        sequence of the query it knows (section 1), each made by ``answer_to`` as every answer
-        is (spec section 2 and section 7). A sequence answered to the same query (sender and
-        id) within the answer window is not answered again: an asker sends its open query to a
-        peer that appears, which may have had the broadcast already (section 4.5)."""
-        now, key = time.monotonic(), (message.sender, message.id)
-        with self._lock:
-            when, given = self._given.pop(key, (now, set()))
-            if now - when > self.answer_window:
-                when, given = now, set()
-            self._given[key] = (when, given)
-            if len(self._given) > self.max_pending:
-                del self._given[next(iter(self._given))]
-        for sequence in message.sequences:
-            if sequence in given:
-                log.debug("%s: %s answered to query %s already", self.name, sequence, key)
-                continue
-            found = lookup(sequence)
-            if found is None:
-                continue
-            item = found if isinstance(found, SignedItem) else SignedItem(found)
-            try:
-                response = answer_to(message, self.name, item, self.identity, sequence)
-            except ValidationError as exc:  # too large to send: no peer could accept it
-                reason = exc.errors()[0].get("msg", "invalid")
-                log.warning("%s cannot answer %s: %s", self.name, sequence[:80], reason)
-                continue
+        """A knowledge server's answers, given inside the callback: one reply for each
+        sequence of the query it knows, not given already (section 4.5, :class:`AnswersGiven`)."""
+        for response in self._given.answers(message, lookup, self.identity, self.log):
             payload = encode(response)
             query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
-            given.add(sequence)
             self.answered += 1
             self._publish(payload)
-            if self.log is not None:
-                self.log.record(
-                    "answer-sent",
-                    peer=self.name,
-                    to=message.sender,
-                    id=message.id,
-                    sequence=sequence,
-                    author=item.author,
-                )
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []
@@ -768,7 +711,7 @@ class ZenohTransport:
         queryable, where zenoh knows it came from a get."""
         message = self._decoded(sample.payload.to_bytes(), Response, "a message in the inbox")
         if message is not None:
-            self._deliver(message)
+            self._inbox.deliver(message)
 
     def _on_answer(self, sample: Any) -> None:
         """An answer another peer published (section 4.3), checked as a reply is: within the
@@ -782,24 +725,7 @@ class ZenohTransport:
         if key != f"{PREFIX}/answers/{answer.sender}" or answer.sender == self.name:
             self._refuse(f"an answer naming {answer.sender} came on {key[:80]}", key=key[:80])
             return
-        with self._lock:
-            mine = answer.id in self._asked
-        if mine:
-            return
-        why = self.screen(answer) if self.screen is not None else None
-        if why is not None:
-            self._refuse(f"overheard from {answer.sender}: {why}", key=key)
-            return
-        with self._lock:
-            full = len(self._overheard) >= self.overheard_limit
-            if not full:
-                self._overheard.append(answer)
-        if full:
-            self._refuse(
-                f"{self.overheard_limit} overheard answers waiting: one from {answer.sender} "
-                "is dropped",
-                key=key,
-            )
+        self._inbox.overhear(answer, self.screen, key=key)
 
     def _expire(self) -> None:
         now = time.monotonic()

@@ -133,12 +133,12 @@ def test_published_answers_on_a_wrong_key_garbage_and_floods_are_refused_and_cou
         assert wait_until(lambda: heard.refused - before == 7)
         assert [m.id for m in heard.receive()] == ["a3", "a4"]
         # A copy of an answer to this peer's own query is left to the reply: not overheard.
-        heard._asked.append("mine")
+        heard._inbox.asked("mine")
         other._session.put("ktbt/v1/answers/x", encode(
             Response(id="mine", sender="x", sequence=GREEN, subtree=HONEST)
         ))  # fmt: skip
         other._session.put("ktbt/v1/answers/x", answer("x", 9))
-        assert wait_until(lambda: len(heard._overheard) >= 1)  # in order: "mine" came first
+        assert wait_until(lambda: len(heard._inbox) >= 1)  # in order: "mine" came first
         assert [m.id for m in heard.receive()] == ["a9"]
 
 

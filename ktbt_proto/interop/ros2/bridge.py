@@ -123,10 +123,11 @@ def mirror_settings(settings: ZenohSettings) -> ZenohSettings:
 
 @dataclass
 class Relayed:
-    """A query being relayed: who asked, what, and until when its answers are taken."""
+    """A query being relayed: who asked, what (every sequence it names, section 1), and until
+    when its answers are taken."""
 
     sender: str
-    sequence: str
+    sequences: tuple[str, ...]
     deadline: float
 
 
@@ -428,7 +429,7 @@ class Bridge:
             old, _ = table.popitem(last=False)
             self._by_id.pop(old[1], None)
         until = time.monotonic() + 2 * self.query_timeout
-        table[key] = Relayed(query.sender, query.sequence, until)
+        table[key] = Relayed(query.sender, query.sequences, until)
         return True
 
     def _query_from_zenoh(self, query: Query, now: float) -> None:
@@ -455,11 +456,11 @@ class Bridge:
 
     def _screened(self, answer: Response, relayed: Relayed | None, where: str) -> bool:
         """Whether ``answer`` may be relayed to the query it answers: one the bridge relayed,
-        the same sequence, and signatures that verify where present (never a forgery)."""
+        one of its sequences, and signatures that verify where present (never a forgery)."""
         if relayed is None:
             self._refuse(f"an answer {where} from {answer.sender} to no query relayed")
             return False
-        if answer.sequence != relayed.sequence:
+        if answer.sequence not in relayed.sequences:
             self._refuse(f"an answer {where} from {answer.sender} answers another question")
             return False
         why = refusal(answer, Policy.ANY)

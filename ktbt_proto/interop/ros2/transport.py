@@ -37,7 +37,6 @@ import json
 import re
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -57,6 +56,7 @@ from rclpy.serialization import deserialize_message
 
 from ktbt_proto.exchange.answers import live_answers
 from ktbt_proto.exchange.core import AgentCore
+from ktbt_proto.exchange.inbox import AnswersGiven, Inbox, Lookup
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -65,7 +65,7 @@ from ktbt_proto.exchange.messages import (
     Response,
     decode,
 )
-from ktbt_proto.exchange.signing import Identity, SignedItem
+from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, Received
 from ktbt_proto.exchange.trust import refusal
@@ -82,8 +82,6 @@ PRESENCE_PERIOD = 0.5
 """Seconds between two reads of the ROS graph for who is present."""
 
 _M = TypeVar("_M", Query, Response, ErrorReply)
-Lookup = Callable[[str], SignedItem | None]
-"""Sequence key -> the signed item to answer with, or None (``exchange.answers``)."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +121,8 @@ def wire_json(msg: Any, kind: str) -> bytes:
     fields: dict[str, Any] = {"v": msg.v, "type": kind, "id": msg.id, "sender": msg.sender}
     if kind == "query":
         fields["sequence"] = msg.sequence
+        if msg.more:  # an empty list: a single-sequence query (section 1)
+            fields["more"] = list(msg.more)
     elif kind == "response":
         fields["sequence"] = msg.sequence
         fields["subtree"] = msg.subtree
@@ -140,7 +140,11 @@ def to_msg(message: Message, to: str = "") -> Any:
     """The ROS message for a protocol message; ``to``: the asker an answer or error is for."""
     if isinstance(message, Query):
         return QueryMsg(
-            v=message.v, id=message.id, sender=message.sender, sequence=message.sequence
+            v=message.v,
+            id=message.id,
+            sender=message.sender,
+            sequence=message.sequence,
+            more=list(message.more or ()),
         )
     if isinstance(message, Response):
         return AnswerMsg(
@@ -218,11 +222,10 @@ class Ros2Transport:
         """Robots that appeared on the query topic since this one started (the ROS graph)."""
         self.closed = False
         self._lock = threading.Lock()
-        self._inbox: deque[Received] = deque()
-        self._overheard: deque[Response] = deque()
-        self._open: dict[str, tuple[str, float, set[str]]] = {}
-        """This robot's open queries: id -> (sequence, deadline, senders heard)."""
-        self._asked: deque[str] = deque(maxlen=256)
+        self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
+        self._given = AnswersGiven(name, answer_window, max_pending, node.get_logger().warning)
+        self._open: dict[str, tuple[tuple[str, ...], float, set[tuple[str, str]]]] = {}
+        """This robot's open queries: id -> (sequences, deadline, (sender, sequence) heard)."""
         self._seen: dict[tuple[str, str], float] = {}
         """Queries from others still in their answer window: (sender, id) -> deadline."""
         self._present: set[str] = set()
@@ -260,9 +263,9 @@ class Ros2Transport:
             full = again is None and len(self._open) >= self.max_asking
             if not full:
                 heard = again[2] if again is not None else set()
-                self._open[message.id] = (message.sequence, now + self.query_timeout, heard)
-                if again is None:
-                    self._asked.append(message.id)
+                self._open[message.id] = (message.sequences, now + self.query_timeout, heard)
+        if not full and again is None:
+            self._inbox.asked(message.id)
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
             return
@@ -288,11 +291,7 @@ class Ros2Transport:
                 self._present = present
         with self._lock:
             self._expire(now)
-            messages = list(self._inbox)
-            messages.extend(self._overheard)
-            self._inbox.clear()
-            self._overheard.clear()
-        return messages
+        return self._inbox.drain()
 
     def close(self) -> None:
         """Destroy the publishers and subscriptions (the node stays)."""
@@ -377,15 +376,6 @@ class Ros2Transport:
         assert isinstance(message, kind)
         return msg, message
 
-    def _deliver(self, message: Received) -> None:
-        """Into the inbox, unless it is full: then the newcomer is refused."""
-        with self._lock:
-            full = len(self._inbox) >= self.inbox_limit
-            if not full:
-                self._inbox.append(message)
-        if full:
-            self._refuse(f"inbox full ({self.inbox_limit} messages): a {message.type} is dropped")
-
     def _on_query(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
@@ -398,12 +388,14 @@ class Ros2Transport:
             return  # our own query, heard back
         if self.lookup is not None:
             if self.log is not None:
+                more = {"more": list(query.more)} if query.more else {}
                 self.log.record(
                     "query-received",
                     peer=self.name,
                     sender=query.sender,
                     id=query.id,
                     sequence=query.sequence,
+                    **more,
                 )
             self._answer_at_once(query, self.lookup)
             return
@@ -419,7 +411,7 @@ class Ros2Transport:
             self._refuse(f"query {query.id} from {query.sender} is already open")
             return
         if not full:  # else left unanswered, as a teacher in cool-down would
-            self._deliver(query)
+            self._inbox.deliver(query)
 
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when
@@ -434,25 +426,11 @@ class Ros2Transport:
         self._errors.publish(to_msg(error, to))
 
     def _answer_at_once(self, query: Query, lookup: Lookup) -> None:
-        found = lookup(query.sequence)
-        if found is None:
-            return
-        response = Response.of(
-            query.id, self.name, query.sequence, found.subtree, found.author, found.signature
-        )
-        if self.identity is not None:
-            response = self.identity.sign_reply(response)
-        self._answers.publish(to_msg(response, query.sender))
-        self.answered += 1
-        if self.log is not None:
-            self.log.record(
-                "answer-sent",
-                peer=self.name,
-                to=query.sender,
-                id=query.id,
-                sequence=query.sequence,
-                author=found.author,
-            )
+        """An answer to each sequence of ``query`` this robot knows, published at once
+        (section 4.5, :class:`AnswersGiven`)."""
+        for response in self._given.answers(query, lookup, self.identity, self.log):
+            self._answers.publish(to_msg(response, query.sender))
+            self.answered += 1
 
     def _on_answer(self, data: bytes) -> None:
         if self.closed or not self.active:
@@ -471,8 +449,8 @@ class Ros2Transport:
             return  # our own answer, heard back
         if msg.to == self.name:
             self._answer_to_me(answer)
-        elif self.overhear:
-            self._overheard_answer(answer)
+        elif self.overhear:  # an answer to another robot (section 4.3)
+            self._inbox.overhear(answer, self.screen)
 
     def _answer_to_me(self, answer: Response) -> None:
         """An answer addressed to this robot: to an open query, it must answer the sequence
@@ -481,42 +459,22 @@ class Ros2Transport:
         with self._lock:
             opened = self._open.get(answer.id)
         if opened is not None:
-            sequence, _, heard = opened
-            if answer.sequence != sequence:
+            sequences, _, heard = opened
+            if answer.sequence not in sequences:
                 self._refuse(f"an answer from {answer.sender} answers another question")
                 return
             why = self.screen(answer) if self.screen is not None else None
             if why is not None:
                 self._refuse(f"from {answer.sender}: {why}")
                 return
+            place = (answer.sender, answer.sequence)  # one per sender and sequence asked
             with self._lock:
-                again = answer.sender in heard
-                heard.add(answer.sender)
+                again = place in heard
+                heard.add(place)
             if again:
                 self._refuse(f"another answer from {answer.sender} to the same query")
                 return
-        self._deliver(answer)
-
-    def _overheard_answer(self, answer: Response) -> None:
-        """An answer to another robot (section 4.3): checked as an answer is, then queued for
-        the agent, a newcomer to a full queue refused."""
-        with self._lock:
-            mine = answer.id in self._asked
-        if mine:
-            return
-        why = self.screen(answer) if self.screen is not None else None
-        if why is not None:
-            self._refuse(f"overheard from {answer.sender}: {why}")
-            return
-        with self._lock:
-            full = len(self._overheard) >= self.overheard_limit
-            if not full:
-                self._overheard.append(answer)
-        if full:
-            self._refuse(
-                f"{self.overheard_limit} overheard answers waiting: one from {answer.sender} "
-                "is dropped"
-            )
+        self._inbox.deliver(answer)
 
     def _on_error(self, data: bytes) -> None:
         if self.closed or not self.active:

@@ -30,7 +30,8 @@ def test_answers_overhearing_presence_and_bounds(rosns: Any) -> None:
     answer = {"id": "q1", "sender": "teacher", "sequence": SEQUENCE, "subtree": SUBTREE}
     for got in (out["learner_got"], out["listener_got"]):
         assert [{k: a[k] for k in answer} for a in got] == [answer]
-    assert out["repeat_refused"] and out["teacher_answered"] == 2
-    assert out["learner_answers_after_repeat"] == 1  # one place per sender in a query
+    assert out["repeat_refused"] and out["learner_answers_after_repeat"] == 1
+    assert out["both_answered"] and out["both"] == ["<c>(TargetSeen,colour=3)", SEQUENCE]
+    assert out["teacher_answered"] == 3  # q1 once (not its repeat), then q3's two
     assert out["flood_refused"] == 3 and out["flood_kept"] == ["x0", "x1", "x2"]
-    assert out["q2_heard"] and out["inactive_answered"] == 2 and out["q2_answers"] == []
+    assert out["q2_heard"] and out["inactive_answered"] == 3 and out["q2_answers"] == []

@@ -20,6 +20,9 @@ from ktbt_proto.exchange.transport import Received
 from ktbt_proto.interop.ros2.transport import Ros2Transport
 from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
+OTHER = "<c>(TargetSeen,colour=3)"
+OTHER_SUBTREE = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=3)<e>"
+
 
 def main() -> None:
     rclpy.init()
@@ -27,7 +30,7 @@ def main() -> None:
     nodes = {name: rclpy.create_node("ktbt", namespace=f"/{name}") for name in ("t", "l", "o")}
     for node in nodes.values():
         executor.add_node(node)
-    items = {SEQUENCE: SignedItem(SUBTREE)}
+    items = {SEQUENCE: SignedItem(SUBTREE), OTHER: SignedItem(OTHER_SUBTREE)}
     teacher = Ros2Transport(nodes["t"], "teacher", lookup=items.get)
     learner = Ros2Transport(nodes["l"], "learner", inbox_limit=3)
     listener = Ros2Transport(nodes["o"], "listener", overhear=True)
@@ -62,11 +65,20 @@ def main() -> None:
     out["answered"] = spin_until(lambda: bool(answers("learner")) and bool(answers("listener")))
     out["learner_got"] = answers("learner")
     out["listener_got"] = answers("listener")
-    # The same query repeated: the teacher answers again, the learner takes one per sender.
+    # The same query again within the answer window: the teacher does not answer it twice,
+    # and a second copy of an answer to it takes no second place at the learner.
     learner.broadcast(query)
-    out["repeat_refused"] = spin_until(lambda: teacher.answered >= 2 and learner.refused >= 1)
-    out["teacher_answered"] = teacher.answered
+    teacher.send("learner", Response.of("q1", "teacher", SEQUENCE, SUBTREE))
+    out["repeat_refused"] = spin_until(lambda: learner.refused >= 1)
     out["learner_answers_after_repeat"] = len(answers("learner"))
+    # One query naming two sequences (section 1): an answer for each, in the order asked;
+    # the teacher read it after the repeat (one publisher's messages arrive in order), so
+    # its count shows the repeat went unanswered.
+    both = Query(id="q3", sender="learner", sequence=OTHER, more=(SEQUENCE,))
+    learner.broadcast(both)
+    out["both_answered"] = spin_until(lambda: len(answers("learner")) >= 3)
+    out["both"] = [a["sequence"] for a in answers("learner") if a["id"] == "q3"]
+    out["teacher_answered"] = teacher.answered
     # A flood into the learner's inbox (3 places), not read meanwhile: the newcomers are
     # refused, the first three kept.
     got["learner"].clear()

@@ -9,8 +9,9 @@ namespace for ROS processes), and is ended by its pid when the run ends. Three m
 
 1. **Transfer** (:mod:`.transfer`): query -> answer -> checked, merged, first tick, against a
    raw rclpy publish and reply of the same messages, alternating round by round in one process.
-2. **Idle CPU**: a ``ktbt ros2 run`` node, active and ticking at 10 Hz with nothing to learn,
-   beside a bare rclpy node with the same 10 Hz timer (:mod:`.bare_node`), both running at once:
+2. **Idle CPU**: a ``ktbt ros2 run`` node, active and ticking at 10 Hz with nothing to learn
+   (it is given the four colour skills it would ask about: an empty ``sequences`` cannot be
+   typed on the command line, rclpy leaves ``[]`` uninitialized), beside a bare rclpy node with the same 10 Hz timer (:mod:`.bare_node`), both running at once:
    each process's CPU time (user + system, ``/proc/PID/stat``) over the same wall-clock window.
 3. **Fleet** (:mod:`.fleet`): ten robots in namespaces of their own (``__ns:=/robotN``)
    learning the four colour skills from one teacher, beside a zenoh fleet of the same size run by
@@ -35,6 +36,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+from ktbt_proto.tools.fleet.runner import EXAMPLE_KNOWLEDGE
 
 from ..timing import machine, markdown_table, write_json
 
@@ -82,8 +85,18 @@ def wait_for(done: Callable[[], bool], what: str, limit: float = UP_TIMEOUT) -> 
     return time.monotonic() - start
 
 
-def in_log(ns: Any, name: str, text: str) -> Callable[[], bool]:
-    return lambda: (ns.tmp / f"{name}.log").exists() and text in ns.log(name)
+def in_log(ns: Any, name: str, text: str, proc: Any) -> Callable[[], bool]:
+    """Whether ``text`` is in process ``name``'s log yet; RuntimeError, with the log's last
+    line, if the process has ended."""
+
+    def done() -> bool:
+        found = (ns.tmp / f"{name}.log").exists() and text in ns.log(name)
+        if not found and proc.poll() is not None:
+            last = (ns.log(name).strip().splitlines() or ["(empty log)"])[-1]
+            raise RuntimeError(f"{name} exited with {proc.returncode}: {last}")
+        return found
+
+    return done
 
 
 # -- 1. transfer ------------------------------------------------------------------------------
@@ -119,13 +132,13 @@ def run_idle(ns: Any, seconds: float, rate: float) -> dict[str, Any]:
     """Both processes up at once; their CPU over the same window."""
     ours = ns.ktbt(
         "ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/idle",
-        "-p", f"tick_rate:={rate}", "-p", "sequences:=['']", name="idle-ktbt",
+        "-p", f"tick_rate:={rate}", "-p", f"knowledge:={EXAMPLE_KNOWLEDGE}", name="idle-ktbt",
     )  # fmt: skip
     bare = ns.start(
         [sys.executable, "-m", f"{__name__}.bare_node", "--rate", str(rate)], "idle-bare"
     )
-    wait_for(in_log(ns, "idle-ktbt", ": active"), "the ktbt node did not become active")
-    wait_for(in_log(ns, "idle-bare", "ready"), "the bare node did not start")
+    wait_for(in_log(ns, "idle-ktbt", ": active", ours), "the ktbt node did not become active")
+    wait_for(in_log(ns, "idle-bare", "ready", bare), "the bare node did not start")
     time.sleep(SETTLE)
     procs = {"ours": ours, "bare": bare}
     for name, proc in procs.items():

@@ -11,8 +11,9 @@ namespace for ROS processes), and is ended by its pid when the run ends. Three m
    raw rclpy publish and reply of the same messages, alternating round by round in one process.
 2. **Idle CPU**: a ``ktbt ros2 run`` node, active and ticking at 10 Hz with nothing to learn
    (it is given the four colour skills it would ask about: an empty ``sequences`` cannot be
-   typed on the command line, rclpy leaves ``[]`` uninitialized), beside a bare rclpy node with the same 10 Hz timer (:mod:`.bare_node`), both running at once:
-   each process's CPU time (user + system, ``/proc/PID/stat``) over the same wall-clock window.
+   typed on the command line, rclpy leaves ``[]`` uninitialized), beside a bare rclpy node
+   with the same 10 Hz timer (:mod:`.bare_node`), both running at once: each process's CPU time
+   (user + system, ``/proc/PID/stat``) over the same wall-clock window.
 3. **Fleet** (:mod:`.fleet`): ten robots in namespaces of their own (``__ns:=/robotN``)
    learning the four colour skills from one teacher, beside a zenoh fleet of the same size run by
    the fleet tool (``ktbt fleet run``'s runner), alternating: convergence is when the last
@@ -49,7 +50,7 @@ SETTLE = 2.0
 """Seconds both idle processes run before the window opens: their start-up (imports, DDS
 discovery's first announcements) is not what is measured."""
 FLEET_ROBOTS = 10
-FLEET_TRIALS = 2
+FLEET_TRIALS = 3
 TARGET_RATIO = 1.5
 """Transfer and idle CPU: ours at most this many times the anchor."""
 UP_TIMEOUT = 120.0

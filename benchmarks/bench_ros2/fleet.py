@@ -53,6 +53,19 @@ def _merges(path: Path, items: set[str]) -> dict[str, float]:
     return found
 
 
+def _count(path: Path, events: tuple[str, ...]) -> int:
+    """Lines of a transfer log recording one of ``events``."""
+    if not path.exists():
+        return 0
+    total = 0
+    for line in path.read_text(errors="replace").splitlines():
+        try:
+            total += json.loads(line).get("event") in events
+        except (ValueError, AttributeError):
+            continue
+    return total
+
+
 def run_ros_fleet(folder: Path, robots: int) -> dict[str, Any]:
     from tests.interop.ros2.rosns import RosNamespace
 
@@ -99,12 +112,19 @@ def run_ros_fleet(folder: Path, robots: int) -> dict[str, Any]:
         merges = knowing()
         converged = all(len(m) == len(items) for m in merges.values())
         last = max((max(m.values()) for m in merges.values() if m), default=reference)
+        # As the fleet tool counts them: queries sent and answers sent, by every robot.
+        messages = sum(
+            _count(folder / f"{n}.jsonl", ("query-sent", "answer-sent"))
+            for n in [*learners, "teacher"]
+        )
+        learned = sum(len(m) for m in merges.values())
         return {
             "robots": robots,
             "learners_up_s": round(learners_up, 2),
+            "messages_per_item": round(messages / learned, 2) if learned else None,
             "convergence_s": round(max(0.0, last - reference), 3) if converged else None,
             "knew_all": sum(len(m) == len(items) for m in merges.values()),
-            "learned": sum(len(m) for m in merges.values()),
+            "learned": learned,
         }
     finally:
         ns.close()
@@ -158,16 +178,21 @@ def report_fleet(fleet: dict[str, Any]) -> str:
         times = [r["convergence_s"] for r in runs]
         return ", ".join("-" if t is None else f"{t:.2f}" for t in times)
 
+    def per_item(runs: list[dict[str, Any]]) -> str:
+        counts = [r["messages_per_item"] for r in runs if r.get("messages_per_item") is not None]
+        return f"{statistics.median(counts):.1f}" if counts else "-"
+
     def med(value: float | None) -> str:
         return "-" if value is None else f"{value:.2f}"
 
     table = markdown_table(
-        [f"{fleet['robots']} learners + 1 teacher, {fleet['items']} items", "median s", "trials s"],
+        [f"{fleet['robots']} learners + 1 teacher, {fleet['items']} items", "median s", "trials s",
+         "messages per item"],
         [
             ["ROS 2: `ktbt ros2 run`, `__ns:=/robotN`", med(fleet["ros2_median_s"]),
-             cell(fleet["ros2"])],
+             cell(fleet["ros2"]), per_item(fleet["ros2"])],
             ["zenoh: `ktbt peer run` (fleet tool, mesh)", med(fleet["zenoh_median_s"]),
-             cell(fleet["zenoh"])],
+             cell(fleet["zenoh"]), per_item(fleet["zenoh"])],
         ],
     )  # fmt: skip
     ratio = fleet["ratio"]

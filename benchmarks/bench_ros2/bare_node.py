@@ -1,0 +1,44 @@
+"""The idle benchmark's anchor: a bare rclpy node with a 10 Hz timer that does nothing, spun the
+idiomatic way (``rclpy.spin``). Run inside the benchmark's network namespace by
+:mod:`benchmarks.bench_ros2`; it says ``ready`` on stdout once spinning, and ends on SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.utilities import try_shutdown
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros2.bare_node")
+    parser.add_argument("--rate", type=float, default=10.0, help="timer rate, Hz")
+    args = parser.parse_args(argv)
+    rclpy.init()
+    signal.signal(signal.SIGTERM, lambda *_: try_shutdown())
+    node = rclpy.create_node("bare", namespace="/bare")
+    ticks = [0]
+
+    def tick() -> None:
+        ticks[0] += 1
+        if ticks[0] == 1:
+            print("ready", flush=True)
+
+    node.create_timer(1.0 / args.rate, tick)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        try_shutdown()
+    print(f"ticks {ticks[0]}", file=sys.stderr, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

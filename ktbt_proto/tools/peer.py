@@ -319,6 +319,8 @@ def run_agent(
                 tick, source = robot.metrics.learned[key]
                 say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
                 announced.add(key)
+            if export is not None:  # before a done member stops
+                export.sync(robot.knowledge)
             appeared = transport.appeared()
             if listed is not None and (appeared or now - read_at >= CATALOG_PERIOD):
                 read_at = now
@@ -329,8 +331,6 @@ def run_agent(
             learner.step(now, todo, appeared)
             robot.control.tick()
             robot.tend_memory()
-            if export is not None:
-                export.sync(robot.knowledge)
             stop.wait(period)
         m = robot.metrics
         say(

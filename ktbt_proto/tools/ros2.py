@@ -378,11 +378,16 @@ def bridge_command(
         typer.Option("--max-robots", metavar="N", help="Robots bridged each way at most, 1-1024."),
     ] = 64,
 ) -> None:
-    """Relay knowledge between a zenoh fleet and a ROS 2 fleet, both ways.
+    """Relay knowledge between a zenoh fleet and a ROS 2 fleet.
 
     Queries cross to the other side and answers come back to the asker, signatures intact;
     each side's robots are present on the other (spec/protocol.md section 11, "Bridge").
     Until Ctrl-C; ROS arguments follow --ros-args."""
+    extra = list(ctx.args)
+    if extra and extra[0] != "--ros-args":
+        if extra[0].startswith("-"):
+            raise refuse(f"{extra[0]}: no such option")
+        raise refuse(f"{extra[0]!r}: unexpected; ROS arguments come after --ros-args")
     if not connect and not listen:
         raise refuse("--connect: required: the zenoh fleet to bridge (--connect ENDPOINT)")
     settings = zenoh_settings(listen, connect, config, False, mode)
@@ -401,11 +406,6 @@ def bridge_command(
 
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,54}", node_name):
         raise refuse(f"--node-name: {node_name!r}: use letters, digits and '_' (a ROS node name)")
-    extra = list(ctx.args)
-    if extra and extra[0] != "--ros-args":
-        if extra[0].startswith("-"):
-            raise refuse(f"{extra[0]}: no such option")
-        raise refuse(f"{extra[0]!r}: unexpected; ROS arguments come after --ros-args")
     _ready()
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

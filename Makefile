@@ -52,6 +52,7 @@ test-fast: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest -m "not slow and not network"
 
 bench: $(VENV)/.installed-dev
+	$(BIN)/python -m ktbt_proto.interop.ros2.interfaces build
 	$(BIN)/python -m benchmarks
 
 # The paper's studies, our teaching-rule study and the calibration against the release's own

@@ -27,6 +27,7 @@ from typing import Any, cast
 
 from ktbt_interfaces.srv import Forget, ListKnowledge
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -207,7 +208,12 @@ class KtbtNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _param(self, name: str) -> Any:
-        return self.get_parameter_or(name, Parameter(name, value=None)).value
+        """A parameter's value; None when unset (``-p sequences:=[]`` leaves an array
+        parameter of a type ROS cannot tell without a value, as unset as none)."""
+        try:
+            return self.get_parameter_or(name, Parameter(name, value=None)).value
+        except ParameterUninitializedException:
+            return None
 
     def agent_name(self) -> str:
         name = str(self._param("agent_name"))

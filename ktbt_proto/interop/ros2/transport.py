@@ -39,7 +39,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 from ktbt_interfaces.msg import Answer as AnswerMsg
 from ktbt_interfaces.msg import ErrorReply as ErrorMsg
@@ -348,44 +348,46 @@ class Ros2Transport:
         msg_type: Any,
         kind: type[_M],
         topic: str,
-        wanted: Callable[[Any], bool] | None = None,
-    ) -> tuple[Any, _M] | None:
+        wanted: Callable[[Any], bool],
+    ) -> tuple[Any, _M] | Literal["refused", "skipped"]:
         """A raw message from ``topic`` as the protocol message ``kind``, with the ROS message
         it came as; anything else is refused, with its reason. ``wanted``: whether this robot
-        reads a message that deserialized (one addressed to another is dropped unread)."""
+        reads a message that deserialized: one addressed to another, or its own heard back, is
+        skipped unread (decoding is most of a read's cost)."""
         what = f"on {topic}"
         if len(data) > self.max_bytes + CDR_SLACK:
             self._refuse(f"{what}: {len(data)} bytes, more than the limit", key=topic)
-            return None
+            return "refused"
         try:
             msg = deserialize_message(data, msg_type)
         except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
             self._refuse(f"{what}: not a {msg_type.__name__} ({type(exc).__name__})", key=topic)
-            return None
-        if wanted is not None and not wanted(msg):
-            return None
+            return "refused"
+        if not wanted(msg):
+            return "skipped"
         label = {Query: "query", Response: "response", ErrorReply: "error"}[kind]
         try:
             message = decode(wire_json(msg, label), self.max_bytes)
         except MessageRefused as exc:
             self._refuse(f"{what}: {exc.reason}", key=topic)
-            return None
+            return "refused"
         except (UnicodeError, ValueError) as exc:
             self._refuse(f"{what}: {type(exc).__name__}", key=topic)
-            return None
+            return "refused"
         assert isinstance(message, kind)
         return msg, message
 
     def _on_query(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
-        read = self._read(data, QueryMsg, Query, self.topics.queries)
-        if read is None:
+        read = self._read(
+            data, QueryMsg, Query, self.topics.queries, lambda msg: msg.sender != self.name
+        )
+        if read == "refused":
             self._error_reply(data)
-            return
+        if not isinstance(read, tuple):
+            return  # refused, or our own query heard back
         query = read[1]
-        if query.sender == self.name:
-            return  # our own query, heard back
         if self.lookup is not None:
             if self.log is not None:
                 more = {"more": list(query.more)} if query.more else {}
@@ -440,13 +442,11 @@ class Ros2Transport:
             AnswerMsg,
             Response,
             self.topics.answers,
-            lambda msg: msg.to == self.name or (self.overhear and msg.sender != self.name),
+            lambda msg: msg.sender != self.name and (msg.to == self.name or self.overhear),
         )
-        if read is None:
-            return
+        if not isinstance(read, tuple):
+            return  # refused, addressed to another, or our own answer heard back
         msg, answer = read
-        if answer.sender == self.name:
-            return  # our own answer, heard back
         if msg.to == self.name:
             self._answer_to_me(answer)
         elif self.overhear:  # an answer to another robot (section 4.3)
@@ -482,7 +482,7 @@ class Ros2Transport:
         read = self._read(
             data, ErrorMsg, ErrorReply, self.topics.errors, lambda msg: msg.to == self.name
         )
-        if read is None:
+        if not isinstance(read, tuple):
             return
         error = read[1]
         self.node.get_logger().info(f"{error.sender} refused a query of ours: {error.message}")

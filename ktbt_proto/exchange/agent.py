@@ -133,6 +133,12 @@ class Agent(AgentCore):
             LEARN_TREE.format(wait=timing.wait), own, self.blackboard, ticks=self._clock
         )
 
+    @property
+    def open_query(self) -> Query | None:
+        """The query the learn tree is waiting on (TT2), if any: a fleet member sends it again
+        to a neighbour that appears (section 4.5)."""
+        return self._asking.query if self._asking is not None else None
+
     def encounter(self, sequence: Iterable[Condition | str] | None) -> None:
         """The condition sequence the robot faces now (None: nothing in particular)."""
         self.blackboard[ENCOUNTERED] = None if sequence is None else sequence_key(sequence)

@@ -35,7 +35,7 @@ import logging
 import os
 import re
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
@@ -48,7 +48,7 @@ from ktbt_proto.interop.btcpp import (
     to_xml,
     trees_from_xml,
 )
-from ktbt_proto.items import item_digest, split_item
+from ktbt_proto.items import item_digest, read_sequence, sequence_key, split_item
 from ktbt_proto.syntax import NAME_PATTERN, NAME_RE
 from ktbt_proto.tree import Action, Condition, Placeholder, walk
 
@@ -75,6 +75,24 @@ def tree_id(item: Knowledge, given: Mapping[str, str] | None = None) -> str:
     if given and item.key in given:
         return given[item.key]
     return f"ktbt-{btcpp_name(item.segment)}-{item_digest(item.key, item.subtree)}"
+
+
+def tree_ids(
+    given: Iterable[str], read: Callable[[str], tuple[Condition, ...]] = read_sequence
+) -> dict[str, str]:
+    """``ID=CONDITIONS`` texts (``ktbt peer run --tree-id``, the ROS node's ``tree_ids``) as
+    :class:`LearnedExport`'s ``tree_ids``, by sequence key (section 12.2). ``read`` reads the
+    conditions (raising ``StringBTError``); a text without ``=`` or naming one sequence twice
+    raises ``ValueError`` saying so."""
+    ids: dict[str, str] = {}
+    for text in given:
+        ident, equals, conditions = text.partition("=")
+        if not equals or not conditions.strip():
+            raise ValueError(f"{text!r}: write ID=CONDITIONS, e.g. 'OpenDoor=DoorClosed'")
+        key = sequence_key(read(conditions))
+        if ids.setdefault(key, ident.strip()) != ident.strip():
+            raise ValueError(f"two IDs for {conditions.strip()!r}")
+    return ids
 
 
 def _check_given(tree_ids: Mapping[str, str]) -> None:

@@ -24,10 +24,11 @@ The agent is timed by this timer (an
 the user's tree. Every callback is in the node's default callback group, so with any executor
 none runs while the user's timer (in that group too) ticks the tree.
 
-What the user can get wrong is refused before anything is added to the node, each with one
-line: a tree that is not a ``BehaviourTree`` or has no placeholder (``TypeError``,
-``ValueError``), a robot name or topic that is not one (``ValueError``), a sequence or a
-knowledge item its vocabulary cannot execute (``StringBTError``, with its code).
+What the user can get wrong is refused, leaving the node and the tree as they were (what was
+added before the refusal is taken off, behaviours set up are shut down), each with one line:
+a tree that is not a ``BehaviourTree`` or has no placeholder (``TypeError``, ``ValueError``),
+a robot name or topic that is not one (``ValueError``), a sequence or a knowledge item its
+vocabulary cannot execute (``StringBTError``, with its code).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ from ktbt_proto.interop.ros2.showing import FleetCatalogs, Shown
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import Registry
-from ktbt_proto.tree import Placeholder, SequenceNode
+from ktbt_proto.tree import Condition, Placeholder, SequenceNode
 from ktbt_proto.validate import find_problems
 
 __all__ = ["Embedded", "attach"]
@@ -224,9 +225,22 @@ class Embedded:
         """The items it starts knowing, in the placeholders they name (else ``prior``, else its
         learning placeholder), checked against its vocabulary as a merge is."""
         names = {n.name for n, _ in self._control.tree.walk() if isinstance(n, Placeholder)}
-        for item in knowledge:
-            self._control.merge(item.subtree, item_slot(names, item.segment, slot), item.conditions)
-            self.agent.knowledge.add(item)
+        merged: list[tuple[str, tuple[Condition, ...]]] = []
+        try:
+            for item in knowledge:
+                where = item_slot(names, item.segment, slot)
+                if not self._control.merge(item.subtree, where, item.conditions):
+                    self.node.get_logger().warning(
+                        f"{self.name}: {shown(item.key)} not merged: k:{where} admits no other "
+                        "item for its conditions"
+                    )
+                    continue
+                merged.append((where, item.conditions))
+                self.agent.knowledge.add(item)
+        except BaseException:  # one refused: those merged before it go, shut down
+            for where, conditions in merged:
+                self._control.forget(where, conditions)
+            raise
 
     @property
     def blackboard(self) -> Blackboard:

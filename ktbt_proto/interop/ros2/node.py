@@ -62,6 +62,7 @@ from ktbt_proto.interop.ros2.showing import (
     latched,
 )
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.syntax import parse
@@ -84,6 +85,7 @@ SETUP = (
     "queries_topic",
     "answers_topic",
     "errors_topic",
+    "export_learned",
 )
 """Parameters read when the node is configured: changed only while it is unconfigured."""
 
@@ -156,6 +158,12 @@ class KtbtNode(LifecycleNode):
         declare("queries_topic", Topics().queries, setup)
         declare("answers_topic", Topics().answers, setup)
         declare("errors_topic", Topics().errors, setup)
+        declare("export_learned", "", setup)  # a folder: learned items as BT.CPP files (Nav2)
+        self.declare_parameter(
+            "tree_ids",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(description=f"{setup}; ID=CONDITIONS: an exported item's tree ID"),
+        )
         # Unset (typed, no value): meet what the fleet's catalogs list (section 4.5).
         self.declare_parameter(
             "sequences",
@@ -177,6 +185,7 @@ class KtbtNode(LifecycleNode):
         self._timer: Any = None
         self._snapshot_timer: Any = None
         self._shown: Shown | None = None
+        self._export: LearnedExport | None = None
         self._catalogs: FleetCatalogs | None = None
         self._listed: Listed | None = None
         self._todo: list[str] = []
@@ -187,7 +196,7 @@ class KtbtNode(LifecycleNode):
         """Setup parameters change only while unconfigured; the live ones apply at once: the
         sequences to meet, the tick rate and the snapshot period (timers made anew)."""
         for param in params:
-            if param.name in SETUP and self.agent is not None:
+            if param.name in (*SETUP, "tree_ids") and self.agent is not None:
                 why: str | None = f"{param.name} is read at configure: clean up first"
             else:
                 why = problem(param.name, param.value)
@@ -318,6 +327,9 @@ class KtbtNode(LifecycleNode):
             why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
             raise ValueError(why) from None
         agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
+        self._export = self._learned_export()
+        if self._export is not None:  # what a resumed save file holds already
+            self._export.sync(agent.knowledge)
         self._shown = Shown(self, name, catalog(agent.knowledge, identity), self.log, identity)
         if self._listed is not None:
             self._catalogs = FleetCatalogs(self, self._shown.catalog_topic)
@@ -345,7 +357,7 @@ class KtbtNode(LifecycleNode):
         assert self.transport is not None
         self.transport.active = True
         self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
-        self._show()
+        self._show(periodic=True)  # a snapshot on every activation, changed or not
         self.logger.info(f"{self.transport.name}: active")
         return TransitionCallbackReturn.SUCCESS
 
@@ -382,6 +394,24 @@ class KtbtNode(LifecycleNode):
                 self.destroy_timer(timer)
         self._timer = self._snapshot_timer = None
 
+    def _learned_export(self) -> LearnedExport | None:
+        """The ``export_learned`` folder, with ``tree_ids`` (spec/stringbt.md section 12.2):
+        what the robot learns, as BehaviorTree.CPP files a Nav2 ``NavigateToPose`` goal names
+        by tree ID; a folder it cannot write into or an ID it cannot use fails configure."""
+        folder, given = str(self._param("export_learned")), self._param("tree_ids") or []
+        if not folder:
+            if given:
+                raise ValueError("tree_ids: names exported trees; give export_learned")
+            return None
+        try:
+            return LearnedExport(folder, tree_ids(given))
+        except OSError as exc:
+            raise ValueError(f"export_learned {folder}: {exc.strerror or exc}") from None
+        except StringBTError as err:
+            raise ValueError(f"tree_ids: {err.code} {err.message}") from None
+        except ValueError as exc:
+            raise ValueError(f"tree_ids: {exc}") from None
+
     def _cleanup(self) -> None:
         """Undo ``configure``; the summary of what the agent did goes to the log."""
         self._stop_timers()
@@ -408,7 +438,7 @@ class KtbtNode(LifecycleNode):
         if self.log is not None:
             self.log.close()
         self.agent, self.transport, self.log = None, None, None
-        self._shown = self._catalogs = self._listed = None
+        self._shown = self._catalogs = self._listed = self._export = None
 
     def destroy_node(self) -> None:
         self._cleanup()
@@ -430,6 +460,9 @@ class KtbtNode(LifecycleNode):
         if transport.joined != self._joined:  # a new neighbour: it may know
             self._joined = transport.joined
             backoff.reset(now)
+            asked = agent.open_query
+            if asked is not None and not agent.knows(asked.sequence):
+                transport.broadcast(asked)  # the same query, so the newcomer hears it at once
         if agent.metrics.queries_lost != self._lost:
             self._lost = agent.metrics.queries_lost
             backoff.lost(now)
@@ -440,6 +473,8 @@ class KtbtNode(LifecycleNode):
             self.logger.info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
             self._announced.add(key)
             backoff.reset(now)
+        if self._export is not None:
+            self._export.sync(agent.knowledge)
         self._show()
 
     def _read_catalogs(self, now: float) -> None:

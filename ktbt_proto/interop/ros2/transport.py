@@ -411,19 +411,21 @@ class Ros2Transport:
                 self._seen[key] = now + self.answer_window
         if replay:
             self._refuse(f"query {query.id} from {query.sender} is already open")
-            return
-        if not full:  # else left unanswered, as a teacher in cool-down would
+        elif full:  # left unanswered, as a teacher in cool-down would, but counted
+            self._refuse(f"query {query.id} from {query.sender}: {self.max_pending} queries open")
+        else:
             self._inbox.deliver(query)
 
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when
-        that much of it could be read."""
+        that much of it could be read; an oversized one is never deserialized (to no one)."""
         to = ""
-        try:
-            sender = deserialize_message(data, QueryMsg).sender
-            to = sender if re.fullmatch(NAME, sender) else ""
-        except Exception:  # nothing of it could be read
-            pass
+        if len(data) <= self.max_bytes + CDR_SLACK:
+            try:
+                sender = deserialize_message(data, QueryMsg).sender
+                to = sender if re.fullmatch(NAME, sender) else ""
+            except Exception:  # nothing of it could be read
+                pass
         error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
         self._errors.publish(to_msg(error, to))
 

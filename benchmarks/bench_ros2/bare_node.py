@@ -1,6 +1,8 @@
 """The idle benchmark's anchor: a bare rclpy node with a 10 Hz timer that does nothing, spun the
-idiomatic way (``rclpy.spin``). Run inside the benchmark's network namespace by
-:mod:`benchmarks.bench_ros2`; it says ``ready`` on stdout once spinning, and ends on SIGTERM."""
+idiomatic way (``rclpy.spin``), or with ``--events`` by rclpy's events executor, the one
+``ktbt ros2 run`` spins (so that the executor's own saving is told apart from ours). Run
+inside the benchmark's network namespace by :mod:`benchmarks.bench_ros2`; it says ``ready`` on
+stdout once spinning, and ends on SIGTERM."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from rclpy.utilities import try_shutdown
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros2.bare_node")
     parser.add_argument("--rate", type=float, default=10.0, help="timer rate, Hz")
+    parser.add_argument("--events", action="store_true", help="spin rclpy's events executor")
     args = parser.parse_args(argv)
     rclpy.init()
     signal.signal(signal.SIGTERM, lambda *_: try_shutdown())
@@ -30,7 +33,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     node.create_timer(1.0 / args.rate, tick)
     try:
-        rclpy.spin(node)
+        if args.events:
+            from rclpy.experimental.events_executor import EventsExecutor
+
+            rclpy.spin(node, executor=EventsExecutor())
+        else:
+            rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 
 .PHONY: demo test test-fast lint typecheck docs pytest bench studies fuzz interop soak ros2 clean
 
-# The ROS 2 wheels (the dev extra brings them) depend on lark-parser 0.12, which writes the same
+# The ROS 2 wheels (the ros2 extra) depend on lark-parser 0.12, which writes the same
 # lark/ folder as lark 1.x (added to an environment that has lark already, it wins) and type
 # stubs mypy would prefer to lark 1.x's own: put 1.x back, remove the stubs.
 LARK_1X = $(BIN)/python -m ktbt_proto.interop.ros2.interfaces
@@ -19,8 +19,11 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[sim]'
 	touch $@
 
+# The ROS 2 wheels come with the ros2 extra unless a ROS 2 is sourced (ROS_DISTRO set): then
+# its own rclpy is used and nothing of ROS is installed twice (docs/tutorials/ros2.md).
 $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(if $(ROS_DISTRO),@echo "ROS 2 $(ROS_DISTRO) is sourced: its rclpy is used, the ros2 extra is not installed",$(BIN)/python -m pip install --quiet -e '.[ros2]')
 	$(LARK_1X)
 	touch $@ $(VENV)/.installed
 
@@ -98,7 +101,7 @@ clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures
 
 # KT-BT on ROS 2 (docs/tutorials/ros2.md): ros2/ktbt_interfaces built from the ROS 2 Jazzy wheels
-# (the dev extra brings them, on x86_64 Linux) into .venv, skipped while up to date: about 20 s
+# (`make test` installs them unless a ROS 2 is sourced, on x86_64 Linux) into .venv, skipped while up to date: about 20 s
 # the first time on an idle 2-core machine, under a second after. `make pytest` builds it first
 # the same way (and where there are no wheels says the ROS tests will skip).
 ros2: $(VENV)/.installed-dev

@@ -11,37 +11,43 @@ How each side sees the other:
 - **A ROS robot on zenoh** is a :class:`~ktbt_proto.transport.zenoh.ZenohTransport` of the
   robot's own name (a *mirror*): its liveliness token says the robot is present, its catalog
   queryable serves what the robot's latched ``~/catalog`` says, and its knowledge queryable takes
-  zenoh queries, which the bridge publishes on the ROS query topic. The robot's answer comes
-  back through its own mirror, so it replies on the robot's own key
+  zenoh queries, which the bridge publishes on the ROS query topic. The robot's answer, heard
+  on the answer topic with its ``to`` (the transport's ``relay``), goes to the query of that
+  asker and ``id`` back through the robot's own mirror, so it replies on the robot's own key
   (``ktbt/v1/knowledge/<robot>``), the only key a zenoh asker accepts it on (section 3). A ROS
-  robot is found by its ``~/catalog`` topic (type ``ktbt_interfaces/msg/Catalog``) or by a
-  query it sends.
+  robot is found by its ``~/catalog`` topic (type ``ktbt_interfaces/msg/Catalog``, read as
+  :class:`~ktbt_proto.interop.ros2.showing.FleetCatalogs` reads it) or by a query it sends.
 - **A zenoh peer on ROS** is a node of its own in the bridge's process (a *proxy*, under
   ``<bridge>/zenoh``): subscribed to the query topic, so that ROS robots count it present and
   a learner asks at once (section 11, "Presence"), with the peer's catalog on its latched
   ``~/catalog``. A ROS robot's query is asked on zenoh through the asker's mirror; each answer
   is published on the ROS answer topic, addressed to the asker.
 
-**No loops.** A query is relayed once per asker and ``id``, and only away from the side its
-asker lives on: a zenoh query from a name the bridge mirrors (a mirror's own get, heard by the
-other mirrors) and a ROS query from a zenoh peer's name (one the bridge published) are not
-relayed back. An answer is relayed only to a query the bridge relayed, from the side that
-query went to: an answer the bridge published on ROS, heard back, names a zenoh peer and is
-dropped. Names are one side's each: a ROS robot named as a zenoh peer already present is
-refused, and the other way round.
+**No loops, no diversion.** A query is relayed once per asker and ``id``, and only away from
+the side its asker lives on: a zenoh query from a name the bridge mirrors (a mirror's own get,
+heard by the other mirrors) and a ROS query from a zenoh peer's name (one the bridge
+published) are not relayed back. An answer is relayed only to a query the bridge relayed, from
+the side that query went to, and only to the asker it is addressed to: a peer repeating
+another's ``id`` in its own name asks a question of its own, and never takes the other's
+answers. An answer the bridge published on ROS, heard back, names a zenoh peer and is dropped.
+Names are one side's each: a ROS robot named as a zenoh peer already present is refused, and
+the other way round.
 
 **Hostile input.** What the transports refuse (too large, not a message, a replay, a reply on
 a wrong key) they count and log at WARNING; the bridge adds its own refusals, counted and
 logged the same way: an answer whose signatures are present but do not verify (the ``any``
 policy of section 7: the bridge never carries a forgery), an answer to a question it did not
-relay or to another sequence, a robot beyond :data:`MAX_ROBOTS`, a catalog that is not one.
-Nothing a peer sends ends the bridge.
+relay or to another sequence, a robot beyond :data:`MAX_ROBOTS`, a catalog that is not one
+(larger than 1 MiB serialized or not a ``Catalog``: :class:`FleetCatalogs`' bounds, of which
+the first 1,024 entries are read; naming no robot; an entry without a sequence; or larger, as
+JSON, than the 65,536 bytes a zenoh peer reads of a catalog, section 3). Nothing a peer sends
+ends the bridge.
 """
 
 from __future__ import annotations
 
-import functools
 import hashlib
+import json
 import logging
 import re
 import threading
@@ -54,11 +60,11 @@ import zenoh
 from ktbt_interfaces.msg import Catalog, CatalogEntry
 from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, Query, Response
 from ktbt_proto.exchange.transport import NetworkError
 from ktbt_proto.exchange.trust import Policy, refusal
+from ktbt_proto.interop.ros2.showing import ENTRY_FIELDS, FleetCatalogs, latched
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics, exchange_qos, to_msg
 from ktbt_proto.transport.zenoh import (
     PREFIX,
@@ -74,24 +80,12 @@ MAX_ROBOTS = 64
 """ROS robots mirrored on zenoh, and zenoh peers shown on ROS, at most (each side)."""
 MAX_RELAYED = 1024
 """Queries being relayed at once at most; the oldest is forgotten beyond."""
-CATALOG_TYPE = "ktbt_interfaces/msg/Catalog"
-CATALOG_ENTRY_FIELDS = ("sequence", "author", "teacher", "received_at")
 GRAPH_PERIOD = 0.5
 """Seconds between two reads of the ROS graph (catalog topics, robots gone)."""
 MIRROR_IDLE = 60.0
 """Seconds a ROS robot known only by its queries stays mirrored after its last query."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the zenoh fleet's catalogs."""
-
-
-def latched() -> QoSProfile:
-    """The QoS of a robot's ``~/catalog`` (section 11): RELIABLE, TRANSIENT_LOCAL, depth 1."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
 
 
 def ros_name(name: str, taken: set[str]) -> str:
@@ -169,10 +163,9 @@ class Bridge:
             node,
             self.name,
             self.topics,
-            overhear=True,  # answers addressed to zenoh askers are others' to ROS
-            overheard_limit=1024,
             answer_at_once=False,
             query_timeout=query_timeout,
+            relay=self._answer_from_ros,  # answers addressed to zenoh askers, with their `to`
         )
         # Zenoh's queries, published in their askers' names (the transport's own publisher
         # sends only queries of the bridge's own, whose answers it would not pass on).
@@ -182,8 +175,12 @@ class Bridge:
         """ROS robots on zenoh, by name."""
         self._catalogs: dict[str, list[dict[str, str]]] = {}
         """What each ROS robot's ``~/catalog`` says."""
-        self._catalog_subs: dict[str, Any] = {}
-        """Catalog topic -> its subscription."""
+        self._catalog_reader = FleetCatalogs(
+            node,
+            skip=lambda topic: topic.startswith(self.proxy_space + "/"),  # the proxies'
+            limit=2 * max_robots,
+            heard=self._on_catalog,
+        )
         self._topic_robot: dict[str, str] = {}
         """Catalog topic -> the robot it named."""
         self.proxies: dict[str, tuple[Node, Any, Any]] = {}
@@ -193,7 +190,6 @@ class Bridge:
         self._zenoh_catalogs: dict[str, list[dict[str, str]]] = {}
         self._from_zenoh: OrderedDict[tuple[str, str], Relayed] = OrderedDict()
         """Zenoh queries relayed to ROS: (asker, id) -> the query."""
-        self._by_id: dict[str, tuple[str, str]] = {}
         self._from_ros: OrderedDict[tuple[str, str], Relayed] = OrderedDict()
         """ROS queries relayed to zenoh: (asker, id) -> the query."""
         self._next_graph = 0.0
@@ -202,8 +198,6 @@ class Bridge:
         self._asking: dict[str, float] = {}
         """A ROS robot that asked -> when it last did (a robot without a catalog topic is
         mirrored until it has been silent :data:`MIRROR_IDLE` s)."""
-        self._ignored: set[str] = set()
-        """Catalog topics beyond what the bridge follows (refused once each)."""
         self._stop = threading.Event()
         self._session = open_session(settings)
         try:
@@ -228,7 +222,8 @@ class Bridge:
     def refused(self) -> int:
         """Everything refused: the bridge's own refusals and its transports'."""
         mirrors = sum(m.refused for m in list(self.mirrors.values()))
-        return self.counts.refused + self.ros.refused + mirrors + self._ended_refused
+        catalogs = self._catalog_reader.refused
+        return self.counts.refused + self.ros.refused + catalogs + mirrors + self._ended_refused
 
     def summary(self) -> str:
         c = self.counts
@@ -273,46 +268,33 @@ class Bridge:
     # -- ROS's side: who is there, what they know -----------------------------------------------
 
     def _read_graph(self) -> None:
-        """Subscribe to every robot's ``~/catalog`` (not the proxies'), and end the mirror
-        of a robot whose catalog topic has no publisher any more."""
-        for topic, types in self.node.get_topic_names_and_types():
-            if CATALOG_TYPE not in types or topic in self._catalog_subs:
-                continue
-            if topic.startswith(self.proxy_space + "/") or topic in self._ignored:
-                continue
-            if len(self._catalog_subs) >= 2 * self.max_robots:
-                if len(self._ignored) < 4 * self.max_robots:
-                    self._ignored.add(topic)
-                    self._refuse(f"catalog topic {topic[:80]}: {len(self._catalog_subs)} followed")
-                continue
-            self._catalog_subs[topic] = self.node.create_subscription(
-                Catalog, topic, functools.partial(self._on_catalog, topic), latched()
-            )
+        """Follow every robot's ``~/catalog`` (not the proxies'), and end the mirror of a
+        robot whose catalog topic has no publisher any more."""
+        self._catalog_reader.refresh()
         now = time.monotonic()
         for name in [n for n, t in self._asking.items() if t < now - MIRROR_IDLE]:
             del self._asking[name]
             if name not in self._topic_robot.values():
                 self._end_mirror(name)  # a robot known only by its queries, silent a while
-        for topic in list(self._catalog_subs):
-            if self.node.count_publishers(topic) == 0:
-                self.node.destroy_subscription(self._catalog_subs.pop(topic))
-                robot = self._topic_robot.pop(topic, None)
-                if robot is not None and robot not in self._topic_robot.values():
-                    self._catalogs.pop(robot, None)
-                    self._end_mirror(robot)
+        for topic in self._catalog_reader.gone():
+            robot = self._topic_robot.pop(topic, None)
+            if robot is not None and robot not in self._topic_robot.values():
+                self._catalogs.pop(robot, None)
+                self._end_mirror(robot)
 
-    def _on_catalog(self, topic: str, msg: Catalog) -> None:
-        name = msg.peer
+    def _on_catalog(self, topic: str, name: str, entries: list[dict[str, str]]) -> None:
+        """A ROS robot's catalog, read within :class:`FleetCatalogs`' bounds: mirrored as is,
+        unless it names no robot, lists an entry without a sequence, or is larger as JSON
+        than section 3's limit of a catalog reply (which a zenoh peer would not read)."""
         if not re.fullmatch(NAME, name):
             self._refuse(f"a catalog on {topic[:80]} names no robot ({name[:64]!r})")
             return
-        entries = [
-            {k: str(getattr(e, k)) for k in CATALOG_ENTRY_FIELDS if getattr(e, k)}
-            for e in msg.items
-        ]
-        size = sum(len(str(e)) for e in entries)
-        if size > MAX_MESSAGE_BYTES or any("sequence" not in e for e in entries):
-            self._refuse(f"the catalog of {name} on {topic[:80]}: too large or without sequences")
+        if not all(e["sequence"] for e in entries):
+            self._refuse(f"the catalog of {name} on {topic[:80]}: an entry without a sequence")
+            return
+        size = len(json.dumps(entries).encode())  # what the mirror's catalog queryable serves
+        if size > MAX_MESSAGE_BYTES:
+            self._refuse(f"the catalog of {name} on {topic[:80]}: {size} bytes as JSON")
             return
         if self._mirror(name) is None:
             return
@@ -389,9 +371,7 @@ class Bridge:
         for name, (_, _, pub) in self.proxies.items():
             entries = catalogs.get(name, [])
             if entries != self._proxy_shown.get(name):
-                items = [
-                    CatalogEntry(**{k: e.get(k, "") for k in CATALOG_ENTRY_FIELDS}) for e in entries
-                ]
+                items = [CatalogEntry(**{k: e.get(k, "") for k in ENTRY_FIELDS}) for e in entries]
                 pub.publish(Catalog(peer=name, items=items))
                 self._proxy_shown[name] = entries
 
@@ -406,11 +386,9 @@ class Bridge:
             self._next_graph = now + GRAPH_PERIOD
             self._read_graph()
             self._tend_proxies()
-        for message in self.ros.receive():
+        for message in self.ros.receive():  # queries: answers come through `relay`
             if isinstance(message, Query):
                 self._query_from_ros(message, now)
-            elif isinstance(message, Response):
-                self._answer_from_ros(message)
         for mirror in list(self.mirrors.values()):
             for message in mirror.receive():
                 if isinstance(message, Query):
@@ -426,8 +404,7 @@ class Bridge:
         if key in table:
             return False
         while len(table) >= MAX_RELAYED:
-            old, _ = table.popitem(last=False)
-            self._by_id.pop(old[1], None)
+            table.popitem(last=False)
         until = time.monotonic() + 2 * self.query_timeout
         table[key] = Relayed(query.sender, query.sequences, until)
         return True
@@ -438,7 +415,6 @@ class Bridge:
             return  # a ROS robot's query, asked on zenoh by its mirror: heard back
         if not self._remember(self._from_zenoh, query):
             return  # heard by every mirror: relayed once
-        self._by_id[query.id] = (query.sender, query.id)
         self._queries.publish(to_msg(query))
         self.counts.queries_to_ros += 1
 
@@ -469,20 +445,22 @@ class Bridge:
             return False
         return True
 
-    def _answer_from_ros(self, answer: Response) -> None:
-        """A ROS robot's answer to a zenoh peer's query: back through the robot's mirror,
-        which replies on the robot's own key."""
+    def _answer_from_ros(self, to: str, answer: Response) -> None:
+        """A ROS robot's answer to a zenoh peer's query, addressed (``to``) to its asker: back
+        through the robot's mirror, which replies on the robot's own key. A query is known by
+        its asker and id together, so a peer that repeats another's id in its own name asks a
+        question of its own, and never takes the other's answers."""
         if answer.sender in self.proxies or answer.sender in self.zenoh_peers():
             return  # the bridge's own answer to a ROS robot, heard back
-        key = self._by_id.get(answer.id)
-        if key is None:
+        relayed = self._from_zenoh.get((to, answer.id))
+        if relayed is None:
             return  # an answer between ROS robots: not the bridge's
-        if not self._screened(answer, self._from_zenoh.get(key), "on ROS"):
+        if not self._screened(answer, relayed, "on ROS"):
             return
         mirror = self._mirror(answer.sender)
         if mirror is None:
             return
-        mirror.send(key[0], answer)
+        mirror.send(to, answer)
         self.counts.answers_to_zenoh += 1
 
     def _answer_from_zenoh(self, asker: str, answer: Response) -> None:
@@ -499,9 +477,7 @@ class Bridge:
     def _expire(self, now: float) -> None:
         for table in (self._from_zenoh, self._from_ros):
             while table and next(iter(table.values())).deadline < now:
-                old, _ = table.popitem(last=False)
-                if table is self._from_zenoh:
-                    self._by_id.pop(old[1], None)
+                table.popitem(last=False)
 
     # -- the end --------------------------------------------------------------------------------
 
@@ -517,9 +493,7 @@ class Bridge:
             proxy.destroy_publisher(pub)
             proxy.destroy_node()
         self.proxies.clear()
-        for sub in self._catalog_subs.values():
-            self.node.destroy_subscription(sub)
-        self._catalog_subs.clear()
+        self._catalog_reader.close()
         self.node.destroy_publisher(self._queries)
         self.ros.close()
         self._presence.undeclare()  # type: ignore[no-untyped-call]

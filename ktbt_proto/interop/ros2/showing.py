@@ -7,7 +7,8 @@ embedded in its user's own node (:mod:`ktbt_proto.interop.ros2.embed`) alike.
   embedded robot, so that the user's own topics keep their names);
 - :class:`FleetCatalogs`: the other robots' latched catalogs, found on the ROS graph by their
   type, which a learner told no sequences reads to know what to ask for (section 4.5, as
-  ``ktbt peer run`` reads zenoh's catalog queryables).
+  ``ktbt peer run`` reads zenoh's catalog queryables), and the bridge reads to mirror the
+  robots on zenoh (section 11, "Bridge").
 
 A catalog is a peer's word: it is read raw, bounded (:data:`MAX_CATALOG_BYTES`, at most
 :data:`MAX_CATALOGS` topics followed, :data:`MAX_ENTRIES` entries each), and what it lists is
@@ -38,6 +39,7 @@ from ktbt_proto.tree import Tree
 
 __all__ = [
     "CATALOG_TYPE",
+    "ENTRY_FIELDS",
     "EVENT_TEXT",
     "FleetCatalogs",
     "Shown",
@@ -53,6 +55,8 @@ EVENT_TEXT = (
 )  # fmt: skip
 CATALOG_TYPE = "ktbt_interfaces/msg/Catalog"
 """The type by which a robot's catalog topic is found on the graph, whatever its name."""
+ENTRY_FIELDS = ("sequence", "author", "teacher", "received_at")
+"""A catalog entry's fields (section 3's catalog entry, ``msg/CatalogEntry``)."""
 MAX_CATALOGS = 64
 """Catalog topics a robot follows at most (the first found)."""
 MAX_ENTRIES = 1024
@@ -170,9 +174,7 @@ class Shown:
     def entries(self) -> list[CatalogEntry]:
         """What the robot knows, as catalog entries (``~/list_knowledge`` answers with them)."""
         return [
-            CatalogEntry(
-                **{k: str(e.get(k, "")) for k in ("sequence", "author", "teacher", "received_at")}
-            )
+            CatalogEntry(**{k: str(e.get(k, "")) for k in ENTRY_FIELDS})
             if isinstance(e, dict)
             else CatalogEntry(sequence=e)
             for e in self._entries()
@@ -187,33 +189,64 @@ class Shown:
 
 
 class FleetCatalogs:
-    """The other robots' catalogs, as a learner told no sequences reads them (section 4.5):
-    every topic of type ``ktbt_interfaces/msg/Catalog`` on the graph but ``own`` is followed,
-    latched, as :meth:`refresh` finds it; :meth:`read` gives what each lists, by peer, in the
-    form :class:`ktbt_proto.interop.robot.Listed` reads. ``version`` counts the catalogs
-    received, so a learner reads again when one changed. A catalog that is too large or does
-    not deserialize is refused with a WARNING, and read no further."""
+    """The other robots' catalogs, as a learner told no sequences reads them (section 4.5), and
+    as the bridge reads the ROS robots it mirrors (section 11, "Bridge"): every topic of type
+    ``ktbt_interfaces/msg/Catalog`` on the graph with a publisher, but ``own`` and those
+    ``skip`` names, is followed, latched, as :meth:`refresh` finds it (at most ``limit``; one
+    beyond is refused once); :meth:`read` gives what each lists, by peer, in the form
+    :class:`ktbt_proto.interop.robot.Listed` reads, and ``heard``, if given, is told of each
+    catalog read (its topic, the peer it names as given, its entries). ``version`` counts the
+    catalogs received, so a learner reads again when one changed. A catalog that is too large
+    or does not deserialize is refused with a WARNING, and read no further."""
 
-    def __init__(self, node: Node, own: str = "") -> None:
-        self.node, self.own = node, own
+    def __init__(
+        self,
+        node: Node,
+        own: str = "",
+        *,
+        skip: Callable[[str], bool] | None = None,
+        limit: int = MAX_CATALOGS,
+        heard: Callable[[str, str, list[dict[str, str]]], None] | None = None,
+    ) -> None:
+        self.node, self.own, self.limit, self.heard = node, own, limit, heard
+        self.skip = skip or (lambda topic: False)
         self.version = 0
         self.refused = 0
         self._lock = threading.Lock()
         self._subscriptions: dict[str, Any] = {}
+        self._ignored: set[str] = set()
+        """Topics beyond ``limit``, refused once each (at most ``4 * limit`` remembered)."""
         self._found: dict[str, tuple[str, list[dict[str, str]]]] = {}
         """Topic -> (the peer it names, its entries)."""
 
     def refresh(self) -> int:
-        """Follow the catalog topics that appeared on the graph; how many are followed."""
+        """Follow the catalog topics that appeared on the graph with a publisher (a topic only
+        read has no catalog to give); how many are followed."""
         for topic, types in self.node.get_topic_names_and_types():
-            if len(self._subscriptions) >= MAX_CATALOGS:
-                break
-            if CATALOG_TYPE not in types or topic == self.own or topic in self._subscriptions:
+            if CATALOG_TYPE not in types or topic in self._subscriptions or topic == self.own:
+                continue
+            if topic in self._ignored or self.skip(topic) or not self.node.count_publishers(topic):
+                continue
+            if len(self._subscriptions) >= self.limit:
+                if len(self._ignored) < 4 * self.limit:
+                    self._ignored.add(topic)
+                    self._refuse(f"catalog topic {topic[:80]}: {self.limit} already followed")
                 continue
             self._subscriptions[topic] = self.node.create_subscription(
                 Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True
             )
         return len(self._subscriptions)
+
+    def gone(self) -> list[str]:
+        """The topics followed that have no publisher left: no longer followed, their
+        catalogs forgotten (the bridge ends the mirror of a robot gone)."""
+        ended = [t for t in self._subscriptions if not self.node.count_publishers(t)]
+        for topic in ended:
+            self.node.destroy_subscription(self._subscriptions.pop(topic))
+            with self._lock:
+                if self._found.pop(topic, None) is not None:
+                    self.version += 1
+        return ended
 
     def _on_catalog(self, topic: str, data: bytes) -> None:
         if len(data) > MAX_CATALOG_BYTES:
@@ -224,11 +257,16 @@ class FleetCatalogs:
         except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
             self._refuse(f"catalog on {topic}: not a Catalog ({type(exc).__name__})")
             return
+        entries = [
+            {"sequence": e.sequence} | {k: getattr(e, k) for k in ENTRY_FIELDS[1:] if getattr(e, k)}
+            for e in msg.items[:MAX_ENTRIES]
+        ]
         peer = msg.peer if re.fullmatch(NAME, msg.peer) else topic
-        entries = [{"sequence": e.sequence} for e in msg.items[:MAX_ENTRIES]]
         with self._lock:
             self._found[topic] = (peer, entries)
             self.version += 1
+        if self.heard is not None:
+            self.heard(topic, msg.peer[:200], entries)
 
     def _refuse(self, reason: str) -> None:
         self.refused += 1

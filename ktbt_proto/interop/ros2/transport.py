@@ -194,6 +194,7 @@ class Ros2Transport:
         overheard_limit: int = 64,
         active: bool = True,
         answer_at_once: bool = True,
+        relay: Callable[[str, Response], None] | None = None,
     ) -> None:
         self.node, self.name = node, name
         self.topics = topics or Topics()
@@ -205,6 +206,10 @@ class Ros2Transport:
         """With a key pair, the answers ``lookup`` gives are hop-signed (section 7)."""
         self.log = log
         self.overhear, self.overheard_limit = overhear, overheard_limit
+        self.relay = relay
+        """Given, every answer addressed to another robot, once decoded, goes to it with its ``to``,
+        instead of the overheard inbox: a relay (the bridge, section 11) routes each answer to
+        its asker, which the protocol message itself does not name."""
         self.active = active
         """False: neither ask nor answer (a lifecycle node that is not active)."""
         self.answer_at_once = answer_at_once
@@ -444,13 +449,18 @@ class Ros2Transport:
             AnswerMsg,
             Response,
             self.topics.answers,
-            lambda msg: msg.sender != self.name and (msg.to == self.name or self.overhear),
+            lambda msg: (
+                msg.sender != self.name
+                and (msg.to == self.name or self.overhear or self.relay is not None)
+            ),
         )
         if not isinstance(read, tuple):
             return  # refused, addressed to another, or our own answer heard back
         msg, answer = read
         if msg.to == self.name:
             self._answer_to_me(answer)
+        elif self.relay is not None:
+            self.relay(msg.to, answer)
         elif self.overhear:  # an answer to another robot (section 4.3)
             self._inbox.overhear(answer, self.screen)
 

@@ -84,11 +84,12 @@ class Fleet:
     probe: Probe
     params: Path
 
-    def run(self, robot: str) -> Any:
-        """``ktbt ros2 run`` for ``/robot/ktbt``, started active, configured by the file."""
-        return self.ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r",
-                            f"__ns:=/{robot}", "--params-file", str(self.params),
-                            name=robot)  # fmt: skip
+    def run(self, robot: str, autostart: bool = True) -> Any:
+        """``ktbt ros2 run`` for ``/robot/ktbt``, configured by the file, started active
+        unless not ``autostart``."""
+        start = ["--autostart"] if autostart else []
+        return self.ns.ktbt("ros2", "run", *start, "--ros-args", "-r", f"__ns:=/{robot}",
+                            "--params-file", str(self.params), name=robot)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -136,19 +137,32 @@ def stop(ns: RosNamespace, started: dict[str, Any]) -> None:
 
 
 def test_a_teacher_killed_during_a_transfer_leaves_the_learner_unharmed(fleet: Fleet) -> None:
-    """The doomed teacher (the only one up, knowing colour 3) is killed (SIGKILL, by its pid)
-    as soon as the pupil's query for colour 3 is seen on the fleet's query topic: "during the
-    transfer" approximated, since it answers at once from its knowledge, so its answer may or
-    may not have left. Either way the pupil is unharmed: it refuses nothing, every tree it
-    shows holds whole items only, and it goes on to learn from a second teacher started after
-    the kill (colour 4 from it for certain, colour 3 from whichever answered)."""
+    """One YAML file still configures them all. The doomed teacher (the only one up, knowing
+    colour 3) is killed (SIGKILL, by its pid) as soon as the pupil's query for colour 3 is seen
+    on the fleet's query topic: "during the transfer" approximated. It answers at once from its
+    knowledge, so its answer has usually left and the kill lands while the pupil has still to
+    check and merge it at its next tick; if it had not left, the query is lost. Either way the
+    pupil is unharmed: it refuses nothing, every tree it shows holds whole items only, and it
+    goes on to learn from a second teacher started after the kill (colour 4 from it for
+    certain, colour 3 from whichever answered)."""
     ns, probe = fleet.ns, fleet.probe
     probe.subscribe("/fleet_b/queries", "Query")
     probe.subscribe("/pupil/ktbt/events", "FleetEvent")
     probe.subscribe("/pupil/ktbt/tree", "TreeSnapshot", latched=True)
     doomed = fleet.run("doomed")
     probe.until({"op": "publishers", "topic": "/doomed/ktbt/tree", "count": 1}, 90)  # active
-    pupil = fleet.run("pupil")
+    # The pupil asks as soon as it is active: configured first, so that the probe (and the
+    # doomed teacher) hear its first query.
+    pupil = fleet.run("pupil", autostart=False)
+    configured = fleet.ns.run("ros2", "lifecycle", "/pupil/ktbt", "configure", "--timeout", "60")
+    assert configured.returncode == 0, configured.stderr
+    queries = probe.until(
+        {"op": "publishers", "topic": "/fleet_b/queries", "count": 2, "named": True}, 60
+    )
+    assert sorted(queries["nodes"]) == ["/doomed/ktbt", "/pupil/ktbt"]
+    probe.until({"op": "subscribers", "topic": "/fleet_b/queries", "count": 3}, 60)
+    activated = fleet.ns.run("ros2", "lifecycle", "/pupil/ktbt", "activate", "--timeout", "60")
+    assert activated.returncode == 0, activated.stderr
     probe.wait("/fleet_b/queries", 90, sender="pupil", sequence=key(3))
     doomed.send_signal(signal.SIGKILL)
     assert doomed.wait(timeout=30) == -signal.SIGKILL

@@ -28,6 +28,7 @@ from typing import Any
 import rclpy
 from ktbt_interfaces import msg as ktbt_msg
 from ktbt_interfaces import srv as ktbt_srv
+from lifecycle_msgs.srv import GetState
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -39,6 +40,7 @@ SERVICES: dict[str, Any] = {
     "Forget": ktbt_srv.Forget,
     "ListKnowledge": ktbt_srv.ListKnowledge,
     "GetParameters": GetParameters,
+    "GetState": GetState,
 }
 
 

@@ -163,6 +163,12 @@ def lifecycle(ns: RosNamespace, transition: str) -> str:
     return done.stdout.strip()
 
 
+def state(probe: Probe) -> str:
+    """The managed node's state, as a third node reads it (lifecycle_msgs' ``get_state``)."""
+    got = probe.until({"op": "call", "service": "/managed/ktbt/get_state", "type": "GetState"})
+    return str(got["response"]["current_state"]["label"])
+
+
 def answered(probe: Probe, name: str, attempts: int = 20) -> bool:
     """Whether ``managed`` answers a query ``name-N`` (asked again until it does, or
     ``attempts`` times, 3 s each: a query sent before its subscription matched is lost)."""
@@ -182,10 +188,11 @@ def test_a_managed_robot_goes_through_its_lifecycle_and_answers_only_while_activ
     robots: Robots,
 ) -> None:
     """configure, activate, deactivate, cleanup, configure again, activate, shutdown, with
-    ``ktbt ros2 lifecycle``. The robot answers the probe's queries on a fleet of its own
-    (``/managed_fleet``). A query sent while it is inactive, then one after it is active again:
-    the second is answered, the first never (the queries travel in order from one publisher,
-    and each lifecycle command takes far longer than a delivery on the loopback)."""
+    ``ktbt ros2 lifecycle``, each state read by the probe. The robot answers the probe's
+    queries on a fleet of its own (``/managed_fleet``). A query sent while it is inactive,
+    then one after it is active again: the second is answered, the first never (the queries
+    travel in order from one publisher, and each lifecycle command takes far longer than a
+    delivery on the loopback)."""
     ns, probe = robots.ns, robots.probe
     fleet = [f"{t}_topic:=/managed_fleet/{t}" for t in ("queries", "answers", "errors")]
     probe.subscribe("/managed_fleet/answers", "Answer")
@@ -196,11 +203,11 @@ def test_a_managed_robot_goes_through_its_lifecycle_and_answers_only_while_activ
     managed = ns.ktbt("ros2", "run", "--ros-args", *ros_args, name="managed")
     services = ["/managed/ktbt/list_knowledge", "/managed/ktbt/forget"]
     probe.until({"op": "graph", "services": ["/managed/ktbt/change_state"]}, 90)
-    assert lifecycle(ns, "get") == "unconfigured"
+    assert state(probe) == "unconfigured"
     probe.until({"op": "graph", "services": services, "absent": True}, 5)  # nothing made yet
 
     assert "configure done" in lifecycle(ns, "configure")
-    assert lifecycle(ns, "get") == "inactive"
+    assert state(probe) == "inactive"
     probe.until({"op": "graph", "services": services}, 30)
     probe.until({"op": "subscribers", "topic": "/managed_fleet/queries", "count": 1})
     silent = {"v": 1, "id": "inactive-1", "sender": "probe", "sequence": SEQUENCE}
@@ -211,23 +218,23 @@ def test_a_managed_robot_goes_through_its_lifecycle_and_answers_only_while_activ
     assert answered(probe, "active-1")
 
     assert "deactivate done" in lifecycle(ns, "deactivate")
-    assert lifecycle(ns, "get") == "inactive"
+    assert state(probe) == "inactive"
     silent["id"] = "inactive-2"
     probe.until({"op": "publish", "topic": "/managed_fleet/queries", "type": "Query",
                  "fields": silent})  # fmt: skip
     assert "cleanup done" in lifecycle(ns, "cleanup")
-    assert lifecycle(ns, "get") == "unconfigured"
+    assert state(probe) == "unconfigured"
     probe.until({"op": "graph", "services": services, "absent": True}, 30)
 
     assert "configure done" in lifecycle(ns, "configure")
     assert "activate done" in lifecycle(ns, "activate")
-    assert lifecycle(ns, "get") == "active"
+    assert state(probe) == "active"
     assert answered(probe, "active-2")
     ids = {m["id"] for m in probe.messages("/managed_fleet/answers") if m["sender"] == "managed"}
     assert not ids & {"inactive-1", "inactive-2"}, ids
 
     assert "shutdown done" in lifecycle(ns, "shutdown")
-    assert lifecycle(ns, "get") == "finalized"
+    assert state(probe) == "finalized"
     probe.until({"op": "graph", "services": services, "absent": True}, 30)
     log = ns.log("managed")
     assert log.count("managed: configured, knows 4") == 2

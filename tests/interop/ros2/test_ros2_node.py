@@ -260,9 +260,9 @@ def test_hostile_answers_to_an_open_query_are_refused_and_the_signed_skill_learn
         "-p",
         f"trust:={trust}",
         "-p",
-        "wait_ticks:=1000",
+        "wait_ticks:=600",
         name="learner",
-    )  # fmt: skip (a query open 10 s)
+    )  # fmt: skip (a query open 6 s)
     lifecycle(ns, "/teacher/ktbt", "configure")  # present, not answering yet
     asked = probe.wait("/learner/ktbt/events", 60, event="query-sent")
     before = probe.wait("/learner/ktbt/tree", 30)

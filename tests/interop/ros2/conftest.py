@@ -40,3 +40,18 @@ def rosns(ros2_built: None, tmp_path: Path) -> Iterator[object]:
         yield ns
     finally:
         ns.close()
+
+
+@pytest.fixture(scope="module")
+def module_rosns(
+    ros2_built: None, tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+) -> Iterator[object]:
+    """One network namespace shared by a test module's processes (each test still starts, or
+    reads, only what it needs: none depends on another's side effects), all ended after it."""
+    from tests.interop.ros2.rosns import RosNamespace
+
+    ns = RosNamespace(tmp_path_factory.mktemp(request.module.__name__.rsplit(".", 1)[-1]))
+    try:
+        yield ns
+    finally:
+        ns.close()

@@ -5,7 +5,10 @@ request's deadline (``timeout``) and is polled on observable conditions, never s
 Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, match): the first
 message received on the topic (past the first ``skip``) whose fields match (and hold none of
 ``absent``); ``messages`` (topic); ``publishers`` and ``subscribers`` (topic, count): wait
-until the topic has that many; ``publish`` (topic, type, fields or ``raw`` hex bytes,
+until the topic has that many (``named``: and each one's node is known), with the publishers'
+nodes, types, reliability and durability; ``graph`` (topics, services: names; ``absent``: true
+to wait until none is there): the graph API's topic and service names with their types, once
+all of them are there; ``publish`` (topic, type, fields or ``raw`` hex bytes,
 subscribers: wait for that many first; ``latched``: its publisher latched); ``call`` (service,
 type, request); ``params`` (node, names): a node's parameter values; ``set_params`` (node,
 values): set them, each one's result.
@@ -25,6 +28,7 @@ from typing import Any
 import rclpy
 from ktbt_interfaces import msg as ktbt_msg
 from ktbt_interfaces import srv as ktbt_srv
+from lifecycle_msgs.srv import GetState
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -36,6 +40,7 @@ SERVICES: dict[str, Any] = {
     "Forget": ktbt_srv.Forget,
     "ListKnowledge": ktbt_srv.ListKnowledge,
     "GetParameters": GetParameters,
+    "GetState": GetState,
 }
 
 
@@ -122,12 +127,32 @@ class ProbeNode:
                 if time.monotonic() > deadline:
                     return {"ok": False, "error": "timeout", "last": seen[-5:]}
                 time.sleep(0.02)
-        if op == "publishers":  # with each one's reliability
-            while len(infos := self.node.get_publishers_info_by_topic(req["topic"])) < req["count"]:
+        if op == "publishers":  # with each one's node, type and QoS
+            named = bool(req.get("named"))  # and each one's node known (discovered later)
+            while len(infos := self.node.get_publishers_info_by_topic(req["topic"])) < req[
+                "count"
+            ] or (named and any(i.node_name == "_NODE_NAME_UNKNOWN_" for i in infos)):
                 if time.monotonic() > deadline:
                     return {"ok": False, "error": "timeout"}
                 time.sleep(0.02)
-            return {"ok": True, "reliability": [i.qos_profile.reliability.name for i in infos]}
+            return {
+                "ok": True,
+                "reliability": [i.qos_profile.reliability.name for i in infos],
+                "durability": [i.qos_profile.durability.name for i in infos],
+                "nodes": [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos],
+                "types": [i.topic_type for i in infos],
+            }
+        if op == "graph":  # what a third node sees through the graph API
+            want = set(req.get("topics", [])) | set(req.get("services", []))
+            while True:
+                topics = dict(self.node.get_topic_names_and_types())
+                services = dict(self.node.get_service_names_and_types())
+                there = want & (topics.keys() | services.keys())
+                if (not there) if req.get("absent") else there == want:
+                    return {"ok": True, "topics": topics, "services": services}
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "timeout", "missing": sorted(want - there)}
+                time.sleep(0.05)
         if op == "subscribers":  # wait until the topic has that many subscriptions
             while len(self.node.get_subscriptions_info_by_topic(req["topic"])) < req["count"]:
                 if time.monotonic() > deadline:

@@ -4,6 +4,7 @@ graph or topic condition with a deadline."""
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -222,22 +223,30 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     assert len(listed) == 4
 
 
-def test_a_signed_skill_is_learned_and_a_forgery_in_the_teachers_name_refused(
+def test_hostile_answers_to_an_open_query_are_refused_and_the_signed_skill_learned(
     rosns: Any, tmp_path: Path
 ) -> None:
-    """Signed knowledge over ROS (section 7): the learner under the `signed` policy refuses an
-    unsigned answer in the teacher's name to its own open query before it takes the teacher's
-    place, then learns the teacher's signed item, the author's key with it."""
+    """Signed knowledge over ROS (section 7): the learner under the `trusted` policy, its query
+    open, is sent answers in the teacher's name: unsigned, with a signature that does not
+    verify, signed by an author it does not trust, one over the size limit and bytes that are
+    no Answer. Each is refused, counted and logged at WARNING with its reason, and its latched
+    tree stays the one it showed; then it learns the teacher's signed item, the author's key
+    with it."""
+    from ktbt_proto.exchange.messages import Response
     from ktbt_proto.exchange.signing import Identity
 
     ns: RosNamespace = rosns
     key = tmp_path / "teacher.key"
     public = Identity.generate().save(key).read_text().strip()
+    teacher_id, stranger = Identity.load(key), Identity.generate()
+    trust = tmp_path / "trust"
+    trust.write_text(f"{public}\n")
     probe = Probe(ns)
     probe.subscribe("/learner/ktbt/events", "FleetEvent")
+    probe.subscribe("/learner/ktbt/tree", "TreeSnapshot", latched=True)
     ns.ktbt("ros2", "run", "--ros-args", "-r", "__ns:=/teacher", "-p", f"knowledge:={COLOURS}",
             "-p", f"key:={key}", name="teacher")  # fmt: skip
-    ns.ktbt(
+    learner = ns.ktbt(
         "ros2",
         "run",
         "--autostart",
@@ -247,19 +256,65 @@ def test_a_signed_skill_is_learned_and_a_forgery_in_the_teachers_name_refused(
         "-p",
         "sequences:=[TargetSeen(colour=2)]",
         "-p",
-        "policy:=signed",
+        "policy:=trusted",
         "-p",
-        "wait_ticks:=500",
+        f"trust:={trust}",
+        "-p",
+        "wait_ticks:=600",
         name="learner",
-    )  # fmt: skip (a query open 5 s)
+    )  # fmt: skip (a query open 6 s)
     lifecycle(ns, "/teacher/ktbt", "configure")  # present, not answering yet
     asked = probe.wait("/learner/ktbt/events", 60, event="query-sent")
-    forged = {"v": 1, "id": asked["id"], "sender": "teacher", "to": "learner",
+    before = probe.wait("/learner/ktbt/tree", 30)
+    answer = {"v": 1, "id": asked["id"], "sender": "teacher", "to": "learner",
               "sequence": WANTED, "subtree": SKILL_TREE}  # fmt: skip
-    probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer", "fields": forged,
-                 "subscribers": 2})  # fmt: skip
-    refused = probe.wait("/learner/ktbt/events", 30, event="refused", where="transport")
-    assert refused["reason"] == "from teacher: the item is not signed by its author"
+    other = teacher_id.sign_item("<c>(TargetSeen,colour=3)", SKILL_TREE)
+    item = stranger.sign_item(WANTED, SKILL_TREE)
+    untrusted = stranger.sign_reply(
+        Response(id=asked["id"], sender="teacher", sequence=WANTED, subtree=SKILL_TREE,
+                 author=item.author, signature=item.signature)
+    )  # fmt: skip
+    hostile: list[tuple[dict[str, Any], str]] = [
+        ({"fields": answer}, "from teacher: the item is not signed by its author"),
+        (
+            {"fields": answer | {"author": public, "signature": other.signature}},
+            "from teacher: the author's signature does not match the item",
+        ),
+        (
+            {
+                "fields": answer
+                | {k: untrusted.model_dump()[k] for k in ("author", "signature", "key", "hop")}
+            },
+            f"from teacher: author {stranger.public} is not in the trust store",
+        ),
+        (
+            {"fields": answer | {"subtree": "<sq>" + "<a>(PickTreasure)" * 5000 + "<e>"}},
+            "on /ktbt/answers: ",  # then its size: "N bytes, more than the limit"
+        ),
+        ({"raw": "00010000" + "ff" * 60}, "on /ktbt/answers: not a Answer"),
+    ]
+    refusals = []
+    for message, reason in hostile:
+        probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer",
+                     "subscribers": 2, **message})  # fmt: skip
+        refusals.append(
+            probe.wait("/learner/ktbt/events", 30, event="refused", where="transport",
+                       reason=reason)
+        )  # fmt: skip
+    assert refusals[3]["reason"].endswith("bytes, more than the limit")
+    assert len({r["n"] for r in refusals}) == len(hostile)
+    warned = [line for line in ns.log("learner").splitlines() if "[WARN]" in line]
+    for refused in refusals:
+        assert any(f"learner refused: {refused['reason']}" in line for line in warned), warned
+    assert probe.messages("/learner/ktbt/tree") == [before]  # the tree as it was
+    assert "merged" not in {e["event"] for e in probe.messages("/learner/ktbt/events")}
+
     lifecycle(ns, "/teacher/ktbt", "activate")
     merged = probe.wait("/learner/ktbt/events", 90, event="merged", teacher="teacher")
     assert merged["author"] == public and merged["sequence"] == WANTED
+    probe.wait("/learner/ktbt/tree", 30, tree=SKILL, changed=True)
+    learner.send_signal(signal.SIGTERM)  # stopped, it says what it refused
+    assert learner.wait(timeout=30) == 0
+    summary = [line for line in ns.log("learner").splitlines() if "queries sent" in line]
+    assert "refused 5," in summary[-1], summary
+    assert "Traceback" not in ns.log("learner")

@@ -204,7 +204,9 @@ class Embedded:
             Listed(name, agent.registry, node.get_logger().info) if todo is None else None
         )
         self._catalogs = (
-            FleetCatalogs(node, self.shown.catalog_topic) if self._listed is not None else None
+            FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)
+            if self._listed is not None
+            else None
         )
         self.todo: list[str] = todo or []
         """What it is still to meet, in turn."""

@@ -332,7 +332,9 @@ class KtbtNode(LifecycleNode):
             self._export.sync(agent.knowledge)
         self._shown = Shown(self, name, catalog(agent.knowledge, identity), self.log, identity)
         if self._listed is not None:
-            self._catalogs = FleetCatalogs(self, self._shown.catalog_topic)
+            self._catalogs = FleetCatalogs(
+                self, self._shown.catalog_topic, fleet=self.transport.peers
+            )
         self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
         self._made += [
             self.create_service(ListKnowledge, "~/list_knowledge", self._on_list),

@@ -207,8 +207,13 @@ class FleetCatalogs:
         skip: Callable[[str], bool] | None = None,
         limit: int = MAX_CATALOGS,
         heard: Callable[[str, str, list[dict[str, str]]], None] | None = None,
+        fleet: Callable[[], set[str]] | None = None,
     ) -> None:
         self.node, self.own, self.limit, self.heard = node, own, limit, heard
+        self.fleet = fleet
+        """The nodes of this robot's fleet (``Ros2Transport.peers``: those reading its query
+        topic); given, a catalog is followed only if one of them publishes it, so that a fleet
+        on other topics of the same graph is not read (section 11)."""
         self.skip = skip or (lambda topic: False)
         self.version = 0
         self.refused = 0
@@ -225,7 +230,7 @@ class FleetCatalogs:
         for topic, types in self.node.get_topic_names_and_types():
             if CATALOG_TYPE not in types or topic in self._subscriptions or topic == self.own:
                 continue
-            if topic in self._ignored or self.skip(topic) or not self.node.count_publishers(topic):
+            if topic in self._ignored or self.skip(topic) or not self._ours(topic):
                 continue
             if len(self._subscriptions) >= self.limit:
                 if len(self._ignored) < 4 * self.limit:
@@ -236,6 +241,16 @@ class FleetCatalogs:
                 Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True
             )
         return len(self._subscriptions)
+
+    def _ours(self, topic: str) -> bool:
+        """Whether ``topic`` has a publisher (of this fleet, when ``fleet`` is given)."""
+        if self.fleet is None:
+            return bool(self.node.count_publishers(topic))
+        fleet = self.fleet()
+        return any(
+            f"{info.node_namespace.rstrip('/')}/{info.node_name}" in fleet
+            for info in self.node.get_publishers_info_by_topic(topic)
+        )
 
     def gone(self) -> list[str]:
         """The topics followed that have no publisher left: no longer followed, their

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import statistics
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -631,6 +631,18 @@ def honest_refusals(h: History) -> dict[str, int]:
     }
 
 
+def redials(h: History) -> dict[str, int]:
+    """How many of the fleet's links came up (``links_up``) and how many times one came up
+    again after its first (``links_redialled``: a link closed, by a fault, a kill or its lease,
+    and dialled again), before the floor's probe opened a link of its own. In a fleet without
+    faults every redial is a healthy link given up: what a lease too short for the load costs
+    (spec/protocol.md section 3)."""
+    probing = h.one("probing")
+    until = float("inf") if probing is None else probing["t"]
+    ups = Counter(e["link"] for e in h.of("link-up") if e["t"] < until)
+    return {"links_up": len(ups), "links_redialled": sum(ups.values()) - len(ups)}
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -663,6 +675,7 @@ def metrics(h: History) -> dict[str, Any]:
         "floor_proxied_s": (floor.get("proxied") or {}).get("median_s"),
         "refused": len(h.of(Event.REFUSED)),
         **honest_refusals(h),
+        **redials(h),
         "error_replies": len(h.of(Event.ERROR_RECEIVED)),
         "network_errors": len(h.of(Event.NETWORK_ERROR)),
     }

@@ -180,9 +180,9 @@ class FleetRun:
 
     def _zenoh_config(self, node: Host) -> Path:
         path = self.out / "zenoh" / f"{node.name}.json5"
-        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, multicast
-        # off) do not give: no gossip (the fleet's links are the only paths) and, for routers
-        # too, the stable zenoh id (a restarted peer is the same peer).
+        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, lease,
+        # multicast off) do not give: no gossip (the fleet's links are the only paths) and, for
+        # routers too, the stable zenoh id (a restarted peer is the same peer).
         conf: dict[str, Any] = {
             "scouting": {"gossip": {"enabled": False}},
             "id": stable_zid(node.name),
@@ -194,7 +194,7 @@ class FleetRun:
         node, port = member.node, self.plan.port
         connect = [f"tcp/{link.proxy}:{port}" for link in self.plan.dials(node.name)]
         conf = ["--config", str(self._zenoh_config(node)), "--ready", str(ready)]
-        conf += ["--retry", str(self.config.retry_ms)]
+        conf += ["--retry", str(self.config.retry_ms), "--lease", str(self.config.lease_ms)]
         python = [sys.executable, "-m", "ktbt_proto", "peer"]
         if node.role == "router":
             args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
@@ -567,6 +567,7 @@ class FleetRun:
         delay, loss and all) to the peer behind it, which knows every item by then."""
         teacher = next(n for n in self.plan.peers if n.role == "teacher")
         sequence = next(iter(self.items))
+        self.record.emit("probing")  # the probe's own link is not one of the fleet's redials
         if self.config.topology == "router":
             direct = {"skipped": "teachers are clients of routers: no direct link to probe"}
         else:

@@ -643,6 +643,24 @@ def redials(h: History) -> dict[str, int]:
     return {"links_up": len(ups), "links_redialled": sum(ups.values()) - len(ups)}
 
 
+def given_up(h: History) -> float | None:
+    """How long a link that went silent was kept: from the start of a silent partition to the
+    first connection its dialer made again through the held link (the lease, plus up to one
+    retry period), the median over the links that crossed it; None without such a
+    partition or redial (spec/protocol.md section 3)."""
+    start = next(
+        (e for e in h.of("fault") if e["fault"] == "partition-silent" and e["phase"] == "start"),
+        None,
+    )
+    if start is None:
+        return None
+    first: dict[int, float] = {}
+    for e in h.of("dialled-held"):
+        if e["t"] >= start["t"]:
+            first.setdefault(e["link"], e["t"] - start["t"])
+    return round(statistics.median(first.values()), 3) if first else None
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -676,6 +694,7 @@ def metrics(h: History) -> dict[str, Any]:
         "refused": len(h.of(Event.REFUSED)),
         **honest_refusals(h),
         **redials(h),
+        "silent_link_given_up_s": given_up(h),
         "error_replies": len(h.of(Event.ERROR_RECEIVED)),
         "network_errors": len(h.of(Event.NETWORK_ERROR)),
     }

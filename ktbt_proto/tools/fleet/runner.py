@@ -164,7 +164,9 @@ class FleetRun:
         self.items = authored_items(config.knowledge or EXAMPLE_KNOWLEDGE)
         self.plan: Plan = make_plan(config, _port())
         self.members = {n.name: PeerProcess(n, out / "peers") for n in self.plan.nodes}
-        self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay, self._linked)
+        self.layer = FaultLayer(
+            self.plan.links, self.plan.port, config.delay, self._linked, self._dialled_held
+        )
         self.record = Record(out / "events.jsonl", self.t0)
         self.pause = stream(config.seed, "churn-pauses")
         self.teacher_program = "run" if config.teacher == "run" else "serve"
@@ -346,6 +348,11 @@ class FleetRun:
         """A connection of ``link`` reached its listener (the proxy says so): the link is up,
         a mark of the timelines (check.timelines)."""
         self.record.emit("link-up", link=link.index, dialer=link.dialer, listener=link.listener)
+
+    def _dialled_held(self, link: Any) -> None:
+        """A connection of ``link`` was accepted while the link is held: its dialer gave the
+        silent link up and dialled again (how long that takes is the lease's work)."""
+        self.record.emit("dialled-held", link=link.index)
 
     def knows(self, member: PeerProcess) -> set[str]:
         life = member.life

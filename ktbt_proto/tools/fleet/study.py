@@ -388,7 +388,8 @@ def lease_of(summary: dict[str, Any]) -> int:
 
 def lease_lines(summaries: list[dict[str, Any]]) -> list[str]:
     """What the lease buys and costs, one row a lease measured: the writes a second on an idle
-    link (keep-alives), the partition's heal (convergence after it) and the delay its dead
+    link (keep-alives), how long a link that went silent was kept (check.given_up), the
+    partition's heal (convergence after it) and the delay its dead
     links caused the half with the teacher (against halves-10, the same halves with no dead
     link), and the healthy links a fleet of 20 without faults gave up and dialled again."""
     found: dict[str, float] = next(
@@ -405,6 +406,7 @@ def lease_lines(summaries: list[dict[str, Any]]) -> list[str]:
         if not (cut or calm) and lease not in rates:
             continue
         heal = measured(cut[0]) if cut else None
+        kept = cut[0].get("silent_link_given_up_s") if cut else None
         mine = cut[0].get("teacher_half_s") if cut else None
         delay = "-" if mine is None or half is None else f"{float(mine) - float(half):+.2f}"
         redials = "-"
@@ -417,6 +419,7 @@ def lease_lines(summaries: list[dict[str, Any]]) -> list[str]:
         )
         rows.append(
             f"| {lease / 1000:g} s | {rates.get(lease, '-')} "
+            f"| {'-' if kept is None else f'{kept:.2f}'} "
             f"| {'-' if heal is None else f'{heal:.2f}'} | {delay} | {redials} | {loads or '-'} |"
         )
     if not rows:
@@ -426,14 +429,17 @@ def lease_lines(summaries: list[dict[str, Any]]) -> list[str]:
         "What the lease buys and costs (every peer's `--lease`; 4 keep-alives a lease): writes"
         " a second on an idle link, both ends together (two sessions linked through a relay"
         " that counts each read, measured in the same run; each a keep-alive of a few bytes);"
-        " the 30 s partition's convergence after the heal; the delay its dead links caused the"
+        " in the 30 s silent partition, how long a dialer kept a link that went silent before"
+        " it dialled again (the median over the links that crossed it), the convergence after"
+        " the heal, and the delay its dead links caused the"
         " half with the teacher (against halves-10); the links of 20 peers without faults"
         " closed and dialled again before the end (a healthy link given up); the load average"
         " before those runs.",
         "",
-        "| lease | writes a second on an idle link | partition-30s: convergence after the heal"
-        " (s) | dead links' delay (s) | healthy links dialled again | load before |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| lease | writes a second on an idle link | silent link given up after (s)"
+        " | partition-30s: convergence after the heal (s) | dead links' delay (s)"
+        " | healthy links dialled again | load before |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
         *rows,
     ]
 

@@ -35,16 +35,17 @@ def test_the_lease_table_has_a_row_a_lease_with_its_cost_heal_delay_and_redials(
                  keep_alive_rates={"1000": 7.8, "4000": 2.0, "10000": 0.8}),
         _summary("partition-30s", convergence_s=0.12, teacher_half_s=0.05),  # before --lease
         _summary("halves-10", lease=4000, teacher_half_s=0.08),
-        _summary("partition-30s-lease-1s", 1000, convergence_s=0.3, teacher_half_s=0.2),
+        _summary("partition-30s-lease-1s", 1000, convergence_s=0.3, teacher_half_s=0.2,
+                 silent_link_given_up_s=1.3),
         _summary("partition-30s-lease-10s", 10000, convergence_s=None, teacher_half_s=0.1),
         _summary("size-20-lease-1s", 1000, links_up=190, links_redialled=12),
     ]  # fmt: skip
     rows = _rows(lease_lines(summaries))
     assert list(rows) == ["1 s", "4 s", "10 s"]
-    assert rows["1 s"][:4] == ["7.8", "0.30", "+0.12", "12 of 190 (size-20-lease-1s)"]
-    assert rows["4 s"][:4] == ["2.0", "0.12", "-0.03", "0 of 190 (size-20)"]
-    assert rows["10 s"][:4] == ["0.8", "-", "+0.02", "-"]  # did not converge; no healthy run
-    assert rows["1 s"][4] == "1.5/1.5"  # the load before each run the row reads
+    assert rows["1 s"][:5] == ["7.8", "1.30", "0.30", "+0.12", "12 of 190 (size-20-lease-1s)"]
+    assert rows["4 s"][:5] == ["2.0", "-", "0.12", "-0.03", "0 of 190 (size-20)"]
+    assert rows["10 s"][:5] == ["0.8", "-", "-", "+0.02", "-"]  # not converged, no healthy run
+    assert rows["1 s"][5] == "1.5/1.5"  # the load before each run the row reads
     assert "What the lease buys and costs" in "\n".join(table(summaries))
 
 
@@ -65,6 +66,22 @@ def test_a_link_up_again_is_a_redial_and_the_probes_own_link_is_not() -> None:
     ]
     found = metrics(History(events))
     assert (found["links_up"], found["links_redialled"]) == (2, 1)
+    assert found["silent_link_given_up_s"] is None  # no silent partition
+
+
+def test_a_silent_link_is_given_up_when_its_dialer_dials_through_the_held_link() -> None:
+    events = base(partition=5.0)
+    end = events.pop()
+    events += [
+        {"t": 2.0, "kind": "fault", "fault": "partition-silent", "phase": "start"},
+        {"t": 1.5, "kind": "dialled-held", "link": 2},  # before the partition: not counted
+        {"t": 6.0, "kind": "dialled-held", "link": 0},
+        {"t": 6.5, "kind": "dialled-held", "link": 0},  # its second redial
+        {"t": 7.0, "kind": "dialled-held", "link": 1},
+        {"t": 8.0, "kind": "dialled-held", "link": 2},
+        end,
+    ]
+    assert metrics(History(events))["silent_link_given_up_s"] == pytest.approx(5.0)
 
 
 def _ktbt(*args: str) -> subprocess.CompletedProcess[str]:

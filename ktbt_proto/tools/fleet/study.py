@@ -1,8 +1,8 @@
 """The fleet study (``make soak``): convergence time against fleet size, packet loss, delay, a
-half/half silent partition that heals and churn, messages per learned item, beside the floor
-of one query round trip measured in each run; every run checked. Writes ``fleet.md`` (the
-table, with the targets of docs/howto/fleet.md and whether each is met), ``fleet.png``
-and ``fleet.json`` into the docs folder."""
+half/half silent partition that heals, churn and the links' lease, messages per learned item,
+beside the floor of one query round trip measured in each run; every run checked. Writes
+``fleet.md`` (the table, with the targets of docs/howto/fleet.md and whether each is met),
+``fleet.png`` and ``fleet.json`` into the docs folder."""
 
 from __future__ import annotations
 

@@ -94,10 +94,17 @@ connection attempts a second to each endpoint that stays dead (measured: docs/re
 spec section 3)."""
 LEASE_MS = 4_000
 """A link that carries nothing, not even keep-alives, for this long is closed (zenoh's
-``transport/link/tx/lease``; its default is 10 s), so that a silent link is given up, and
-dialled again, within seconds (spec section 3)."""
+``transport/link/tx/lease``, its default 10 s; ``--lease``), and dialled again. Chosen from the
+fleet study's lease table (docs/results/fleet.md, spec section 3), which ran leases of 1, 4
+and 10 s: the heal of a 30 s silent partition (0.09 to 0.15 s) and the delay its dead links
+cause (none) do not depend on it, and at 1 s no healthy link of 20 peers was dropped (load
+averages 2.5 and 5.8). What it sets is how long a link that went silent (a robot out of
+range) is kept, 3.8 s here (0.8 s at 1 s, 8.8 s at 10 s), against its cost, 2.0 writes a
+second on an idle link, both ends together (7.8 at 1 s, 0.8 at 10 s): a gone robot is given
+up within seconds for less than one keep-alive a second each way."""
 KEEP_ALIVE = 4
-"""Keep-alives a lease (zenoh's default): one every LEASE_MS / 4 ms on an idle link."""
+"""Keep-alives a lease (zenoh's default, not varied by the study): one every LEASE_MS / 4 ms
+from each end of an idle link, so that a lease expires only after four are missed."""
 
 
 def stable_zid(name: str) -> str:

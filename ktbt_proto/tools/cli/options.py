@@ -152,6 +152,17 @@ RetryPeriod = Annotated[
         "attempts a second to each dead one).",
     ),
 ]
+LeasePeriod = Annotated[
+    int,
+    typer.Option(
+        "--lease",
+        metavar="MS",
+        min=500,
+        max=600_000,
+        help="Close a link silent for MS ms, and dial it again (4 keep-alives a lease on an "
+        "idle link).",
+    ),
+]
 JoinMode = Annotated[MemberMode, typer.Option("--mode", help="peer, or client (through a router).")]
 KeyFile = Annotated[
     Path | None,
@@ -243,6 +254,7 @@ def zenoh_settings(
     multicast: bool,
     mode: Mode = "peer",
     retry_ms: int | None = None,
+    lease_ms: int | None = None,
 ) -> ZenohSettings:
     """The zenoh settings the network options describe; a config file that cannot be read is
     one line, exit 2 (spec/protocol.md section 3)."""
@@ -257,7 +269,9 @@ def zenoh_settings(
             raise refuse(f"cannot read --config {config}: {io_reason(exc)}") from None
     try:
         settings = ZenohSettings(listen or (), connect or (), config, mode, multicast)
-        return settings if retry_ms is None else replace(settings, retry_ms=retry_ms)
+        if retry_ms is not None:
+            settings = replace(settings, retry_ms=retry_ms)
+        return settings if lease_ms is None else replace(settings, lease_ms=lease_ms)
     except ValueError as exc:  # an EndpointError: "connect: 127.0.0.1:7447 names no protocol..."
         raise refuse(f"--{exc}") from None
 

@@ -25,6 +25,7 @@ from ktbt_proto.tools.cli.options import (
     JoinMode,
     KeyFile,
     KnowledgeFile,
+    LeasePeriod,
     Listen,
     LogFile,
     Multicast,
@@ -50,7 +51,7 @@ from ktbt_proto.tools.cli.options import (
     vocabulary_or_exit,
     zenoh_settings,
 )
-from ktbt_proto.transport.zenoh import RETRY_MS, SessionError
+from ktbt_proto.transport.zenoh import LEASE_MS, RETRY_MS, SessionError
 
 if TYPE_CHECKING:
     from ktbt_proto.interop.sidecar import LearnedExport
@@ -96,6 +97,7 @@ def peer_serve(
     config: ZenohConfig = None,
     multicast: Multicast = False,
     retry: RetryPeriod = RETRY_MS,
+    lease: LeasePeriod = LEASE_MS,
     mode: JoinMode = "peer",
 ) -> None:
     """Answer queries for the knowledge in a file until stopped.
@@ -105,7 +107,7 @@ def peer_serve(
     Answers are signed with --key; with --overhear, it also serves what it overhears."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast, mode, retry)
+    settings = zenoh_settings(listen, connect, config, multicast, mode, retry, lease)
     registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
     served = knowledge_or_exit(knowledge, registry)
     secure = security(key, Policy.ANY, None, log)
@@ -232,6 +234,7 @@ def peer_run(
     config: ZenohConfig = None,
     multicast: Multicast = False,
     retry: RetryPeriod = RETRY_MS,
+    lease: LeasePeriod = LEASE_MS,
     mode: JoinMode = "peer",
 ) -> None:
     """Run a robot: it learns what it meets and teaches what it knows.
@@ -243,7 +246,7 @@ def peer_run(
     that file's items."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast, mode, retry)
+    settings = zenoh_settings(listen, connect, config, multicast, mode, retry, lease)
     robot = robot_or_exit(vocabulary, control, demo)
     registry = robot.registry
     for text in sequence or ():
@@ -301,11 +304,12 @@ def peer_router(
     config: ZenohConfig = None,
     multicast: Multicast = False,
     retry: RetryPeriod = RETRY_MS,
+    lease: LeasePeriod = LEASE_MS,
 ) -> None:
     """Run a zenoh router, for fleets that span subnets."""
     from ktbt_proto.tools import peer
 
-    settings = zenoh_settings(listen, connect, config, multicast, retry_ms=retry)
+    settings = zenoh_settings(listen, connect, config, multicast, retry_ms=retry, lease_ms=lease)
     _peer_call(lambda: peer.router(settings, typer.echo, ready))
 
 

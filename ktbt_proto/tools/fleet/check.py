@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import statistics
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -631,6 +631,36 @@ def honest_refusals(h: History) -> dict[str, int]:
     }
 
 
+def redials(h: History) -> dict[str, int]:
+    """How many of the fleet's links came up (``links_up``) and how many times one came up
+    again after its first (``links_redialled``: a link closed, by a fault, a kill or its lease,
+    and dialled again), before the floor's probe opened a link of its own. In a fleet without
+    faults every redial is a healthy link given up: what a lease too short for the load costs
+    (spec/protocol.md section 3)."""
+    probing = h.one("probing")
+    until = float("inf") if probing is None else probing["t"]
+    ups = Counter(e["link"] for e in h.of("link-up") if e["t"] < until)
+    return {"links_up": len(ups), "links_redialled": sum(ups.values()) - len(ups)}
+
+
+def given_up(h: History) -> float | None:
+    """How long a link that went silent was kept: from the start of a silent partition to the
+    first connection its dialer made again through the held link (the lease, plus up to one
+    retry period), the median over the links that crossed it; None without such a
+    partition or redial (spec/protocol.md section 3)."""
+    start = next(
+        (e for e in h.of("fault") if e["fault"] == "partition-silent" and e["phase"] == "start"),
+        None,
+    )
+    if start is None:
+        return None
+    first: dict[int, float] = {}
+    for e in h.of("dialled-held"):
+        if e["t"] >= start["t"]:
+            first.setdefault(e["link"], e["t"] - start["t"])
+    return round(statistics.median(first.values()), 3) if first else None
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -663,6 +693,8 @@ def metrics(h: History) -> dict[str, Any]:
         "floor_proxied_s": (floor.get("proxied") or {}).get("median_s"),
         "refused": len(h.of(Event.REFUSED)),
         **honest_refusals(h),
+        **redials(h),
+        "silent_link_given_up_s": given_up(h),
         "error_replies": len(h.of(Event.ERROR_RECEIVED)),
         "network_errors": len(h.of(Event.NETWORK_ERROR)),
     }

@@ -231,18 +231,24 @@ def study_command(
     ] = Path("docs/results"),
     only: Annotated[
         list[str] | None,
-        typer.Option("--only", metavar="SCENARIO", help="Run only this scenario (repeatable)."),
+        typer.Option(
+            "--only",
+            metavar="NAME[,NAME]",
+            help="Run only these scenarios (repeatable); the others' rows are kept.",
+        ),
     ] = None,
 ) -> None:
     """Run the whole fleet study and write its table and figure.
 
-    Convergence against size, loss, delay, partition and churn."""
+    Convergence against size, loss, delay, partition, churn and the lease. With --only, the
+    rows of the scenarios not run are kept from the previous fleet.json."""
     from ktbt_proto.tools.fleet.study import SCENARIOS, study
 
-    unknown = set(only or ()) - {name for name, _, _ in SCENARIOS}
+    names = [name for given in only or () for name in given.split(",") if name]
+    unknown = set(names) - {name for name, _, _ in SCENARIOS}
     if unknown:
-        raise refuse(f"no such scenario: {', '.join(sorted(unknown))}")
-    summaries = study(out, docs, typer.echo, only)
+        raise refuse(f"--only: no such scenario: {', '.join(sorted(unknown))}")
+    summaries = study(out, docs, typer.echo, names or None)
     failed = [s["name"] for s in summaries if not s["passed"]]
     typer.echo(json.dumps({"runs": len(summaries), "failed": failed}))
     raise typer.Exit(1 if failed else 0)
@@ -256,7 +262,9 @@ fleet.command(
     ),
 )(run_command)
 fleet.command("check", epilog=example("ktbt fleet check run1"))(check_command)
-fleet.command("study", epilog=example("ktbt fleet study --only size-5"))(study_command)
+fleet.command("study", epilog=example("ktbt fleet study --only size-5,partition-30s-lease-1s"))(
+    study_command
+)
 
 
 def register(app: typer.Typer) -> None:

@@ -88,6 +88,9 @@ class FleetConfig:
     """``one``: the newer (higher) peer of a link dials; ``both``: both ends dial each other."""
     retry_ms: int = 250
     """Every peer's ``--retry``: the period at which it dials a dead endpoint again."""
+    lease_ms: int = 4_000
+    """Every peer's ``--lease``: how long a link may carry nothing before it is closed (and
+    dialled again), in ms (spec/protocol.md section 3)."""
     watch: str = ""
     """The folder of the monitor's unix sockets (``--monitor``): every peer also listens there
     and publishes its fleet events; empty: no monitor."""
@@ -114,6 +117,8 @@ class FleetConfig:
             raise PlanError("--dial must be one or both")
         if not 10 <= self.retry_ms <= 600_000:
             raise PlanError("--retry is a period from 10 ms to 600 s")
+        if not 500 <= self.lease_ms <= 600_000:
+            raise PlanError("--lease is from 500 ms to 600 s")
         if self.partition_kind not in ("silent", "reset", "none"):
             raise PlanError("--partition-kind must be silent, reset or none")
 

@@ -55,6 +55,9 @@ class LinkProxy:
     linked: Callable[[Link], None] | None = None
     """Told each time a connection of this link reaches its listener: the link is up (a mark
     of a transfer's timeline)."""
+    dialled_held: Callable[[Link], None] | None = None
+    """Told each time a connection of this link is accepted while it is held: its dialer gave
+    the silent link up (its lease) and dialled again."""
 
     def __post_init__(self) -> None:
         self._open = asyncio.Event()
@@ -113,6 +116,8 @@ class LinkProxy:
             early: bytes | None = b""
             if not self._open.is_set():
                 self.counters.connections_held += 1
+                if self.dialled_held is not None:
+                    self.dialled_held(self.link)
                 early = await self._wait_open(reader)
                 if early is None:  # the dialer gave up while held
                     self.counters.closed_while_held += 1
@@ -273,8 +278,12 @@ class FaultLayer:
         port: int,
         delay: float = 0.0,
         linked: Callable[[Link], None] | None = None,
+        dialled_held: Callable[[Link], None] | None = None,
     ) -> None:
-        self.proxies = {link.index: LinkProxy(link, port, delay, linked=linked) for link in links}
+        self.proxies = {
+            link.index: LinkProxy(link, port, delay, linked=linked, dialled_held=dialled_held)
+            for link in links
+        }
 
     async def start(self) -> None:
         for proxy in self.proxies.values():

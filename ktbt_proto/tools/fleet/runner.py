@@ -164,7 +164,9 @@ class FleetRun:
         self.items = authored_items(config.knowledge or EXAMPLE_KNOWLEDGE)
         self.plan: Plan = make_plan(config, _port())
         self.members = {n.name: PeerProcess(n, out / "peers") for n in self.plan.nodes}
-        self.layer = FaultLayer(self.plan.links, self.plan.port, config.delay, self._linked)
+        self.layer = FaultLayer(
+            self.plan.links, self.plan.port, config.delay, self._linked, self._dialled_held
+        )
         self.record = Record(out / "events.jsonl", self.t0)
         self.pause = stream(config.seed, "churn-pauses")
         self.teacher_program = "run" if config.teacher == "run" else "serve"
@@ -180,9 +182,9 @@ class FleetRun:
 
     def _zenoh_config(self, node: Host) -> Path:
         path = self.out / "zenoh" / f"{node.name}.json5"
-        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, multicast
-        # off) do not give: no gossip (the fleet's links are the only paths) and, for routers
-        # too, the stable zenoh id (a restarted peer is the same peer).
+        # Only what the peers' own settings (ZenohSettings: mode, endpoints, retry, lease,
+        # multicast off) do not give: no gossip (the fleet's links are the only paths) and, for
+        # routers too, the stable zenoh id (a restarted peer is the same peer).
         conf: dict[str, Any] = {
             "scouting": {"gossip": {"enabled": False}},
             "id": stable_zid(node.name),
@@ -194,7 +196,7 @@ class FleetRun:
         node, port = member.node, self.plan.port
         connect = [f"tcp/{link.proxy}:{port}" for link in self.plan.dials(node.name)]
         conf = ["--config", str(self._zenoh_config(node)), "--ready", str(ready)]
-        conf += ["--retry", str(self.config.retry_ms)]
+        conf += ["--retry", str(self.config.retry_ms), "--lease", str(self.config.lease_ms)]
         python = [sys.executable, "-m", "ktbt_proto", "peer"]
         if node.role == "router":
             args = [*python, "router", "--listen", f"tcp/{node.address}:{port}", *conf]
@@ -346,6 +348,11 @@ class FleetRun:
         """A connection of ``link`` reached its listener (the proxy says so): the link is up,
         a mark of the timelines (check.timelines)."""
         self.record.emit("link-up", link=link.index, dialer=link.dialer, listener=link.listener)
+
+    def _dialled_held(self, link: Any) -> None:
+        """A connection of ``link`` was accepted while the link is held: its dialer gave the
+        silent link up and dialled again (how long that takes is the lease's work)."""
+        self.record.emit("dialled-held", link=link.index)
 
     def knows(self, member: PeerProcess) -> set[str]:
         life = member.life
@@ -567,6 +574,7 @@ class FleetRun:
         delay, loss and all) to the peer behind it, which knows every item by then."""
         teacher = next(n for n in self.plan.peers if n.role == "teacher")
         sequence = next(iter(self.items))
+        self.record.emit("probing")  # the probe's own link is not one of the fleet's redials
         if self.config.topology == "router":
             direct = {"skipped": "teachers are clients of routers: no direct link to probe"}
         else:

@@ -1,8 +1,8 @@
 """The fleet study (``make soak``): convergence time against fleet size, packet loss, delay, a
-half/half silent partition that heals and churn, messages per learned item, beside the floor
-of one query round trip measured in each run; every run checked. Writes ``fleet.md`` (the
-table, with the targets of docs/howto/fleet.md and whether each is met), ``fleet.png``
-and ``fleet.json`` into the docs folder."""
+half/half silent partition that heals, churn and the links' lease, messages per learned item,
+beside the floor of one query round trip measured in each run; every run checked. Writes
+``fleet.md`` (the table, with the targets of docs/howto/fleet.md and whether each is met),
+``fleet.png`` and ``fleet.json`` into the docs folder."""
 
 from __future__ import annotations
 
@@ -32,13 +32,26 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("line-10", {"peers": 10, "topology": "line"}, ""),
     ("router-20", {"peers": 20, "topology": "router"}, ""),
     ("member-10", {"peers": 10, "teacher": "run"}, ""),
+    ("partition-30s-lease-1s", {"peers": 10, "partition": 30.0, "lease_ms": 1_000}, ""),
+    ("partition-30s-lease-10s", {"peers": 10, "partition": 30.0, "lease_ms": 10_000}, ""),
+    ("size-20-lease-1s", {"peers": 20, "lease_ms": 1_000}, ""),
     ("size-40-both", {"peers": 40, "dial": "both"}, ""),
 ]
 """Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
 is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
 cool-down); learners are always ``ktbt peer run`` agents that teach onward. The newer peer of
 every pair dials the older, except in ``size-40-both``, where both ends dial (what that
-costs, beside size-40; last, so that its load does not weigh on the others)."""
+costs, beside size-40; last, so that its load does not weigh on the others). Every peer's
+lease is ``--lease`` 4000 (the default, LEASE_MS), except in the ``-lease-`` scenarios: the
+partition and the healthy 20 at the other leases measured (what the lease buys and costs,
+:func:`lease_lines`)."""
+FIGURE_RECORDS = ("partition-30s", "churn-20")
+"""The scenarios whose records the figure draws (what each peer knew over time)."""
+LEASES = (1_000, 4_000, 10_000)
+"""The leases measured, in ms: about 1 s, the default and zenoh's own default."""
+BEFORE_OPTION_LEASE_MS = 4_000
+"""The lease of a scenario recorded before ``--lease`` existed (its config has no
+``lease_ms``)."""
 LIMITS = {"size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0}
 
 
@@ -91,6 +104,64 @@ def dial_rate(retry_ms: int, seconds: float = 3.0) -> float:
     return round(rate, 2)
 
 
+def keep_alive_rates(leases: tuple[int, ...] = LEASES, seconds: float = 10.0) -> dict[int, float]:
+    """Writes a second on an idle link at each lease, both ways together: two zenoh sessions
+    with nothing declared, linked through a loopback relay that counts each read, all leases
+    side by side (what the lease costs, spec/protocol.md section 3: one keep-alive from each
+    end every lease / KEEP_ALIVE ms, each a few bytes)."""
+    import socket
+    import threading
+    import time
+
+    from ktbt_proto.transport.zenoh import ZenohSettings, open_session
+
+    stop = threading.Event()
+    counts = {lease: [0] for lease in leases}
+    sessions: list[Any] = []
+    sockets: list[socket.socket] = []
+
+    def pump(src: socket.socket, dst: socket.socket, count: list[int]) -> None:
+        with contextlib.suppress(OSError):
+            while not stop.is_set() and (data := src.recv(65536)):
+                count[0] += 1
+                dst.sendall(data)
+
+    def relay(server: socket.socket, port: int, count: list[int]) -> None:
+        with contextlib.suppress(OSError):
+            conn, _ = server.accept()
+            up = socket.create_connection(("127.0.0.1", port))
+            sockets.extend([conn, up])
+            for a, b in ((conn, up), (up, conn)):
+                threading.Thread(target=pump, args=(a, b, count), daemon=True).start()
+
+    try:
+        for lease in leases:
+            with socket.socket() as probe:
+                probe.bind(("127.0.0.1", 0))
+                port = probe.getsockname()[1]
+            listen = ZenohSettings(listen=[f"tcp/127.0.0.1:{port}"], lease_ms=lease)
+            sessions.append(open_session(listen))
+            server = socket.create_server(("127.0.0.1", 0))
+            sockets.append(server)
+            threading.Thread(target=relay, args=(server, port, counts[lease]), daemon=True).start()
+            dial = f"tcp/127.0.0.1:{server.getsockname()[1]}"
+            sessions.append(open_session(ZenohSettings(connect=[dial], lease_ms=lease)))
+        time.sleep(1.0)  # past the handshake
+        first = {lease: count[0] for lease, count in counts.items()}
+        began = time.monotonic()
+        time.sleep(seconds)
+        took = time.monotonic() - began
+        return {lease: round((counts[lease][0] - first[lease]) / took, 2) for lease in leases}
+    finally:
+        stop.set()
+        for sock in sockets:  # the relays first: a session closes at once on a closed link
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+        for session in sessions:
+            session.close()
+
+
 def load_average() -> float | None:
     """The machine's load average over the last minute (``/proc/loadavg``), read before each
     run: on a shared machine, what else was running shows in every number."""
@@ -101,12 +172,16 @@ def load_average() -> float | None:
 
 
 def study(out: Path, docs: Path, say: Say, only: list[str] | None = None) -> list[dict[str, Any]]:
+    """Run the scenarios (``only`` those named) and write fleet.md, fleet.json and fleet.png.
+    With ``only``, the summaries of the scenarios not run are kept from the previous
+    fleet.json, so that one scenario can be run again without running them all; the figure is
+    drawn again only if the records it draws are in ``out``."""
     from ktbt_proto.tools.fleet.runner import run
 
     previous: dict[str, Any] = {}
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         previous = {s["name"]: s for s in json.loads((docs / "fleet.json").read_text())}
-    summaries = []
+    ran: dict[str, dict[str, Any]] = {}
     for name, params, _ in SCENARIOS:
         if only and name not in only:
             continue
@@ -119,23 +194,36 @@ def study(out: Path, docs: Path, say: Say, only: list[str] | None = None) -> lis
         summary["messages_per_item_before"] = (
             before if before is not None else previous.get(name, {}).get("messages_per_item")
         )
-        summaries.append(summary)
+        ran[name] = summary
         for v in summary["verdicts"]:
             if v["status"] == "fail":
                 say(f"  FAIL {v['name']}: {v['detail']}")
         say(f"  convergence {measured(summary)} s, floor {summary.get('floor_s')} s")
     rates = {ms: dial_rate(ms) for ms in (250, 1000)}
     say(f"connection attempts a second to a dead endpoint: {rates}")
+    keep_alives = keep_alive_rates()
+    say(f"writes a second on an idle link, by lease (ms): {keep_alives}")
+    kept = {} if not only else previous
+    summaries = [ran.get(n) or kept[n] for n, _, _ in SCENARIOS if n in ran or n in kept]
+    for s in summaries:
+        s.pop("dial_rates", None)
+        s.pop("keep_alive_rates", None)
     if summaries:
         summaries[0]["dial_rates"] = rates
+        summaries[0]["keep_alive_rates"] = keep_alives
     docs.mkdir(parents=True, exist_ok=True)
     (docs / "fleet.json").write_text(json.dumps(summaries, indent=1, default=str))
     (docs / "fleet.md").write_text("\n".join(table(summaries)) + "\n")
+    drawn = [n for n in FIGURE_RECORDS if any(s["name"] == n for s in summaries)]
+    missing = [n for n in drawn if not (out / n / "events.jsonl").exists()]
+    if missing:
+        say(f"fleet.png kept as it was: no record of {', '.join(missing)} in {out}")
+        return [ran[n] for n in ran]
     try:
         figure(out, summaries, docs / "fleet.png")
     except ImportError as exc:
         say(str(exc))
-    return summaries
+    return [ran[n] for n in ran]
 
 
 def _ms(value: Any) -> str:
@@ -175,6 +263,7 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
     lines += _stage_table(summaries)
     lines += _messages_table(summaries)
     lines += _dial_lines(summaries)
+    lines += lease_lines(summaries)
     return _closing(lines, summaries, by_name)
 
 
@@ -292,6 +381,69 @@ def _dial_lines(summaries: list[dict[str, Any]]) -> list[str]:
     ]
 
 
+def lease_of(summary: dict[str, Any]) -> int:
+    """The lease every peer of a scenario had, in ms."""
+    return int(summary["config"].get("lease_ms", BEFORE_OPTION_LEASE_MS))
+
+
+def lease_lines(summaries: list[dict[str, Any]]) -> list[str]:
+    """What the lease buys and costs, one row a lease measured: the writes a second on an idle
+    link (keep-alives), how long a link that went silent was kept (check.given_up), the
+    partition's heal (convergence after it) and the delay its dead
+    links caused the half with the teacher (against halves-10, the same halves with no dead
+    link), and the healthy links a fleet of 20 without faults gave up and dialled again."""
+    found: dict[str, float] = next(
+        (s["keep_alive_rates"] for s in summaries if s.get("keep_alive_rates")), {}
+    )
+    rates: dict[int, float] = {int(ms): rate for ms, rate in found.items()}  # JSON: str keys
+    base = next((s for s in summaries if s["name"] == "halves-10"), None)
+    half = None if base is None else base.get("teacher_half_s")
+    rows = []
+    for lease in sorted(set(rates) | {lease_of(s) for s in summaries}):
+        cut = [s for s in summaries if s["name"].startswith("partition-30s") and
+               lease_of(s) == lease]  # fmt: skip
+        calm = [s for s in summaries if s["name"].startswith("size-20") and lease_of(s) == lease]
+        if not (cut or calm) and lease not in rates:
+            continue
+        heal = measured(cut[0]) if cut else None
+        kept = cut[0].get("silent_link_given_up_s") if cut else None
+        mine = cut[0].get("teacher_half_s") if cut else None
+        delay = "-" if mine is None or half is None else f"{float(mine) - float(half):+.2f}"
+        redials = "-"
+        if calm and calm[0].get("links_redialled") is not None:
+            redials = (
+                f"{calm[0]['links_redialled']} of {calm[0].get('links_up')} ({calm[0]['name']})"
+            )
+        loads = "/".join(
+            "-" if s.get("load_before") is None else str(s["load_before"]) for s in cut + calm
+        )
+        rows.append(
+            f"| {lease / 1000:g} s | {rates.get(lease, '-')} "
+            f"| {'-' if kept is None else f'{kept:.2f}'} "
+            f"| {'-' if heal is None else f'{heal:.2f}'} | {delay} | {redials} | {loads or '-'} |"
+        )
+    if not rows:
+        return []
+    return [
+        "",
+        "What the lease buys and costs (every peer's `--lease`; 4 keep-alives a lease): writes"
+        " a second on an idle link, both ends together (two sessions linked through a relay"
+        " that counts each read, measured in the same run; each a keep-alive of a few bytes);"
+        " in the 30 s silent partition, how long a dialer kept a link that went silent before"
+        " it dialled again (the median over the links that crossed it), the convergence after"
+        " the heal, and the delay its dead links caused the"
+        " half with the teacher (against halves-10); the links of 20 peers without faults"
+        " closed and dialled again before the end (a healthy link given up); the load average"
+        " before those runs.",
+        "",
+        "| lease | writes a second on an idle link | silent link given up after (s)"
+        " | partition-30s: convergence after the heal (s) | dead links' delay (s)"
+        " | healthy links dialled again | load before |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        *rows,
+    ]
+
+
 def _closing(
     lines: list[str], summaries: list[dict[str, Any]], by_name: dict[str, dict[str, Any]]
 ) -> list[str]:
@@ -364,7 +516,7 @@ def figure(out: Path, summaries: list[dict[str, Any]], path: Path) -> None:
     )
     ax.set_xlabel("packet loss on every link (%), 10 peers")
     ax.set_ylabel("convergence (s)")
-    for ax, name in ((axes[1][0], "partition-30s"), (axes[1][1], "churn-20")):
+    for ax, name in zip((axes[1][0], axes[1][1]), FIGURE_RECORDS, strict=True):
         if name in by:
             draw(ax, History(read_record(out / name / "events.jsonl")), name)
     fig.tight_layout()

@@ -264,7 +264,7 @@ def test_plans_are_seeded_and_refuse_what_cannot_run() -> None:
     nan = float("nan")
     for bad in ({"peers": 1}, {"teachers": 0}, {"loss": 1.5}, {"topology": "star"},
                 {"settle": nan}, {"settle": -1.0}, {"bound": float("inf")}, {"dial": "all"},
-                {"retry_ms": 5}):  # fmt: skip
+                {"retry_ms": 5}, {"lease_ms": 100}):  # fmt: skip
         with pytest.raises(PlanError):
             FleetConfig(**bad)
     with pytest.raises(PlanError):

@@ -1,0 +1,120 @@
+"""What the fleet study makes of its runs, from summaries and histories written by hand (no
+timing): the lease table (spec/protocol.md section 3) and the links dialled again; and the
+``--lease`` option that the study gives every peer, refused in one line out of its range."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from typing import Any
+
+import pytest
+
+from ktbt_proto.tools.cli.options import zenoh_settings
+from ktbt_proto.tools.fleet.check import History, metrics
+from ktbt_proto.tools.fleet.study import lease_lines, table
+from tests.tools.fleet.test_check import base
+from tests.zenoh_helpers import ROOT
+
+
+def _summary(name: str, lease: int | None = None, **numbers: Any) -> dict[str, Any]:
+    config: dict[str, Any] = {"peers": 10, "topology": "mesh"}
+    if lease is not None:
+        config["lease_ms"] = lease
+    return {"name": name, "config": config, "verdicts": [], "load_before": 1.5, **numbers}
+
+
+def _rows(lines: list[str]) -> dict[str, list[str]]:
+    rows = [line.strip("|").split("|") for line in lines if line.startswith("| ")]
+    return {cells[0].strip(): [c.strip() for c in cells[1:]] for cells in rows[2:]}
+
+
+def test_the_lease_table_has_a_row_a_lease_with_its_cost_heal_delay_and_redials() -> None:
+    summaries = [
+        _summary("size-20", links_up=190, links_redialled=0,
+                 keep_alive_rates={"1000": 7.8, "4000": 2.0, "10000": 0.8}),
+        _summary("partition-30s", convergence_s=0.12, teacher_half_s=0.05),  # before --lease
+        _summary("halves-10", lease=4000, teacher_half_s=0.08),
+        _summary("partition-30s-lease-1s", 1000, convergence_s=0.3, teacher_half_s=0.2,
+                 silent_link_given_up_s=1.3),
+        _summary("partition-30s-lease-10s", 10000, convergence_s=None, teacher_half_s=0.1),
+        _summary("size-20-lease-1s", 1000, links_up=190, links_redialled=12),
+    ]  # fmt: skip
+    rows = _rows(lease_lines(summaries))
+    assert list(rows) == ["1 s", "4 s", "10 s"]
+    assert rows["1 s"][:5] == ["7.8", "1.30", "0.30", "+0.12", "12 of 190 (size-20-lease-1s)"]
+    assert rows["4 s"][:5] == ["2.0", "-", "0.12", "-0.03", "0 of 190 (size-20)"]
+    assert rows["10 s"][:5] == ["0.8", "-", "-", "+0.02", "-"]  # not converged, no healthy run
+    assert rows["1 s"][5] == "1.5/1.5"  # the load before each run the row reads
+    assert "What the lease buys and costs" in "\n".join(table(summaries))
+
+
+def test_without_lease_runs_or_rates_there_is_no_lease_table() -> None:
+    assert lease_lines([_summary("size-5", links_up=10, links_redialled=0)]) == []
+
+
+def test_a_link_up_again_is_a_redial_and_the_probes_own_link_is_not() -> None:
+    events = base()
+    end = events.pop()
+    events += [
+        {"t": 0.5, "kind": "link-up", "link": 0, "dialer": "p1", "listener": "p0"},
+        {"t": 0.6, "kind": "link-up", "link": 1, "dialer": "t2", "listener": "p0"},
+        {"t": 2.0, "kind": "link-up", "link": 0, "dialer": "p1", "listener": "p0"},
+        {"t": 3.1, "kind": "probing"},
+        {"t": 3.2, "kind": "link-up", "link": 1, "dialer": "t2", "listener": "p0"},
+        end,
+    ]
+    found = metrics(History(events))
+    assert (found["links_up"], found["links_redialled"]) == (2, 1)
+    assert found["silent_link_given_up_s"] is None  # no silent partition
+
+
+def test_a_silent_link_is_given_up_when_its_dialer_dials_through_the_held_link() -> None:
+    events = base(partition=5.0)
+    end = events.pop()
+    events += [
+        {"t": 2.0, "kind": "fault", "fault": "partition-silent", "phase": "start"},
+        {"t": 1.5, "kind": "dialled-held", "link": 2},  # before the partition: not counted
+        {"t": 6.0, "kind": "dialled-held", "link": 0},
+        {"t": 6.5, "kind": "dialled-held", "link": 0},  # its second redial
+        {"t": 7.0, "kind": "dialled-held", "link": 1},
+        {"t": 8.0, "kind": "dialled-held", "link": 2},
+        end,
+    ]
+    assert metrics(History(events))["silent_link_given_up_s"] == pytest.approx(5.0)
+
+
+def _ktbt(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ktbt_proto", *args],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("command", "value", "says"),
+    [
+        ("run", "100", "greater than or equal to 500"),
+        ("serve", "600001", "less than or equal to 600000"),
+        ("router", "soon", "valid integer"),
+    ],
+)
+def test_a_lease_out_of_range_is_one_line_naming_the_option(
+    command: str, value: str, says: str
+) -> None:
+    done = _ktbt("peer", command, "--lease", value)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.startswith("error: --lease: ") and says in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_the_lease_reaches_zenoh_with_four_keep_alives_a_lease() -> None:
+    conf = zenoh_settings(None, None, None, False, lease_ms=1500).zenoh_config()
+    assert conf.get_json("transport/link/tx/lease") == "1500"
+    assert conf.get_json("transport/link/tx/keep_alive") == "4"
+
+
+def test_an_unknown_scenario_is_refused_in_one_line() -> None:
+    done = _ktbt("fleet", "study", "--only", "size-5,size-7")
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.strip() == "error: --only: no such scenario: size-7"

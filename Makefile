@@ -96,7 +96,7 @@ interop: $(VENV)/.installed-dev
 
 # The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
 # and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,
-# fleet.png). About 6 minutes on 2 cores; packet loss needs root and nftables.
+# fleet.png). About 9 minutes on 2 cores; packet loss needs root and nftables.
 soak: $(VENV)/.installed-dev
 	nice $(BIN)/ktbt fleet study --out results/fleet --docs docs/results
 

@@ -82,6 +82,17 @@ def build_command(
         _say(f"{interfaces.PACKAGE} is up to date")
 
 
+def _ros_args(ctx: typer.Context) -> list[str]:
+    """What follows ``--ros-args`` (rclpy's to read); anything else the command line does not
+    know is one line naming it, exit 2."""
+    extra = list(ctx.args)
+    if extra and extra[0] != "--ros-args":
+        if extra[0].startswith("-"):
+            raise refuse(f"{extra[0]}: no such option")
+        raise refuse(f"{extra[0]!r}: unexpected; ROS arguments come after --ros-args")
+    return extra
+
+
 @ros2.command(
     "run",
     context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
@@ -111,13 +122,7 @@ def run_command(
 
     from ktbt_proto.interop.ros2.node import KtbtNode
 
-    extra = list(ctx.args)
-    if extra and extra[0] != "--ros-args":
-        if extra[0].startswith("-"):
-            _say(f"error: {extra[0]}: no such option")
-        else:
-            _say(f"error: {extra[0]!r}: unexpected; ROS arguments come after --ros-args")
-        raise typer.Exit(2)
+    extra = _ros_args(ctx)
     try:
         # Our own handlers: the node is cleaned up (its summary logged, its files closed)
         # before the context goes, on Ctrl-C and on SIGTERM alike.
@@ -383,11 +388,7 @@ def bridge_command(
     Queries cross to the other side and answers come back to the asker, signatures intact;
     each side's robots are present on the other (spec/protocol.md section 11, "Bridge").
     Until Ctrl-C; ROS arguments follow --ros-args."""
-    extra = list(ctx.args)
-    if extra and extra[0] != "--ros-args":
-        if extra[0].startswith("-"):
-            raise refuse(f"{extra[0]}: no such option")
-        raise refuse(f"{extra[0]!r}: unexpected; ROS arguments come after --ros-args")
+    extra = _ros_args(ctx)
     if not connect and not listen:
         raise refuse("--connect: required: the zenoh fleet to bridge (--connect ENDPOINT)")
     settings = zenoh_settings(listen, connect, config, False, mode)

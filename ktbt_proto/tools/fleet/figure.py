@@ -1,6 +1,7 @@
 """A run's figure: what each peer knows over time, fault windows shaded, the reference time
-and convergence marked. matplotlib comes with the ``fleet`` (or ``sim``) extra and is imported
-only here."""
+and convergence marked; below it, every learned item's timeline, stage by stage
+(``check.STAGES``: where each transfer's time went). matplotlib comes with the ``fleet`` (or
+``sim``) extra and is imported only here."""
 
 from __future__ import annotations
 
@@ -9,7 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from ktbt_proto.exchange.transferlog import Event
-from ktbt_proto.tools.fleet.check import History, convergence_time, read_record, reference_time
+from ktbt_proto.tools.fleet.check import (
+    STAGES,
+    History,
+    convergence_time,
+    read_record,
+    reference_time,
+    timelines,
+)
 
 INSTALL = "the figure needs matplotlib: pip install 'ktbt[fleet]'"
 COLOURS = {"partition-silent": "tab:red", "partition-reset": "tab:purple", "churn": "tab:orange"}
@@ -84,11 +92,40 @@ def draw(ax: Any, h: History, title: str) -> None:
     ax.legend(unique.values(), unique.keys(), fontsize=7, loc="lower right")
 
 
+def draw_timelines(ax: Any, h: History) -> None:
+    """One row per learned item (in merge order), a bar per stage of its timeline, coloured by
+    stage; a stage whose marks the record lacks, or that ran backwards, is not drawn."""
+    lines = sorted(timelines(h), key=lambda line: line["merge"])
+    colours = plt_colours(len(STAGES))
+    for row, line in enumerate(lines):
+        for (a, b), colour in zip(STAGES, colours, strict=True):
+            if line.get(a) is not None and line.get(b) is not None and line[b] >= line[a]:
+                ax.barh(row, line[b] - line[a], left=line[a], height=0.8, color=colour,
+                        label=f"{a} → {b}")  # fmt: skip
+    ax.set_xlabel("seconds since launch")
+    ax.set_ylabel("items learned")
+    ax.set_yticks([])
+    ax.set_title("each learned item's timeline", fontsize=9)
+    handles, labels = ax.get_legend_handles_labels()
+    unique = dict(zip(labels, handles, strict=True))
+    if unique:
+        ax.legend(unique.values(), unique.keys(), fontsize=6, loc="lower right", ncol=2)
+
+
+def plt_colours(n: int) -> list[Any]:
+    """``n`` distinct colours of matplotlib's qualitative map."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10"]
+    return [cmap(i) for i in range(n)]
+
+
 def plot_run(folder: Path) -> Path:
     plt = pyplot()
     h = History(read_record(folder / "events.jsonl"))
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig, (ax, below) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     draw(ax, h, f"{folder.name}: {len(h.peers)} peers, {h.config['topology']}")
+    draw_timelines(below, h)
     fig.tight_layout()
     path = folder / "knowledge.png"
     fig.savefig(path, dpi=110)

@@ -4,11 +4,19 @@ way a history can break one, which the checker must reject."""
 from __future__ import annotations
 
 import copy
+import json
 from typing import Any
 
 import pytest
 
-from ktbt_proto.tools.fleet.check import History, check, convergence_time, metrics
+from ktbt_proto.tools.fleet.check import (
+    STAGES,
+    History,
+    check,
+    convergence_time,
+    metrics,
+    timelines,
+)
 from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, make_plan, seconds
 
 ITEMS = {"A": "aaaa", "B": "bbbb"}
@@ -374,3 +382,49 @@ def test_a_watched_run_without_the_monitors_view_fails_unless_it_was_cut_short()
     cut = watched(None)
     cut.insert(-1, {"t": 3.5, "kind": "aborted", "reason": "interrupted"})
     assert verdicts(cut)[MONITOR] == "skipped"
+
+
+def with_marks() -> list[dict[str, Any]]:
+    """``base`` with the teacher named on every merge and the marks of a timeline: t2's session
+    up at 0.3 s, p0's link to it up at 0.2 s, each learner seeing it at 1.2 s."""
+    events = base()
+    for e in events:
+        if e["kind"] == "merged":
+            e["teacher"] = "t2"
+        elif e["kind"] == "answer-received":
+            e["sequence"] = e["id"]
+    events += [
+        {"t": 0.2, "kind": "link-up", "dialer": "p0", "listener": "t2"},
+        {"t": 0.3, "kind": "session-up", "peer": "t2", "life": 1},
+        {"t": 1.2, "kind": "peer-seen", "peer": "p0", "life": 1, "sender": "t2"},
+        {"t": 1.2, "kind": "peer-seen", "peer": "p1", "life": 1, "sender": "t2"},
+    ]
+    return sorted(events, key=lambda e: e["t"])
+
+
+def test_every_learned_item_has_its_timeline_and_the_figure_draws_it(tmp_path: Any) -> None:
+    from ktbt_proto.tools.fleet import figure
+
+    h = History(with_marks())
+    lines = {(line["learner"], line["merge"]): line for line in timelines(h)}
+    assert len(lines) == 4
+    first = lines[("p0", 1.5)]
+    assert {k: first[k] for k in ("start", "link", "session", "seen", "query", "answer")} == {
+        "start": 0.1, "link": 0.2, "session": 0.3, "seen": 1.2, "query": 1.4, "answer": 1.5,
+    }  # fmt: skip
+    assert lines[("p1", 1.6)]["link"] is None  # no link of p1's in the record: not drawn
+    plt = figure.pyplot()
+    fig, ax = plt.subplots()
+    figure.draw_timelines(ax, h)
+    drawn = sum(
+        line.get(a) is not None and line.get(b) is not None and line[b] >= line[a]
+        for line in lines.values()
+        for a, b in STAGES
+    )
+    assert len(ax.patches) == drawn == 20  # p0: 6 stages twice; p1: 4 twice (no link mark)
+    plt.close(fig)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "events.jsonl").write_text(
+        "".join(json.dumps(e) + "\n" for e in with_marks())
+    )
+    assert figure.plot_run(tmp_path / "run").stat().st_size > 0

@@ -148,7 +148,7 @@ def run_command(
         # which cost an idle node ticking at 10 Hz 2.3x a bare node's CPU (bench_ros2).
         executor = EventsExecutor()
         executor.add_node(node)
-        while code == 0 and not stop.is_set():
+        while code == 0 and not stop.is_set() and not node.finalized:
             executor.spin_once(timeout_sec=0.1)
     except Exception as exc:  # a parameter file of the wrong types, say: one line
         _say(f"error: {type(exc).__name__}: {exc}".splitlines()[0])

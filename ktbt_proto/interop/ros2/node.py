@@ -178,6 +178,8 @@ class KtbtNode(LifecycleNode):
         library.addHandler(self._handler)
         if library.level == logging.NOTSET or library.level > logging.INFO:
             library.setLevel(logging.INFO)
+        self.finalized = False
+        """Shut down (the lifecycle's finalized state): the process running it may end."""
         self.agent: Agent | None = None
         self.transport: Ros2Transport | None = None
         self.log: TransferLog | None = None
@@ -375,7 +377,9 @@ class KtbtNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Finalized: ``ktbt ros2 run`` ends once the transition is answered."""
         self._cleanup()
+        self.finalized = True
         return TransitionCallbackReturn.SUCCESS
 
     def _start_timers(self, tick_rate: float, snapshot_period: float) -> None:

@@ -7,7 +7,6 @@ depends on another's side effects."""
 
 from __future__ import annotations
 
-import signal
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -234,11 +233,9 @@ def test_a_managed_robot_goes_through_its_lifecycle_and_answers_only_while_activ
     assert not ids & {"inactive-1", "inactive-2"}, ids
 
     assert "shutdown done" in lifecycle(ns, "shutdown")
-    assert state(probe) == "finalized"
     probe.until({"op": "graph", "services": services, "absent": True}, 30)
     log = ns.log("managed")
     assert log.count("managed: configured, knows 4") == 2
     assert log.count("managed: active") == 2 and "managed: inactive" in log
     assert "Traceback" not in log
-    managed.send_signal(signal.SIGTERM)
-    assert managed.wait(timeout=30) == 0
+    assert managed.wait(timeout=30) == 0  # finalized, it ends by itself

@@ -32,6 +32,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.utilities import try_shutdown
 
 from ktbt_proto.exchange.events import PREFIX
+from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
 from ktbt_proto.interop.ros2.node import event_json, events_qos, latched
 from ktbt_proto.tools.monitor.fleet import _NAME, MAX_PEERS, FleetState
 from ktbt_proto.tools.monitor.listen import shown_tree
@@ -161,9 +162,15 @@ class RosListener:
                 self.fleet.drop("malformed", f"catalog of {msg.peer}: {exc}"[:200])
 
     def _on_tree(self, path: str, msg: TreeSnapshot) -> None:
-        if self._owned(path, msg.peer, "a tree"):
-            with self._lock:
-                self._trees[msg.peer] = msg.tree
+        """Keep a robot's latest tree, if within the message limit (section 1): what the
+        monitor holds per robot stays bounded."""
+        if not self._owned(path, msg.peer, "a tree"):
+            return
+        if len(msg.tree.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
+            self.fleet.drop("malformed", f"tree of {msg.peer}: over {MAX_MESSAGE_BYTES} bytes")
+            return
+        with self._lock:
+            self._trees[msg.peer] = msg.tree
 
     def tree(self, name: str) -> str | None:
         """The latest tree the robot ``name`` published, as ``ktbt show``'s outline; None if

@@ -23,7 +23,8 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 # its own rclpy is used and nothing of ROS is installed twice (docs/tutorials/ros2.md).
 $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	$(if $(ROS_DISTRO),@echo "ROS 2 $(ROS_DISTRO) is sourced: its rclpy is used, the ros2 extra is not installed",$(BIN)/python -m pip install --quiet -e '.[ros2]')
+	if [ -n "$$ROS_DISTRO" ]; then echo "ROS 2 $$ROS_DISTRO is sourced: its rclpy is used (no ros2 extra)"; \
+	else $(BIN)/python -m pip install --quiet -e '.[ros2]'; fi
 	$(LARK_1X)
 	touch $@ $(VENV)/.installed
 

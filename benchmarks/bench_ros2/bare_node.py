@@ -1,6 +1,8 @@
 """The idle benchmark's anchor: a bare rclpy node with a 10 Hz timer that does nothing, spun the
-idiomatic way (``rclpy.spin``), or with ``--events`` by rclpy's events executor, the one
-``ktbt ros2 run`` spins (so that the executor's own saving is told apart from ours). Run
+idiomatic way (``rclpy.spin``), or with ``--events`` by rclpy's events executor, spun as
+``ktbt ros2 run`` spins it (``spin_once(timeout_sec=0.1)`` until SIGTERM: ``rclpy.spin`` with
+that executor never ran the timer here), so that the executor's own saving is told apart from
+ours. Run
 inside the benchmark's network namespace by :mod:`benchmarks.bench_ros2`; it says ``ready`` on
 stdout once spinning, and ends on SIGTERM."""
 
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 import rclpy
@@ -22,7 +25,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--events", action="store_true", help="spin rclpy's events executor")
     args = parser.parse_args(argv)
     rclpy.init()
-    signal.signal(signal.SIGTERM, lambda *_: try_shutdown())
+    stop = threading.Event()
+
+    def end(*_: object) -> None:
+        stop.set()
+        try_shutdown()
+
+    signal.signal(signal.SIGTERM, end)
     node = rclpy.create_node("bare", namespace="/bare")
     ticks = [0]
 
@@ -36,7 +45,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.events:
             from rclpy.experimental.events_executor import EventsExecutor
 
-            rclpy.spin(node, executor=EventsExecutor())
+            executor = EventsExecutor()
+            executor.add_node(node)
+            while not stop.is_set():
+                executor.spin_once(timeout_sec=0.1)
         else:
             rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,12 +1,18 @@
-"""The ROS 2 knowledge transfer against a raw rclpy request and reply (run inside the benchmark's
-network namespace by :mod:`benchmarks.bench_ros2`; prints one JSON object).
+"""The ROS 2 knowledge transfer against a raw rclpy request and reply, as robots run it: the
+answering side and the asking side in two processes (run inside the benchmark's network
+namespace by :mod:`benchmarks.bench_ros2`).
 
-The shape of ``benchmarks/bench_transfer.py`` (zenoh): one process, the teacher and the learner
-each a participant of their own, the raw anchor a separate pair beside them, the two contenders
-alternating round by round with the cyclic collector off while timing. Here each side is a
-node, and each side spins its own executor, as each zenoh session has its own threads: the
-answering side (the teacher's node and the raw server's) in a thread of its own, the asking
-side (the learner's node and the raw client's) in the timed loop.
+* ``--role teacher``: the teacher's node (a :class:`Ros2Transport` that answers at once from
+  ``colours.sbt`` through ``lookup=``, as a node does) and the raw server's node, spun by ONE
+  executor in the main thread, as ``ktbt ros2 run`` spins its node. It says ``ready`` on stdout
+  once both are up, and on SIGTERM prints one JSON line (answers given, refusals) and ends.
+* ``--role learner``: the learner's node and the raw client's node, spun by ONE executor in the
+  timed loop. It waits for the teacher's process (graph counts, then one complete round of each
+  contender, with deadlines), times the rounds, and prints one JSON object.
+
+``--executor`` picks rclpy's ``SingleThreadedExecutor`` (``single``) or its events executor
+(``events``, ``rclpy.experimental.events_executor``, the one ``ktbt ros2 run`` spins); both
+processes of a measurement spin the same one, for ours and the raw anchor alike.
 
 * raw (the anchor): the raw client publishes a ``ktbt_interfaces/Query`` on a topic of its own;
   the raw server's subscription callback publishes a ready ``ktbt_interfaces/Answer`` on
@@ -15,11 +21,13 @@ side (the learner's node and the raw client's) in the timed loop.
   serialized sizes), with the same QoS (:func:`exchange_qos`). Topics with the same message
   types are the faithful anchor: ours is topics (spec/protocol.md section 11), and a service
   would measure another mechanism (a request topic and a reply topic with their own headers).
-* ours: a learner :class:`Ros2Transport` asks a teacher :class:`Ros2Transport` that answers at
-  once from ``colours.sbt`` through ``lookup=`` (as a node does). The time covers building the
+* ours: the learner's :class:`Ros2Transport` asks the teacher's. The time covers building the
   ``Query``, ``broadcast``, spinning until ``receive`` hands over the answer (the teacher's
   lookup and reply, and each side's checks of what it reads), the checks of ``Agent.accept``,
   ``parse``, ``live.merge`` and the first ``live.tick()``, into a fresh running tree each round.
+
+The two contenders alternate round by round (the first one alternating too), with the cyclic
+collector off while timing, as in ``benchmarks/bench_transfer.py`` (zenoh).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -35,9 +44,10 @@ from typing import Any
 import rclpy
 from ktbt_interfaces.msg import Answer as AnswerMsg
 from ktbt_interfaces.msg import Query as QueryMsg
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
 import ktbt_proto as kp
@@ -64,14 +74,26 @@ from ..timing import gc_paused
 
 WAIT = 2.0
 """Seconds one round may wait for its answer; the answer ends it long before."""
-CONNECT_TIMEOUT = 30.0
-"""Seconds for discovery (usually under half a second, once seen at 3.4 s)."""
+CONNECT_TIMEOUT = 60.0
+"""Seconds for discovery and the first complete rounds (usually under a second; the two
+processes start on shared cores)."""
 RAW_QUERIES, RAW_ANSWERS = "/bench/raw/queries", "/bench/raw/answers"
+EXECUTORS = ("events", "single")
+"""``events``: rclpy's events executor, the one ``ktbt ros2 run`` spins; ``single``: rclpy's
+``SingleThreadedExecutor``."""
 
 Timed = tuple[int, bool]
 
 
-def _spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], limit: float) -> bool:
+def make_executor(kind: str) -> Executor:
+    if kind == "events":
+        from rclpy.experimental.events_executor import EventsExecutor
+
+        return EventsExecutor()
+    return SingleThreadedExecutor()
+
+
+def _spin_until(executor: Executor, done: Callable[[], bool], limit: float) -> bool:
     deadline = time.monotonic() + limit
     while not done():
         if time.monotonic() > deadline:
@@ -80,28 +102,40 @@ def _spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], limi
     return True
 
 
-class RawPair:
-    """The anchor: a client that publishes a query and a server that answers it, with our
-    message types and QoS, on topics of their own."""
+def _messages() -> tuple[Any, Any, Any]:
+    """The teacher's lookup, and the raw pair's query and answer: the very messages ours
+    carries (same types, same field values)."""
+    lookup = answers(load_knowledge(KNOWLEDGE_PATH))
+    query, response = wire_messages(lookup)
+    return lookup, to_msg(query), to_msg(response, LEARNER)
 
-    def __init__(self, server: Node, client: Node, query: Any, answer: Any) -> None:
-        self.query, self.answer = query, answer
-        self.got: list[Any] = []
-        answer_pub = server.create_publisher(AnswerMsg, RAW_ANSWERS, exchange_qos())
-        server.create_subscription(
-            QueryMsg, RAW_QUERIES, lambda _msg: answer_pub.publish(answer), exchange_qos()
+
+class RawServer:
+    """The anchor's answering half: answers every query on its topic with a ready answer."""
+
+    def __init__(self, node: Node, answer: Any) -> None:
+        self.publisher = node.create_publisher(AnswerMsg, RAW_ANSWERS, exchange_qos())
+        node.create_subscription(
+            QueryMsg, RAW_QUERIES, lambda _msg: self.publisher.publish(answer), exchange_qos()
         )
-        self.publisher = client.create_publisher(QueryMsg, RAW_QUERIES, exchange_qos())
-        client.create_subscription(AnswerMsg, RAW_ANSWERS, self.got.append, exchange_qos())
-        self.answer_pub = answer_pub
 
-    def connected(self) -> bool:
+
+class RawClient:
+    """The anchor's asking half: publishes the query and spins until the answer is in."""
+
+    def __init__(self, node: Node, query: Any, answer: Any) -> None:
+        self.node, self.query, self.answer = node, query, answer
+        self.got: list[Any] = []
+        self.publisher = node.create_publisher(QueryMsg, RAW_QUERIES, exchange_qos())
+        node.create_subscription(AnswerMsg, RAW_ANSWERS, self.got.append, exchange_qos())
+
+    def discovered(self) -> bool:
         return (
             self.publisher.get_subscription_count() >= 1
-            and self.answer_pub.get_subscription_count() >= 1
+            and self.node.count_publishers(RAW_ANSWERS) >= 1
         )
 
-    def round_trip(self, executor: SingleThreadedExecutor) -> Timed:
+    def round_trip(self, executor: Executor) -> Timed:
         got, clock = self.got, time.perf_counter_ns
         got.clear()
         start = clock()
@@ -115,7 +149,7 @@ class RawPair:
 
 def transfer(
     learner: Ros2Transport,
-    executor: SingleThreadedExecutor,
+    executor: Executor,
     p: _Learner,
     phases: list[list[int]],
 ) -> Timed:
@@ -133,6 +167,7 @@ def transfer(
         )
     asked = clock()
     if response is None or response.sequence != query.sequence:
+        _close(learner, query)
         return clock() - start, False
     conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
     subtree = kp.parse(response.subtree, limits=RECEIVE_LIMITS).root
@@ -143,50 +178,83 @@ def transfer(
     for samples, ns in zip(phases, (asked - start, parsed - asked, end - parsed), strict=True):
         samples.append(ns)
     learned = changed and status is kp.SUCCESS and live.blackboard.get("zone") == p.colour
-    # Untimed: the query is closed, as a robot's is before it asks again. A robot has one
-    # query open at a time, for 2 s; this loop asks a new one every millisecond or so, and
-    # would otherwise hit the open-query bound (max_asking) and carry a long table.
-    with learner._lock:
-        learner._open.pop(query.id, None)
+    _close(learner, query)
     return end - start, learned
 
 
-def run(rounds: int, warmup: int) -> dict[str, Any]:
-    kb = load_knowledge(KNOWLEDGE_PATH)
-    lookup = answers(kb)
-    query, response = wire_messages(lookup)
-    query_msg, answer_msg = to_msg(query), to_msg(response, LEARNER)
+def _close(learner: Ros2Transport, query: Query) -> None:
+    """Untimed: the query is closed, as a robot's is before it asks again. A robot has one
+    query open at a time, for 2 s; this loop asks a new one every millisecond or so, and would
+    otherwise hit the open-query bound (max_asking) and carry a long table."""
+    with learner._lock:
+        learner._open.pop(query.id, None)
+
+
+def teach(kind: str) -> dict[str, Any]:
+    """The answering process: spins until SIGTERM; what it answered and refused."""
+    lookup, _query_msg, answer_msg = _messages()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    executor = make_executor(kind)
+    nodes = [
+        rclpy.create_node("ktbt", namespace=f"/{TEACHER}"),
+        rclpy.create_node("raw_server", namespace="/bench"),
+    ]
+    for node in nodes:
+        executor.add_node(node)
+    teacher = Ros2Transport(nodes[0], TEACHER, lookup=lookup)
+    RawServer(nodes[1], answer_msg)
+    print("ready", flush=True)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+        return {"teacher_answered": teacher.answered, "teacher_refused": teacher.refused}
+    finally:
+        teacher.close()
+        for node in nodes:
+            node.destroy_node()
+        try_shutdown()
+
+
+def learn(kind: str, rounds: int, warmup: int) -> dict[str, Any]:
+    """The asking process: the interleaved rounds, timed."""
+    _lookup, query_msg, answer_msg = _messages()
     control = kp.parse(DEMO_CONTROL)
     registry = demo_registry()
     rclpy.init()
-    answering, asking = SingleThreadedExecutor(), SingleThreadedExecutor()
-    nodes = {
-        "teacher": rclpy.create_node("ktbt", namespace=f"/{TEACHER}"),
-        "server": rclpy.create_node("raw_server", namespace="/bench"),
-        "learner": rclpy.create_node("ktbt", namespace=f"/{LEARNER}"),
-        "client": rclpy.create_node("raw_client", namespace="/bench"),
-    }
-    for name in ("teacher", "server"):
-        answering.add_node(nodes[name])
-    for name in ("learner", "client"):
-        asking.add_node(nodes[name])
-    teacher = Ros2Transport(nodes["teacher"], TEACHER, lookup=lookup)
-    learner = Ros2Transport(nodes["learner"], LEARNER)
-    raw = RawPair(nodes["server"], nodes["client"], query_msg, answer_msg)
-    spinner = threading.Thread(target=answering.spin, name="answering", daemon=True)
-    spinner.start()
+    executor = make_executor(kind)
+    nodes = [
+        rclpy.create_node("ktbt", namespace=f"/{LEARNER}"),
+        rclpy.create_node("raw_client", namespace="/bench"),
+    ]
+    for node in nodes:
+        executor.add_node(node)
+    learner = Ros2Transport(nodes[0], LEARNER)
+    raw = RawClient(nodes[1], query_msg, answer_msg)
     try:
         began = time.monotonic()
+        # The teacher's subscriptions to both fleet topics and the raw pair's, seen from here;
+        # then one complete round of each (a publisher may be seen before it matches us).
         if not _spin_until(
-            asking,
+            executor,
             lambda: (
                 learner._queries.get_subscription_count() >= 2
-                and teacher._answers.get_subscription_count() >= 2
-                and raw.connected()
+                and learner._answers.get_subscription_count() >= 2
+                and raw.discovered()
+            ),
+            CONNECT_TIMEOUT,
+        ) or not _spin_until(
+            executor,
+            lambda: (
+                raw.round_trip(executor)[1]
+                and transfer(learner, executor, fresh_learner(control, registry, 1), [[], [], []])[
+                    1
+                ]
             ),
             CONNECT_TIMEOUT,
         ):
-            raise TimeoutError(f"the nodes did not discover each other in {CONNECT_TIMEOUT:g} s")
+            raise TimeoutError(f"the teacher's process was not reached in {CONNECT_TIMEOUT:g} s")
         connect_s = time.monotonic() - began
         raw_ns: list[int] = []
         ours_ns: list[int] = []
@@ -199,14 +267,15 @@ def run(rounds: int, warmup: int) -> dict[str, Any]:
                 timed = phases if r >= warmup else [[] for _ in PHASES]
                 for contender in ("raw", "ours") if r % 2 else ("ours", "raw"):
                     if contender == "raw":
-                        elapsed, ok = raw.round_trip(asking)
+                        elapsed, ok = raw.round_trip(executor)
                     else:
-                        elapsed, ok = transfer(learner, asking, fresh, timed)
+                        elapsed, ok = transfer(learner, executor, fresh, timed)
                     if not ok:
                         raise AssertionError(f"{contender}: round {r} did not complete")
                     if r >= warmup:
                         (raw_ns if contender == "raw" else ours_ns).append(elapsed)
         result: dict[str, Any] = {
+            "executor": kind,
             "rounds": rounds,
             "warmup_rounds": warmup,
             "connect_s": round(connect_s, 2),
@@ -217,29 +286,30 @@ def run(rounds: int, warmup: int) -> dict[str, Any]:
             "raw": _us(raw_ns),
             "ours": _us(ours_ns),
             "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
-            "teacher_answered": teacher.answered,
-            "refused": {"teacher": teacher.refused, "learner": learner.refused},
+            "learner_refused": learner.refused,
         }
         result["ratio"] = {
             q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
         }
         return result
     finally:
-        answering.shutdown(timeout_sec=5)
-        spinner.join(timeout=5)
-        for transport in (teacher, learner):
-            transport.close()
-        for node in nodes.values():
+        learner.close()
+        for node in nodes:
             node.destroy_node()
         try_shutdown()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros2.transfer")
+    parser.add_argument("--role", choices=("teacher", "learner"), required=True)
+    parser.add_argument("--executor", choices=EXECUTORS, default="events")
     parser.add_argument("--rounds", type=int, default=1000)
     parser.add_argument("--warmup", type=int, default=50)
     args = parser.parse_args(argv)
-    print(json.dumps(run(args.rounds, args.warmup)))
+    if args.role == "teacher":
+        print(json.dumps(teach(args.executor)), flush=True)
+    else:
+        print(json.dumps(learn(args.executor, args.rounds, args.warmup)))
     return 0
 
 

@@ -104,11 +104,12 @@ class Inbox:
 class AnswersGiven:
     """The answers a robot gives at once, inside the network's callback (section 4.5): for one
     query, a response for each sequence it asks that ``lookup`` knows (section 1), each made
-    by ``answer_to`` as every answer is (sections 2 and 7) and recorded as ``answer-sent``
-    (section 8). A sequence answered to the same query (sender and id) within ``window``
-    seconds is not answered again: an asker sends its open query to a peer that appears, which
-    may have had the broadcast already (section 4.5). The latest ``limit`` queries are
-    remembered; ``warn`` is told of an item too large for any peer to accept."""
+    by ``answer_to`` as every answer is (sections 2 and 7), the query recorded as
+    ``query-received`` and each answer as ``answer-sent`` (section 8). A sequence answered to
+    the same query (sender and id) within ``window`` seconds is not answered again: an asker
+    sends its open query to a peer that appears, which may have had the broadcast already
+    (section 4.5). The latest ``limit`` queries are remembered; ``warn`` is told of an item too
+    large for any peer to accept."""
 
     def __init__(self, name: str, window: float, limit: int, warn: Callable[[str], None]) -> None:
         self.name, self.window, self.limit, self.warn = name, window, limit, warn
@@ -118,8 +119,18 @@ class AnswersGiven:
     def answers(
         self, query: Query, lookup: Lookup, identity: Identity | None, log: TransferLog | None
     ) -> Iterator[Response]:
-        """The responses to ``query`` not given yet; each is recorded once the caller has
-        sent it (when the next is asked for)."""
+        """The responses to ``query`` not given yet, the query recorded as received first;
+        each response is recorded once the caller has sent it (when the next is asked for)."""
+        if log is not None:
+            more = {"more": list(query.more)} if query.more else {}
+            log.record(
+                "query-received",
+                peer=self.name,
+                sender=query.sender,
+                id=query.id,
+                sequence=query.sequence,
+                **more,
+            )
         now, key = time.monotonic(), (query.sender, query.id)
         with self._lock:
             when, given = self._given.pop(key, (now, set()))

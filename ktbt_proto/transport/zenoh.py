@@ -664,16 +664,6 @@ class ZenohTransport:
             query.drop()
             return
         if self.lookup is not None:
-            if self.log is not None:
-                more = {"more": list(message.more)} if message.more else {}
-                self.log.record(
-                    "query-received",
-                    peer=self.name,
-                    sender=message.sender,
-                    id=message.id,
-                    sequence=message.sequence,
-                    **more,
-                )
             try:
                 self._answer_at_once(query, message, self.lookup)
             finally:

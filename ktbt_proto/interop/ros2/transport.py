@@ -394,16 +394,6 @@ class Ros2Transport:
             return  # refused, or our own query heard back
         query = read[1]
         if self.lookup is not None:
-            if self.log is not None:
-                more = {"more": list(query.more)} if query.more else {}
-                self.log.record(
-                    "query-received",
-                    peer=self.name,
-                    sender=query.sender,
-                    id=query.id,
-                    sequence=query.sequence,
-                    **more,
-                )
             self._answer_at_once(query, self.lookup)
             return
         now = time.monotonic()

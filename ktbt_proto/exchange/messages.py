@@ -6,8 +6,9 @@ message or raises :class:`MessageRefused` with a reason a receiver can log; noth
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -221,14 +222,45 @@ def encode(message: Query | Response | ErrorReply) -> bytes:
 
 def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response | ErrorReply:
     """Parse and check one received message (size first, then JSON and the schema)."""
-    if len(data) > max_bytes:
-        raise MessageRefused(f"message of {len(data)} bytes exceeds the limit of {max_bytes}")
+    _check_size(len(data), max_bytes)
     try:
         return _ADAPTER.validate_json(data, context=_WIRE)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first.get("loc", ())) or "message"
-        raise MessageRefused(f"invalid message: {where}: {first.get('msg', 'invalid')}") from None
+        raise _refused(exc) from None
+
+
+def decode_fields(
+    fields: Mapping[str, Any], max_bytes: int = MAX_MESSAGE_BYTES
+) -> Query | Response | ErrorReply:
+    """:func:`decode` for a message a binding has read field by field (the ROS 2 binding,
+    spec/protocol.md section 11): ``fields`` is the JSON object the message is, checked as
+    :func:`decode` checks its text (size, schema, ``v``) without the text being made. Its size
+    is that of the JSON it encodes to, computed only when it could exceed ``max_bytes``: a
+    character encodes to 6 bytes at most. Raises :class:`MessageRefused`, and ``UnicodeError``
+    for a string UTF-8 cannot carry."""
+    chars = 0
+    for value in fields.values():
+        if isinstance(value, str):
+            chars += len(value)
+        elif isinstance(value, list | tuple):
+            chars += sum(len(v) + 3 for v in value if isinstance(v, str))
+    if _ENVELOPE + 6 * chars > max_bytes:
+        _check_size(len(json.dumps(fields, ensure_ascii=False).encode("utf-8")), max_bytes)
+    try:
+        return _ADAPTER.validate_python(fields, context=_WIRE)
+    except ValidationError as exc:
+        raise _refused(exc) from None
+
+
+def _check_size(size: int, max_bytes: int) -> None:
+    if size > max_bytes:
+        raise MessageRefused(f"message of {size} bytes exceeds the limit of {max_bytes}")
+
+
+def _refused(exc: ValidationError) -> MessageRefused:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first.get("loc", ())) or "message"
+    return MessageRefused(f"invalid message: {where}: {first.get('msg', 'invalid')}")
 
 
 def json_schema() -> dict[str, object]:

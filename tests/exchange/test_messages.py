@@ -10,7 +10,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ktbt_proto.exchange.messages import ErrorReply, MessageRefused, Query, Response, decode, encode
+from ktbt_proto.exchange.messages import (
+    MAX_MESSAGE_BYTES,
+    ErrorReply,
+    MessageRefused,
+    Query,
+    Response,
+    decode,
+    decode_fields,
+    encode,
+)
 
 QUERY = Query(id="q1", sender="r1", sequence="<c>(A)")
 
@@ -66,13 +75,18 @@ VECTORS = Path(__file__).resolve().parents[2] / "spec" / "vectors" / "messages.j
 
 @pytest.mark.parametrize("vector", json.loads(VECTORS.read_text()), ids=lambda v: str(v["name"]))
 def test_message_vectors(vector: dict[str, Any]) -> None:
-    """spec/vectors/messages.json: queries naming one sequence or several (section 1)."""
+    """spec/vectors/messages.json: queries naming one sequence or several (section 1), read
+    from their text and, as the ROS 2 binding reads them, from their fields (section 11)."""
     data = json.dumps(vector["message"]).encode()
     if not vector["valid"]:
         with pytest.raises(MessageRefused):
             decode(data)
+        if isinstance(vector["message"], dict):
+            with pytest.raises(MessageRefused):
+                decode_fields(vector["message"])
         return
     message = decode(data)
+    assert decode_fields(vector["message"]) == message
     if "asks" in vector:
         assert isinstance(message, Query) and list(message.sequences) == vector["asks"]
         assert json.loads(encode(message)) == vector["message"]
@@ -84,3 +98,47 @@ def test_a_query_names_at_most_64_sequences_each_once() -> None:
     assert Query.asking("r", ["<c>(A)", "<c>(A)", "<c>(B)"]).sequences == ("<c>(A)", "<c>(B)")
     with pytest.raises(ValueError):
         Query.asking("r", keys)
+
+
+_TEXT = st.text(max_size=40) | st.sampled_from(["q1", "r2", "<c>(A)", "<a>(B)", "x" * 43])
+_KEYS = ["v", "type", "id", "sender", "sequence", "more", "subtree", "author", "signature"]
+_KEYS += ["key", "hop", "code", "message", "extra"]
+_FIELDS = st.dictionaries(
+    st.sampled_from(_KEYS),
+    st.integers(0, 255)
+    | st.sampled_from(["query", "response", "error"])
+    | _TEXT
+    | st.lists(_TEXT, max_size=3),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(_FIELDS, st.sampled_from([64, 200, MAX_MESSAGE_BYTES]))
+def test_a_message_read_from_its_fields_is_judged_as_its_text(
+    fields: dict[str, Any], max_bytes: int
+) -> None:
+    """What a ROS message's fields can hold (strings, a byte-sized ``v``, a list of strings),
+    read by ``decode_fields``, gets the verdict its JSON text gets from ``decode``: the same
+    message, or a refusal (section 11)."""
+    data = json.dumps(fields, ensure_ascii=False).encode("utf-8")
+    try:
+        expected: Query | Response | ErrorReply | str = decode(data, max_bytes)
+    except MessageRefused as refused:
+        expected = refused.reason
+    try:
+        got: Query | Response | ErrorReply | str = decode_fields(fields, max_bytes)
+    except MessageRefused as refused:
+        got = refused.reason
+    assert type(got) is type(expected)
+    if not isinstance(expected, str):
+        assert got == expected
+
+
+def test_a_message_read_from_its_fields_is_refused_by_the_size_of_its_text() -> None:
+    """The size limit is the JSON text's, whatever the fields' own lengths: control characters
+    take six bytes each there."""
+    fields = {"v": 1, "type": "query", "id": "q1", "sender": "r1", "sequence": "\x01" * 4000}
+    assert len(json.dumps(fields).encode()) > 20_000
+    with pytest.raises(MessageRefused, match="exceeds the limit"):
+        decode_fields(fields, 20_000)
+    assert isinstance(decode_fields(fields, 30_000), Query)

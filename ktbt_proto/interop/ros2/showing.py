@@ -34,7 +34,7 @@ from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.ros2.transport import NAME
+from ktbt_proto.interop.ros2.transport import NAME, quiet, watched
 from ktbt_proto.tree import Tree
 
 __all__ = [
@@ -111,6 +111,16 @@ def event_json(msg: FleetEvent) -> bytes:
     return json.dumps(fields, ensure_ascii=False).encode("utf-8")
 
 
+def catalog_entries(known: list[str | dict[str, Any]]) -> list[CatalogEntry]:
+    """A catalog's entries (section 3) as ``CatalogEntry`` messages."""
+    return [
+        CatalogEntry(**{k: str(e.get(k, "")) for k in ENTRY_FIELDS})
+        if isinstance(e, dict)
+        else CatalogEntry(sequence=e)
+        for e in known
+    ]
+
+
 class Shown:
     """A robot's events, tree snapshot and catalog on ``node``, as ``PREFIX/events``,
     ``PREFIX/tree`` and ``PREFIX/catalog`` (section 11): the events of ``log`` as they are
@@ -129,15 +139,13 @@ class Shown:
         self.node, self.name, self.log = node, name, log
         self._entries = entries
         overrides = QoSOverridingOptions.with_default_policies
-        events = node.create_publisher(
-            FleetEvent, f"{prefix}/events", events_qos(), qos_overriding_options=overrides()
-        )
-        self._tree = node.create_publisher(
-            TreeSnapshot, f"{prefix}/tree", latched(), qos_overriding_options=overrides()
-        )
-        self._catalog = node.create_publisher(
-            Catalog, f"{prefix}/catalog", latched(), qos_overriding_options=overrides()
-        )
+
+        def options() -> dict[str, Any]:
+            return {"qos_overriding_options": overrides(), "event_callbacks": quiet()}
+
+        events = node.create_publisher(FleetEvent, f"{prefix}/events", events_qos(), **options())
+        self._tree = node.create_publisher(TreeSnapshot, f"{prefix}/tree", latched(), **options())
+        self._catalog = node.create_publisher(Catalog, f"{prefix}/catalog", latched(), **options())
         self.catalog_topic = self._catalog.topic_name
         """This robot's own catalog topic, full name (what :class:`FleetCatalogs` skips)."""
         self._publishers = [events, self._tree, self._catalog]
@@ -146,14 +154,21 @@ class Shown:
         self.version = 0
         """Snapshots published so far."""
         self._shown_tree: str | None = None
-        self._shown_catalog: list[str] | None = None
+        self._shown_object: Tree | None = None
+        self._shown_catalog: list[str | dict[str, Any]] | None = None
 
     def show(self, tree: Tree, periodic: bool = False) -> None:
         """Publish the tree snapshot and the catalog if they changed since last shown; with
-        ``periodic``, the snapshot even if it did not (``changed`` false)."""
-        text = format_tree(tree, "compact")
+        ``periodic``, the snapshot even if it did not (``changed`` false). A tree is immutable
+        and a running tree holds a new one after each change (section 4.2), so the very
+        object shown last is not formatted again: a robot shows at every tick."""
+        if tree is self._shown_object and not periodic:
+            text = self._shown_tree
+        else:
+            text = format_tree(tree, "compact")
+            self._shown_object = tree
         changed = text != self._shown_tree
-        if changed or periodic:
+        if text is not None and (changed or periodic):
             self.version += 1
             self._tree.publish(
                 TreeSnapshot(
@@ -165,20 +180,14 @@ class Shown:
                 )
             )
             self._shown_tree = text
-        listed = self.entries()
-        keys = [entry.sequence for entry in listed]
-        if keys != self._shown_catalog:
-            self._catalog.publish(Catalog(peer=self.name, items=listed))
-            self._shown_catalog = keys
+        known = self._entries()
+        if known != self._shown_catalog:
+            self._catalog.publish(Catalog(peer=self.name, items=catalog_entries(known)))
+            self._shown_catalog = known
 
     def entries(self) -> list[CatalogEntry]:
         """What the robot knows, as catalog entries (``~/list_knowledge`` answers with them)."""
-        return [
-            CatalogEntry(**{k: str(e.get(k, "")) for k in ENTRY_FIELDS})
-            if isinstance(e, dict)
-            else CatalogEntry(sequence=e)
-            for e in self._entries()
-        ]
+        return catalog_entries(self._entries())
 
     def close(self) -> None:
         """Stop publishing (the node stays)."""
@@ -238,8 +247,9 @@ class FleetCatalogs:
                     self._refuse(f"catalog topic {topic[:80]}: {self.limit} already followed")
                 continue
             self._subscriptions[topic] = self.node.create_subscription(
-                Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True
-            )
+                Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True,
+                event_callbacks=watched(self.node, topic),
+            )  # fmt: skip
         return len(self._subscriptions)
 
     def _ours(self, topic: str) -> bool:

@@ -19,10 +19,11 @@ reader's queue holds. Each publisher and subscription accepts ROS's standard QoS
 parameter (``qos_overrides./ktbt/queries.publisher.reliability: best_effort``).
 
 Messages are read raw (serialized CDR), so that whatever arrives is checked in this order: size
-first (more than the message limit plus :data:`CDR_SLACK` is refused before it is
-deserialized), then deserialization, then section 1's schema through the one decoder
-(:func:`ktbt_proto.exchange.messages.decode`), applied to the JSON form the message's fields
-give. A message refused is counted (``refused``), logged at WARNING through the node's logger
+first (more than the message limit plus :data:`CDR_SLACK` is refused before it is read), then
+its fields, read by :mod:`cdr`, then section 1's schema through the one decoder
+(:func:`ktbt_proto.exchange.messages.decode_fields`), applied to the JSON object the fields
+make. What this robot publishes is serialized by :mod:`cdr` too: a Python message object costs
+more to build and convert than the rest of an answer. A message refused is counted (``refused``), logged at WARNING through the node's logger
 with its reason, and recorded in the transfer log, never raised. Inboxes and the table of
 queries seen are bounded as on zenoh (section 2), the newcomer refused when full. ROS has no
 error of its own about a query (no get that times out), so ``network_errors`` stays 0.
@@ -33,26 +34,30 @@ answers: it publishes nothing, and everything it reads is dropped unread.
 
 from __future__ import annotations
 
-import json
 import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
 from ktbt_interfaces.msg import Answer as AnswerMsg
 from ktbt_interfaces.msg import ErrorReply as ErrorMsg
 from ktbt_interfaces.msg import Query as QueryMsg
+from rclpy.event_handler import (
+    PublisherEventCallbacks,
+    QoSRequestedIncompatibleQoSInfo,
+    SubscriptionEventCallbacks,
+)
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     QoSProfile,
     ReliabilityPolicy,
+    qos_policy_name_from_kind,
 )
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rclpy.serialization import deserialize_message
 
 from ktbt_proto.exchange.answers import live_answers
 from ktbt_proto.exchange.core import AgentCore
@@ -63,12 +68,13 @@ from ktbt_proto.exchange.messages import (
     MessageRefused,
     Query,
     Response,
-    decode,
+    decode_fields,
 )
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, Received
 from ktbt_proto.exchange.trust import refusal
+from ktbt_proto.interop.ros2 import cdr
 
 QUERIES = "/ktbt/queries"
 ANSWERS = "/ktbt/answers"
@@ -112,58 +118,89 @@ def exchange_qos() -> QoSProfile:
     )
 
 
+def quiet() -> PublisherEventCallbacks:
+    """A publisher's QoS events: none handled. rclpy's defaults give every publisher and
+    subscription two event handlers (incompatible QoS, incompatible type), each one more
+    entity its Python executors add to their wait set at every wake: an idle node's CPU went
+    mostly to that (``benchmarks/bench_ros2``). A mismatch is reported at the subscription
+    (:func:`watched`)."""
+    return PublisherEventCallbacks(use_default_callbacks=False)
+
+
+def watched(node: Node, topic: str) -> SubscriptionEventCallbacks:
+    """A subscription's QoS events: one handled, a publisher of ``topic`` that offers QoS this
+    subscription cannot take (none of its messages will arrive), logged at WARNING with the
+    policy at fault (section 11)."""
+
+    def incompatible(event: QoSRequestedIncompatibleQoSInfo) -> None:
+        policy = qos_policy_name_from_kind(event.last_policy_kind)
+        node.get_logger().warning(
+            f"{topic}: a publisher offers QoS incompatible with this subscription ({policy}); "
+            "none of its messages will arrive"
+        )
+
+    return SubscriptionEventCallbacks(incompatible_qos=incompatible, use_default_callbacks=False)
+
+
 _OPTIONAL = ("author", "signature", "key", "hop")
 
 
-def wire_json(msg: Any, kind: str) -> bytes:
-    """The JSON form (section 1) of a received ROS message of ``kind`` (query, response,
-    error): its fields by name, an empty optional field left out."""
-    fields: dict[str, Any] = {"v": msg.v, "type": kind, "id": msg.id, "sender": msg.sender}
+def wire_fields(fields: Mapping[str, Any], kind: str) -> dict[str, Any]:
+    """The JSON object (section 1) a received ROS message of ``kind`` (query, response, error)
+    is, from its ``fields`` (:func:`cdr.read`): by name, ``to`` (this binding's addressing) and
+    an empty optional field left out."""
+    wire: dict[str, Any] = {
+        "v": fields["v"], "type": kind, "id": fields["id"], "sender": fields["sender"]
+    }  # fmt: skip
     if kind == "query":
-        fields["sequence"] = msg.sequence
-        if msg.more:  # an empty list: a single-sequence query (section 1)
-            fields["more"] = list(msg.more)
+        wire["sequence"] = fields["sequence"]
+        if fields["more"]:  # an empty list: a single-sequence query (section 1)
+            wire["more"] = list(fields["more"])
     elif kind == "response":
-        fields["sequence"] = msg.sequence
-        fields["subtree"] = msg.subtree
+        wire["sequence"] = fields["sequence"]
+        wire["subtree"] = fields["subtree"]
         for name in _OPTIONAL:
-            value = getattr(msg, name)
-            if value:
-                fields[name] = value
+            if fields[name]:
+                wire[name] = fields[name]
     else:
-        fields["code"] = msg.code
-        fields["message"] = msg.message
-    return json.dumps(fields, ensure_ascii=False).encode("utf-8")
+        wire["code"] = fields["code"]
+        wire["message"] = fields["message"]
+    return wire
+
+
+def ros_fields(message: Message, to: str = "") -> dict[str, Any]:
+    """The fields of the ROS message for a protocol message, by name (an absent optional field
+    the empty string); ``to``: the asker an answer or error is for."""
+    fields: dict[str, Any] = {"v": message.v, "id": message.id, "sender": message.sender}
+    if isinstance(message, Query):
+        fields.update(sequence=message.sequence, more=list(message.more or ()))
+    elif isinstance(message, Response):
+        fields.update(to=to, sequence=message.sequence, subtree=message.subtree)
+        fields.update({name: getattr(message, name) or "" for name in _OPTIONAL})
+    else:
+        fields.update(to=to, code=message.code, message=message.message)
+    return fields
 
 
 def to_msg(message: Message, to: str = "") -> Any:
-    """The ROS message for a protocol message; ``to``: the asker an answer or error is for."""
-    if isinstance(message, Query):
-        return QueryMsg(
-            v=message.v,
-            id=message.id,
-            sender=message.sender,
-            sequence=message.sequence,
-            more=list(message.more or ()),
-        )
-    if isinstance(message, Response):
-        return AnswerMsg(
-            v=message.v,
-            id=message.id,
-            sender=message.sender,
-            to=to,
-            sequence=message.sequence,
-            subtree=message.subtree,
-            **{name: getattr(message, name) or "" for name in _OPTIONAL},
-        )
-    return ErrorMsg(
-        v=message.v,
-        id=message.id,
-        sender=message.sender,
-        to=to,
-        code=message.code,
-        message=message.message,
-    )
+    """The ROS message object for a protocol message (what a tool or a test publishes; the
+    transport publishes :func:`serialized` bytes)."""
+    kind = QueryMsg if isinstance(message, Query) else AnswerMsg if isinstance(
+        message, Response) else ErrorMsg  # fmt: skip
+    return kind(**ros_fields(message, to))
+
+
+def serialized(message: Message, to: str = "") -> bytes:
+    """The ROS message for a protocol message, serialized (:mod:`cdr`), as published."""
+    return cdr.write(ros_fields(message, to), _KINDS[type(message)][1])
+
+
+_KINDS: dict[type, tuple[str, tuple[str, ...], str]] = {
+    Query: ("query", cdr.QUERY, "Query"),
+    Response: ("response", cdr.ANSWER, "Answer"),
+    ErrorReply: ("error", cdr.ERROR, "ErrorReply"),
+}
+"""Each protocol message's ``type`` (section 1), ROS layout and ROS type name."""
 
 
 class Ros2Transport:
@@ -245,13 +282,24 @@ class Ros2Transport:
             }
 
         topics = self.topics
-        self._queries = node.create_publisher(QueryMsg, topics.queries, **qos())
-        self._answers = node.create_publisher(AnswerMsg, topics.answers, **qos())
-        self._errors = node.create_publisher(ErrorMsg, topics.errors, **qos())
+        self._queries = node.create_publisher(
+            QueryMsg, topics.queries, event_callbacks=quiet(), **qos()
+        )
+        self._answers = node.create_publisher(
+            AnswerMsg, topics.answers, event_callbacks=quiet(), **qos()
+        )
+        self._errors = node.create_publisher(
+            ErrorMsg, topics.errors, event_callbacks=quiet(), **qos()
+        )
         self._subscriptions = [
-            node.create_subscription(QueryMsg, topics.queries, self._on_query, raw=True, **qos()),
-            node.create_subscription(AnswerMsg, topics.answers, self._on_answer, raw=True, **qos()),
-            node.create_subscription(ErrorMsg, topics.errors, self._on_error, raw=True, **qos()),
+            node.create_subscription(
+                kind, topic, callback, raw=True, event_callbacks=watched(node, topic), **qos()
+            )
+            for kind, topic, callback in (
+                (QueryMsg, topics.queries, self._on_query),
+                (AnswerMsg, topics.answers, self._on_answer),
+                (ErrorMsg, topics.errors, self._on_error),
+            )
         ]
         self._present = self.peers()
 
@@ -274,7 +322,7 @@ class Ros2Transport:
         if full:
             self._refuse(f"query {message.id} not sent: {self.max_asking} queries already open")
             return
-        self._queries.publish(to_msg(message))
+        self._queries.publish(serialized(message))
 
     def send(self, to: str, message: Message) -> None:
         """Answer ``to``'s query (or tell it of an error) on the answer (error) topic, where
@@ -282,9 +330,9 @@ class Ros2Transport:
         if self.closed or not self.active:
             return
         if isinstance(message, Response):
-            self._answers.publish(to_msg(message, to))
+            self._answers.publish(serialized(message, to))
         elif isinstance(message, ErrorReply):
-            self._errors.publish(to_msg(message, to))
+            self._errors.publish(serialized(message, to))
 
     def receive(self) -> list[Received]:
         now = time.monotonic()
@@ -350,29 +398,28 @@ class Ros2Transport:
     def _read(
         self,
         data: bytes,
-        msg_type: Any,
         kind: type[_M],
         topic: str,
-        wanted: Callable[[Any], bool],
-    ) -> tuple[Any, _M] | Literal["refused", "skipped"]:
-        """A raw message from ``topic`` as the protocol message ``kind``, with the ROS message
-        it came as; anything else is refused, with its reason. ``wanted``: whether this robot
-        reads a message that deserialized: one addressed to another, or its own heard back, is
-        skipped unread (decoding is most of a read's cost)."""
+        wanted: Callable[[dict[str, Any]], bool],
+    ) -> tuple[dict[str, Any], _M] | Literal["refused", "skipped"]:
+        """A raw message from ``topic`` as the protocol message ``kind``, with the ROS fields it
+        came as; anything else is refused, with its reason. ``wanted``: whether this robot
+        reads a message whose fields could be read: one addressed to another, or its own heard
+        back, is skipped unchecked (checking is most of a read's cost)."""
         what = f"on {topic}"
         if len(data) > self.max_bytes + CDR_SLACK:
             self._refuse(f"{what}: {len(data)} bytes, more than the limit", key=topic)
             return "refused"
+        label, layout, ros_type = _KINDS[kind]
         try:
-            msg = deserialize_message(data, msg_type)
-        except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
-            self._refuse(f"{what}: not a {msg_type.__name__} ({type(exc).__name__})", key=topic)
+            fields = cdr.read(data, layout)
+        except cdr.CdrError as exc:
+            self._refuse(f"{what}: not a {ros_type} ({exc})", key=topic)
             return "refused"
-        if not wanted(msg):
+        if not wanted(fields):
             return "skipped"
-        label = {Query: "query", Response: "response", ErrorReply: "error"}[kind]
         try:
-            message = decode(wire_json(msg, label), self.max_bytes)
+            message = decode_fields(wire_fields(fields, label), self.max_bytes)
         except MessageRefused as exc:
             self._refuse(f"{what}: {exc.reason}", key=topic)
             return "refused"
@@ -380,14 +427,12 @@ class Ros2Transport:
             self._refuse(f"{what}: {type(exc).__name__}", key=topic)
             return "refused"
         assert isinstance(message, kind)
-        return msg, message
+        return fields, message
 
     def _on_query(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
-        read = self._read(
-            data, QueryMsg, Query, self.topics.queries, lambda msg: msg.sender != self.name
-        )
+        read = self._read(data, Query, self.topics.queries, lambda f: f["sender"] != self.name)
         if read == "refused":
             self._error_reply(data)
         if not isinstance(read, tuple):
@@ -417,18 +462,18 @@ class Ros2Transport:
         to = ""
         if len(data) <= self.max_bytes + CDR_SLACK:
             try:
-                sender = deserialize_message(data, QueryMsg).sender
+                sender = cdr.read(data, cdr.QUERY)["sender"]
                 to = sender if re.fullmatch(NAME, sender) else ""
-            except Exception:  # nothing of it could be read
+            except cdr.CdrError:  # nothing of it could be read
                 pass
         error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
-        self._errors.publish(to_msg(error, to))
+        self._errors.publish(serialized(error, to))
 
     def _answer_at_once(self, query: Query, lookup: Lookup) -> None:
         """An answer to each sequence of ``query`` this robot knows, published at once
         (section 4.5, :class:`AnswersGiven`)."""
         for response in self._given.answers(query, lookup, self.identity, self.log):
-            self._answers.publish(to_msg(response, query.sender))
+            self._answers.publish(serialized(response, query.sender))
             self.answered += 1
 
     def _on_answer(self, data: bytes) -> None:
@@ -436,21 +481,20 @@ class Ros2Transport:
             return
         read = self._read(
             data,
-            AnswerMsg,
             Response,
             self.topics.answers,
-            lambda msg: (
-                msg.sender != self.name
-                and (msg.to == self.name or self.overhear or self.relay is not None)
+            lambda f: (
+                f["sender"] != self.name
+                and (f["to"] == self.name or self.overhear or self.relay is not None)
             ),
         )
         if not isinstance(read, tuple):
             return  # refused, addressed to another, or our own answer heard back
-        msg, answer = read
-        if msg.to == self.name:
+        fields, answer = read
+        if fields["to"] == self.name:
             self._answer_to_me(answer)
         elif self.relay is not None:
-            self.relay(msg.to, answer)
+            self.relay(fields["to"], answer)
         elif self.overhear:  # an answer to another robot (section 4.3)
             self._inbox.overhear(answer, self.screen)
 
@@ -481,9 +525,7 @@ class Ros2Transport:
     def _on_error(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
-        read = self._read(
-            data, ErrorMsg, ErrorReply, self.topics.errors, lambda msg: msg.to == self.name
-        )
+        read = self._read(data, ErrorReply, self.topics.errors, lambda f: f["to"] == self.name)
         if not isinstance(read, tuple):
             return
         error = read[1]

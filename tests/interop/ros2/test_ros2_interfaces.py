@@ -7,6 +7,7 @@ nodes run them in a network namespace of their own (``rosns.RosNamespace``)."""
 
 from __future__ import annotations
 
+import json
 import platform
 import sysconfig
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 import pytest
 
 from ktbt_proto.exchange.events import EventPublisher, decode_event
-from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode
+from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode_fields, encode
 from ktbt_proto.exchange.signing import Identity, hop_bytes, item_bytes, verify
 from ktbt_proto.interop.ros2 import interfaces
 from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
@@ -30,19 +31,32 @@ def through_dds(msg: Any) -> Any:
     return deserialize_message(serialize_message(msg), type(msg))
 
 
+def read_back(message: Query | Response | ErrorReply, to: str) -> dict[str, Any]:
+    """The ROS message for ``message`` serialized by rclpy, as DDS carries it, and read back as
+    a robot reads it (its fields, by ``cdr``)."""
+    from rclpy.serialization import serialize_message
+
+    from ktbt_proto.interop.ros2 import cdr
+    from ktbt_proto.interop.ros2.transport import to_msg
+
+    layout = {Query: cdr.QUERY, Response: cdr.ANSWER, ErrorReply: cdr.ERROR}[type(message)]
+    return cdr.read(serialize_message(to_msg(message, to)), layout)
+
+
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() -> None:
-    from ktbt_proto.interop.ros2.transport import to_msg, wire_json
+    from ktbt_proto.interop.ros2.transport import wire_fields
 
     author, sender = Identity.generate(), Identity.generate()
     item = author.sign_item(SEQUENCE, SUBTREE)
     sent = sender.sign_reply(
         Response.of("q1", "teacher", SEQUENCE, item.subtree, item.author, item.signature)
     )
-    msg = through_dds(to_msg(sent, "learner"))
-    assert msg.to == "learner"
-    received = decode(wire_json(msg, "response"))
+    fields = read_back(sent, "learner")
+    assert fields["to"] == "learner"
+    assert wire_fields(fields, "response") == json.loads(encode(sent))
+    received = decode_fields(wire_fields(fields, "response"))
     assert received == sent
     assert isinstance(received, Response)
     assert verify(author.public, received.signature or "", item_bytes(SEQUENCE, received.subtree))
@@ -53,14 +67,16 @@ def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() ->
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
-    from ktbt_proto.interop.ros2.transport import to_msg, wire_json
+    from ktbt_proto.interop.ros2.transport import wire_fields
 
     for message, kind in (
         (Response.of("q1", "teacher", SEQUENCE, SUBTREE), "response"),
         (Query(id="q1", sender="learner", sequence=SEQUENCE), "query"),
         (ErrorReply(id="0", sender="teacher", code="refused", message="malformed"), "error"),
     ):
-        assert decode(wire_json(through_dds(to_msg(message, "x")), kind)) == message
+        fields = wire_fields(read_back(message, "x"), kind)
+        assert fields == json.loads(encode(message))  # the JSON form, field for field
+        assert decode_fields(fields) == message
 
 
 @pytest.mark.usefixtures("ros2_built")

@@ -159,7 +159,7 @@ def run_command(
         executor = EventsExecutor() if executor_kind == "events" else SingleThreadedExecutor()
         executor.add_node(node)
         while code == 0 and not stop.is_set() and not node.finalized:
-            executor.spin_once(timeout_sec=1.0)
+            executor.spin_once(timeout_sec=0.1)
     except Exception as exc:  # a parameter file of the wrong types, say: one line
         _say(f"error: {type(exc).__name__}: {exc}".splitlines()[0])
         code = 1

@@ -35,6 +35,7 @@ _UINT32 = {
     b"\x00\x00": struct.Struct(">I").unpack_from,
 }
 _HEADER = b"\x00\x01\x00\x00"
+_PACK = struct.Struct("<I").pack
 _PAD = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00")
 
 
@@ -92,17 +93,22 @@ def write(fields: Mapping[str, Any], layout: tuple[str, ...]) -> bytes:
     """The little-endian CDR of the message of ``layout`` with ``fields`` (``v`` and every
     field of ``layout``), byte for byte as rclpy serializes it, its padding zeroed. A string is
     written up to its first NUL character, as rclpy writes it."""
-    out = [_HEADER, bytes((fields["v"],))]
-    size = 5
+    buf = bytearray(_HEADER)
+    buf.append(fields["v"])
     for name in layout:
         value = fields[name]
         if name == SEQUENCE:
-            pad = _PAD[size & 3]
-            out += (pad, len(value).to_bytes(4, "little"))
-            size += len(pad) + 4
-        for text in value if name == SEQUENCE else (value,):
-            encoded = text.encode("utf-8").split(b"\x00", 1)[0]
-            pad = _PAD[size & 3]
-            out += (pad, (len(encoded) + 1).to_bytes(4, "little"), encoded, b"\x00")
-            size += len(pad) + len(encoded) + 5
-    return b"".join(out)
+            buf += _PAD[len(buf) & 3]
+            buf += _PACK(len(value))
+            texts = value
+        else:
+            texts = (value,)
+        for text in texts:
+            encoded = text.encode("utf-8")
+            if 0 in encoded:
+                encoded = encoded[: encoded.index(0)]
+            buf += _PAD[len(buf) & 3]
+            buf += _PACK(len(encoded) + 1)
+            buf += encoded
+            buf.append(0)
+    return bytes(buf)

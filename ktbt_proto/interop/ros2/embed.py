@@ -46,7 +46,7 @@ from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.control import ControlFactory
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
-from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
 from ktbt_proto.exchange.overhearing import Ear, Overhear
@@ -210,9 +210,7 @@ class Embedded:
         )
         self.todo: list[str] = todo or []
         """What it is still to meet, in turn."""
-        self._backoff = Backoff(seed=name)
-        self._deadline = 0.0
-        self._joined = self.transport.joined
+        self._learner = Learner(agent, Backoff(seed=name), wait=wait, cooldown=0.0)
         self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
         self._announced = set(agent.metrics.learned)
         self.closed = False
@@ -258,42 +256,28 @@ class Embedded:
         self.todo += [_meetable(s, vocabulary) for s in sequences]
 
     def _run(self) -> None:
-        """One run of the agent's timer: catalogs, answers, the open query's end, the next
-        query (section 4.5), then what changed is shown."""
-        agent, transport, backoff = self.agent, self.transport, self._backoff
+        """One run of the agent's timer: answers, catalogs, then asking as a fleet member asks
+        (section 4.5, :class:`Learner`), then what changed is shown."""
+        agent, transport = self.agent, self.transport
         now = time.monotonic()
         agent.now = self.tree.count
+        agent.receive()
+        appeared = transport.appeared()
         if self._catalogs is not None and self._listed is not None:
-            if transport.joined != self._joined or now - self._read_at >= CATALOG_PERIOD:
+            if appeared or now - self._read_at >= CATALOG_PERIOD:
                 self._read_at = now
                 self._catalogs.refresh()
             if self._catalogs.version != self._catalogs_read:
                 self._catalogs_read = self._catalogs.version
                 self.todo += self._listed.read(self._catalogs.read())
-        agent.receive()
-        asked = agent.open_query
-        if transport.joined != self._joined:  # a new neighbour: it may know
-            self._joined = transport.joined
-            backoff.reset(now)
-            if asked is not None and not agent.knows(asked.sequence):
-                transport.broadcast(asked)  # the same query, so the newcomer hears it
-        if asked is not None and (agent.knows(asked.sequence) or now >= self._deadline):
-            if not agent.knows(asked.sequence):
-                backoff.lost(now)
-            agent.close_query()
-        todo = self.todo
-        while todo and agent.knows(todo[0]):
-            todo.pop(0)
-        if agent.open_query is None and todo and backoff.ready(now):
-            agent.ask(todo[0])
-            self._deadline = now + self.wait
+        self.todo = [key for key in self.todo if key not in agent.knowledge]
+        self._learner.step(now, self.todo, appeared)
         for key in agent.metrics.learned.keys() - self._announced:
             tick, source = agent.metrics.learned[key]
             self.node.get_logger().info(
                 f"{self.name}: learned {shown(key)} from {source} at tick {tick}"
             )
             self._announced.add(key)
-            backoff.reset(now)
         self.shown.show(self._control.tree)
 
     def _unhook(self) -> None:

@@ -33,8 +33,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.answers import catalog
+from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import sequence_key
 from ktbt_proto.exchange.overhearing import Ear, Overhear
@@ -180,7 +180,8 @@ class KtbtNode(LifecycleNode):
             library.setLevel(logging.INFO)
         self.finalized = False
         """Shut down (the lifecycle's finalized state): the process running it may end."""
-        self.agent: Agent | None = None
+        self.agent: ApplicationTimedAgent | None = None
+        self._learner: Learner | None = None
         self.transport: Ros2Transport | None = None
         self.log: TransferLog | None = None
         self._made: list[Any] = []
@@ -313,12 +314,11 @@ class KtbtNode(LifecycleNode):
         )
         save = str(self._param("save"))
         try:
-            self.agent = Agent(
+            self.agent = ApplicationTimedAgent(
                 name,
                 with_knowledge(control, knowledge, slot),
                 registry,
                 self.transport,
-                timing=Timing(wait=wait_ticks, cooldown=cooldown_ticks),
                 knowledge_path=save or None,
                 security=Security(identity, policy, trust, self.log),
                 ear=Ear(overhear),
@@ -345,8 +345,10 @@ class KtbtNode(LifecycleNode):
         for _, reason in agent.metrics.refusals:  # a damaged save file, say
             self.logger.warning(f"{name} refused: {reason}")
         self._announced = set(agent.metrics.learned)
-        self._backoff = Backoff(seed=name)
-        self._lost, self._joined = agent.metrics.queries_lost, self.transport.joined
+        rate = float(self._param("tick_rate"))
+        self._learner = Learner(
+            agent, Backoff(seed=name), wait=wait_ticks / rate, cooldown=cooldown_ticks / rate
+        )
         meets = (
             f"{len(self._todo)} sequences"
             if self._listed is None
@@ -393,6 +395,9 @@ class KtbtNode(LifecycleNode):
             )
         if self.transport is not None:
             self.transport.query_timeout = int(self._param("wait_ticks")) / tick_rate
+        if self._learner is not None:  # the wait and the cool-down are counted in ticks
+            self._learner.wait = int(self._param("wait_ticks")) / tick_rate
+            self._learner.cooldown = int(self._param("cooldown_ticks")) / tick_rate
 
     def _stop_timers(self) -> None:
         for timer in (self._timer, self._snapshot_timer):
@@ -443,7 +448,7 @@ class KtbtNode(LifecycleNode):
         self._made = []
         if self.log is not None:
             self.log.close()
-        self.agent, self.transport, self.log = None, None, None
+        self.agent, self.transport, self.log, self._learner = None, None, None, None
         self._shown = self._catalogs = self._listed = self._export = None
 
     def destroy_node(self) -> None:
@@ -459,37 +464,30 @@ class KtbtNode(LifecycleNode):
         if agent is None or transport is None:
             return
         now = time.monotonic()
-        todo, backoff = self._todo, self._backoff
-        self._read_catalogs(now)
-        while todo and agent.knows(todo[0]):
-            todo.pop(0)
-        if transport.joined != self._joined:  # a new neighbour: it may know
-            self._joined = transport.joined
-            backoff.reset(now)
-            asked = agent.open_query
-            if asked is not None and not agent.knows(asked.sequence):
-                transport.broadcast(asked)  # the same query, so the newcomer hears it at once
-        if agent.metrics.queries_lost != self._lost:
-            self._lost = agent.metrics.queries_lost
-            backoff.lost(now)
-        agent.encounter([todo[0]] if todo and backoff.ready(now) else None)
-        agent.tick()
+        agent.now += 1
+        agent.receive()
         for key in agent.metrics.learned.keys() - self._announced:
             tick, source = agent.metrics.learned[key]
             self.logger.info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
             self._announced.add(key)
-            backoff.reset(now)
         if self._export is not None:
             self._export.sync(agent.knowledge)
+        appeared = transport.appeared()
+        self._read_catalogs(now, bool(appeared))
+        self._todo = [key for key in self._todo if key not in agent.knowledge]
+        if self._learner is not None:
+            self._learner.step(now, self._todo, appeared)
+        agent.control.tick()
+        agent.tend_memory()
         self._show()
 
-    def _read_catalogs(self, now: float) -> None:
-        """Told no sequences, follow the catalog topics that appeared (when a robot joins, and
-        every ``CATALOG_PERIOD``), and take in what a changed catalog lists (section 4.5)."""
-        catalogs, listed, transport = self._catalogs, self._listed, self.transport
-        if catalogs is None or listed is None or transport is None:
+    def _read_catalogs(self, now: float, appeared: bool) -> None:
+        """Told no sequences, follow the catalog topics that appeared (when a robot appears,
+        and every ``CATALOG_PERIOD``), and take in what a changed catalog lists (section 4.5)."""
+        catalogs, listed = self._catalogs, self._listed
+        if catalogs is None or listed is None:
             return
-        if transport.joined != self._joined or now - self._read_at >= CATALOG_PERIOD:
+        if appeared or now - self._read_at >= CATALOG_PERIOD:
             self._read_at = now
             catalogs.refresh()
         if catalogs.version != self._catalogs_read:

@@ -22,8 +22,8 @@ Messages are read raw (serialized CDR), so that whatever arrives is checked in t
 first (more than the message limit plus :data:`CDR_SLACK` is refused before it is read), then
 its fields, read by :mod:`cdr`, then section 1's schema through the one decoder
 (:func:`ktbt_proto.exchange.messages.decode_fields`), applied to the JSON object the fields
-make. What this robot publishes is serialized by :mod:`cdr` too: a Python message object costs
-more to build and convert than the rest of an answer. A message refused is counted (``refused``), logged at WARNING through the node's logger
+make. What this robot publishes is serialized by :mod:`cdr` too, without a Python message
+object. A message refused is counted (``refused``), logged at WARNING through the node's logger
 with its reason, and recorded in the transfer log, never raised. Inboxes and the table of
 queries seen are bounded as on zenoh (section 2), the newcomer refused when full. ROS has no
 error of its own about a query (no get that times out), so ``network_errors`` stays 0.
@@ -84,8 +84,10 @@ CDR_SLACK = 1024
 padding (a few dozen bytes for our messages)."""
 NAME = r"[A-Za-z0-9_.-]{1,64}"
 """A robot's name (section 1)."""
-PRESENCE_PERIOD = 0.5
-"""Seconds between two reads of the ROS graph for who is present."""
+
+LOOK_FOR = 1.0
+"""Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
+(the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
 _M = TypeVar("_M", Query, Response, ErrorReply)
 
@@ -261,7 +263,15 @@ class Ros2Transport:
         self.answered = 0
         """Queries ``lookup`` answered inside the callback."""
         self.joined = 0
-        """Robots that appeared on the query topic since this one started (the ROS graph)."""
+        """Subscriptions to the query topic that matched this robot's query publisher since it
+        started, as :meth:`receive` found them: robots that can now hear its queries, this
+        robot's own among them."""
+        self._matched = 0
+        self._present: set[str] = set()
+        self._look_until = 0.0
+        """Until when :meth:`appeared` reads the graph (a new match not seen there yet)."""
+        self._announced: set[str] = set()
+        """Query ids published again since the last :meth:`receive` (:meth:`send`)."""
         self.closed = False
         self._lock = threading.Lock()
         self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
@@ -270,8 +280,6 @@ class Ros2Transport:
         """This robot's open queries: id -> (sequences, deadline, (sender, sequence) heard)."""
         self._seen: dict[tuple[str, str], float] = {}
         """Queries from others still in their answer window: (sender, id) -> deadline."""
-        self._present: set[str] = set()
-        self._next_presence = 0.0
 
         # A profile and options of its own for each entity: rclpy writes the overridden
         # values into the profile it is given.
@@ -301,7 +309,6 @@ class Ros2Transport:
                 (ErrorMsg, topics.errors, self._on_error),
             )
         ]
-        self._present = self.peers()
 
     # -- the Transport interface ----------------------------------------------------------------
 
@@ -326,25 +333,49 @@ class Ros2Transport:
 
     def send(self, to: str, message: Message) -> None:
         """Answer ``to``'s query (or tell it of an error) on the answer (error) topic, where
-        every robot that overhears also reads it."""
+        every robot that overhears also reads it. A query announced to a robot that appeared
+        (section 4.5) is published on the query topic again, for every robot: ROS has no
+        unicast; once a tick, however many robots it is announced to (those that answered it
+        already do not answer again within the answer window)."""
         if self.closed or not self.active:
             return
-        if isinstance(message, Response):
+        if isinstance(message, Query):
+            if message.id not in self._announced:
+                self._announced.add(message.id)
+                self._queries.publish(serialized(message))
+        elif isinstance(message, Response):
             self._answers.publish(serialized(message, to))
         elif isinstance(message, ErrorReply):
             self._errors.publish(serialized(message, to))
 
     def receive(self) -> list[Received]:
-        now = time.monotonic()
-        if now >= self._next_presence:
-            self._next_presence = now + PRESENCE_PERIOD
-            present = self.peers()
-            with self._lock:
-                self.joined += len(present - self._present)
-                self._present = present
+        # A new match of the query publisher: a robot that can hear this one's queries now.
+        # Read at every call (one call into DDS): rclpy's events executor never runs a
+        # publisher's matched-event handler.
+        matched, now = self._queries.get_subscription_count(), time.monotonic()
         with self._lock:
+            if matched > self._matched:
+                self.joined += matched - self._matched
+            if matched != self._matched:  # one came, or one went (and may come back)
+                self._look_until = now + LOOK_FOR
+            self._matched = matched
             self._expire(now)
+        self._announced.clear()
         return self._inbox.drain()
+
+    def appeared(self) -> list[str]:
+        """The robots present now that were not at the last call, by full name (section 4.5):
+        read from the graph when :meth:`receive` found a new match of the query publisher, and
+        again at every call for up to :data:`LOOK_FOR` seconds while the graph does not show
+        the newcomer yet."""
+        if time.monotonic() > self._look_until:
+            return []
+        present = self.peers()
+        new = sorted(present - self._present)
+        self._present = present
+        if new:
+            self._look_until = 0.0
+        return new
 
     def close(self) -> None:
         """Destroy the publishers and subscriptions (the node stays)."""

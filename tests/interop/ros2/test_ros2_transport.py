@@ -1,6 +1,7 @@
 """The ROS 2 transport's own promises (spec/protocol.md section 11), three robots' transports
 in one process on Fast DDS, in a network namespace (``transports.py``): an answer reaches its
-asker and, on the shared answer topic, the robot that overhears; presence comes from the graph;
+asker and, on the shared answer topic, the robot that overhears; presence comes from the graph,
+a newcomer from the query publisher's matched event;
 a repeated answer from one sender, and a flood beyond the inbox, are refused and counted; an
 inactive robot does not answer."""
 
@@ -35,3 +36,5 @@ def test_answers_overhearing_presence_and_bounds(rosns: Any) -> None:
     assert out["teacher_answered"] == 3  # q1 once (not its repeat), then q3's two
     assert out["flood_refused"] == 3 and out["flood_kept"] == ["x0", "x1", "x2"]
     assert out["q2_heard"] and out["inactive_answered"] == 3 and out["q2_answers"] == []
+    assert out["joined_before"] == 3  # its own subscription, the teacher's, the listener's
+    assert out["joined_late"] and out["joined_after"] == 4

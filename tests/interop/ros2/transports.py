@@ -96,7 +96,16 @@ def main() -> None:
     executor.spin_once(timeout_sec=0.05)
     out["inactive_answered"] = teacher.answered
     out["q2_answers"] = [a for a in answers("learner") if a["id"] == "q2"]
-    for transport in (teacher, learner, listener):
+    # A robot that comes later is a new neighbour as soon as its subscription to the query
+    # topic matches the learner's query publisher (its own, the teacher's and the listener's
+    # matched before).
+    out["joined_before"] = learner.joined
+    nodes["late"] = rclpy.create_node("ktbt", namespace="/late")
+    executor.add_node(nodes["late"])
+    late = Ros2Transport(nodes["late"], "late")
+    out["joined_late"] = spin_until(lambda: learner.joined > out["joined_before"])
+    out["joined_after"] = learner.joined
+    for transport in (teacher, learner, listener, late):
         transport.close()
     for node in nodes.values():
         node.destroy_node()

@@ -75,10 +75,16 @@ class ApplicationTimedAgent(AgentCore):
         return self._open
 
     def announce(self, to: str) -> None:
-        """Send the open, unanswered query again to one peer (one that just came into range),
-        so that it stays answerable for the asker's whole wait."""
-        query = self._open
-        if query is not None and self.unanswered:
+        """Send the open query again to one peer (one that just came into range), for what is
+        still unanswered of it (same id), so that it stays answerable for the asker's whole
+        wait and no peer answers again what it answered already."""
+        query, missing = self._open, self.unanswered
+        if query is not None and missing:
+            if len(missing) < len(query.sequences):
+                query = Query(
+                    id=query.id, sender=query.sender, sequence=missing[0],
+                    more=tuple(missing[1:]) or None,
+                )  # fmt: skip
             self.transport.send(to, query)
             extra = {"more": list(query.more)} if query.more else {}
             self._record("query-sent", id=query.id, sequence=query.sequence, to=to, **extra)
@@ -150,6 +156,10 @@ class Learner:
 
     def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
         robot = self.robot
+        if robot.buffered:  # overheard and kept (section 4.3): learned without asking
+            for key in [k for k in missing if k in robot.buffered]:
+                robot.learn_buffered(key)
+            missing = [k for k in missing if k not in robot.knowledge]
         query = robot.open_query
         if query is not None and (not robot.unanswered or now - self.opened >= self.wait):
             answered = len(robot.unanswered) < len(query.sequences)

@@ -46,8 +46,8 @@ class CdrError(ValueError):
 def read(data: bytes, layout: tuple[str, ...]) -> dict[str, Any]:
     """The fields of the message of ``layout`` that ``data`` holds, by name: ``v`` an int, each
     string a ``str``, ``more`` a ``list[str]``. Raises :class:`CdrError` for anything else (an
-    encoding other than XCDR1, a length beyond the data, a string that is not UTF-8); bytes
-    after the last field are ignored, as rclpy ignores them."""
+    encoding other than XCDR1, a length beyond the data, a string that is not UTF-8); a string
+    is read up to its first NUL and bytes after the last field are ignored, as rclpy does."""
     uint32 = _UINT32.get(data[:2])
     if uint32 is None or len(data) < 8:
         raise CdrError("not a message in plain CDR (XCDR1)")
@@ -84,7 +84,10 @@ def _strings(data: bytes, pos: int, count: int, uint32: Any) -> tuple[list[str],
         stop = pos + size
         if stop > end or data[stop - 1]:
             raise CdrError(f"a string of {size} bytes that the data does not hold")
-        append(data[pos : stop - 1].decode("utf-8"))
+        text = data[pos : stop - 1]
+        if 0 in text:  # rclpy reads a string up to its first NUL, and so does this
+            text = text[: text.index(0)]
+        append(text.decode("utf-8"))
         pos = stop + (-stop & 3)
     return strings, pos
 

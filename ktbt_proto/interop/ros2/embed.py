@@ -97,11 +97,11 @@ def attach(
     2); ``behaviours``: its own py_trees behaviours by leaf name (known as actions, built with
     the leaf's arguments, :func:`~ktbt_proto.interop.pytrees_control.known_behaviours}`).
     ``name``: the robot's name in messages (default: the node's). ``knowledge``: items (or a
-    knowledge file) it starts with and teaches. ``sequences``: what it meets, in turn; None:
-    what the fleet's catalogs list that its vocabulary can execute (section 4.5). ``topics``:
-    the fleet's (default ``/ktbt/...``); ``security``: key pair, trust policy and store,
-    transfer log (sections 7, 8); ``overhear``: section 4.3. ``wait``: seconds a query stays
-    open; ``period``: seconds between two runs of the agent's timer. Close the handle (or use
+    knowledge file) it starts with and teaches. ``sequences``: what it meets (asked in one
+    query); None: what the fleet's catalogs list that its vocabulary can execute (section 4.5).
+    ``topics``: the fleet's (default ``/ktbt/...``); ``security``: key pair, trust policy and
+    store, transfer log (sections 7, 8); ``overhear``: section 4.3. ``wait``: seconds a query
+    stays open; ``period``: seconds between two runs of the agent's timer. Close the handle (or use
     it as a context manager) to take everything off the node again."""
     if not isinstance(node, Node):
         raise TypeError(f"attach takes the user's rclpy Node, not a {type(node).__name__}")
@@ -166,7 +166,7 @@ class Embedded:
         wait: float,
         period: float,
     ) -> None:
-        self.node, self.tree, self.name, self.wait = node, tree, name, wait
+        self.node, self.tree, self.name = node, tree, name
         self._own_log = security.log is None
         log = security.log if security.log is not None else TransferLog(None)
         self.transport = Ros2Transport(
@@ -209,7 +209,7 @@ class Embedded:
             else None
         )
         self.todo: list[str] = todo or []
-        """What it is still to meet, in turn."""
+        """What it is still to meet."""
         self._learner = Learner(agent, Backoff(seed=name), wait=wait, cooldown=0.0)
         self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
         self._announced = set(agent.metrics.learned)
@@ -246,6 +246,15 @@ class Embedded:
     def blackboard(self) -> Blackboard:
         """The blackboard its registry's conditions and actions read (flags, say)."""
         return self.agent.blackboard
+
+    @property
+    def wait(self) -> float:
+        """Seconds a query stays open (settable)."""
+        return self._learner.wait
+
+    @wait.setter
+    def wait(self, seconds: float) -> None:
+        self._learner.wait = self.transport.query_timeout = seconds
 
     def knows(self, sequence: Iterable[str] | str) -> bool:
         return self.agent.knows(sequence)

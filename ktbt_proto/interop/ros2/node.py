@@ -2,9 +2,10 @@
 (spec/protocol.md section 11, "ROS 2 binding").
 
 The node does what ``ktbt peer run`` does on zenoh (section 4.5): it starts with a control tree,
-a vocabulary and, if given, a knowledge file; meets each sequence in turn, asking the fleet with
-a bounded backoff while it is missing and at once when a new robot appears; and teaches what it
-knows, answering at once from its knowledge. As a managed node it does so only while active:
+a vocabulary and, if given, a knowledge file; asks the fleet for every sequence it lacks in one
+query, at once when a new robot appears and with a bounded backoff after a query nobody
+answered (``Learner``); and teaches what it knows, answering at once from its knowledge. As a
+managed node it does so only while active:
 
 - ``configure`` reads the parameters, loads the files and builds the agent and its topics;
   anything wrong fails the transition with one line in the log;

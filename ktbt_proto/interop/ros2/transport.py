@@ -271,7 +271,10 @@ class Ros2Transport:
         self._look_until = 0.0
         """Until when :meth:`appeared` reads the graph (a new match not seen there yet)."""
         self._announced: set[str] = set()
-        """Query ids published again since the last :meth:`receive` (:meth:`send`)."""
+        """Query ids published again since the last :meth:`receive` (:meth:`send`). This,
+        ``_present`` and ``_look_until`` belong to the agent's tick, the one caller of
+        :meth:`receive`, :meth:`appeared` and :meth:`send`; the network's callbacks never
+        touch them."""
         self.closed = False
         self._lock = threading.Lock()
         self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
@@ -321,9 +324,11 @@ class Ros2Transport:
             self._expire(now)
             again = self._open.get(message.id)  # the same query, repeated while it waits
             full = again is None and len(self._open) >= self.max_asking
-            if not full:
-                heard = again[2] if again is not None else set()
-                self._open[message.id] = (message.sequences, now + self.query_timeout, heard)
+            if not full:  # asked again (for part of it, say): what it first asked stays open
+                sequences, heard = (
+                    (again[0], again[2]) if again is not None else (message.sequences, set())
+                )
+                self._open[message.id] = (sequences, now + self.query_timeout, heard)
         if not full and again is None:
             self._inbox.asked(message.id)
         if full:
@@ -340,15 +345,17 @@ class Ros2Transport:
         if self.closed or not self.active:
             return
         if isinstance(message, Query):
-            if message.id not in self._announced:
+            if message.id not in self._announced:  # open (again) for a whole query timeout
                 self._announced.add(message.id)
-                self._queries.publish(serialized(message))
+                self.broadcast(message)
         elif isinstance(message, Response):
             self._answers.publish(serialized(message, to))
         elif isinstance(message, ErrorReply):
             self._errors.publish(serialized(message, to))
 
     def receive(self) -> list[Received]:
+        if self.closed:
+            return []
         # A new match of the query publisher: a robot that can hear this one's queries now.
         # Read at every call (one call into DDS): rclpy's events executor never runs a
         # publisher's matched-event handler.
@@ -368,12 +375,12 @@ class Ros2Transport:
         read from the graph when :meth:`receive` found a new match of the query publisher, and
         again at every call for up to :data:`LOOK_FOR` seconds while the graph does not show
         the newcomer yet."""
-        if time.monotonic() > self._look_until:
+        if self.closed or time.monotonic() > self._look_until:
             return []
         present = self.peers()
         new = sorted(present - self._present)
         self._present = present
-        if new:
+        if len(present) + 1 >= self._matched:  # every match named (its own among them)
             self._look_until = 0.0
         return new
 

@@ -80,13 +80,28 @@ def test_corrupted_bytes_are_read_as_rclpy_reads_them_or_refused(
     assert ours == {"v": theirs.v, **{f: getattr(theirs, f) for f in layout}}
 
 
-def test_a_string_is_written_up_to_its_first_nul_as_rclpy_writes_it() -> None:
+def test_a_string_is_written_and_read_up_to_its_first_nul_as_rclpy_does() -> None:
     from rclpy.serialization import deserialize_message
 
     fields = {"v": 1, "id": "0", "sender": "a", "to": "", "code": "c", "message": "x\x00y"}
     written = cdr.write(fields, cdr.ERROR)
     assert deserialize_message(written, _ros_type("ErrorReply")).message == "x"
     assert cdr.read(written, cdr.ERROR)["message"] == "x"
+    # A NUL inside a string's bytes (another writer's, or a hostile one's), and what follows
+    # it not even UTF-8: rclpy reads up to the NUL, and so does this.
+    inner = (
+        b"\x00\x01\x00\x00\x01\x00\x00\x00"
+        + b"".join(
+            len(t).to_bytes(4, "little") + t + b"\x00" * (-len(t) % 4)
+            for t in (b"q1\x00", b"r1\x00", b"x\x00\xff\xfe\x00")
+        )
+        + (0).to_bytes(4, "little")
+    )
+    theirs = deserialize_message(inner, _ros_type("Query"))
+    assert cdr.read(inner, cdr.QUERY) == {
+        "v": 1, "id": "q1", "sender": "r1", "sequence": theirs.sequence, "more": []
+    }  # fmt: skip
+    assert theirs.sequence == "x"
 
 
 @pytest.mark.parametrize(

@@ -1,7 +1,7 @@
 """The ROS 2 transport's own promises (spec/protocol.md section 11), three robots' transports
 in one process on Fast DDS, in a network namespace (``transports.py``): an answer reaches its
 asker and, on the shared answer topic, the robot that overhears; presence comes from the graph,
-a newcomer from the query publisher's matched event;
+a newcomer from the query publisher's count of matched subscriptions;
 a repeated answer from one sender, and a flood beyond the inbox, are refused and counted; an
 inactive robot does not answer."""
 

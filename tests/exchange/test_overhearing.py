@@ -117,3 +117,42 @@ def test_a_full_buffer_refuses_the_newcomer() -> None:
     assert ear.buffered == ["<c>(TargetSeen,colour=2)"]
     assert ear.metrics.refused == 1 and "buffer full" in ear.metrics.refusals[-1][1]
     assert ear.metrics.overheard_refused == 1
+
+
+def test_a_fleet_member_learns_from_its_buffer_without_asking() -> None:
+    """The fleet member's ``Learner`` (``ktbt peer run``, ``ktbt ros2 run``, ``attach``, spec
+    section 4.5) learns a sequence it lacks from an overheard answer kept in its buffer, and
+    sends no query for it."""
+    from ktbt_proto.exchange.application import Learner
+    from ktbt_proto.exchange.backoff import Backoff
+
+    learner, teacher, ear, _net = trio("buffer")
+    exchange(learner, teacher)
+    ear.receive()
+    assert ear.buffered == ["<c>(TargetSeen,colour=2)"] and not ear.knows(SEQUENCE)
+    Learner(ear, Backoff(seed="e"), wait=2.0, cooldown=0.5).step(
+        0.0, [kp.sequence_key(SEQUENCE)], []
+    )
+    assert ear.knows(SEQUENCE) and ear.metrics.learned_buffered == 1
+    assert ear.metrics.queries_sent == 0 and ear.open_query is None
+
+
+def test_an_announced_query_names_only_what_is_unanswered_of_it() -> None:
+    """A query half answered, announced to a peer that appears (section 4.5): the peer is asked
+    the unanswered part only, under the same id, so no teacher answers again what it did."""
+    net = MemoryNetwork()
+    robot = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
+    teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
+    newcomer = ApplicationTimedAgent("n", CONTROL, registry(), net.join("n"))
+    other = "<c>(TargetSeen,colour=3)"
+    query = robot.ask(SEQUENCE, other)
+    teacher.receive()
+    heard = teacher.heard("l")
+    assert heard is not None and teacher.answer(heard)
+    robot.receive()
+    assert robot.knows(SEQUENCE) and robot.unanswered == [other]
+    robot.announce("n")
+    newcomer.receive()
+    announced = newcomer.heard("l")
+    assert announced is not None and announced.id == query.id
+    assert announced.sequences == (other,)

@@ -133,31 +133,45 @@ class RawServer:
         )
 
 
-class RawClient:
-    """The anchor's asking half: publishes the query and spins until the answer is in."""
+class _Asker:
+    """An anchor's asking half: publishes on its query topic and spins until its answer is in."""
 
-    def __init__(self, node: Node, query: Any, answer: Any) -> None:
-        self.node, self.query, self.answer = node, query, answer
+    def __init__(self, node: Node, queries: str, answers: str) -> None:
+        self.node, self.answers = node, answers
         self.got: list[Any] = []
-        self.publisher = node.create_publisher(QueryMsg, RAW_QUERIES, exchange_qos())
-        node.create_subscription(AnswerMsg, RAW_ANSWERS, self.got.append, exchange_qos())
+        self.publisher = node.create_publisher(QueryMsg, queries, exchange_qos())
+        node.create_subscription(AnswerMsg, answers, self.got.append, exchange_qos())
 
     def discovered(self) -> bool:
         return (
             self.publisher.get_subscription_count() >= 1
-            and self.node.count_publishers(RAW_ANSWERS) >= 1
+            and self.node.count_publishers(self.answers) >= 1
         )
 
-    def round_trip(self, executor: Executor) -> Timed:
-        got, clock = self.got, time.perf_counter_ns
+    def ask(self, query: Any, executor: Executor) -> Any | None:
+        """Publish ``query`` and spin until the one answer is in (None after ``WAIT``)."""
+        got = self.got
         got.clear()
-        start = clock()
-        self.publisher.publish(self.query)
+        self.publisher.publish(query)
         deadline = time.monotonic() + WAIT
         while not got and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=WAIT)
+        return got[0] if len(got) == 1 else None
+
+
+class RawClient(_Asker):
+    """The anchor's asking half: the ready query, and its answer."""
+
+    def __init__(self, node: Node, query: Any, answer: Any) -> None:
+        super().__init__(node, RAW_QUERIES, RAW_ANSWERS)
+        self.query, self.answer = query, answer
+
+    def round_trip(self, executor: Executor) -> Timed:
+        clock = time.perf_counter_ns
+        start = clock()
+        got = self.ask(self.query, executor)
         elapsed = clock() - start
-        return elapsed, len(got) == 1 and got[0].subtree == self.answer.subtree
+        return elapsed, got is not None and got.subtree == self.answer.subtree
 
 
 class FloorServer:
@@ -179,34 +193,21 @@ class FloorServer:
         node.create_subscription(QueryMsg, FLOOR_QUERIES, answer, exchange_qos())
 
 
-class FloorClient:
+class FloorClient(_Asker):
     """The floor's asking half: a fresh query published, spun until its answer is in, then the
     answer parsed, merged and ticked into the learner's tree."""
 
     def __init__(self, node: Node) -> None:
-        self.node = node
-        self.got: list[Any] = []
-        self.publisher = node.create_publisher(QueryMsg, FLOOR_QUERIES, exchange_qos())
-        node.create_subscription(AnswerMsg, FLOOR_ANSWERS, self.got.append, exchange_qos())
-
-    def discovered(self) -> bool:
-        return (
-            self.publisher.get_subscription_count() >= 1
-            and self.node.count_publishers(FLOOR_ANSWERS) >= 1
-        )
+        super().__init__(node, FLOOR_QUERIES, FLOOR_ANSWERS)
 
     def transfer(self, executor: Executor, p: _Learner) -> Timed:
-        got, clock, live = self.got, time.perf_counter_ns, p.live
-        got.clear()
+        clock, live = time.perf_counter_ns, p.live
         start = clock()
         query = QueryMsg(v=1, id=Query.new_id(), sender=LEARNER, sequence=p.key)
-        self.publisher.publish(query)
-        deadline = time.monotonic() + WAIT
-        while not got and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=WAIT)
-        if len(got) != 1 or got[0].id != query.id:
+        got = self.ask(query, executor)
+        if got is None or got.id != query.id:
             return clock() - start, False
-        subtree = kp.parse(got[0].subtree, limits=RECEIVE_LIMITS).root
+        subtree = kp.parse(got.subtree, limits=RECEIVE_LIMITS).root
         changed = live.merge(subtree, SLOT, when=parse_sequence(p.key, RECEIVE_LIMITS))
         status = live.tick()
         elapsed = clock() - start

@@ -175,12 +175,27 @@ def fresh_learner(control: kp.Tree, registry: kp.Registry, colour: int) -> _Lear
 
 def transfer(transport: ZenohTransport, p: _Learner, phases: list[list[int]]) -> Timed:
     """One transfer of ours, as ``Agent`` does it (``_QueryAndWait`` then ``accept``)."""
-    live, key, clock = p.live, p.key, time.perf_counter_ns
+    clock = time.perf_counter_ns
     start = clock()
-    query = Query(id=Query.new_id(), sender=transport.name, sequence=key)
+    query = Query(id=Query.new_id(), sender=transport.name, sequence=p.key)
     answers = transport.ask(query, GET_TIMEOUT)
     asked = clock()
     response = next((a for a in answers if isinstance(a, Response) and a.id == query.id), None)
+    return take_answer(p, query, response, (start, asked), phases)
+
+
+def take_answer(
+    p: _Learner,
+    query: Query,
+    response: Response | None,
+    times: tuple[int, int],
+    phases: list[list[int]],
+) -> Timed:
+    """The rest of one transfer of ours, once ``response`` (to ``query``) is in: the checks,
+    ``parse``, ``merge`` and the first tick, timed into ``phases`` from ``times`` (started,
+    answer in). Every network's transfer ends here."""
+    clock, live = time.perf_counter_ns, p.live
+    start, asked = times
     if response is None or response.sequence != query.sequence:
         return clock() - start, False
     conds = parse_sequence(query.sequence, RECEIVE_LIMITS)

@@ -79,6 +79,7 @@ from ..bench_transfer import (
     _Learner,
     _us,
     fresh_learner,
+    take_answer,
     wire_messages,
 )
 from ..timing import gc_paused
@@ -221,9 +222,9 @@ def transfer(
     phases: list[list[int]],
 ) -> Timed:
     """One transfer of ours, as ``Agent`` does it (``_QueryAndWait`` then ``accept``)."""
-    live, key, clock = p.live, p.key, time.perf_counter_ns
+    clock = time.perf_counter_ns
     start = clock()
-    query = Query(id=Query.new_id(), sender=learner.name, sequence=key)
+    query = Query(id=Query.new_id(), sender=learner.name, sequence=p.key)
     learner.broadcast(query)
     response: Response | None = None
     deadline = time.monotonic() + WAIT
@@ -232,21 +233,9 @@ def transfer(
         response = next(
             (m for m in learner.receive() if isinstance(m, Response) and m.id == query.id), None
         )
-    asked = clock()
-    if response is None or response.sequence != query.sequence:
-        _close(learner, query)
-        return clock() - start, False
-    conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
-    subtree = kp.parse(response.subtree, limits=RECEIVE_LIMITS).root
-    parsed = clock()
-    changed = live.merge(subtree, SLOT, when=conds)
-    status = live.tick()
-    end = clock()
-    for samples, ns in zip(phases, (asked - start, parsed - asked, end - parsed), strict=True):
-        samples.append(ns)
-    learned = changed and status is kp.SUCCESS and live.blackboard.get("zone") == p.colour
+    timed = take_answer(p, query, response, (start, clock()), phases)
     _close(learner, query)
-    return end - start, learned
+    return timed
 
 
 def _close(learner: Ros2Transport, query: Query) -> None:

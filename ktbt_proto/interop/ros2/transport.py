@@ -187,8 +187,7 @@ def ros_fields(message: Message, to: str = "") -> dict[str, Any]:
 def to_msg(message: Message, to: str = "") -> Any:
     """The ROS message object for a protocol message (what a tool or a test publishes; the
     transport publishes :func:`serialized` bytes)."""
-    kind = QueryMsg if isinstance(message, Query) else AnswerMsg if isinstance(
-        message, Response) else ErrorMsg  # fmt: skip
+    kind = {Query: QueryMsg, Response: AnswerMsg, ErrorReply: ErrorMsg}[type(message)]
     return kind(**ros_fields(message, to))
 
 

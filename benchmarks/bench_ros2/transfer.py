@@ -252,6 +252,18 @@ def _executors(ours: str, anchor: str) -> tuple[Executor, Executor]:
     return executor, executor if anchor == ours else make_executor(anchor)
 
 
+def _nodes(robot: str, anchor: str, ours: Executor, anchors: Executor) -> list[Node]:
+    """Our robot's node (``/ROBOT/ktbt``) on ``ours`` and the anchors' (``/bench/ANCHOR``) on
+    ``anchors``."""
+    nodes = [
+        rclpy.create_node("ktbt", namespace=f"/{robot}"),
+        rclpy.create_node(anchor, namespace="/bench"),
+    ]
+    ours.add_node(nodes[0])
+    anchors.add_node(nodes[1])
+    return nodes
+
+
 def _spin(executor: Executor, stop: threading.Event) -> None:
     while not stop.is_set():
         executor.spin_once(timeout_sec=0.1)
@@ -266,12 +278,7 @@ def teach(kind: str, anchor_kind: str) -> dict[str, Any]:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     ours, anchors = _executors(kind, anchor_kind)
-    nodes = [
-        rclpy.create_node("ktbt", namespace=f"/{TEACHER}"),
-        rclpy.create_node("raw_server", namespace="/bench"),
-    ]
-    ours.add_node(nodes[0])
-    anchors.add_node(nodes[1])
+    nodes = _nodes(TEACHER, "raw_server", ours, anchors)
     teacher = Ros2Transport(nodes[0], TEACHER, lookup=lookup)
     RawServer(nodes[1], answer_msg)
     FloorServer(nodes[1], lookup)
@@ -300,12 +307,7 @@ def learn(kind: str, anchor_kind: str, rounds: int, warmup: int) -> dict[str, An
     registry = demo_registry()
     rclpy.init()
     executor, anchors = _executors(kind, anchor_kind)
-    nodes = [
-        rclpy.create_node("ktbt", namespace=f"/{LEARNER}"),
-        rclpy.create_node("raw_client", namespace="/bench"),
-    ]
-    executor.add_node(nodes[0])
-    anchors.add_node(nodes[1])
+    nodes = _nodes(LEARNER, "raw_client", executor, anchors)
 
     def both(done: Callable[[], bool]) -> Callable[[], bool]:
         def spun() -> bool:

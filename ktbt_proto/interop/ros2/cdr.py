@@ -94,7 +94,8 @@ def _strings(data: bytes, pos: int, count: int, uint32: Any) -> tuple[list[str],
 
 def write(fields: Mapping[str, Any], layout: tuple[str, ...]) -> bytes:
     """The little-endian CDR of the message of ``layout`` with ``fields`` (``v`` and every
-    field of ``layout``), byte for byte as rclpy serializes it, its padding zeroed. A string is
+    field of ``layout``): rclpy's bytes, but for the padding, which rclpy leaves as its buffer
+    held it and this zeroes. A string is
     written up to its first NUL character, as rclpy writes it."""
     buf = bytearray(_HEADER)
     buf.append(fields["v"])

@@ -1,6 +1,6 @@
 """The protocol's ROS messages read and written without rclpy's message objects
 (``ktbt_proto.interop.ros2.cdr``, spec/protocol.md section 11), held to rclpy's own serializer:
-every message written reads back equal through rclpy, byte for byte what rclpy writes; what is
+every message written reads back equal through rclpy and is as long as rclpy's; what is
 read, from rclpy's bytes or from corrupted ones, rclpy reads the same, and what rclpy cannot
 read is refused. These tests serialize with rclpy and start no ROS node."""
 

@@ -91,8 +91,7 @@ def parse_sequence(key: str, limits: Limits = DEFAULT_LIMITS) -> tuple[Condition
     """The conditions of a sequence key (``<c>(A)<c>(!B)``); raises StringBTError. Cached:
     a robot asks and is asked about the same few sequences again and again."""
     root = parse(f"<sq>{key}<e>", limits=limits).root
-    assert isinstance(root, SequenceNode)
-    conds = root.children
+    conds = root.children if isinstance(root, SequenceNode) else ()
     if not conds or not all(isinstance(c, Condition) for c in conds):
         raise ParseError(ErrorCode.UNEXPECTED_TOKEN, "a sequence holds conditions only")
     return tuple(c for c in conds if isinstance(c, Condition))

@@ -121,10 +121,12 @@ def descend(control: Tree | Node, path: tuple[int, ...]) -> tuple[list[Container
     chain: list[Container] = []
     node = as_node(control)
     for index in path:
-        assert isinstance(node, Container)
+        if not isinstance(node, Container):
+            raise MergeError(ErrorCode.UNKNOWN_SLOT, f"no placeholder at {path}")
         chain.append(node)
         node = node.children[index]
-    assert isinstance(node, Placeholder)
+    if not isinstance(node, Placeholder):
+        raise MergeError(ErrorCode.UNKNOWN_SLOT, f"no placeholder at {path}")
     return chain, node
 
 

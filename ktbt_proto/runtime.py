@@ -484,7 +484,8 @@ def compile_node(
             done.append(leaf)
             wires.append(Wire(node, *leaf, getattr(leaf[0], "holds", None)))
             continue
-        assert isinstance(node, Container)
+        if not isinstance(node, Container):
+            raise TypeError(f"not a stringBT node: {node!r}")
         n = len(node.children)
         kids = done[: -n - 1 : -1] if n else []
         kid_wires = wires[: -n - 1 : -1] if n else []
@@ -655,9 +656,8 @@ class LiveTree:
             for calls, predicate in wire.calls:
                 for pos in range(len(calls)):
                     kid = next(kids)
-                    if predicate:
-                        assert kid.holds is not None
-                        holds = kid.holds
+                    holds = kid.holds
+                    if predicate and holds is not None:  # a predicate call is a condition's
                         calls[pos] = holds if probe is None else probe.holds(at[id(kid)], holds)
                     else:
                         calls[pos] = (

@@ -391,8 +391,11 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
                     last_line = line
                 if "#" in tok:
                     moved = _tail_comments(tok[len(tag) :])
-                t = _TAILS[tag].match(tok, len(tag))
-                assert t is not None
+                # Matched in the text, not in the token: the literals' lookaheads (``true.5``
+                # is the name ``true`` then ``.5``) must see what follows, as the scanner did.
+                t = _TAILS[tag].match(text, start + len(tag))
+                if t is None or t.end() != offset:
+                    return None
             if op or pl or og or kg:
                 arg: Any = None
                 if t is not None:
@@ -409,7 +412,8 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
                 last_frame = frame
                 started = True
                 continue
-            assert t is not None
+            if t is None:
+                return None
             leaf = _leaf(tag, t, here, max_lit)
             if leaf is None:
                 return None
@@ -738,7 +742,8 @@ class _ReferenceBuilder:
             del out[len(out) - n :]
             out.append(getattr(self, item.data)(args))
         result = out[0]
-        assert isinstance(result, Node)
+        if not isinstance(result, Node):
+            raise TypeError(f"the grammar built {type(result).__name__}, not a node")
         return result
 
     @staticmethod

@@ -183,7 +183,8 @@ def _band(
 ) -> None:
     from matplotlib.axes import Axes
 
-    assert isinstance(ax, Axes)
+    if not isinstance(ax, Axes):
+        raise TypeError(f"a matplotlib Axes was expected, not {type(ax).__name__}")
     values = np.asarray(y, dtype=np.float64)
     mean, spread = values.mean(axis=0), metrics.std(values)
     ax.plot(x, mean, style, color=colour, label=label, linewidth=1.3)

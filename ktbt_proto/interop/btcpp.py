@@ -285,7 +285,8 @@ class _Exporter:
         if isinstance(node, Inverter):
             return _Out("Inverter", [], kids)
         ident = TT1 if isinstance(node, WaitTimer) else TT2
-        assert isinstance(node, WaitTimer | RunTimer)
+        if not isinstance(node, WaitTimer | RunTimer):
+            raise TypeError(f"not a stringBT node: {node!r}")
         self.custom.add(ident)
         return _Out(ident, [("ticks", self._ticks(node, node.ticks))], kids)
 
@@ -443,7 +444,8 @@ class _Reader:
             raise ParseError(
                 ErrorCode.UNEXPECTED_TOKEN, message, line, column, source=self.text
             ) from None
-        assert self.root is not None  # expat fails on a document without an element
+        if self.root is None:  # expat fails on a document without an element first
+            raise ParseError(ErrorCode.EMPTY, "no element in the document", 1, 1)
         return self.root
 
     def _doctype(self, *_: object) -> None:
@@ -588,9 +590,8 @@ class _Importer:
                 self.fail(ErrorCode.INVALID_DURATION, f"<{el.tag}> msec {msec} is too large", el)
             literal = el.attrs.get("name", "").removeprefix(SECONDS_PREFIX)
             if el.attrs.get("name", "").startswith(SECONDS_PREFIX) and _NUMBER.fullmatch(literal):
-                exact = decode_value(literal)
-                assert isinstance(exact, int | float)
-                if math.isfinite(exact) and _msec(exact) == msec:
+                exact = decode_value(literal)  # a number: _NUMBER matched it whole
+                if isinstance(exact, int | float) and math.isfinite(exact) and _msec(exact) == msec:
                     seconds = exact
             return Wait(seconds, "seconds", pos=pos)
         name = ident.replace("-", ".")

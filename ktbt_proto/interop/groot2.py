@@ -145,7 +145,8 @@ class _View:
     def _build(self, tree: Tree) -> None:
         doc = ET.fromstring(to_xml(tree))
         body = doc.find("BehaviorTree")
-        assert body is not None and len(body) == 1
+        if body is None or len(body) != 1:
+            raise RuntimeError("the tree's XML has no single <BehaviorTree> body")
         body.set("_fullpath", "")
         elements: list[tuple[ET.Element, int, dict[Status, int], bool]] = []
         nodes = [node for node, _ in tree.walk()]
@@ -162,7 +163,8 @@ class _View:
             elif isinstance(node, Placeholder) and not node.children and len(el) == 1:
                 elements.append((el[0], index, _FAILING, False))
             elif isinstance(node, Container):
-                assert len(el) == len(node.children), (el.tag, node)
+                if len(el) != len(node.children):
+                    raise RuntimeError(f"<{el.tag}> does not hold its node's children")
                 todo.extend(reversed(list(zip(el, node.children, strict=True))))
             if not isinstance(node, Container) and "name" not in el.attrib:
                 el.set("name", _leaf_name(node))
@@ -656,7 +658,9 @@ def _fields(received: object, **types: type) -> dict[str, object]:
 
 
 def _int(value: object) -> int:
-    assert isinstance(value, int)
+    """A field ``_fields`` has checked is an int (a peer's JSON otherwise refused)."""
+    if type(value) is not int:
+        raise RequestRefused("[json.exception.type_error] an integer was expected")
     return value
 
 

@@ -202,7 +202,8 @@ class PyTreesControl:
             if not isinstance(found, Placeholder):
                 continue
             selector = selectors[found.name]
-            assert isinstance(selector, composites.Selector)
+            if not isinstance(selector, composites.Selector):
+                raise TypeError(f"placeholder {found.name} is not held by a py_trees Selector")
             slot = _Slot(found.name, selector, depth + at)
             for child, made in zip(found.children, selector.children, strict=True):
                 split = split_item(child)
@@ -281,7 +282,8 @@ class PyTreesControl:
                 nodes=self._nodes,
                 taken=self._slots,
             )
-            assert isinstance(item, SequenceNode)
+            if not isinstance(item, SequenceNode):  # check_item refuses anything else first
+                return False
             with building():
                 kids = [
                     build(child, self.registry, self.blackboard, self.clock, self.behaviours)

@@ -284,6 +284,38 @@ def test_hostile_text_is_one_positioned_error(text: str, expected: tuple[str, in
     assert errors_of(text) == expected
 
 
+LEAF_TAILS = [".", "..", ".5", ".1e", ". ", ".x", ".x.", ".e1", "5", "_", "x", "", ")", "(", "<e>"]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("<c>true.5", ("SBT101", 1, 8)),
+        ("<sq><c>true.5<e>", ("SBT101", 1, 12)),
+        ("<a>false.1e", ("SBT101", 1, 9)),
+        ("<a>true. ", ("SBT101", 1, 8)),
+    ],
+)
+def test_a_bool_read_as_a_leaf_name_is_a_positioned_error(
+    text: str, expected: tuple[str, int, int]
+) -> None:
+    """``true`` before a ``.`` is a name (the grammar's BOOL looks ahead), and what follows the
+    name is then the error: the fast parser's leaf must see that context as its scanner did."""
+    assert errors_of(text) == expected
+    assert errors_of(text.encode()) == expected
+
+
+@pytest.mark.parametrize("tag", ["<c>", "<c>!", "<a>", "<c> ", "<a>\n", "<w>", "<c>(", "<a>("])
+def test_agrees_with_reference_next_to_a_bool_after_a_leaf_tag(tag: str) -> None:
+    """Every leaf tag, then ``true`` or ``false``, then each tail, bare and in a container:
+    the same tree or the same error as the grammar, and never an exception of another kind."""
+    for word in ("true", "false", "trueX", "true_1"):
+        for tail in LEAF_TAILS:
+            leaf = tag + word + tail
+            for text in (leaf, f"<sq>{leaf}<e>", f"<sq>{leaf}<a>(B)<e>"):
+                assert _outcome(kp.parse, text) == _outcome(parse_reference, text), text
+
+
 def test_a_lone_surrogate_escape_is_kept_escaped() -> None:
     assert kp.format_tree(kp.parse('<a>(X, s="\\ud800")'), "compact") == '<a>(X,s="\\ud800")'
 

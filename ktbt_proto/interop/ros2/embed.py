@@ -189,7 +189,8 @@ class Embedded:
             )
             self._control: PyTreesControl = self.agent.control  # type: ignore[assignment]
             slot = learning_slot(self._control.tree)
-            assert slot is not None  # py_trees_control refused a tree without a placeholder
+            if slot is None:  # py_trees_control refuses a tree without a placeholder first
+                raise ValueError("attach: the tree has no knowledge placeholder <k>(...)")
             self.agent.slot = slot
             if knowledge is not None:
                 self._start_with(knowledge, slot)

@@ -361,7 +361,8 @@ class KtbtNode(LifecycleNode):
         )
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        assert self.transport is not None
+        if self.transport is None:  # lifecycle allows activate only after configure
+            return TransitionCallbackReturn.FAILURE
         self.transport.active = True
         self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
         self._show(periodic=True)  # a snapshot on every activation, changed or not

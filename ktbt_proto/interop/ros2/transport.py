@@ -463,7 +463,9 @@ class Ros2Transport:
         except (UnicodeError, ValueError) as exc:
             self._refuse(f"{what}: {type(exc).__name__}", key=topic)
             return "refused"
-        assert isinstance(message, kind)
+        if not isinstance(message, kind):
+            self._refuse(f"{what}: a {message.type} where a {kind.__name__} belongs", key=topic)
+            return "refused"
         return fields, message
 
     def _on_query(self, data: bytes) -> None:

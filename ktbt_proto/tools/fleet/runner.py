@@ -276,19 +276,18 @@ class FleetRun:
         self.record.emit(
             "stopping", lives={m.node.name: m.life.number for m in running if m.life is not None}
         )
-        for m in running:
-            assert m.life is not None
+        procs = [m.life.proc for m in running if m.life is not None]
+        for proc in procs:
             with contextlib.suppress(ProcessLookupError):
-                m.life.proc.send_signal(signal.SIGTERM)
+                proc.send_signal(signal.SIGTERM)
         deadline = time.monotonic() + 6
-        while time.monotonic() < deadline and any(m.running for m in running):
+        while time.monotonic() < deadline and any(proc.poll() is None for proc in procs):
             await asyncio.sleep(0.1)
-        for m in running:
-            assert m.life is not None
-            if m.life.proc.poll() is None:
+        for proc in procs:
+            if proc.poll() is None:
                 with contextlib.suppress(ProcessLookupError):
-                    m.life.proc.kill()
-            m.life.proc.wait()
+                    proc.kill()
+            proc.wait()
 
     # -- observation --------------------------------------------------------------------------
 
@@ -711,7 +710,8 @@ def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: 
     async def main() -> dict[str, Any]:
         fleet = FleetRun(config, out, say, live, loss_note)
         task = asyncio.current_task()
-        assert task is not None
+        if task is None:  # asyncio.run always runs main() as a task
+            raise RuntimeError("run_inside's main() is not running as a task")
         loop = asyncio.get_running_loop()
         stopping: list[int] = []
 

@@ -30,16 +30,17 @@ def endpoint(port: int) -> str:
 
 @contextmanager
 def ktbt_process(
-    *args: str, ready: str | None = None, timeout: float = 30
+    *args: str, ready: str | None = None, timeout: float = 30, env: dict[str, str] | None = None
 ) -> Iterator[subprocess.Popen[str]]:
-    """Start ``python -m ktbt_proto ARGS``; wait for ``ready`` on its stdout; always stop it."""
+    """Start ``python -m ktbt_proto ARGS`` (with ``env`` added to the environment); wait for
+    ``ready`` on its stdout; always stop it."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "ktbt_proto", *args],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
     )
     try:
         if ready is not None:

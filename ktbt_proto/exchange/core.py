@@ -43,6 +43,7 @@ from ktbt_proto.exchange.memory import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Heard
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, read, vet
+from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import NetworkError, Transport
@@ -129,6 +130,7 @@ class AgentCore:
         self.slot = slot
         self.knowledge_path = Path(knowledge_path) if knowledge_path is not None else None
         self.metrics = Metrics()
+        self._warn = Throttle(log.warning)  # a flood of refusals is a few lines and a count
         self.blackboard = Blackboard() if blackboard is None else blackboard
         self.now = 0
         """The agent's clock, in ticks: every timer of its trees reads it, and its metrics and
@@ -394,7 +396,7 @@ class AgentCore:
         default: a robot that learns nothing says why) and record it (section 2)."""
         self.metrics.refused += 1
         self.metrics.refusals.append((self.now, reason))
-        log.warning("%s refused knowledge: %s", self.name, reason)
+        self._warn(f"{self.name} refused knowledge: {reason}")
         self._record("refused", reason=reason)
 
     def accept(self, response: Response, asked: Query) -> bool:
@@ -424,6 +426,9 @@ class AgentCore:
             return False
         except StringBTError as err:
             self.refuse(f"from {response.sender}: {err.code.value} {err.message}")
+            return False
+        except Exception as exc:  # a check or merge that raised: refused, the tree as it was
+            self.refuse(f"from {response.sender}: {internal_error(exc)}")
             return False
         if changed:
             received = datetime.now(UTC).isoformat(timespec="seconds")

@@ -42,6 +42,7 @@ from ktbt_proto.exchange.messages import (
     _require_version_and_type,
     _wire_fields,
 )
+from ktbt_proto.exchange.refusals import fault, internal_error
 from ktbt_proto.exchange.signing import Identity, verify
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.items import sequence_digest
@@ -132,15 +133,21 @@ def decode_event(data: bytes, max_bytes: int = MAX_EVENT_BYTES) -> FleetEvent:
     if len(data) > max_bytes:
         raise MessageRefused(f"event of {len(data)} bytes exceeds the limit of {max_bytes}")
     try:
+        fault("message", data)
         event = _ADAPTER.validate_json(data, context=_WIRE)
+        if (event.key is None) != (event.sig is None):
+            raise MessageRefused(f"event {event.n} of {event.peer}: key and sig come together")
+        signed = event.sig is not None
+        if signed and not verify(event.key or "", event.sig or "", signed_bytes(event)):
+            raise MessageRefused(f"event {event.n} of {event.peer}: its signature does not verify")
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first.get("loc", ())) or "event"
         raise MessageRefused(f"invalid event: {where}: {first.get('msg', 'invalid')}") from None
-    if (event.key is None) != (event.sig is None):
-        raise MessageRefused(f"event {event.n} of {event.peer}: key and sig come together")
-    if event.sig is not None and not verify(event.key or "", event.sig, signed_bytes(event)):
-        raise MessageRefused(f"event {event.n} of {event.peer}: its signature does not verify")
+    except MessageRefused:
+        raise
+    except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
+        raise MessageRefused(internal_error(exc)) from exc
     return event
 
 

@@ -21,6 +21,8 @@ from pydantic import (
     model_validator,
 )
 
+from ktbt_proto.exchange.refusals import fault, internal_error
+
 PROTOCOL_VERSION = 1
 MAX_MESSAGE_BYTES = 65_536
 """Default size limit of one encoded message; a larger one is refused before decoding."""
@@ -224,9 +226,12 @@ def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response 
     """Parse and check one received message (size first, then JSON and the schema)."""
     _check_size(len(data), max_bytes)
     try:
+        fault("message", data)
         return _ADAPTER.validate_json(data, context=_WIRE)
     except ValidationError as exc:
         raise _refused(exc) from None
+    except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
+        raise MessageRefused(internal_error(exc)) from exc
 
 
 def decode_fields(
@@ -247,9 +252,12 @@ def decode_fields(
     if _ENVELOPE + 6 * chars > max_bytes:
         _check_size(len(json.dumps(fields, ensure_ascii=False).encode("utf-8")), max_bytes)
     try:
+        fault("message", fields)
         return _ADAPTER.validate_python(fields, context=_WIRE)
     except ValidationError as exc:
         raise _refused(exc) from None
+    except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
+        raise MessageRefused(internal_error(exc)) from exc
 
 
 def _check_size(size: int, max_bytes: int) -> None:

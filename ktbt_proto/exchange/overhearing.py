@@ -20,6 +20,7 @@ from typing import Any, Literal
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.receiving import Refused, check
+from ktbt_proto.exchange.refusals import Throttle, guarded
 from ktbt_proto.exchange.signing import SignedItem
 
 Overhear = Literal["off", "update", "buffer"]
@@ -112,9 +113,12 @@ class ServerEar:
         self.learned: dict[str, SignedItem] = {}
         self.refused = 0
         self.lock = threading.Lock()
+        self._warn = Throttle(logging.getLogger("ktbt.peer").warning)
 
+    @guarded("an overheard answer")
     def heard(self, message: object) -> None:
-        """A message received on the answers topic: an overheard answer, or ignored."""
+        """A message received on the answers topic: an overheard answer, or ignored; whatever
+        reading it raises is a refusal (section 2.1)."""
         if not isinstance(message, Response):
             return
         with self.lock:
@@ -161,4 +165,4 @@ class ServerEar:
 
     def _refuse(self, reason: str) -> None:
         self.refused += 1
-        logging.getLogger("ktbt.peer").warning("%s refused: %s", self.name, reason)
+        self._warn(f"{self.name} refused: {reason}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.knowledge import parse_sequence
 from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.refusals import fault, internal_error
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
 from ktbt_proto.limits import Limits
 from ktbt_proto.registry import Registry
@@ -50,11 +51,14 @@ def read(
     """Rules 4 and 5: the conditions and the subtree, parsed within ``limits`` (numbers
     included) and validated against ``registry`` (names, arguments, types and ranges)."""
     try:
+        fault("item", response.subtree)
         conds = parse_sequence(response.sequence, limits)
         subtree = parse(response.subtree, limits=limits).root
         validate(subtree, registry, limits=limits)
     except StringBTError as err:
         raise Refused(f"from {response.sender}: {err.code.value} {err.message}") from None
+    except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
+        raise Refused(f"from {response.sender}: {internal_error(exc)}") from exc
     return conds, subtree
 
 

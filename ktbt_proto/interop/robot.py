@@ -20,6 +20,7 @@ from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
 from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
 from ktbt_proto.files import read_at_most
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import read_skills
@@ -124,27 +125,38 @@ class Listed:
     carries the catalogs (zenoh's catalog queryables, ROS 2's latched ``~/catalog`` topics):
     those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
     sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
-    INFO line."""
+    INFO line. An entry whose reading raises anything else is refused: counted in
+    :attr:`refused`, logged at WARNING, skipped from then on (section 2.1)."""
 
     def __init__(self, name: str, registry: Registry, say: Callable[[str], None]) -> None:
         self.name, self.registry, self.say = name, registry, say
         self.found: list[str] = []
         self.skipped: set[str] = set()
+        self.refused = 0
+        self._warn = Throttle(log.warning)
 
     def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
         """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
         new = []
         for peer, entries in sorted(listed.items()):
             for entry in entries:
-                given = entry["sequence"]
+                given = entry.get("sequence", "")
                 if given in self.skipped:
                     continue
                 try:
+                    fault("item", given)
                     conds = parse_sequence(given)
                     problems = find_problems(SequenceNode(conds), self.registry)
                 except StringBTError as err:
                     problems = [err]
                     conds = ()
+                except Exception as exc:
+                    self.skipped.add(given)
+                    self.refused += 1
+                    self._warn(
+                        f"{self.name} refused: the catalog of {peer[:64]}: {internal_error(exc)}"
+                    )
+                    continue
                 key = sequence_key(conds) if not problems else given
                 if key in self.found or key in self.skipped:
                     continue

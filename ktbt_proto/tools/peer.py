@@ -331,7 +331,8 @@ def run_agent(
         m = robot.metrics
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
-            f"lost {m.queries_lost}, refused {m.refused + transport.refused}, "
+            f"lost {m.queries_lost}, "
+            f"refused {m.refused + transport.refused + (listed.refused if listed else 0)}, "
             f"taught {m.responses_sent + transport.answered}, late answers {m.late_answers}, "
             f"network errors {m.network_errors}"
         )

@@ -65,6 +65,7 @@ from ktbt_proto.exchange.messages import (
     decode,
     encode,
 )
+from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
@@ -325,6 +326,7 @@ class ZenohTransport:
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
+        self._warn = Throttle(log.warning)
         self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit)
         self._given = AnswersGiven(self.name, self.answer_window, self.max_pending, log.warning)
         self._publisher: Any = None
@@ -413,7 +415,7 @@ class ZenohTransport:
         counted and logged with its reason)."""
         with self._lock:
             self.refused += 1
-        log.warning("%s refused: %s", self.name, reason)
+        self._warn(f"{self.name} refused: {reason}")
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
@@ -530,10 +532,15 @@ class ZenohTransport:
         ended = threading.Event()
 
         def on_reply(reply: Any) -> None:
-            if not self.closed:
+            if self.closed:
+                return
+            try:
                 answer = self._reply(reply, message, heard)
-                if answer is not None:
-                    self._inbox.deliver(answer)
+            except Exception as exc:  # never into zenoh's thread (section 2.1)
+                self._refuse(f"a reply to {message.id}: {internal_error(exc)}")
+                return
+            if answer is not None:
+                self._inbox.deliver(answer)
 
         def on_end() -> None:
             with self._lock:
@@ -623,6 +630,7 @@ class ZenohTransport:
             return None
         return message
 
+    @guarded("a peer's liveliness")
     def _on_presence(self, sample: Any) -> None:
         """A peer's liveliness token appeared (or went): a new neighbour is counted, logged
         (``peer-seen``, section 8) and kept for :meth:`appeared`, so that a learner asks it at
@@ -646,6 +654,7 @@ class ZenohTransport:
 
     # -- being asked ------------------------------------------------------------------------------
 
+    @guarded("a query")
     def _on_query(self, query: Any) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
@@ -703,6 +712,7 @@ class ZenohTransport:
     def _on_tree(self, query: Any) -> None:
         reply_tree(query, self.name, self.tree() if self.tree is not None else None, self.max_bytes)
 
+    @guarded("a message in the inbox")
     def _on_inbox(self, sample: Any) -> None:
         """A late answer. Only a response is taken: a query arrives only through the
         queryable, where zenoh knows it came from a get."""
@@ -710,6 +720,7 @@ class ZenohTransport:
         if message is not None:
             self._inbox.deliver(message)
 
+    @guarded("an overheard answer")
     def _on_answer(self, sample: Any) -> None:
         """An answer another peer published (section 4.3), checked as a reply is: within the
         message limits, a response, believed only as coming from the key it arrived on, and

@@ -53,8 +53,9 @@ import re
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 from ktbt_interfaces.msg import Catalog, CatalogEntry
@@ -62,7 +63,7 @@ from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
 
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, Query, Response
-from ktbt_proto.exchange.transport import NetworkError
+from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.trust import Policy, refusal
 from ktbt_proto.interop.ros2.showing import ENTRY_FIELDS, FleetCatalogs, latched
 from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics, exchange_qos, to_msg
@@ -75,6 +76,8 @@ from ktbt_proto.transport.zenoh import (
 )
 
 log = logging.getLogger("ktbt.bridge")
+_A = TypeVar("_A")
+_B = TypeVar("_B")
 
 MAX_ROBOTS = 64
 """ROS robots mirrored on zenoh, and zenoh peers shown on ROS, at most (each side)."""
@@ -158,6 +161,7 @@ class Bridge:
         self.query_timeout, self.max_robots = query_timeout, max_robots
         self.counts = Counts()
         self._lock = threading.Lock()
+        self._warn = Throttle(log.warning)
         self.name = f"bridge.{node.get_name()}"[:64]
         self.ros = Ros2Transport(
             node,
@@ -217,7 +221,7 @@ class Bridge:
         with self._lock:
             self.counts.refused += 1
             self.counts.reasons = [*self.counts.reasons[-7:], reason]
-        log.warning("%s refused: %s", self.name, reason)
+        self._warn(f"{self.name} refused: {reason}")
 
     def refused(self) -> int:
         """Everything refused: the bridge's own refusals and its transports'."""
@@ -388,15 +392,22 @@ class Bridge:
             self._tend_proxies()
         for message in self.ros.receive():  # queries: answers come through `relay`
             if isinstance(message, Query):
-                self._query_from_ros(message, now)
+                self._relay(self._query_from_ros, message, now)
         for mirror in list(self.mirrors.values()):
             for message in mirror.receive():
                 if isinstance(message, Query):
-                    self._query_from_zenoh(message, now)
+                    self._relay(self._query_from_zenoh, message, now)
                 elif isinstance(message, Response):
-                    self._answer_from_zenoh(mirror.name, message)
-                elif isinstance(message, NetworkError):
-                    pass  # zenoh's own (a get timed out): counted by the mirror
+                    self._relay(self._answer_from_zenoh, mirror.name, message)
+                # a NetworkError is zenoh's own (a get timed out): counted by the mirror
+
+    def _relay(self, relay: Callable[[_A, _B], None], first: _A, second: _B) -> None:
+        """One message relayed; whatever relaying it raises is a refusal (section 2.1), and
+        the bridge goes on with the next."""
+        try:
+            relay(first, second)
+        except Exception as exc:
+            self._refuse(f"relaying a message: {internal_error(exc)}")
 
     def _remember(self, table: OrderedDict[tuple[str, str], Relayed], query: Query) -> bool:
         """Note ``query`` as relayed; False if it already was (relay once per asker and id)."""

@@ -39,6 +39,7 @@ from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import sequence_key
 from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
@@ -517,6 +518,10 @@ class KtbtNode(LifecycleNode):
             key = sequence_key(parse_conditions([request.sequence]))
         except StringBTError as err:
             response.forgotten, response.message = False, f"sequence: {err}"
+            return response
+        except Exception as exc:  # a caller's bytes the reader failed on (section 2.1)
+            response.forgotten, response.message = False, f"sequence: {internal_error(exc)}"
+            self.logger.warning(f"{agent.name} refused a forget request: {response.message}")
             return response
         item = agent.knowledge.lookup(key)
         response.forgotten = agent.forget(key)

@@ -31,6 +31,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
 from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.refusals import Throttle, guarded
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
@@ -228,6 +229,7 @@ class FleetCatalogs:
         self.refused = 0
         self._lock = threading.Lock()
         self._subscriptions: dict[str, Any] = {}
+        self._warn = Throttle(self.node.get_logger().warning)
         self._ignored: set[str] = set()
         """Topics beyond ``limit``, refused once each (at most ``4 * limit`` remembered)."""
         self._found: dict[str, tuple[str, list[dict[str, str]]]] = {}
@@ -273,6 +275,7 @@ class FleetCatalogs:
                     self.version += 1
         return ended
 
+    @guarded("a catalog")
     def _on_catalog(self, topic: str, data: bytes) -> None:
         if len(data) > MAX_CATALOG_BYTES:
             self._refuse(f"catalog on {topic}: {len(data)} bytes, more than {MAX_CATALOG_BYTES}")
@@ -295,7 +298,7 @@ class FleetCatalogs:
 
     def _refuse(self, reason: str) -> None:
         self.refused += 1
-        self.node.get_logger().warning(f"refused: {reason}")
+        self._warn(f"refused: {reason}")
 
     def read(self) -> dict[str, list[dict[str, str]]]:
         """What each peer's catalog lists now, by peer (two topics naming one peer are told

@@ -70,6 +70,7 @@ from ktbt_proto.exchange.messages import (
     Response,
     decode_fields,
 )
+from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import Message, Received
@@ -276,6 +277,7 @@ class Ros2Transport:
         touch them."""
         self.closed = False
         self._lock = threading.Lock()
+        self._warn = Throttle(node.get_logger().warning)
         self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
         self._given = AnswersGiven(name, answer_window, max_pending, node.get_logger().warning)
         self._open: dict[str, tuple[tuple[str, ...], float, set[tuple[str, str]]]] = {}
@@ -428,7 +430,7 @@ class Ros2Transport:
         """Count, log (WARNING) and record one refusal (section 2: every refusal is counted)."""
         with self._lock:
             self.refused += 1
-        self.node.get_logger().warning(f"{self.name} refused: {reason}")
+        self._warn(f"{self.name} refused: {reason}")
         if self.log is not None:
             self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
 
@@ -453,6 +455,9 @@ class Ros2Transport:
         except cdr.CdrError as exc:
             self._refuse(f"{what}: not a {ros_type} ({exc})", key=topic)
             return "refused"
+        except Exception as exc:  # the reader's own failure (section 2.1)
+            self._refuse(f"{what}: {internal_error(exc)}", key=topic)
+            return "refused"
         if not wanted(fields):
             return "skipped"
         try:
@@ -463,11 +468,15 @@ class Ros2Transport:
         except (UnicodeError, ValueError) as exc:
             self._refuse(f"{what}: {type(exc).__name__}", key=topic)
             return "refused"
+        except Exception as exc:  # the reader's own failure (section 2.1)
+            self._refuse(f"{what}: {internal_error(exc)}", key=topic)
+            return "refused"
         if not isinstance(message, kind):
             self._refuse(f"{what}: a {message.type} where a {kind.__name__} belongs", key=topic)
             return "refused"
         return fields, message
 
+    @guarded("a query")
     def _on_query(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
@@ -515,6 +524,7 @@ class Ros2Transport:
             self._answers.publish(serialized(response, query.sender))
             self.answered += 1
 
+    @guarded("an answer")
     def _on_answer(self, data: bytes) -> None:
         if self.closed or not self.active:
             return
@@ -561,6 +571,7 @@ class Ros2Transport:
                 return
         self._inbox.deliver(answer)
 
+    @guarded("an error reply")
     def _on_error(self, data: bytes) -> None:
         if self.closed or not self.active:
             return

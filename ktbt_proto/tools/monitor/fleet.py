@@ -28,6 +28,7 @@ from typing import Any
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.events import FleetEvent, clip
 from ktbt_proto.exchange.messages import _ID
+from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.trust import TrustStore
 from ktbt_proto.items import parse_sequence, sequence_digest
@@ -197,6 +198,8 @@ class FleetState:
                 entries.append((sequence_digest(sequence), sequence))
             except (StringBTError, UnicodeError, RecursionError) as exc:
                 errors.append(str(exc).splitlines()[0])
+            except Exception as exc:  # the reader's own failure (spec/protocol.md 2.1)
+                errors.append(internal_error(exc))
         with self._lock:
             peer = self._named(name, "catalog")
             if peer is None:

@@ -20,6 +20,7 @@ import zenoh
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.events import MAX_EVENT_BYTES, PREFIX, RateLimit, decode_event
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, MessageRefused
+from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.limits import Limits
 from ktbt_proto.render import render
 from ktbt_proto.syntax import parse
@@ -50,6 +51,9 @@ def shown_tree(fleet: FleetState, name: str, payload: bytes | str) -> str | None
     except (StringBTError, RecursionError) as exc:
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         fleet.drop("malformed", f"tree of {name}: {why}")
+        return None
+    except Exception as exc:  # the reader's own failure (spec/protocol.md 2.1)
+        fleet.drop("malformed", f"tree of {name}: {internal_error(exc)}")
         return None
 
 
@@ -94,7 +98,14 @@ class Listener:
         """One event as it came on ``key`` (``ktbt/v1/events/<peer>``, or the key a ROS robot's
         ``~/events`` stands for: :mod:`ktbt_proto.tools.monitor.ros2`), checked the one way
         whichever network carried it: the fleet's rate, size, decoding and signature, the key
-        naming its peer, the key and signer's rate."""
+        naming its peer, the key and signer's rate. Whatever reading it raises is counted
+        malformed, never the end of the listener (spec/protocol.md section 2.1)."""
+        try:
+            self._hear(key, data)
+        except Exception as exc:
+            self.fleet.drop("malformed", f"event on {key[:100]}: {internal_error(exc)}")
+
+    def _hear(self, key: str, data: bytes) -> None:
         with self._lock:
             flooding = not self._all.take()
         if flooding:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import rclpy
 from ktbt_interfaces.msg import Catalog, FleetEvent, TreeSnapshot
@@ -33,9 +33,12 @@ from rclpy.utilities import try_shutdown
 
 from ktbt_proto.exchange.events import PREFIX
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
+from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.interop.ros2.node import event_json, events_qos, latched
 from ktbt_proto.tools.monitor.fleet import _NAME, MAX_PEERS, FleetState
 from ktbt_proto.tools.monitor.listen import shown_tree
+
+_M = TypeVar("_M")
 
 TYPES = {
     "ktbt_interfaces/msg/FleetEvent": "events",
@@ -121,16 +124,24 @@ class RosListener:
     def _subscribe(self, topic: str, path: str, kind: str) -> None:
         if kind == "events":
             self._subs[topic] = self.node.create_subscription(
-                FleetEvent, topic, lambda m: self._on_event(path, m), events_qos()
+                FleetEvent, topic, lambda m: self._read(self._on_event, path, m), events_qos()
             )
         elif kind == "catalog":
             self._subs[topic] = self.node.create_subscription(
-                Catalog, topic, lambda m: self._on_catalog(path, m), latched()
+                Catalog, topic, lambda m: self._read(self._on_catalog, path, m), latched()
             )
         else:
             self._subs[topic] = self.node.create_subscription(
-                TreeSnapshot, topic, lambda m: self._on_tree(path, m), latched()
+                TreeSnapshot, topic, lambda m: self._read(self._on_tree, path, m), latched()
             )
+
+    def _read(self, on: Callable[[str, _M], None], path: str, msg: _M) -> None:
+        """One message of a robot's topic; whatever reading it raises is counted malformed,
+        never the end of the spin (spec/protocol.md section 2.1)."""
+        try:
+            on(path, msg)
+        except Exception as exc:
+            self.fleet.drop("malformed", f"a message on {path[:100]}: {internal_error(exc)}")
 
     def _owned(self, path: str, name: str, what: str) -> bool:
         """Whether ``name`` may speak on the node ``path``'s topics: the first name heard

@@ -115,6 +115,15 @@ def show_sequence(sequence: str | Iterable[Condition]) -> str:
     return ", ".join(parts)
 
 
+def shown(key: str) -> str:
+    """A sequence key as people read and type it (``TargetSeen(colour=2)``); a key that does
+    not parse (a hostile peer's catalog) is shown quoted, as it came."""
+    try:
+        return show_sequence(key)
+    except StringBTError:
+        return repr(key)
+
+
 def read_sequence(text: str) -> tuple[Condition, ...]:
     """Conditions from what a user types: ``TargetSeen(colour=2), !_inZoneF`` (what
     :func:`show_sequence` prints), or the wire form ``<c>(TargetSeen,colour=2)<c>(!_inZoneF)``.

@@ -12,21 +12,14 @@ tree-timed agent's, checked and merged by the same
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from functools import cached_property
 
-from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.core import AgentCore
-from ktbt_proto.exchange.messages import MAX_MORE, Query, Response
+from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.items import sequence_key
 from ktbt_proto.tree import Condition
 
-__all__ = ["ASK_ALONE", "ApplicationTimedAgent", "Learner"]
-
-ASK_ALONE = 1
-"""Peers that appear together asked each alone at most (section 4.5); more are asked in one
-broadcast: one message, where they would take one each."""
-
+__all__ = ["ApplicationTimedAgent"]
 
 class ApplicationTimedAgent(AgentCore):
     """An agent its application times (section 4.1): :meth:`ask`, :meth:`announce`,
@@ -133,50 +126,3 @@ class ApplicationTimedAgent(AgentCore):
         self._answered |= {response.sequence}
         self.metrics.learned_direct += new
         return 1
-
-
-@dataclass
-class Learner:
-    """When a fleet member asks (spec/protocol.md section 4.5): driven by events, not by a
-    timer. It asks for every sequence it lacks in one query (section 1) as soon as it lacks
-    one; a peer that appears (its liveliness, section 3) is sent the open query at once, and
-    the query stays open a whole ``wait`` from then; a query closes when every sequence it
-    names is answered, or when its wait is over. With no query open, the peers that appear
-    are asked at once: one newcomer alone (those present before were asked already; a
-    broadcast would wake every one of them, all at the moment a teacher joins a large fleet),
-    several that appeared together in one broadcast (one message). After a query
-    nobody answered, it holds back ``cooldown`` seconds and then the ``backoff``'s hold;
-    after one answered (in part), it asks at once for what is left."""
-
-    robot: ApplicationTimedAgent
-    backoff: Backoff
-    wait: float
-    cooldown: float
-    opened: float = 0.0
-
-    def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
-        robot = self.robot
-        if robot.buffered:  # overheard and kept (section 4.3): learned without asking
-            for key in [k for k in missing if k in robot.buffered]:
-                robot.learn_buffered(key)
-            missing = [k for k in missing if k not in robot.knowledge]
-        query = robot.open_query
-        if query is not None and (not robot.unanswered or now - self.opened >= self.wait):
-            answered = len(robot.unanswered) < len(query.sequences)
-            robot.close_query()
-            if answered:
-                self.backoff.reset(now)
-            else:
-                self.backoff.lost(now + self.cooldown)
-        if appeared and robot.open_query is not None:  # newcomers hear the open query at once
-            for peer in appeared:
-                robot.announce(peer)
-            self.opened = now
-        elif appeared and missing:  # the newcomer alone: the others were asked already
-            alone = appeared if len(appeared) <= ASK_ALONE else []
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
-            self.backoff.reset(now)
-            self.opened = now
-        if missing and robot.open_query is None and self.backoff.ready(now):
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
-            self.opened = now

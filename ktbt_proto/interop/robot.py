@@ -2,14 +2,12 @@
 the ROS 2 node): its knowledge file (stringBT, or a BehaviorTree.CPP robot's skills as XML),
 its control tree with that knowledge in its placeholders, the placeholder it learns into, and
 the search-and-rescue demo robot used when a robot is given no vocabulary of its own
-(``spec/protocol.md`` section 4.5), and the sequences a learner told none meets, read from its
-fleet's catalogs (:class:`Listed`).
+(``spec/protocol.md`` section 4.5).
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -17,28 +15,19 @@ from pydantic import Field
 from pydantic import ValidationError as PydanticError
 
 from ktbt_proto.blackboard import Blackboard
-from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
+from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Response
-from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
 from ktbt_proto.files import read_at_most
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import read_skills
-from ktbt_proto.items import parse_sequence, show_sequence
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import merge
 from ktbt_proto.registry import Registry
 from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
-from ktbt_proto.tree import Placeholder, SequenceNode, Tree
-from ktbt_proto.validate import find_problems
+from ktbt_proto.tree import Placeholder, Tree
 
 log = logging.getLogger("ktbt.robot")
-
-CATALOG_PERIOD = 2.0
-"""Seconds between two readings of the fleet's catalogs by a learner told no sequences
-(``ktbt peer run`` without ``--sequence``, ``ktbt ros2 run`` without ``sequences``; besides one
-whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
 LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
 """The control tree of a robot given a vocabulary but no ``--control``: it runs only what it
@@ -53,15 +42,6 @@ def learning_slot(tree: Tree) -> str | None:
     if not names:
         return None
     return "new" if "new" in names else names[-1]
-
-
-def shown(key: str) -> str:
-    """A sequence key as people read and type it (``TargetSeen(colour=2)``); a key that does
-    not parse (a hostile peer's catalog) is shown quoted, as it came."""
-    try:
-        return show_sequence(key)
-    except StringBTError:
-        return repr(key)
 
 
 def load_knowledge(path: str | Path) -> KnowledgeBase:
@@ -118,60 +98,6 @@ def item_slot(names: set[str], segment: str, fallback: str) -> str:
     if segment in names:
         return segment
     return "prior" if "prior" in names else fallback
-
-
-class Listed:
-    """The sequences a learner told none meets (spec/protocol.md section 4.5), whatever
-    carries the catalogs (zenoh's catalog queryables, ROS 2's latched ``~/catalog`` topics):
-    those its fleet's catalogs list, that its vocabulary can execute, in the order found. A
-    sequence its vocabulary cannot execute is skipped (never asked, so never refused) with one
-    INFO line. An entry whose reading raises anything else is refused: counted in
-    :attr:`refused`, logged at WARNING, skipped from then on (section 2.1)."""
-
-    def __init__(self, name: str, registry: Registry, say: Callable[[str], None]) -> None:
-        self.name, self.registry, self.say = name, registry, say
-        self.found: list[str] = []
-        self.skipped: set[str] = set()
-        self.refused = 0
-        self._warn = Throttle(log.warning)
-
-    def read(self, listed: dict[str, list[dict[str, str]]]) -> list[str]:
-        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
-        new = []
-        for peer, entries in sorted(listed.items()):
-            for entry in entries:
-                given = entry.get("sequence", "")
-                if given in self.skipped:
-                    continue
-                try:
-                    fault("item", given)
-                    conds = parse_sequence(given)
-                    problems = find_problems(SequenceNode(conds), self.registry)
-                except StringBTError as err:
-                    problems = [err]
-                    conds = ()
-                except Exception as exc:
-                    self.skipped.add(given)
-                    self.refused += 1
-                    self._warn(
-                        f"{self.name} refused: the catalog of {peer[:64]}: {internal_error(exc)}"
-                    )
-                    continue
-                key = sequence_key(conds) if not problems else given
-                if key in self.found or key in self.skipped:
-                    continue
-                if problems:
-                    self.skipped.add(given)
-                    log.info(
-                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
-                        "(%s %s)",
-                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
-                    )  # fmt: skip
-                    continue
-                self.found.append(key)
-                new.append(key)
-                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
-        return new
 
 
 Colour = Annotated[int, Field(ge=1, le=4)]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import signal
 import threading
 import time
@@ -22,9 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from ktbt_proto.exchange.answers import answers, catalog
-from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
-from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
+from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
 from ktbt_proto.exchange.receiving import Refused, check
@@ -33,11 +32,13 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.robot import CATALOG_PERIOD, Listed, shown, with_knowledge
+from ktbt_proto.interop.robot import with_knowledge
 from ktbt_proto.interop.sidecar import LearnedExport
+from ktbt_proto.items import shown
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.zenoh import (
+    ZenohCatalogs,
     ZenohSettings,
     ZenohTransport,
     catalogs,
@@ -290,55 +291,42 @@ def run_agent(
         export = (
             LearnedExport(export_learned) if isinstance(export_learned, str) else export_learned
         )
-        if export is not None:  # what a resumed --save file holds already
-            export.sync(robot.knowledge)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
         deadline = time.monotonic() + duration
-        listed = Listed(name, registry, say) if sequences is None else None
-        todo = [sequence_key([s]) for s in sequences] if sequences is not None else []
-        period = 1.0 / tick_rate
-        if listed is None:
-            say(f"{name}: knows {len(robot.knowledge)}, will meet {len(todo)} sequences")
+        fleet = FleetMember(
+            robot,
+            transport,
+            ZenohCatalogs(transport),
+            None if sequences is None else [sequence_key([s]) for s in sequences],
+            wait,
+            cooldown,
+            say,
+            export,
+        )
+        if fleet.listed is None:
+            say(f"{name}: knows {len(robot.knowledge)}, will meet {len(fleet.todo)} sequences")
         else:
             say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
         announce_ready(member.ready, name, len(robot.knowledge))
-        announced = set(robot.metrics.learned)
-        learner = Learner(robot, Backoff(seed=name), wait, cooldown)
-        read_at = -math.inf
+        period = 1.0 / tick_rate
         while not stop.is_set() and time.monotonic() < deadline:
-            now = time.monotonic()
             robot.now += 1
-            robot.receive()
-            for key in robot.metrics.learned.keys() - announced:
-                tick, source = robot.metrics.learned[key]
-                say(f"{name}: learned {shown(key)} from {source} at tick {tick}")
-                announced.add(key)
-            if export is not None:  # before a done member stops
-                export.sync(robot.knowledge)
-            appeared = transport.appeared()
-            if listed is not None and (appeared or now - read_at >= CATALOG_PERIOD):
-                read_at = now
-                todo += listed.read(catalogs(transport, timeout=0.5))
-            todo = [key for key in todo if key not in robot.knowledge]
-            if not todo and exit_when_done and (listed is None or listed.found):
+            fleet.step(time.monotonic())
+            if exit_when_done and fleet.done:
                 break
-            learner.step(now, todo, appeared)
-            robot.control.tick()
-            robot.tend_memory()
             stop.wait(period)
         m = robot.metrics
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "
-            f"lost {m.queries_lost}, "
-            f"refused {m.refused + transport.refused + (listed.refused if listed else 0)}, "
+            f"lost {m.queries_lost}, refused {fleet.refused + transport.refused}, "
             f"taught {m.responses_sent + transport.answered}, late answers {m.late_answers}, "
             f"network errors {m.network_errors}"
         )
         for item in robot.knowledge:
             say(f"  knows {show_sequence(item.conditions)}")
-        met = listed.found if listed is not None else list(sequences or ())
+        met = fleet.listed.found if fleet.listed is not None else list(sequences or ())
         return 0 if all(robot.knows([s]) for s in met) else 1
 
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 import threading
@@ -56,6 +57,7 @@ import zenoh
 from ktbt_proto.exchange.answers import catalog, live_answers
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.inbox import AnswersGiven, Inbox, Lookup
+from ktbt_proto.exchange.member import CATALOG_PERIOD
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -811,6 +813,22 @@ def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[di
 def catalogs(owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list[dict[str, str]]]:
     """What each peer knows, with the provenance it reports (author, teacher, time)."""
     return _catalog_replies(owner, timeout)
+
+
+class ZenohCatalogs:
+    """The fleet's catalogs for a fleet member told no sequences (section 4.5,
+    :class:`~ktbt_proto.exchange.member.Catalogs`): one get of every catalog queryable when a
+    peer appeared, and every :data:`~ktbt_proto.exchange.member.CATALOG_PERIOD` seconds."""
+
+    def __init__(self, owner: ZenohTransport, timeout: float = 0.5) -> None:
+        self.owner, self.timeout = owner, timeout
+        self._read_at = -math.inf
+
+    def changed(self, now: float, appeared: bool) -> dict[str, list[dict[str, str]]] | None:
+        if not appeared and now - self._read_at < CATALOG_PERIOD:
+            return None
+        self._read_at = now
+        return catalogs(self.owner, self.timeout)
 
 
 def peers(session_owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list[str]]:

@@ -167,7 +167,8 @@ def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
     """A newcomer is asked at once, alone: the peers present before were asked already, and a
     broadcast would wake them all again (spec/protocol.md section 4.5). Several newcomers at
     once are asked in one broadcast."""
-    from ktbt_proto.exchange.application import ASK_ALONE, ApplicationTimedAgent, Learner
+    from ktbt_proto.exchange.application import ApplicationTimedAgent
+    from ktbt_proto.exchange.member import ASK_ALONE, Learner
     from ktbt_proto.transport import MemoryNetwork
     from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 

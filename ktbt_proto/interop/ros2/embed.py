@@ -33,7 +33,6 @@ vocabulary cannot execute (``StringBTError``, with its code).
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Iterable
 from dataclasses import replace
@@ -46,24 +45,18 @@ from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.control import ControlFactory
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
-from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
-from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
+from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
-from ktbt_proto.interop.robot import (
-    CATALOG_PERIOD,
-    Listed,
-    item_slot,
-    learning_slot,
-    load_knowledge,
-    shown,
-)
-from ktbt_proto.interop.ros2.showing import FleetCatalogs, Shown
-from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.interop.robot import item_slot, learning_slot, load_knowledge
+from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
+from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
+from ktbt_proto.items import shown
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import Registry
 from ktbt_proto.tree import Condition, Placeholder, SequenceNode
@@ -110,9 +103,9 @@ def attach(
             f"registry: a ktbt_proto Registry (Registry.load('robot.toml')), not a "
             f"{type(registry).__name__}"
         )
-    robot = node.get_name() if name is None else name
-    if not isinstance(robot, str) or re.fullmatch(NAME, robot) is None:
-        raise ValueError(f"name {robot!r}: use 1 to 64 letters, digits, '_', '.', '-'")
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"name {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
+    robot = robot_name(node, name)
     if not (0 < wait <= 3600 and 0 < period <= 60):
         raise ValueError(f"wait {wait} s, period {period} s: use (0, 3600] and (0, 60]")
     factory = py_trees_control(tree, behaviours=behaviours, setup_kwargs={"node": node})
@@ -201,19 +194,22 @@ class Embedded:
         agent = self.agent
         self.shown = Shown(node, name, catalog(agent.knowledge, security.identity), log,
                            security.identity, PREFIX)  # fmt: skip
-        self._listed = (
-            Listed(name, agent.registry, node.get_logger().info) if todo is None else None
-        )
         self._catalogs = (
             FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)
-            if self._listed is not None
+            if todo is None
             else None
         )
-        self.todo: list[str] = todo or []
-        """What it is still to meet."""
-        self._learner = Learner(agent, Backoff(seed=name), wait=wait, cooldown=0.0)
-        self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
-        self._announced = set(agent.metrics.learned)
+        self.member = FleetMember(
+            agent,
+            self.transport,
+            self._catalogs,
+            todo,
+            wait=wait,
+            cooldown=0.0,
+            say=node.get_logger().info,
+            ticks_control=False,  # the user ticks the tree
+        )
+        self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
         self.closed = False
         self._timer = node.create_timer(period, self._run)
         self.shown.show(self._control.tree)
@@ -251,11 +247,17 @@ class Embedded:
     @property
     def wait(self) -> float:
         """Seconds a query stays open (settable)."""
-        return self._learner.wait
+        return self.member.wait
 
     @wait.setter
     def wait(self, seconds: float) -> None:
-        self._learner.wait = self.transport.query_timeout = seconds
+        self.member.timing(seconds, self.member.cooldown)
+        self.transport.query_timeout = seconds
+
+    @property
+    def todo(self) -> list[str]:
+        """The sequence keys it is still to meet."""
+        return self.member.todo
 
     def knows(self, sequence: Iterable[str] | str) -> bool:
         return self.agent.knows(sequence)
@@ -263,31 +265,16 @@ class Embedded:
     def meet(self, *sequences: str) -> None:
         """Meet these sequences too (checked as :func:`attach` checks its ``sequences``)."""
         vocabulary = self.agent.registry
-        self.todo += [_meetable(s, vocabulary) for s in sequences]
+        self.member.meet([_meetable(s, vocabulary) for s in sequences])
 
     def _run(self) -> None:
-        """One run of the agent's timer: answers, catalogs, then asking as a fleet member asks
-        (section 4.5, :class:`Learner`), then what changed is shown."""
-        agent, transport = self.agent, self.transport
-        now = time.monotonic()
-        agent.now = self.tree.count
-        agent.receive()
-        appeared = transport.appeared()
-        if self._catalogs is not None and self._listed is not None:
-            if appeared or now - self._read_at >= CATALOG_PERIOD:
-                self._read_at = now
-                self._catalogs.refresh()
-            if self._catalogs.version != self._catalogs_read:
-                self._catalogs_read = self._catalogs.version
-                self.todo += self._listed.read(self._catalogs.read())
-        self.todo = [key for key in self.todo if key not in agent.knowledge]
-        self._learner.step(now, self.todo, appeared)
-        for key in agent.metrics.learned.keys() - self._announced:
-            tick, source = agent.metrics.learned[key]
-            self.node.get_logger().info(
-                f"{self.name}: learned {shown(key)} from {source} at tick {tick}"
-            )
-            self._announced.add(key)
+        """One run of the agent's timer: a step of the fleet member (section 4.5) on the
+        user's tick count, then what changed is shown."""
+        self.agent.now = self.tree.count
+        self.member.step(time.monotonic())
+        self._show()
+
+    def _show(self) -> None:
         self.shown.show(self._control.tree)
 
     def _unhook(self) -> None:
@@ -302,6 +289,7 @@ class Embedded:
             return
         self.closed = True
         self.node.destroy_timer(self._timer)
+        self._offered.close()
         if self._catalogs is not None:
             self._catalogs.close()
         self.shown.close()

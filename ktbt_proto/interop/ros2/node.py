@@ -21,12 +21,10 @@ and ``~/forget``. It logs through the node's logger, the library's own log recor
 from __future__ import annotations
 
 import logging
-import re
 import time
 from pathlib import Path
 from typing import Any, cast
 
-from ktbt_interfaces.srv import Forget, ListKnowledge
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -35,35 +33,32 @@ from rclpy.parameter import Parameter
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
-from ktbt_proto.exchange.application import ApplicationTimedAgent, Learner
-from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import sequence_key
+from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
-from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
 from ktbt_proto.interop.robot import (
-    CATALOG_PERIOD,
     DEMO_CONTROL,
     LEARNER_CONTROL,
-    Listed,
     demo_registry,
     learning_slot,
     load_knowledge,
-    shown,
     with_knowledge,
 )
 from ktbt_proto.interop.ros2.showing import (
     FleetCatalogs,
+    Services,
     Shown,
     event_json,
     event_msg,
     events_qos,
     latched,
 )
-from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics
+from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.merge import conditions as parse_conditions
 from ktbt_proto.registry import load_vocabulary
@@ -183,17 +178,14 @@ class KtbtNode(LifecycleNode):
         self.finalized = False
         """Shut down (the lifecycle's finalized state): the process running it may end."""
         self.agent: ApplicationTimedAgent | None = None
-        self._learner: Learner | None = None
+        self.member: FleetMember | None = None
         self.transport: Ros2Transport | None = None
         self.log: TransferLog | None = None
-        self._made: list[Any] = []
+        self._offered: Services | None = None
         self._timer: Any = None
         self._snapshot_timer: Any = None
         self._shown: Shown | None = None
-        self._export: LearnedExport | None = None
         self._catalogs: FleetCatalogs | None = None
-        self._listed: Listed | None = None
-        self._todo: list[str] = []
 
     # -- parameters -----------------------------------------------------------------------------
 
@@ -208,9 +200,9 @@ class KtbtNode(LifecycleNode):
             if why is not None:
                 return SetParametersResult(successful=False, reason=why)
         for param in params:
-            if param.name == "sequences":
-                self._todo = [sequence_key(parse_conditions([s])) for s in param.value]
-                self._listed = None  # told what to meet: the catalogs are no longer read
+            if param.name == "sequences" and self.member is not None:
+                # told what to meet: the catalogs are no longer read
+                self.member.tell(sequence_key(parse_conditions([s])) for s in param.value)
         if self._timer is not None and any(
             p.name in ("tick_rate", "snapshot_period") for p in params
         ):
@@ -228,15 +220,6 @@ class KtbtNode(LifecycleNode):
             return self.get_parameter_or(name, Parameter(name, value=None)).value
         except ParameterUninitializedException:
             return None
-
-    def agent_name(self) -> str:
-        name = str(self._param("agent_name"))
-        if not name:
-            namespace = self.get_namespace().strip("/")
-            name = namespace.rsplit("/", 1)[-1] if namespace else self.get_name()
-        if not re.fullmatch(NAME, name):
-            raise ValueError(f"agent_name {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
-        return name
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -262,7 +245,7 @@ class KtbtNode(LifecycleNode):
             why = problem(param_name, self._param(param_name))
             if why is not None:
                 raise ValueError(why)
-        name = self.agent_name()
+        name = robot_name(self, str(self._param("agent_name")), "agent_name")
         vocabulary, control_path = str(self._param("vocabulary")), str(self._param("control"))
         if control_path and not vocabulary:
             raise ValueError(f"control {control_path}: give vocabulary too (the names it runs)")
@@ -289,10 +272,9 @@ class KtbtNode(LifecycleNode):
             raise ValueError("policy trusted needs a trust file (parameter trust)")
         overhear = cast(Overhear, str(self._param("overhear")))
         sequences = self._param("sequences")
-        if sequences is None:
-            self._listed, self._todo = Listed(name, registry, self.logger.info), []
-        else:
-            self._todo = [sequence_key(parse_conditions([s])) for s in sequences]
+        todo = (
+            None if sequences is None else [sequence_key(parse_conditions([s])) for s in sequences]
+        )
         wait_ticks, cooldown_ticks = (
             int(self._param("wait_ticks")),
             int(self._param("cooldown_ticks")),
@@ -331,31 +313,26 @@ class KtbtNode(LifecycleNode):
             why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
             raise ValueError(why) from None
         agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
-        self._export = self._learned_export()
-        if self._export is not None:  # what a resumed save file holds already
-            self._export.sync(agent.knowledge)
         self._shown = Shown(self, name, catalog(agent.knowledge, identity), self.log, identity)
-        if self._listed is not None:
+        if todo is None:
             self._catalogs = FleetCatalogs(
                 self, self._shown.catalog_topic, fleet=self.transport.peers
             )
-        self._read_at, self._catalogs_read = -CATALOG_PERIOD, -1
-        self._made += [
-            self.create_service(ListKnowledge, "~/list_knowledge", self._on_list),
-            self.create_service(Forget, "~/forget", self._on_forget),
-        ]
         for _, reason in agent.metrics.refusals:  # a damaged save file, say
             self.logger.warning(f"{name} refused: {reason}")
-        self._announced = set(agent.metrics.learned)
         rate = float(self._param("tick_rate"))
-        self._learner = Learner(
-            agent, Backoff(seed=name), wait=wait_ticks / rate, cooldown=cooldown_ticks / rate
+        self.member = FleetMember(
+            agent,
+            self.transport,
+            self._catalogs,
+            todo,
+            wait=wait_ticks / rate,
+            cooldown=cooldown_ticks / rate,
+            say=self.logger.info,
+            export=self._learned_export(),
         )
-        meets = (
-            f"{len(self._todo)} sequences"
-            if self._listed is None
-            else "what the fleet's catalogs list"
-        )
+        self._offered = Services(self, self.member, self._shown, self._show)
+        meets = "what the fleet's catalogs list" if todo is None else f"{len(todo)} sequences"
         self.logger.info(
             f"{name}: configured, knows {len(agent.knowledge)}, will meet {meets}; "
             f"queries on {topics.queries}, answers on {topics.answers}"
@@ -398,9 +375,11 @@ class KtbtNode(LifecycleNode):
             )
         if self.transport is not None:
             self.transport.query_timeout = int(self._param("wait_ticks")) / tick_rate
-        if self._learner is not None:  # the wait and the cool-down are counted in ticks
-            self._learner.wait = int(self._param("wait_ticks")) / tick_rate
-            self._learner.cooldown = int(self._param("cooldown_ticks")) / tick_rate
+        if self.member is not None:  # the wait and the cool-down are counted in ticks
+            self.member.timing(
+                int(self._param("wait_ticks")) / tick_rate,
+                int(self._param("cooldown_ticks")) / tick_rate,
+            )
 
     def _stop_timers(self) -> None:
         for timer in (self._timer, self._snapshot_timer):
@@ -429,12 +408,12 @@ class KtbtNode(LifecycleNode):
     def _cleanup(self) -> None:
         """Undo ``configure``; the summary of what the agent did goes to the log."""
         self._stop_timers()
-        if self.agent is not None and self.transport is not None:
-            m = self.agent.metrics
+        if self.member is not None and self.transport is not None:
+            m = self.member.agent.metrics
             self.logger.info(
-                f"{self.agent.name}: queries sent {m.queries_sent}, answers "
+                f"{self.member.name}: queries sent {m.queries_sent}, answers "
                 f"{m.responses_received}, lost {m.queries_lost}, refused "
-                f"{m.refused + self.transport.refused}, taught "
+                f"{self.member.refused + self.transport.refused}, taught "
                 f"{m.responses_sent + self.transport.answered}, late answers {m.late_answers}"
             )
         if self.transport is not None:
@@ -443,16 +422,12 @@ class KtbtNode(LifecycleNode):
             self._shown.close()
         if self._catalogs is not None:
             self._catalogs.close()
-        for entity in self._made:
-            if hasattr(entity, "srv_type"):
-                self.destroy_service(entity)
-            else:
-                self.destroy_publisher(entity)
-        self._made = []
+        if self._offered is not None:
+            self._offered.close()
         if self.log is not None:
             self.log.close()
-        self.agent, self.transport, self.log, self._learner = None, None, None, None
-        self._shown = self._catalogs = self._listed = self._export = None
+        self.agent, self.transport, self.log, self.member = None, None, None, None
+        self._shown = self._catalogs = self._offered = None
 
     def destroy_node(self) -> None:
         self._cleanup()
@@ -462,77 +437,16 @@ class KtbtNode(LifecycleNode):
     # -- running --------------------------------------------------------------------------------
 
     def _tick(self) -> None:
-        """One tick of ``ktbt peer run``'s loop (section 4.5), then what changed is shown."""
-        agent, transport = self.agent, self.transport
-        if agent is None or transport is None:
+        """One step of the fleet member (section 4.5), then what changed is shown."""
+        member = self.member
+        if member is None:
             return
-        now = time.monotonic()
-        agent.now += 1
-        agent.receive()
-        for key in agent.metrics.learned.keys() - self._announced:
-            tick, source = agent.metrics.learned[key]
-            self.logger.info(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
-            self._announced.add(key)
-        if self._export is not None:
-            self._export.sync(agent.knowledge)
-        appeared = transport.appeared()
-        self._read_catalogs(now, bool(appeared))
-        self._todo = [key for key in self._todo if key not in agent.knowledge]
-        if self._learner is not None:
-            self._learner.step(now, self._todo, appeared)
-        agent.control.tick()
-        agent.tend_memory()
+        member.agent.now += 1
+        member.step(time.monotonic())
         self._show()
-
-    def _read_catalogs(self, now: float, appeared: bool) -> None:
-        """Told no sequences, follow the catalog topics that appeared (when a robot appears,
-        and every ``CATALOG_PERIOD``), and take in what a changed catalog lists (section 4.5)."""
-        catalogs, listed = self._catalogs, self._listed
-        if catalogs is None or listed is None:
-            return
-        if appeared or now - self._read_at >= CATALOG_PERIOD:
-            self._read_at = now
-            catalogs.refresh()
-        if catalogs.version != self._catalogs_read:
-            self._catalogs_read = catalogs.version
-            self._todo += listed.read(catalogs.read())
 
     def _show(self, periodic: bool = False) -> None:
         """Publish the tree snapshot and the catalog when they changed (the snapshot on the
         snapshot period even if not: ``changed`` false)."""
         if self.agent is not None and self._shown is not None:
             self._shown.show(self.agent.control.tree, periodic)
-
-    # -- services -------------------------------------------------------------------------------
-
-    def _on_list(self, request: Any, response: Any) -> Any:
-        response.items = self._shown.entries() if self._shown is not None else []
-        return response
-
-    def _on_forget(self, request: Any, response: Any) -> Any:
-        agent = self.agent
-        if agent is None:
-            response.forgotten, response.message = False, "the node is not configured"
-            return response
-        try:
-            key = sequence_key(parse_conditions([request.sequence]))
-        except StringBTError as err:
-            response.forgotten, response.message = False, f"sequence: {err}"
-            return response
-        except Exception as exc:  # a caller's bytes the reader failed on (section 2.1)
-            response.forgotten, response.message = False, f"sequence: {internal_error(exc)}"
-            self.logger.warning(f"{agent.name} refused a forget request: {response.message}")
-            return response
-        item = agent.knowledge.lookup(key)
-        response.forgotten = agent.forget(key)
-        if not response.forgotten:
-            response.message = (
-                f"{shown(key)} is not known"
-                if item is None
-                else f"{shown(key)} is innate: only learned items are forgotten"
-            )
-        else:
-            self.logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
-            self._announced.discard(key)
-            self._show()
-        return response

@@ -18,6 +18,7 @@ only ever asked for; the answers are checked as any other (section 2).
 from __future__ import annotations
 
 import json
+import math
 import re
 import threading
 from collections.abc import Callable
@@ -25,17 +26,21 @@ from functools import partial
 from typing import Any
 
 from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
+from ktbt_interfaces.srv import Forget, ListKnowledge
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
+from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.events import EventPublisher
-from ktbt_proto.exchange.refusals import Throttle, guarded
+from ktbt_proto.exchange.member import CATALOG_PERIOD, FleetMember
+from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.ros2.transport import NAME, quiet, watched
+from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.tree import Tree
 
 __all__ = [
@@ -43,6 +48,7 @@ __all__ = [
     "ENTRY_FIELDS",
     "EVENT_TEXT",
     "FleetCatalogs",
+    "Services",
     "Shown",
     "event_json",
     "event_msg",
@@ -198,13 +204,70 @@ class Shown:
         self._publishers = []
 
 
+class Services:
+    """What a fleet member offers on ROS 2, whoever hosts it (section 11): ``PREFIX/
+    list_knowledge`` (what it knows, as catalog entries) and ``PREFIX/forget`` (a learned item
+    forgotten; innate knowledge never), under the prefix its :class:`Shown` uses, so ``ktbt
+    ros2 list`` and ``forget`` reach the lifecycle node and an embedded robot alike. After a
+    forget, ``changed`` is called (the host shows its tree and catalog again). A request whose
+    reading raises is answered with the reason and logged (section 2.1)."""
+
+    def __init__(
+        self,
+        node: Node,
+        member: FleetMember,
+        shown: Shown,
+        changed: Callable[[], None],
+        prefix: str = "~",
+    ) -> None:
+        self.node, self.member, self.shown, self.changed = node, member, shown, changed
+        self._made = [
+            node.create_service(ListKnowledge, f"{prefix}/list_knowledge", self._on_list),
+            node.create_service(Forget, f"{prefix}/forget", self._on_forget),
+        ]
+
+    def _on_list(self, request: Any, response: Any) -> Any:
+        response.items = self.shown.entries()
+        return response
+
+    def _on_forget(self, request: Any, response: Any) -> Any:
+        agent, logger = self.member.agent, self.node.get_logger()
+        try:
+            key = sequence_key(read_sequence(request.sequence))
+        except StringBTError as err:
+            response.forgotten, response.message = False, f"sequence: {err}"
+            return response
+        except Exception as exc:  # a caller's bytes the reader failed on (section 2.1)
+            response.forgotten, response.message = False, f"sequence: {internal_error(exc)}"
+            logger.warning(f"{agent.name} refused a forget request: {response.message}")
+            return response
+        item = agent.knowledge.lookup(key)
+        response.forgotten = agent.forget(key)
+        if not response.forgotten:
+            response.message = (
+                f"{shown(key)} is not known"
+                if item is None
+                else f"{shown(key)} is innate: only learned items are forgotten"
+            )
+        else:
+            logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
+            self.member.forgot(key)
+            self.changed()
+        return response
+
+    def close(self) -> None:
+        for service in self._made:
+            self.node.destroy_service(service)
+        self._made = []
+
+
 class FleetCatalogs:
     """The other robots' catalogs, as a learner told no sequences reads them (section 4.5), and
     as the bridge reads the ROS robots it mirrors (section 11, "Bridge"): every topic of type
     ``ktbt_interfaces/msg/Catalog`` on the graph with a publisher, but ``own`` and those
     ``skip`` names, is followed, latched, as :meth:`refresh` finds it (at most ``limit``; one
     beyond is refused once); :meth:`read` gives what each lists, by peer, in the form
-    :class:`ktbt_proto.interop.robot.Listed` reads, and ``heard``, if given, is told of each
+    :class:`ktbt_proto.exchange.member.Listed` reads, and ``heard``, if given, is told of each
     catalog read (its topic, the peer it names as given, its entries). ``version`` counts the
     catalogs received, so a learner reads again when one changed. A catalog that is too large
     or does not deserialize is refused with a WARNING, and read no further."""
@@ -232,6 +295,7 @@ class FleetCatalogs:
         self._warn = Throttle(self.node.get_logger().warning)
         self._ignored: set[str] = set()
         """Topics beyond ``limit``, refused once each (at most ``4 * limit`` remembered)."""
+        self._refreshed, self._taken = -math.inf, -1
         self._found: dict[str, tuple[str, list[dict[str, str]]]] = {}
         """Topic -> (the peer it names, its entries)."""
 
@@ -299,6 +363,18 @@ class FleetCatalogs:
     def _refuse(self, reason: str) -> None:
         self.refused += 1
         self._warn(f"refused: {reason}")
+
+    def changed(self, now: float, appeared: bool) -> dict[str, list[dict[str, str]]] | None:
+        """For a fleet member (:class:`~ktbt_proto.exchange.member.Catalogs`): the catalog
+        topics that appeared followed (when a robot appeared, and every ``CATALOG_PERIOD``),
+        and what the catalogs list when one changed since the last call; else None."""
+        if appeared or now - self._refreshed >= CATALOG_PERIOD:
+            self._refreshed = now
+            self.refresh()
+        if self.version == self._taken:
+            return None
+        self._taken = self.version
+        return self.read()
 
     def read(self) -> dict[str, list[dict[str, str]]]:
         """What each peer's catalog lists now, by peer (two topics naming one peer are told

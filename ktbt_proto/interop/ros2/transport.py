@@ -93,6 +93,17 @@ LOOK_FOR = 1.0
 _M = TypeVar("_M", Query, Response, ErrorReply)
 
 
+def robot_name(node: Node, given: str | None = None, what: str = "name") -> str:
+    """A robot's name in messages, one rule for every host (section 11): the name ``given``;
+    else the last segment of its node's namespace (``/robot1/bt`` is ``robot1``: robots are
+    told apart by namespace, their nodes often share a name); else the node's name. Raises
+    ``ValueError`` for a name that is not one (section 1), naming the setting (``what``)."""
+    name = given or node.get_namespace().strip("/").rsplit("/", 1)[-1] or node.get_name()
+    if re.fullmatch(NAME, name) is None:
+        raise ValueError(f"{what} {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
+    return name
+
+
 @dataclass(frozen=True)
 class Topics:
     """The fleet's three topics; absolute names, shared by every robot of the fleet."""

@@ -1,0 +1,276 @@
+"""The fleet member: one robot that learns and teaches while it runs (``spec/protocol.md``
+section 4.5), the one loop every host runs.
+
+A host says only *when*: ``ktbt peer run`` calls :meth:`FleetMember.step` from a sleep loop, the
+ROS 2 lifecycle node from its timer, an embedded robot (``attach``) from a timer on its user's
+node. One step reads what arrived (answers are checked and merged, section 2), reports what was
+learned, brings the export up to date, notes the peers that appeared, reads the fleet's
+catalogs when there may be something new in them (a learner told no sequences), works out what
+is still to learn, asks as section 4.5 says (:class:`Learner`), ticks the control tree (unless
+its host ticks it) and tends memory (section 4.2). Answers are given at once by the transport,
+inside its callback, from what the agent knows at that moment.
+
+What the loop needs of a network is declared: :class:`Appearing` (the peers that appeared since
+it last asked) and :class:`Catalogs` (what the fleet's catalogs list, when they may have
+changed), implemented by the zenoh and ROS 2 transports alike.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from ktbt_proto.errors import StringBTError
+from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.backoff import Backoff
+from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.messages import MAX_MORE
+from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
+from ktbt_proto.items import parse_sequence, sequence_key, shown
+from ktbt_proto.registry import Registry
+from ktbt_proto.tree import SequenceNode
+from ktbt_proto.validate import find_problems
+
+__all__ = [
+    "ASK_ALONE",
+    "CATALOG_PERIOD",
+    "Appearing",
+    "Catalogs",
+    "FleetMember",
+    "Learner",
+    "Listed",
+]
+
+log = logging.getLogger("ktbt.member")
+
+ASK_ALONE = 1
+"""Peers that appear together asked each alone at most (section 4.5); more are asked in one
+broadcast: one message, where they would take one each."""
+
+CATALOG_PERIOD = 2.0
+"""Seconds between two readings of the fleet's catalogs by a learner told no sequences
+(besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
+
+Catalog = dict[str, list[dict[str, str]]]
+"""The fleet's catalogs as read: peer name -> its entries (``{"sequence": ..., ...}``)."""
+
+
+class Appearing(Protocol):
+    """A network that tells which peers appeared (a zenoh liveliness token, a ROS 2 query
+    subscription matched): a newcomer is asked at once (section 4.5)."""
+
+    def appeared(self) -> list[str]:
+        """The peers that appeared since the last call, oldest first."""
+        ...
+
+
+class Catalogs(Protocol):
+    """The fleet's catalogs, as a network carries them (zenoh's catalog queryables, ROS 2's
+    latched ``~/catalog`` topics)."""
+
+    def changed(self, now: float, appeared: bool) -> Catalog | None:
+        """What the catalogs list, when they may have changed since the last call (a peer
+        ``appeared``, :data:`CATALOG_PERIOD` passed, a catalog was republished); else None."""
+        ...
+
+
+class Listed:
+    """The sequences a learner told none meets (section 4.5): those its fleet's catalogs list,
+    that its vocabulary can execute, in the order found. A sequence its vocabulary cannot
+    execute is skipped (never asked, so never refused) with one INFO line. An entry whose
+    reading raises anything else is refused: counted in :attr:`refused`, logged at WARNING,
+    skipped from then on (section 2.1)."""
+
+    def __init__(self, name: str, registry: Registry, say: Callable[[str], None]) -> None:
+        self.name, self.registry, self.say = name, registry, say
+        self.found: list[str] = []
+        self.skipped: set[str] = set()
+        self.refused = 0
+        self._warn = Throttle(log.warning)
+
+    def read(self, listed: Catalog) -> list[str]:
+        """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
+        new = []
+        for peer, entries in sorted(listed.items()):
+            for entry in entries:
+                given = entry.get("sequence", "")
+                if given in self.skipped:
+                    continue
+                try:
+                    fault("item", given)
+                    conds = parse_sequence(given)
+                    problems = find_problems(SequenceNode(conds), self.registry)
+                except StringBTError as err:
+                    problems = [err]
+                    conds = ()
+                except Exception as exc:
+                    self.skipped.add(given)
+                    self.refused += 1
+                    self._warn(
+                        f"{self.name} refused: the catalog of {peer[:64]}: {internal_error(exc)}"
+                    )
+                    continue
+                key = sequence_key(conds) if not problems else given
+                if key in self.found or key in self.skipped:
+                    continue
+                if problems:
+                    self.skipped.add(given)
+                    log.info(
+                        "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
+                        "(%s %s)",
+                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
+                    )  # fmt: skip
+                    continue
+                self.found.append(key)
+                new.append(key)
+                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
+        return new
+
+
+@dataclass
+class Learner:
+    """When a fleet member asks (section 4.5): driven by events, not by a timer. It asks for
+    every sequence it lacks in one query (section 1) as soon as it lacks one; a peer that
+    appears (its liveliness, section 3) is sent the open query at once, and the query stays
+    open a whole ``wait`` from then; a query closes when every sequence it names is answered,
+    or when its wait is over. With no query open, the peers that appear are asked at once: one
+    newcomer alone (those present before were asked already; a broadcast would wake every one
+    of them, all at the moment a teacher joins a large fleet), several that appeared together
+    in one broadcast (one message). After a query nobody answered, it holds back ``cooldown``
+    seconds and then the ``backoff``'s hold; after one answered (in part), it asks at once for
+    what is left."""
+
+    robot: ApplicationTimedAgent
+    backoff: Backoff
+    wait: float
+    cooldown: float
+    opened: float = 0.0
+
+    def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
+        robot = self.robot
+        if robot.buffered:  # overheard and kept (section 4.3): learned without asking
+            for key in [k for k in missing if k in robot.buffered]:
+                robot.learn_buffered(key)
+            missing = [k for k in missing if k not in robot.knowledge]
+        query = robot.open_query
+        if query is not None and (not robot.unanswered or now - self.opened >= self.wait):
+            answered = len(robot.unanswered) < len(query.sequences)
+            robot.close_query()
+            if answered:
+                self.backoff.reset(now)
+            else:
+                self.backoff.lost(now + self.cooldown)
+        if appeared and robot.open_query is not None:  # newcomers hear the open query at once
+            for peer in appeared:
+                robot.announce(peer)
+            self.opened = now
+        elif appeared and missing:  # the newcomer alone: the others were asked already
+            alone = appeared if len(appeared) <= ASK_ALONE else []
+            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
+            self.backoff.reset(now)
+            self.opened = now
+        if missing and robot.open_query is None and self.backoff.ready(now):
+            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
+            self.opened = now
+
+
+class Synced(Protocol):
+    """What follows the robot's knowledge (the BehaviorTree.CPP export of what it learned)."""
+
+    def sync(self, knowledge: KnowledgeBase) -> object: ...
+
+
+@dataclass
+class FleetMember:
+    """One robot of a fleet (section 4.5), run by its host one :meth:`step` at a time.
+
+    ``agent``: the robot (its knowledge, control tree and metrics), built on a transport that
+    answers at once; ``network``: the peers that appeared; ``catalogs``: the fleet's catalogs,
+    read only when ``sequences`` is None (then it meets what they list and its vocabulary can
+    execute, :class:`Listed`); ``sequences``: the sequence keys to meet. ``wait``: seconds a
+    query stays open; ``cooldown``: seconds held back after a query nobody answered. ``say``:
+    where a learned item and a newly listed sequence are reported (the host's log). ``export``:
+    kept in step with what it knows. ``ticks_control``: whether a step ticks the control tree
+    (an embedded robot's tree is ticked by its user)."""
+
+    agent: ApplicationTimedAgent
+    network: Appearing
+    catalogs: Catalogs | None
+    sequences: Iterable[str] | None
+    wait: float
+    cooldown: float
+    say: Callable[[str], None]
+    export: Synced | None = None
+    ticks_control: bool = True
+    todo: list[str] = field(init=False)
+    """The sequence keys still to learn."""
+    listed: Listed | None = field(init=False)
+    learner: Learner = field(init=False)
+
+    def __post_init__(self) -> None:
+        name = self.agent.name
+        self.todo = [] if self.sequences is None else list(self.sequences)
+        self.listed = (
+            Listed(name, self.agent.registry, self.say) if self.sequences is None else None
+        )
+        self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
+        self._reported = set(self.agent.metrics.learned)
+        if self.export is not None:  # what a resumed save file holds already
+            self.export.sync(self.agent.knowledge)
+
+    @property
+    def name(self) -> str:
+        return self.agent.name
+
+    @property
+    def done(self) -> bool:
+        """Nothing left to learn, and (told no sequences) something was listed and learned."""
+        return not self.todo and (self.listed is None or bool(self.listed.found))
+
+    @property
+    def refused(self) -> int:
+        """Refusals of the agent and of the catalogs it read (its transport counts its own)."""
+        return self.agent.metrics.refused + (self.listed.refused if self.listed else 0)
+
+    def timing(self, wait: float, cooldown: float) -> None:
+        """A new wait and cool-down (a host whose tick rate changed)."""
+        self.wait = self.learner.wait = wait
+        self.cooldown = self.learner.cooldown = cooldown
+
+    def meet(self, keys: Iterable[str]) -> None:
+        """Meet these sequence keys too (told, no longer reading the catalogs for them)."""
+        self.todo += [k for k in keys if k not in self.todo]
+
+    def tell(self, keys: Iterable[str]) -> None:
+        """Meet exactly these sequence keys from now on; the catalogs are no longer read."""
+        self.todo, self.listed = list(keys), None
+
+    def step(self, now: float) -> list[str]:
+        """Section 4.5's loop, once; ``now`` in seconds (any clock the host keeps, the same
+        at every step). Returns the keys learned in this step."""
+        agent = self.agent
+        agent.receive()
+        learned = [k for k in agent.metrics.learned if k not in self._reported]
+        for key in learned:
+            tick, source = agent.metrics.learned[key]
+            self.say(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
+            self._reported.add(key)
+        if self.export is not None:
+            self.export.sync(agent.knowledge)
+        appeared = self.network.appeared()
+        if self.listed is not None and self.catalogs is not None:
+            found = self.catalogs.changed(now, bool(appeared))
+            if found is not None:
+                self.todo += self.listed.read(found)
+        self.todo = [key for key in self.todo if key not in agent.knowledge]
+        self.learner.step(now, self.todo, appeared)
+        if self.ticks_control:
+            agent.control.tick()
+        agent.tend_memory()
+        return learned
+
+    def forgot(self, key: str) -> None:
+        """``key`` was forgotten on request: reported again when it is learned again."""
+        self._reported.discard(key)

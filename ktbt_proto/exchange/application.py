@@ -21,6 +21,7 @@ from ktbt_proto.tree import Condition
 
 __all__ = ["ApplicationTimedAgent"]
 
+
 class ApplicationTimedAgent(AgentCore):
     """An agent its application times (section 4.1): :meth:`ask`, :meth:`announce`,
     :meth:`receive`, :meth:`heard`, :meth:`answer` and :meth:`close_query`. The application sets

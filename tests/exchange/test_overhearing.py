@@ -123,8 +123,8 @@ def test_a_fleet_member_learns_from_its_buffer_without_asking() -> None:
     """The fleet member's ``Learner`` (``ktbt peer run``, ``ktbt ros2 run``, ``attach``, spec
     section 4.5) learns a sequence it lacks from an overheard answer kept in its buffer, and
     sends no query for it."""
-    from ktbt_proto.exchange.member import Learner
     from ktbt_proto.exchange.backoff import Backoff
+    from ktbt_proto.exchange.member import Learner
 
     learner, teacher, ear, _net = trio("buffer")
     exchange(learner, teacher)

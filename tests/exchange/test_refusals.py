@@ -12,9 +12,9 @@ import pytest
 
 from ktbt_proto.exchange import core, events, messages, receiving, refusals
 from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.member import Listed
 from ktbt_proto.exchange.messages import MessageRefused, Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import Refused
-from ktbt_proto.exchange.member import Listed
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 

@@ -27,7 +27,11 @@ __all__ = ["ControlFactory", "ControlTree", "TickClock"]
 
 @runtime_checkable
 class ControlTree(Protocol):
-    """A robot's running control tree, as the agent learns into it (``spec/protocol.md`` §4)."""
+    """A robot's running control tree, as the agent learns into it (``spec/protocol.md`` §4).
+    ``registry`` is the vocabulary it runs, which received items are checked against (a
+    py_trees backend's includes the tree's own behaviours)."""
+
+    registry: Registry
 
     @property
     def tree(self) -> Tree:

@@ -161,15 +161,13 @@ class AgentCore:
             else LiveTree(control, registry, self.blackboard, ticks=self._clock)
         )
         # A backend may know more than ``registry`` (a py_trees tree's own behaviours).
-        self.registry = getattr(self.control, "registry", registry)
+        self.registry = self.control.registry
         self.knowledge = KnowledgeBase.from_tree(self.control.tree)
         if self.knowledge_path is not None and self.knowledge_path.exists():
             self._resume(self.knowledge_path)
-        attach = getattr(transport, "attach", None)
-        if attach is not None:
-            # A network transport serves what the agent knows, and checks signatures before an
-            # answer takes its sender's one place (zenoh: spec/protocol.md sections 3 and 4.5).
-            attach(self)
+        # A network transport serves what the agent knows, and checks signatures before an
+        # answer takes its sender's one place (spec/protocol.md sections 3 and 4.5).
+        transport.attach(self)
 
     def _clock(self) -> int:
         """The agent's clock: every timer of its trees measures against ``now``."""

@@ -1,11 +1,14 @@
-"""The transport interface an agent talks through."""
+"""The transport interface an agent talks through (``spec/protocol.md`` sections 3, 6, 11)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response
+
+if TYPE_CHECKING:
+    from ktbt_proto.exchange.core import AgentCore
 
 Message = Query | Response | ErrorReply
 
@@ -32,12 +35,14 @@ class Transport(Protocol):
     is full the newcomer is refused and counted (``refused``), so a flood can neither exhaust
     memory nor push out what came first (spec/protocol.md section 2).
 
-    A transport may also have ``attach(agent)``, which an agent calls once it is built: a
-    network transport serves the agent's catalog and answers from its knowledge there (zenoh:
-    spec/protocol.md section 4.5).
+    ``attach(agent)`` is called by an agent once it is built: a network transport then serves
+    the agent's catalog and answers from its knowledge (section 4.5); the in-memory transport
+    has nothing to serve.
     """
 
     name: str
+
+    def attach(self, agent: AgentCore) -> None: ...
 
     def broadcast(self, message: Message) -> None: ...
 

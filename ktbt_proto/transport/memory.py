@@ -11,9 +11,13 @@ import random
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.transport import Message, Received
+
+if TYPE_CHECKING:
+    from ktbt_proto.exchange.core import AgentCore
 
 log = logging.getLogger("ktbt.memory")
 
@@ -139,6 +143,9 @@ class MemoryTransport:
             for other in list(audience):
                 if other != to:
                     network._post(self.name, other, message)
+
+    def attach(self, agent: AgentCore) -> None:
+        """Nothing to serve: an in-memory peer is asked and answered by its agent's ticks."""
 
     def receive(self) -> list[Received]:
         messages: list[Received] = list(self._inbox)

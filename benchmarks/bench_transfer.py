@@ -43,12 +43,13 @@ import zenoh
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.answers import answers
-from ktbt_proto.exchange.knowledge import KnowledgeBase, parse_sequence
+from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
 from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
+from ktbt_proto.items import parse_sequence
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json

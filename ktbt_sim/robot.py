@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.knowledge import sequence_key
+from ktbt_proto.items import sequence_key
 from ktbt_sim.kernel import jit
 
 if TYPE_CHECKING:

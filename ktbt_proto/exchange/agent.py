@@ -19,12 +19,12 @@ from pathlib import Path
 from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.control import ControlFactory
 from ktbt_proto.exchange.core import AgentCore
-from ktbt_proto.exchange.knowledge import sequence_key
 from ktbt_proto.exchange.memory import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transport import Transport
+from ktbt_proto.items import sequence_key
 from ktbt_proto.registry import Registry
 from ktbt_proto.runtime import LiveTree
 from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status

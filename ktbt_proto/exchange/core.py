@@ -37,7 +37,6 @@ from ktbt_proto.exchange.knowledge import (
     KnowledgeBase,
     remove_stale_temporaries,
     salvage,
-    sequence_key,
 )
 from ktbt_proto.exchange.memory import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
@@ -47,6 +46,7 @@ from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.transport import NetworkError, Transport
+from ktbt_proto.items import sequence_key
 from ktbt_proto.registry import Registry
 from ktbt_proto.runtime import LiveTree
 from ktbt_proto.tree import Condition, Node, Tree

@@ -15,11 +15,8 @@ from ktbt_proto.files import TooLarge, read_bounded, temporaries, write_atomic
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.items import (
     parse_sequence,
-    read_sequence,
     sequence_key,
-    show_sequence,
     split_item,
-    stray_nodes,
 )
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
 from ktbt_proto.syntax import parse
@@ -38,14 +35,8 @@ __all__ = [
     "MAX_FILE",
     "Knowledge",
     "KnowledgeBase",
-    "parse_sequence",
-    "read_sequence",
     "remove_stale_temporaries",
     "salvage",
-    "sequence_key",
-    "show_sequence",
-    "split_item",
-    "stray_nodes",
 ]
 
 FORMAT_VERSION = 1

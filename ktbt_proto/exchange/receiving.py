@@ -11,10 +11,10 @@ receive limits and validates them against the receiver's registry, when it has o
 from __future__ import annotations
 
 from ktbt_proto.errors import StringBTError
-from ktbt_proto.exchange.knowledge import parse_sequence
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.refusals import fault, internal_error
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
+from ktbt_proto.items import parse_sequence
 from ktbt_proto.limits import Limits
 from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import parse

@@ -22,7 +22,7 @@ from typing import Any
 
 from ktbt_proto.exchange.answers import answers, catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key, show_sequence
+from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
@@ -34,8 +34,7 @@ from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.robot import with_knowledge
 from ktbt_proto.interop.sidecar import LearnedExport
-from ktbt_proto.items import shown
-from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.items import sequence_key, show_sequence, shown
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.zenoh import (
     ZenohCatalogs,
@@ -216,7 +215,7 @@ def ask(
         else:
             note(
                 f"no answer: {len(reachable)} peer{'s' * (len(reachable) != 1)} reachable, "
-                f"none knows {show_sequence(parse_conditions(sequence))}"
+                f"none knows {show_sequence(key)}"
             )
     return (0 if responses else 1), responses
 

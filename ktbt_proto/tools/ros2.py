@@ -253,7 +253,7 @@ def lifecycle_command(
 def _shown(key: str) -> str:
     """A sequence key as people type it; one that does not parse is shown quoted."""
     from ktbt_proto.errors import StringBTError
-    from ktbt_proto.exchange.knowledge import show_sequence
+    from ktbt_proto.items import show_sequence
 
     try:
         return show_sequence(key)
@@ -264,11 +264,10 @@ def _shown(key: str) -> str:
 def _key(option: str, text: str) -> str:
     """A sequence as typed, in wire form; a mistake is one line and exit 2."""
     from ktbt_proto.errors import StringBTError
-    from ktbt_proto.exchange.knowledge import sequence_key
-    from ktbt_proto.merge import conditions
+    from ktbt_proto.items import read_sequence, sequence_key
 
     try:
-        return sequence_key(conditions([text]))
+        return sequence_key(read_sequence(text))
     except StringBTError as err:
         _say(f"error: {option} {text!r}: {err.code} {err.message}")
         raise typer.Exit(2) from None

@@ -46,7 +46,7 @@ from ktbt_proto.control import ControlFactory
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.knowledge import KnowledgeBase, sequence_key
+from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
@@ -56,8 +56,7 @@ from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours,
 from ktbt_proto.interop.robot import item_slot, learning_slot, load_knowledge
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
 from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
-from ktbt_proto.items import shown
-from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
 from ktbt_proto.tree import Condition, Placeholder, SequenceNode
 from ktbt_proto.validate import find_problems
@@ -131,7 +130,7 @@ def attach(
 def _meetable(text: str, vocabulary: Registry) -> str:
     """A sequence to meet, as its key; one its vocabulary cannot execute could never be
     learned, so it is refused now (``StringBTError``, its code and the part at fault)."""
-    conds = parse_conditions([text])
+    conds = read_sequence(text)
     problems = find_problems(SequenceNode(conds), vocabulary)
     if problems:
         first = problems[0]

@@ -34,7 +34,6 @@ from rclpy.parameter import Parameter
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.knowledge import sequence_key
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
@@ -60,7 +59,7 @@ from ktbt_proto.interop.ros2.showing import (
 )
 from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
-from ktbt_proto.merge import conditions as parse_conditions
+from ktbt_proto.items import read_sequence, sequence_key
 from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.syntax import parse
 
@@ -104,7 +103,7 @@ def problem(name: str, value: Any) -> str | None:
     if name == "sequences":
         for text in value or ():
             try:
-                parse_conditions([text])
+                read_sequence(text)
             except StringBTError as err:
                 return f"sequences: {text!r}: {err.code} {err.message}"
     return None
@@ -202,7 +201,7 @@ class KtbtNode(LifecycleNode):
         for param in params:
             if param.name == "sequences" and self.member is not None:
                 # told what to meet: the catalogs are no longer read
-                self.member.tell(sequence_key(parse_conditions([s])) for s in param.value)
+                self.member.tell(sequence_key(read_sequence(s)) for s in param.value)
         if self._timer is not None and any(
             p.name in ("tick_rate", "snapshot_period") for p in params
         ):
@@ -272,9 +271,7 @@ class KtbtNode(LifecycleNode):
             raise ValueError("policy trusted needs a trust file (parameter trust)")
         overhear = cast(Overhear, str(self._param("overhear")))
         sequences = self._param("sequences")
-        todo = (
-            None if sequences is None else [sequence_key(parse_conditions([s])) for s in sequences]
-        )
+        todo = None if sequences is None else [sequence_key(read_sequence(s)) for s in sequences]
         wait_ticks, cooldown_ticks = (
             int(self._param("wait_ticks")),
             int(self._param("cooldown_ticks")),

@@ -23,6 +23,7 @@ from ktbt_proto.exchange.memory import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear
 from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.transport import Transport
 from ktbt_proto.items import sequence_key
 from ktbt_proto.registry import Registry
@@ -243,7 +244,7 @@ class _QueryAndWait:
             self.query = Query(id=Query.new_id(), sender=agent.name, sequence=key)
             agent.transport.broadcast(self.query)
             agent.metrics.queries_sent += 1
-            agent._record("query-sent", id=self.query.id, sequence=key)
+            agent._record(Event.QUERY_SENT, id=self.query.id, sequence=key)
             self.bb[QUERYING] = True
             self.asked_at = agent.now
             return RUNNING

@@ -16,6 +16,7 @@ from functools import cached_property
 
 from ktbt_proto.exchange.core import AgentCore
 from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.items import sequence_key
 from ktbt_proto.tree import Condition
 
@@ -53,7 +54,7 @@ class ApplicationTimedAgent(AgentCore):
         if not to:
             self.transport.broadcast(query)
             extra = {"more": list(query.more)} if query.more else {}
-            self._record("query-sent", id=query.id, sequence=query.sequence, **extra)
+            self._record(Event.QUERY_SENT, id=query.id, sequence=query.sequence, **extra)
         return query
 
     @property
@@ -81,7 +82,7 @@ class ApplicationTimedAgent(AgentCore):
                 )  # fmt: skip
             self.transport.send(to, query)
             extra = {"more": list(query.more)} if query.more else {}
-            self._record("query-sent", id=query.id, sequence=query.sequence, to=to, **extra)
+            self._record(Event.QUERY_SENT, id=query.id, sequence=query.sequence, to=to, **extra)
 
     def close_query(self) -> None:
         """The asker's wait is over: a query nobody answered (for none of its sequences)

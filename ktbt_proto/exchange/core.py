@@ -44,7 +44,7 @@ from ktbt_proto.exchange.overhearing import Ear, Heard
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, read, vet
 from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.security import Security
-from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import NetworkError, Transport
 from ktbt_proto.items import sequence_key
 from ktbt_proto.registry import Registry
@@ -193,7 +193,7 @@ class AgentCore:
             elif isinstance(message, Query):
                 self.metrics.queries_received += 1
                 self._record(
-                    "query-received",
+                    Event.QUERY_RECEIVED,
                     sender=message.sender,
                     id=message.id,
                     sequence=message.sequence,
@@ -214,7 +214,7 @@ class AgentCore:
         event, never a refusal (spec/protocol.md section 3)."""
         self.metrics.network_errors += 1
         log.debug("%s: network error on query %s: %s", self.name, error.id, error.reason)
-        self._record("network-error", id=error.id, reason=error.reason)
+        self._record(Event.NETWORK_ERROR, id=error.id, reason=error.reason)
 
     # -- answering ------------------------------------------------------------------------------
 
@@ -237,7 +237,7 @@ class AgentCore:
             self.last_answer = response
             self.metrics.responses_sent += 1
             self._record(
-                "answer-sent",
+                Event.ANSWER_SENT,
                 to=query.sender,
                 id=query.id,
                 sequence=sequence,
@@ -259,7 +259,7 @@ class AgentCore:
         discarded, counted apart, never a refusal (spec/protocol.md section 2)."""
         self.metrics.late_answers += 1
         log.debug("%s: late answer from %s to query %s", self.name, response.sender, response.id)
-        self._record("late-answer", sender=response.sender, id=response.id)
+        self._record(Event.LATE_ANSWER, sender=response.sender, id=response.id)
 
     # -- overhearing (spec/protocol.md section 4.3) -------------------------------------------
 
@@ -374,7 +374,7 @@ class AgentCore:
         self.knowledge.remove(key)
         self.metrics.learned.pop(key, None)
         self.metrics.forgotten += 1
-        self._record("forgotten", sequence=key, reason=reason)
+        self._record(Event.FORGOTTEN, sequence=key, reason=reason)
         self._save()
         return True
 
@@ -385,7 +385,7 @@ class AgentCore:
 
     # -- the accept pipeline (spec/protocol.md section 2) --------------------------------------
 
-    def _record(self, event: str, **fields: object) -> None:
+    def _record(self, event: Event, **fields: object) -> None:
         if self.security.log is not None:
             self.security.log.record(event, peer=self.name, tick=self.now, **fields)
 
@@ -395,7 +395,7 @@ class AgentCore:
         self.metrics.refused += 1
         self.metrics.refusals.append((self.now, reason))
         self._warn(f"{self.name} refused knowledge: {reason}")
-        self._record("refused", reason=reason)
+        self._record(Event.REFUSED, reason=reason)
 
     def accept(self, response: Response, asked: Query) -> bool:
         """The receive pipeline (spec/protocol.md section 2), the one every answer goes through,
@@ -403,7 +403,7 @@ class AgentCore:
         room under the memory policy, merge it, record and save it. True if the item is known
         now (learned, or known already); a refusal is counted and logged with its reason."""
         self._record(
-            "answer-received",
+            Event.ANSWER_RECEIVED,
             sender=response.sender,
             id=response.id,
             sequence=response.sequence,
@@ -448,7 +448,7 @@ class AgentCore:
         self._active = self.now
         self.knowledge.add(item)
         self.metrics.learned[item.key] = (self.now, item.source or "")
-        self._record("merged", sequence=item.key, teacher=item.source, author=item.author)
+        self._record(Event.MERGED, sequence=item.key, teacher=item.source, author=item.author)
         self._save()
 
     # -- persistence (spec/protocol.md section 5) ---------------------------------------------

@@ -20,7 +20,7 @@ from pydantic import ValidationError
 from ktbt_proto.exchange.answers import answer_to
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.signing import Identity, SignedItem
-from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Received
 
 Refuse = Callable[..., None]
@@ -124,7 +124,7 @@ class AnswersGiven:
         if log is not None:
             more = {"more": list(query.more)} if query.more else {}
             log.record(
-                "query-received",
+                Event.QUERY_RECEIVED,
                 peer=self.name,
                 sender=query.sender,
                 id=query.id,
@@ -158,7 +158,7 @@ class AnswersGiven:
             yield response
             if log is not None:
                 log.record(
-                    "answer-sent",
+                    Event.ANSWER_SENT,
                     peer=self.name,
                     to=query.sender,
                     id=query.id,

@@ -88,7 +88,7 @@ class TransferLog:
         with self._lock:
             self._sinks = tuple(s for s in self._sinks if s is not sink)
 
-    def record(self, event: str, **fields: Any) -> None:
+    def record(self, event: Event, **fields: Any) -> None:
         entry = {"t": datetime.now(UTC).isoformat(timespec="milliseconds"), "event": event}
         entry.update({k: v for k, v in fields.items() if v is not None})
         line = json.dumps(entry, ensure_ascii=False, default=str)

@@ -69,7 +69,7 @@ from ktbt_proto.exchange.messages import (
 )
 from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
-from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.formatter import format_tree
@@ -354,7 +354,7 @@ class ZenohTransport:
                 self.log.add_sink(events)
                 self._sink = events
             if self.log is not None:  # the first mark of a transfer's timeline (section 8)
-                self.log.record("session-up", peer=self.name)
+                self.log.record(Event.SESSION_UP, peer=self.name)
             self._declared += [
                 self._session.declare_queryable(f"{PREFIX}/knowledge/{self.name}", self._on_query),
                 self._session.declare_queryable(f"{PREFIX}/catalog/{self.name}", self._on_catalog),
@@ -419,7 +419,9 @@ class ZenohTransport:
             self.refused += 1
         self._warn(f"{self.name} refused: {reason}")
         if self.log is not None:
-            self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
+            self.log.record(
+                Event.REFUSED, peer=self.name, reason=reason, where="transport", **fields
+            )
 
     def send(self, to: str, message: Message) -> None:
         """Answer a query this peer received, or put the message in ``to``'s inbox."""
@@ -615,7 +617,7 @@ class ZenohTransport:
         )
         if self.log is not None:
             self.log.record(
-                "error-received", peer=self.name, sender=error.sender, reason=error.message
+                Event.ERROR_RECEIVED, peer=self.name, sender=error.sender, reason=error.message
             )
 
     def _decoded(self, payload: bytes, kind: type[_M], what: str, key: str = "") -> _M | None:
@@ -644,7 +646,7 @@ class ZenohTransport:
                 if len(self._appeared) < self.max_pending:
                     self._appeared.append(name)
             if self.log is not None:
-                self.log.record("peer-seen", peer=self.name, sender=name)
+                self.log.record(Event.PEER_SEEN, peer=self.name, sender=name)
 
     def appeared(self) -> list[str]:
         """The peers whose liveliness appeared since the last call (section 4.5), at most

@@ -49,8 +49,8 @@ def test_the_sink_sees_every_event_the_log_records(tmp_path: Path) -> None:
     seen: list[dict[str, Any]] = []
     log = TransferLog(tmp_path / "r1.log")
     log.add_sink(seen.append)
-    log.record("merged", peer="r1", sequence=SEQ, teacher="t", author=None)
-    log.record("refused", peer="r1", reason="SBT310 colour=7")
+    log.record(Event.MERGED, peer="r1", sequence=SEQ, teacher="t", author=None)
+    log.record(Event.REFUSED, peer="r1", reason="SBT310 colour=7")
     log.close()
     lines = [json.loads(line) for line in (tmp_path / "r1.log").read_text().splitlines()]
     assert seen == lines
@@ -61,7 +61,7 @@ def test_a_log_may_have_sinks_and_no_file() -> None:
     seen: list[dict[str, Any]] = []
     log = TransferLog(None)
     log.add_sink(seen.append)
-    log.record("query-sent", peer="r1", id="q1", sequence=SEQ)
+    log.record(Event.QUERY_SENT, peer="r1", id="q1", sequence=SEQ)
     log.close()
     assert seen[0]["sequence"] == SEQ and log.counts["query-sent"] == 1
 
@@ -203,7 +203,9 @@ def test_a_log_with_a_publisher_publishes_what_it_writes() -> None:
     stream = io.StringIO()
     log = TransferLog(stream)
     log.add_sink(EventPublisher("r1", out.append))
-    log.record("refused", peer="r1", reason="from t: SBT310 colour=7", where="transport", key="k/e")
+    log.record(
+        Event.REFUSED, peer="r1", reason="from t: SBT310 colour=7", where="transport", key="k/e"
+    )
     event = decode_event(out[0])
     written = json.loads(stream.getvalue())
     assert (event.event, event.reason, event.where, event.on, event.t) == (

@@ -39,7 +39,7 @@ from ktbt_proto.exchange.signing import (
     unb64,
     verify,
 )
-from ktbt_proto.exchange.transferlog import TransferLog, read
+from ktbt_proto.exchange.transferlog import Event, TransferLog, read
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
 from ktbt_proto.tools.cli import app
 from ktbt_proto.transport import MemoryNetwork
@@ -406,8 +406,8 @@ def test_a_truncated_save_file_keeps_its_whole_items(tmp_path: Path) -> None:
 def test_ktbt_log_reads_a_transfer_log(tmp_path: Path) -> None:
     path = tmp_path / "x.log"
     with TransferLog(path) as log:
-        log.record("query-sent", peer="i", id="q1", sequence=SEQ)
-        log.record("refused", peer="i", reason="from x: the item is not signed by its author")
+        log.record(Event.QUERY_SENT, peer="i", id="q1", sequence=SEQ)
+        log.record(Event.REFUSED, peer="i", reason="from x: the item is not signed by its author")
     with path.open("a") as f:
         f.write('{"torn')
     result = CliRunner().invoke(app, ["log", str(path), "--event", "refused"])

@@ -72,7 +72,7 @@ from ktbt_proto.exchange.messages import (
 )
 from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
-from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Message, Received
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.interop.ros2 import cdr
@@ -443,7 +443,9 @@ class Ros2Transport:
             self.refused += 1
         self._warn(f"{self.name} refused: {reason}")
         if self.log is not None:
-            self.log.record("refused", peer=self.name, reason=reason, where="transport", **fields)
+            self.log.record(
+                Event.REFUSED, peer=self.name, reason=reason, where="transport", **fields
+            )
 
     def _read(
         self,
@@ -593,7 +595,7 @@ class Ros2Transport:
         self.node.get_logger().info(f"{error.sender} refused a query of ours: {error.message}")
         if self.log is not None:
             self.log.record(
-                "error-received", peer=self.name, sender=error.sender, reason=error.message
+                Event.ERROR_RECEIVED, peer=self.name, sender=error.sender, reason=error.message
             )
 
     def _expire(self, now: float) -> None:

@@ -33,14 +33,14 @@ from pydantic import (
 )
 
 from ktbt_proto.exchange.messages import (
-    _ID,
-    _KEY,
-    _SIGNATURE,
-    _WIRE,
+    KEY_PATTERN,
     MAX_REASON,
+    NAME_PATTERN,
+    SIGNATURE_PATTERN,
+    WIRE,
     MessageRefused,
-    _require_version_and_type,
-    _wire_fields,
+    require_version_and_type,
+    wire_fields,
 )
 from ktbt_proto.exchange.refusals import fault, internal_error
 from ktbt_proto.exchange.signing import Identity, verify
@@ -74,12 +74,12 @@ class FleetEvent(BaseModel):
     """One event of one peer's transfer log, as published (section 10)."""
 
     model_config = ConfigDict(
-        extra="forbid", frozen=True, strict=True, json_schema_extra=_require_version_and_type
+        extra="forbid", frozen=True, strict=True, json_schema_extra=require_version_and_type
     )
 
     v: Literal[1] = Field(default=1, description="Protocol version (the integer 1).")
     type: Literal["event"] = "event"
-    peer: str = Field(pattern=_ID, description="The publishing peer: whose log it is.")
+    peer: str = Field(pattern=NAME_PATTERN, description="The publishing peer: whose log it is.")
     n: int = Field(ge=0, le=2**53, description="The publisher's count of events before this one.")
     t: str = Field(max_length=40, description="When it was recorded: UTC, ISO 8601.")
     event: str = Field(pattern=_KIND, description="What happened: a kind of section 8.")
@@ -89,27 +89,35 @@ class FleetEvent(BaseModel):
     sequence: str | None = Field(
         default=None, max_length=MAX_SEQUENCE, description="The sequence (clipped)."
     )
-    id: str | None = Field(default=None, pattern=_ID, description="The query's id.")
-    sender: str | None = Field(default=None, pattern=_ID, description="Who sent it to the peer.")
-    to: str | None = Field(default=None, pattern=_ID, description="Whom the peer answered.")
-    teacher: str | None = Field(default=None, pattern=_ID, description="Who taught a merge.")
-    author: str | None = Field(default=None, pattern=_KEY, description="The item's author key.")
+    id: str | None = Field(default=None, pattern=NAME_PATTERN, description="The query's id.")
+    sender: str | None = Field(
+        default=None, pattern=NAME_PATTERN, description="Who sent it to the peer."
+    )
+    to: str | None = Field(
+        default=None, pattern=NAME_PATTERN, description="Whom the peer answered."
+    )
+    teacher: str | None = Field(
+        default=None, pattern=NAME_PATTERN, description="Who taught a merge."
+    )
+    author: str | None = Field(
+        default=None, pattern=KEY_PATTERN, description="The item's author key."
+    )
     reason: str | None = Field(default=None, max_length=MAX_REASON, description="Why.")
     where: str | None = Field(default=None, max_length=32, description="Who refused.")
     on: str | None = Field(default=None, max_length=200, description="Key expression refused.")
     tick: int | None = Field(default=None, ge=0, le=2**53, description="The agent's tick.")
     dropped: int = Field(default=0, ge=0, le=2**53, description="Events the peer dropped so far.")
-    key: str | None = Field(default=None, pattern=_KEY, description="The peer's public key.")
-    sig: str | None = Field(default=None, pattern=_SIGNATURE, description="Its signature.")
+    key: str | None = Field(default=None, pattern=KEY_PATTERN, description="The peer's public key.")
+    sig: str | None = Field(default=None, pattern=SIGNATURE_PATTERN, description="Its signature.")
 
     @model_validator(mode="before")
     @classmethod
     def _wire(cls, data: Any, info: ValidationInfo) -> Any:
         """Received, an event names ``v`` and ``type`` (section 1); ``v`` is never a boolean;
         strict, so ``"n": "5"`` or ``"tick": 1.0`` is refused, not coerced."""
-        if isinstance(data, dict) and info.context == _WIRE and "type" not in data:
+        if isinstance(data, dict) and info.context == WIRE and "type" not in data:
             raise ValueError("an event names its type 'type'")
-        return _wire_fields(data, info)
+        return wire_fields(data, info)
 
 
 _ADAPTER: TypeAdapter[FleetEvent] = TypeAdapter(FleetEvent)
@@ -134,7 +142,7 @@ def decode_event(data: bytes, max_bytes: int = MAX_EVENT_BYTES) -> FleetEvent:
         raise MessageRefused(f"event of {len(data)} bytes exceeds the limit of {max_bytes}")
     try:
         fault("message", data)
-        event = _ADAPTER.validate_json(data, context=_WIRE)
+        event = _ADAPTER.validate_json(data, context=WIRE)
         if (event.key is None) != (event.sig is None):
             raise MessageRefused(f"event {event.n} of {event.peer}: key and sig come together")
         signed = event.sig is not None

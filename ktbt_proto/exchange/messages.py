@@ -32,13 +32,13 @@ MAX_REASON = 200
 
 _ENVELOPE = 512
 """More than a response's JSON takes besides its strings (names, quotes, the two keys)."""
-_ID = r"^[A-Za-z0-9_.-]{1,64}$"
-_KEY = r"^[A-Za-z0-9_-]{43}$"
-_SIGNATURE = r"^[A-Za-z0-9_-]{86}$"
-_WIRE = {"wire": True}
+NAME_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
+KEY_PATTERN = r"^[A-Za-z0-9_-]{43}$"
+SIGNATURE_PATTERN = r"^[A-Za-z0-9_-]{86}$"
+WIRE = {"wire": True}
 
 
-def _require_version_and_type(schema: dict[str, Any]) -> None:
+def require_version_and_type(schema: dict[str, Any]) -> None:
     """On the wire ``v`` and ``type`` are required (spec section 1); in code they default."""
     required = schema.setdefault("required", [])
     for name in ("type", "v"):
@@ -48,23 +48,23 @@ def _require_version_and_type(schema: dict[str, Any]) -> None:
 
 class _Message(BaseModel):
     model_config = ConfigDict(
-        extra="forbid", frozen=True, json_schema_extra=_require_version_and_type
+        extra="forbid", frozen=True, json_schema_extra=require_version_and_type
     )
 
     v: Literal[1] = Field(default=1, description="Protocol version (the integer 1).")
-    id: str = Field(pattern=_ID, description="Query id; a response or error echoes it.")
-    sender: str = Field(pattern=_ID, description="The sending agent's name.")
+    id: str = Field(pattern=NAME_PATTERN, description="Query id; a response or error echoes it.")
+    sender: str = Field(pattern=NAME_PATTERN, description="The sending agent's name.")
 
     @model_validator(mode="before")
     @classmethod
     def _wire_fields(cls, data: Any, info: ValidationInfo) -> Any:
-        return _wire_fields(data, info)
+        return wire_fields(data, info)
 
 
-def _wire_fields(data: Any, info: ValidationInfo) -> Any:
-    """Received (``context=_WIRE``), a message names ``v``; ``v`` is never a boolean."""
+def wire_fields(data: Any, info: ValidationInfo) -> Any:
+    """Received (``context=WIRE``), a message names ``v``; ``v`` is never a boolean."""
     if isinstance(data, dict):
-        if info.context == _WIRE and "v" not in data:
+        if info.context == WIRE and "v" not in data:
             raise ValueError("a message names its protocol version 'v'")
         if not isinstance(data.get("v", 1), int) or isinstance(data.get("v"), bool):
             raise ValueError("'v' must be the integer 1")  # true == 1 in Python, not here
@@ -135,16 +135,18 @@ class Response(_Message):
         min_length=1, max_length=60_000, description="The subtree, canonical compact stringBT."
     )
     author: str | None = Field(
-        default=None, pattern=_KEY, description="The item's author: an Ed25519 public key."
+        default=None, pattern=KEY_PATTERN, description="The item's author: an Ed25519 public key."
     )
     signature: str | None = Field(
-        default=None, pattern=_SIGNATURE, description="The author's signature of the item."
+        default=None, pattern=SIGNATURE_PATTERN, description="The author's signature of the item."
     )
     key: str | None = Field(
-        default=None, pattern=_KEY, description="The sending peer's Ed25519 public key."
+        default=None, pattern=KEY_PATTERN, description="The sending peer's Ed25519 public key."
     )
     hop: str | None = Field(
-        default=None, pattern=_SIGNATURE, description="The sending peer's signature of this reply."
+        default=None,
+        pattern=SIGNATURE_PATTERN,
+        description="The sending peer's signature of this reply.",
     )
 
     @classmethod
@@ -227,7 +229,7 @@ def decode(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> Query | Response 
     _check_size(len(data), max_bytes)
     try:
         fault("message", data)
-        return _ADAPTER.validate_json(data, context=_WIRE)
+        return _ADAPTER.validate_json(data, context=WIRE)
     except ValidationError as exc:
         raise _refused(exc) from None
     except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
@@ -253,7 +255,7 @@ def decode_fields(
         _check_size(len(json.dumps(fields, ensure_ascii=False).encode("utf-8")), max_bytes)
     try:
         fault("message", fields)
-        return _ADAPTER.validate_python(fields, context=_WIRE)
+        return _ADAPTER.validate_python(fields, context=WIRE)
     except ValidationError as exc:
         raise _refused(exc) from None
     except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)

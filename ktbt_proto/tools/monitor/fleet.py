@@ -27,7 +27,7 @@ from typing import Any
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.events import FleetEvent, clip
-from ktbt_proto.exchange.messages import _ID
+from ktbt_proto.exchange.messages import NAME_PATTERN
 from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.trust import TrustStore
@@ -53,7 +53,7 @@ TIERS = 3
 """How much the monitor believes a peer's name, low to high (:meth:`Fleet._tier`)."""
 
 
-_NAME = re.compile(_ID)
+PEER_NAME = re.compile(NAME_PATTERN)
 
 
 def _iso(seconds: float) -> str:
@@ -148,7 +148,7 @@ class FleetState:
 
     def _named(self, name: str, where: str) -> Peer | None:
         """The peer of a name from a key expression: a peer name (section 1) or refused."""
-        if not _NAME.fullmatch(name):
+        if not PEER_NAME.fullmatch(name):
             self._drop("malformed", f"{where}: {clip(name, 64)!r} is not a peer name")
             return None
         return self._peer(name)

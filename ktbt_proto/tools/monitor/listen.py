@@ -24,7 +24,7 @@ from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.limits import Limits
 from ktbt_proto.render import render
 from ktbt_proto.syntax import parse
-from ktbt_proto.tools.monitor.fleet import _NAME, MAX_PEERS, FleetState
+from ktbt_proto.tools.monitor.fleet import MAX_PEERS, PEER_NAME, FleetState
 from ktbt_proto.transport import zenoh as zenoh_transport
 from ktbt_proto.transport.zenoh import ZenohSettings, catalog_replies, open_session
 
@@ -162,7 +162,7 @@ class Listener:
         for as long: call it from a thread, never the event loop. A reply on another key, too
         large, or not stringBT within :data:`TREE_LIMITS` is counted malformed, not shown;
         the peer's own refusal (its reply error) is said; a network error is counted apart."""
-        if not _NAME.fullmatch(name):
+        if not PEER_NAME.fullmatch(name):
             return None
         key = f"{zenoh_transport.PREFIX}/tree/{name}"
         try:

@@ -35,7 +35,7 @@ from ktbt_proto.exchange.events import PREFIX
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
 from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.interop.ros2.node import event_json, events_qos, latched
-from ktbt_proto.tools.monitor.fleet import _NAME, MAX_PEERS, FleetState
+from ktbt_proto.tools.monitor.fleet import MAX_PEERS, PEER_NAME, FleetState
 from ktbt_proto.tools.monitor.listen import shown_tree
 
 _M = TypeVar("_M")
@@ -146,7 +146,7 @@ class RosListener:
     def _owned(self, path: str, name: str, what: str) -> bool:
         """Whether ``name`` may speak on the node ``path``'s topics: the first name heard
         there binds them."""
-        if not _NAME.fullmatch(name):
+        if not PEER_NAME.fullmatch(name):
             self.fleet.drop("malformed", f"{what} on {path[:100]} names no robot")
             return False
         owner = self._owner.setdefault(path, name)

@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 # The ROS 2 wheels (the ros2 extra) depend on lark-parser 0.12, which writes the same
 # lark/ folder as lark 1.x (added to an environment that has lark already, it wins) and type
 # stubs mypy would prefer to lark 1.x's own: put 1.x back, remove the stubs.
-LARK_1X = $(BIN)/python -m ktbt_proto.interop.ros2.interfaces
+LARK_1X = $(BIN)/python -m ktbt_proto.tools.ros2.interfaces
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -48,7 +48,7 @@ docs: $(VENV)/.installed-dev
 # side by side on two cores in about half the time. Every test owns its ports, folders and
 # network namespaces, and none depends on another's order.
 pytest: $(VENV)/.installed-dev
-	$(BIN)/python -m ktbt_proto.interop.ros2.interfaces build
+	$(BIN)/python -m ktbt_proto.tools.ros2.interfaces build
 	$(BIN)/python -m pytest -n 2
 
 test: lint typecheck docs pytest
@@ -59,7 +59,7 @@ test-fast: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest -m "not slow and not network"
 
 bench: $(VENV)/.installed-dev
-	$(BIN)/python -m ktbt_proto.interop.ros2.interfaces build
+	$(BIN)/python -m ktbt_proto.tools.ros2.interfaces build
 	$(BIN)/python -m benchmarks
 
 # The paper's studies, our teaching-rule study and the calibration against the release's own

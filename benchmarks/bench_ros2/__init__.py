@@ -74,7 +74,7 @@ UP_TIMEOUT = 120.0
 
 def unavailable() -> str | None:
     """Why ROS 2 cannot be measured here, in one line; None if it can."""
-    from ktbt_proto.interop.ros2 import interfaces
+    from ktbt_proto.tools.ros2 import interfaces
 
     if not interfaces.has_wheels() and interfaces.system_ros() is None:
         return f"no ROS 2 wheels here (only {interfaces.WHEEL_PLATFORMS})"

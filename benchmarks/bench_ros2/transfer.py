@@ -62,12 +62,12 @@ from rclpy.utilities import try_shutdown
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.answers import answers
-from ktbt_proto.exchange.inbox import Lookup
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
 from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
-from ktbt_proto.interop.ros2.transport import Ros2Transport, exchange_qos, to_msg
 from ktbt_proto.items import parse_sequence
+from ktbt_proto.transport.inbox import Lookup
+from ktbt_proto.transport.ros2 import Ros2Transport, exchange_qos, to_msg
 
 from ..bench_transfer import (
     COLOURS,

@@ -56,7 +56,6 @@ import zenoh
 
 from ktbt_proto.exchange.answers import catalog, live_answers
 from ktbt_proto.exchange.events import EventPublisher
-from ktbt_proto.exchange.inbox import AnswersGiven, Inbox, Lookup
 from ktbt_proto.exchange.member import CATALOG_PERIOD
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
@@ -73,6 +72,7 @@ from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.formatter import format_tree
+from ktbt_proto.transport.inbox import AnswersGiven, Inbox, Lookup
 
 if TYPE_CHECKING:
     from ktbt_proto.exchange.core import AgentCore

@@ -5,7 +5,7 @@ The user keeps their node, their tree and the timer that ticks it, as with py_tr
 (whose ``BehaviourTree.setup(node=...)`` takes an existing node and hands it to every
 behaviour's ``setup``). What ``attach`` adds to the node:
 
-- the fleet's topics (:class:`~ktbt_proto.interop.ros2.transport.Ros2Transport`): the robot
+- the fleet's topics (:class:`~ktbt_proto.transport.ros2.Ros2Transport`): the robot
   answers every query it can at once, from what it knows at that moment, inside the
   subscription's callback (section 4.5);
 - one timer, on the node's executor, that asks for what the robot is missing (the sequences
@@ -55,9 +55,9 @@ from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
 from ktbt_proto.interop.robot import item_slot, learning_slot, load_knowledge
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
-from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
 from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
+from ktbt_proto.transport.ros2 import Ros2Transport, Topics, robot_name
 from ktbt_proto.tree import Condition, Placeholder, SequenceNode
 from ktbt_proto.validate import find_problems
 

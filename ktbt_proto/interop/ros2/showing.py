@@ -39,8 +39,8 @@ from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.ros2.transport import NAME, quiet, watched
 from ktbt_proto.items import read_sequence, sequence_key, shown
+from ktbt_proto.transport.ros2 import NAME, quiet, watched
 from ktbt_proto.tree import Tree
 
 __all__ = [

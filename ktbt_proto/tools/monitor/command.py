@@ -107,7 +107,7 @@ def monitor_command(
         raise refuse("--connect: required: the fleet to listen to (--connect ENDPOINT, or --ros2)")
     settings = zenoh_settings(None, connect, config, False, mode)
     if ros2:
-        from ktbt_proto.interop.ros2.interfaces import not_here
+        from ktbt_proto.tools.ros2.interfaces import not_here
 
         try:
             import rclpy  # noqa: F401

@@ -34,7 +34,7 @@ from rclpy.utilities import try_shutdown
 from ktbt_proto.exchange.events import PREFIX
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
 from ktbt_proto.exchange.refusals import internal_error
-from ktbt_proto.interop.ros2.node import event_json, events_qos, latched
+from ktbt_proto.interop.ros2.showing import event_json, events_qos, latched
 from ktbt_proto.tools.monitor.fleet import MAX_PEERS, PEER_NAME, FleetState
 from ktbt_proto.tools.monitor.listen import shown_tree
 

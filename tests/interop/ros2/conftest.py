@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ktbt_proto.interop.ros2 import interfaces
+from ktbt_proto.tools.ros2 import interfaces
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,5 @@
 """The protocol's ROS messages read and written without rclpy's message objects
-(``ktbt_proto.interop.ros2.cdr``, spec/protocol.md section 11), held to rclpy's own serializer:
+(``ktbt_proto.transport.cdr``, spec/protocol.md section 11), held to rclpy's own serializer:
 every message written reads back equal through rclpy and is as long as rclpy's; what is
 read, from rclpy's bytes or from corrupted ones, rclpy reads the same, and what rclpy cannot
 read is refused. These tests serialize with rclpy and start no ROS node."""
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ktbt_proto.interop.ros2 import cdr
+from ktbt_proto.transport import cdr
 
 pytestmark = [pytest.mark.usefixtures("ros2_built"), pytest.mark.slow]
 

@@ -18,7 +18,7 @@ import pytest
 from ktbt_proto.exchange.events import EventPublisher, decode_event
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode_fields, encode
 from ktbt_proto.exchange.signing import Identity, hop_bytes, item_bytes, verify
-from ktbt_proto.interop.ros2 import interfaces
+from ktbt_proto.tools.ros2 import interfaces
 from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
 # The tests that use ROS are slow: the first in an environment builds the interfaces.
@@ -36,8 +36,8 @@ def read_back(message: Query | Response | ErrorReply, to: str) -> dict[str, Any]
     a robot reads it (its fields, by ``cdr``)."""
     from rclpy.serialization import serialize_message
 
-    from ktbt_proto.interop.ros2 import cdr
-    from ktbt_proto.interop.ros2.transport import to_msg
+    from ktbt_proto.transport import cdr
+    from ktbt_proto.transport.ros2 import to_msg
 
     layout = {Query: cdr.QUERY, Response: cdr.ANSWER, ErrorReply: cdr.ERROR}[type(message)]
     return cdr.read(serialize_message(to_msg(message, to)), layout)
@@ -46,7 +46,7 @@ def read_back(message: Query | Response | ErrorReply, to: str) -> dict[str, Any]
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() -> None:
-    from ktbt_proto.interop.ros2.transport import wire_fields
+    from ktbt_proto.transport.ros2 import wire_fields
 
     author, sender = Identity.generate(), Identity.generate()
     item = author.sign_item(SEQUENCE, SUBTREE)
@@ -67,7 +67,7 @@ def test_a_signed_answer_survives_its_ros_message_and_its_signatures_verify() ->
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
-    from ktbt_proto.interop.ros2.transport import wire_fields
+    from ktbt_proto.transport.ros2 import wire_fields
 
     for message, kind in (
         (Response.of("q1", "teacher", SEQUENCE, SUBTREE), "response"),
@@ -82,7 +82,7 @@ def test_an_unsigned_answer_a_query_and_an_error_survive_theirs() -> None:
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_a_signed_fleet_event_survives_its_ros_message() -> None:
-    from ktbt_proto.interop.ros2.node import event_json, event_msg
+    from ktbt_proto.interop.ros2.showing import event_json, event_msg
 
     identity = Identity.generate()
     sent: list[bytes] = []
@@ -100,7 +100,7 @@ def test_a_signed_fleet_event_survives_its_ros_message() -> None:
 @pytest.mark.usefixtures("ros2_built")
 @pytest.mark.slow
 def test_a_relative_topic_is_refused_with_one_line() -> None:
-    from ktbt_proto.interop.ros2.transport import Topics
+    from ktbt_proto.transport.ros2 import Topics
 
     with pytest.raises(ValueError, match=r"topic queries 'ktbt/queries': use an absolute name"):
         Topics(queries="ktbt/queries")

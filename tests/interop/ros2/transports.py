@@ -17,7 +17,7 @@ from rclpy.utilities import try_shutdown
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.signing import SignedItem
 from ktbt_proto.exchange.transport import Received
-from ktbt_proto.interop.ros2.transport import Ros2Transport
+from ktbt_proto.transport.ros2 import Ros2Transport
 from tests.interop.ros2.rosns import SEQUENCE, SUBTREE
 
 OTHER = "<c>(TargetSeen,colour=3)"

@@ -249,7 +249,7 @@ def _last_error(log: Path) -> str:
 
 
 def main(args: list[str]) -> int:
-    """``python -m ktbt_proto.interop.ros2.interfaces [build]``, for ``make``: lark 1.x put
+    """``python -m ktbt_proto.tools.ros2.interfaces [build]``, for ``make``: lark 1.x put
     back (after the dev install); with ``build``, the interfaces built too where ROS 2 can run
     from the wheels (before the tests), and elsewhere one line saying the ROS tests will skip."""
 

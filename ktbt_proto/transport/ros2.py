@@ -61,7 +61,6 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from ktbt_proto.exchange.answers import live_answers
 from ktbt_proto.exchange.core import AgentCore
-from ktbt_proto.exchange.inbox import AnswersGiven, Inbox, Lookup
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -75,7 +74,8 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Message, Received
 from ktbt_proto.exchange.trust import refusal
-from ktbt_proto.interop.ros2 import cdr
+from ktbt_proto.transport import cdr
+from ktbt_proto.transport.inbox import AnswersGiven, Inbox, Lookup
 
 QUERIES = "/ktbt/queries"
 ANSWERS = "/ktbt/answers"

@@ -57,11 +57,11 @@ from ktbt_proto.interop.ros2.showing import (
     events_qos,
     latched,
 )
-from ktbt_proto.interop.ros2.transport import Ros2Transport, Topics, robot_name
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.items import read_sequence, sequence_key
 from ktbt_proto.registry import load_vocabulary
 from ktbt_proto.syntax import parse
+from ktbt_proto.transport.ros2 import Ros2Transport, Topics, robot_name
 
 __all__ = ["SETUP", "KtbtNode", "event_json", "event_msg", "events_qos", "latched", "problem"]
 

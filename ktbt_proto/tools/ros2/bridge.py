@@ -66,7 +66,7 @@ from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, Query, Response
 from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.trust import Policy, refusal
 from ktbt_proto.interop.ros2.showing import ENTRY_FIELDS, FleetCatalogs, latched
-from ktbt_proto.interop.ros2.transport import NAME, Ros2Transport, Topics, exchange_qos, to_msg
+from ktbt_proto.transport.ros2 import NAME, Ros2Transport, Topics, exchange_qos, to_msg
 from ktbt_proto.transport.zenoh import (
     PREFIX,
     ZenohSettings,

@@ -10,7 +10,7 @@ missing.
 - ``ktbt ros2 list NODE [--until SEQUENCE]`` and ``ktbt ros2 forget NODE SEQUENCE``: what a
   robot knows, and forgetting an item, through its services;
 - ``ktbt ros2 bridge --connect ENDPOINT``: relay knowledge between a zenoh fleet and a ROS 2
-  fleet, both ways (``ktbt_proto.interop.ros2.bridge``);
+  fleet, both ways (``ktbt_proto.tools.ros2.bridge``);
 
 the last three for machines without the ``ros2`` command line.
 """
@@ -50,7 +50,7 @@ def _say(text: str) -> None:
 
 def _ready() -> None:
     """rclpy and the interfaces importable, or one line and exit 1."""
-    from ktbt_proto.interop.ros2 import interfaces
+    from ktbt_proto.tools.ros2 import interfaces
 
     try:
         import rclpy  # noqa: F401
@@ -75,7 +75,7 @@ def build_command(
     """Build the interfaces into this environment (cached).
 
     ros2/ktbt_interfaces, from the ROS 2 wheels; skipped while up to date."""
-    from ktbt_proto.interop.ros2 import interfaces
+    from ktbt_proto.tools.ros2 import interfaces
 
     try:
         built = interfaces.build(_say, force=force)
@@ -133,7 +133,7 @@ def run_command(
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
-    from ktbt_proto.interop.ros2.node import KtbtNode
+    from ktbt_proto.tools.ros2.node import KtbtNode
 
     extra = _ros_args(ctx)
     try:
@@ -422,9 +422,9 @@ def bridge_command(
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
-    from ktbt_proto.interop.ros2.bridge import Bridge
-    from ktbt_proto.interop.ros2.transport import Topics
     from ktbt_proto.tools.peer import configure_logging, until_signalled
+    from ktbt_proto.tools.ros2.bridge import Bridge
+    from ktbt_proto.transport.ros2 import Topics
     from ktbt_proto.transport.zenoh import SessionError
 
     configure_logging()

@@ -16,6 +16,7 @@ from typing import Literal
 from ktbt_proto.errors import ErrorCode, ValidationError
 from ktbt_proto.tree import (
     Action,
+    Args,
     Condition,
     Container,
     Inverter,
@@ -27,6 +28,7 @@ from ktbt_proto.tree import (
     SequenceNode,
     Tree,
     Value,
+    Visitor,
     Wait,
     WaitTimer,
 )
@@ -57,40 +59,51 @@ def format_value(value: Value) -> str:
     )
 
 
-def _leaf(node: Node, sep: str) -> str:
-    if isinstance(node, Condition):
-        head = ("!" if node.negated else "") + node.name
-        tag = "<c>"
-    elif isinstance(node, Action):
-        head, tag = node.name, "<a>"
-    elif isinstance(node, Wait):
+class _Tags(Visitor[str]):
+    """A node's tag: a container's opening tag with its arguments (``<tt1>(5)``, ``<k>(new)``),
+    a leaf whole (its arguments separated by ``sep``)."""
+
+    def __init__(self, sep: str = ",") -> None:
+        self.sep = sep
+
+    def sequence(self, node: SequenceNode) -> str:
+        return "<msq>" if node.memory else "<sq>"
+
+    def selector(self, node: Selector) -> str:
+        return "<msl>" if node.memory else "<sl>"
+
+    def parallel(self, node: Parallel) -> str:
+        return "<pl>" if node.threshold is None else f"<pl>({format_value(node.threshold)})"
+
+    def inverter(self, node: Inverter) -> str:
+        return "<neg>"
+
+    def wait_timer(self, node: WaitTimer) -> str:
+        return f"<tt1>({format_value(node.ticks)})"
+
+    def run_timer(self, node: RunTimer) -> str:
+        return f"<tt2>({format_value(node.ticks)})"
+
+    def placeholder(self, node: Placeholder) -> str:
+        return f"<k>({node.name})"
+
+    def condition(self, node: Condition) -> str:
+        return self._call("<c>", ("!" if node.negated else "") + node.name, node.args)
+
+    def action(self, node: Action) -> str:
+        return self._call("<a>", node.name, node.args)
+
+    def wait(self, node: Wait) -> str:
         tag = "<w>" if node.unit == "ticks" else "<wt>"
         return f"{tag}({format_value(node.duration)})"
-    else:
-        raise TypeError(f"not a stringBT node: {node!r}")
-    if not node.args:
-        return f"{tag}({head})"
-    args = sep.join(f"{k}={format_value(v)}" for k, v in node.args)
-    return f"{tag}({head}{sep}{args})"
+
+    def _call(self, tag: str, head: str, args: Args) -> str:
+        if not args:
+            return f"{tag}({head})"
+        return f"{tag}({head}{self.sep}{self.sep.join(f'{k}={format_value(v)}' for k, v in args)})"
 
 
-def opening_tag(node: Container) -> str:
-    """The text that opens a container, arguments included (``<tt1>(5)``, ``<k>(new)``...)."""
-    if isinstance(node, SequenceNode):
-        return "<msq>" if node.memory else "<sq>"
-    if isinstance(node, Selector):
-        return "<msl>" if node.memory else "<sl>"
-    if isinstance(node, Parallel):
-        return "<pl>" if node.threshold is None else f"<pl>({format_value(node.threshold)})"
-    if isinstance(node, Inverter):
-        return "<neg>"
-    if isinstance(node, WaitTimer):
-        return f"<tt1>({format_value(node.ticks)})"
-    if isinstance(node, RunTimer):
-        return f"<tt2>({format_value(node.ticks)})"
-    if isinstance(node, Placeholder):
-        return f"<k>({node.name})"
-    raise TypeError(f"not a stringBT node: {node!r}")
+_COMPACT, _SPACED = _Tags(","), _Tags(", ")
 
 
 def format_tree(tree: Tree | Node, style: Style = "pretty") -> str:
@@ -106,16 +119,16 @@ def format_tree(tree: Tree | Node, style: Style = "pretty") -> str:
 def _compact(root: Node) -> str:
     out: list[str] = []
     stack: list[Node | str] = [root]
+    tag, other = _COMPACT.methods(), _COMPACT.other
     while stack:
         item = stack.pop()
         if isinstance(item, str):
             out.append(item)
-        elif isinstance(item, Container):
-            out.append(opening_tag(item))
-            stack.append("<e>")
-            stack.extend(reversed(item.children))
         else:
-            out.append(_leaf(item, ","))
+            out.append(tag.get(type(item), other)(item))
+            if isinstance(item, Container):
+                stack.append("<e>")
+                stack.extend(reversed(item.children))
     return "".join(out)
 
 
@@ -131,6 +144,7 @@ def _pretty(tree: Tree | Node) -> str:
     add = lines.append
     # Items: (node, depth) to open, or (str, depth) for a closing line already rendered.
     stack: list[tuple[Node | str, int]] = [(root, 0)]
+    tag, other = _SPACED.methods(), _SPACED.other
     while stack:
         item, depth = stack.pop()
         indent = INDENT * depth
@@ -142,7 +156,7 @@ def _pretty(tree: Tree | Node) -> str:
             for text in notes.leading:
                 add(indent + _comment(text))
         if isinstance(item, Container):
-            head = indent + opening_tag(item)
+            head = indent + tag.get(type(item), other)(item)
             trailing = notes.trailing if notes is not None else None
             end_trailing = notes.end_trailing if notes is not None else None
             end = "<e>" if end_trailing is None else "<e>  " + _comment(end_trailing)
@@ -158,7 +172,7 @@ def _pretty(tree: Tree | Node) -> str:
             stack.extend(closing)
             stack.extend((child, depth + 1) for child in reversed(item.children))
         else:
-            line = indent + _leaf(item, ", ")
+            line = indent + tag.get(type(item), other)(item)
             if notes is not None and notes.trailing is not None:
                 line += "  " + _comment(notes.trailing)
             add(line)

@@ -25,6 +25,7 @@ from ktbt_proto.tree import (
     Selector,
     SequenceNode,
     Tree,
+    Visitor,
     Wait,
     WaitTimer,
     as_node,
@@ -55,28 +56,41 @@ def call_text(name: str, args: Args) -> str:
     return name + "(" + ", ".join(f"{k}={format_value(v)}" for k, v in args) + ")"
 
 
-def _label(node: Node) -> str:
+class _Labels(Visitor[str]):
     """A short human label: readers of a picture should not need to know stringBT tags."""
-    if isinstance(node, SequenceNode | Selector):
-        kind = "Sequence" if isinstance(node, SequenceNode) else "Selector"
-        return kind + " (memory)" if node.memory else kind
-    if isinstance(node, Parallel):
+
+    def sequence(self, node: SequenceNode) -> str:
+        return "Sequence (memory)" if node.memory else "Sequence"
+
+    def selector(self, node: Selector) -> str:
+        return "Selector (memory)" if node.memory else "Selector"
+
+    def parallel(self, node: Parallel) -> str:
         return "Parallel (all)" if node.threshold is None else f"Parallel (≥{node.threshold})"
-    if isinstance(node, Inverter):
+
+    def inverter(self, node: Inverter) -> str:
         return "Inverter"
-    if isinstance(node, WaitTimer):
+
+    def wait_timer(self, node: WaitTimer) -> str:
         return f"TT1 wait {format_value(node.ticks)} ticks"
-    if isinstance(node, RunTimer):
+
+    def run_timer(self, node: RunTimer) -> str:
         return f"TT2 run {format_value(node.ticks)} ticks"
-    if isinstance(node, Placeholder):
+
+    def placeholder(self, node: Placeholder) -> str:
         return f"Knowledge [{node.name}]" + ("" if node.children else " (empty)")
-    if isinstance(node, Condition):
+
+    def condition(self, node: Condition) -> str:
         return "Condition " + ("NOT " if node.negated else "") + call_text(node.name, node.args)
-    if isinstance(node, Action):
+
+    def action(self, node: Action) -> str:
         return "Action " + call_text(node.name, node.args)
-    if isinstance(node, Wait):
+
+    def wait(self, node: Wait) -> str:
         return f"Wait {format_value(node.duration)} " + ("ticks" if node.unit == "ticks" else "s")
-    raise TypeError(f"not a stringBT node: {node!r}")
+
+
+_label = _Labels().visit
 
 
 def _outline(root: Node) -> str:

@@ -10,9 +10,9 @@ class (no ``__slots__``) so the parser can build a node by filling only the fiel
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal, TypeAlias
+from typing import Any, ClassVar, Generic, Literal, TypeAlias, TypeVar
 
 Value: TypeAlias = bool | int | float | str
 """A literal argument value."""
@@ -225,3 +225,76 @@ def with_children(node: Container, children: tuple[Node, ...]) -> Container:
 
 def as_node(tree: Tree | Node) -> Node:
     return tree.root if isinstance(tree, Tree) else tree
+
+
+T = TypeVar("T")
+
+
+class Visitor(Generic[T]):
+    """What to make of each kind of node, one method a kind (``spec/stringbt.md`` section 3),
+    as lark's and py_trees' visitors do: :meth:`visit` calls the method of the node's class, so
+    a walker (the formatter, the renderer, the BehaviorTree.CPP exporter...) says what it does
+    with a sequence, a condition or a wait, never how to tell them apart. A kind a subclass
+    does not handle goes to :meth:`other`, which refuses it."""
+
+    _bound: dict[type, Callable[[Any], T]]
+
+    def methods(self) -> dict[type, Callable[[Any], T]]:
+        """Each node class's method, bound: what a walker on a hot path looks up itself
+        (``methods()[type(node)](node)``) to save a call per node."""
+        try:
+            return self._bound
+        except AttributeError:  # the first time: each kind's method, bound once
+            self._bound = {cls: getattr(self, m) for cls, m in _METHOD_OF.items()}
+            return self._bound
+
+    def visit(self, node: Node) -> T:
+        method = self.methods().get(type(node))
+        return self.other(node) if method is None else method(node)
+
+    def sequence(self, node: SequenceNode) -> T:
+        return self.other(node)
+
+    def selector(self, node: Selector) -> T:
+        return self.other(node)
+
+    def parallel(self, node: Parallel) -> T:
+        return self.other(node)
+
+    def inverter(self, node: Inverter) -> T:
+        return self.other(node)
+
+    def wait_timer(self, node: WaitTimer) -> T:
+        return self.other(node)
+
+    def run_timer(self, node: RunTimer) -> T:
+        return self.other(node)
+
+    def placeholder(self, node: Placeholder) -> T:
+        return self.other(node)
+
+    def condition(self, node: Condition) -> T:
+        return self.other(node)
+
+    def action(self, node: Action) -> T:
+        return self.other(node)
+
+    def wait(self, node: Wait) -> T:
+        return self.other(node)
+
+    def other(self, node: Node) -> T:
+        raise TypeError(f"not a stringBT node: {node!r}")
+
+
+_METHOD_OF: dict[type, str] = {
+    SequenceNode: "sequence",
+    Selector: "selector",
+    Parallel: "parallel",
+    Inverter: "inverter",
+    WaitTimer: "wait_timer",
+    RunTimer: "run_timer",
+    Placeholder: "placeholder",
+    Condition: "condition",
+    Action: "action",
+    Wait: "wait",
+}

@@ -91,7 +91,6 @@ from ktbt_proto.tree import (
     Action,
     Args,
     Condition,
-    Container,
     Inverter,
     Node,
     Parallel,
@@ -101,6 +100,7 @@ from ktbt_proto.tree import (
     SequenceNode,
     Tree,
     Value,
+    Visitor,
     Wait,
     WaitTimer,
     as_node,
@@ -215,7 +215,10 @@ class _Out:
     children: list[Node | _Out | str] = field(default_factory=list)  # str: text, alone
 
 
-class _Exporter:
+class _Exporter(Visitor[_Out]):
+    """Each node as its BehaviorTree.CPP element (stringbt.md section 12), the models of the
+    node IDs it meets gathered as it goes."""
+
     def __init__(self) -> None:
         self.kinds: dict[str, str] = {}  # node ID -> "Condition" | "Action"
         self.ports: dict[str, dict[str, set[str]]] = {}  # node ID -> port -> types
@@ -252,43 +255,52 @@ class _Exporter:
             raise ValidationError(ErrorCode.INVALID_DURATION, message, node.line, node.column)
         return format_value(ticks)
 
-    def element(self, node: Node) -> _Out:
-        if isinstance(node, Condition):
-            out = self._leaf("Condition", node)
-            return _Out("Inverter", [("name", "!" + node.name)], [out]) if node.negated else out
-        if isinstance(node, Action):
-            return self._leaf("Action", node)
-        if isinstance(node, Wait):
-            if node.unit == "ticks":
-                self.custom.add(WAIT_TICKS)
-                return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
-            msec = _msec(node.duration)
-            attrs = [("msec", self._ticks(node, msec, "msec"))]
-            if not _same(_seconds(msec), node.duration):
-                attrs.insert(0, ("name", SECONDS_PREFIX + format_value(node.duration)))
-            return _Out("Sleep", attrs)
-        if not isinstance(node, Container):
-            raise TypeError(f"not a stringBT node: {node!r}")
-        kids: list[Node | _Out | str] = list(node.children)
-        if isinstance(node, SequenceNode):
-            return _Out("Sequence" if node.memory else "ReactiveSequence", [], kids)
-        if isinstance(node, Selector):
-            return _Out("Fallback" if node.memory else "ReactiveFallback", [], kids)
-        if isinstance(node, Placeholder):
-            name = [("name", PLACEHOLDER_PREFIX + node.name)]
-            return _Out("ReactiveFallback", name, kids or [_Out("AlwaysFailure", [])])
-        if isinstance(node, Parallel):
-            n, m = len(kids), node.threshold
-            counts = [("success_count", "-1" if m is None else str(m))]
-            counts.append(("failure_count", str(1 if m is None else n - m + 1)))
-            return _Out("Parallel", counts, kids)
-        if isinstance(node, Inverter):
-            return _Out("Inverter", [], kids)
-        ident = TT1 if isinstance(node, WaitTimer) else TT2
-        if not isinstance(node, WaitTimer | RunTimer):
-            raise TypeError(f"not a stringBT node: {node!r}")
+    def condition(self, node: Condition) -> _Out:
+        out = self._leaf("Condition", node)
+        return _Out("Inverter", [("name", "!" + node.name)], [out]) if node.negated else out
+
+    def action(self, node: Action) -> _Out:
+        return self._leaf("Action", node)
+
+    def wait(self, node: Wait) -> _Out:
+        if node.unit == "ticks":
+            self.custom.add(WAIT_TICKS)
+            return _Out(WAIT_TICKS, [("ticks", self._ticks(node, node.duration))])
+        msec = _msec(node.duration)
+        attrs = [("msec", self._ticks(node, msec, "msec"))]
+        if not _same(_seconds(msec), node.duration):
+            attrs.insert(0, ("name", SECONDS_PREFIX + format_value(node.duration)))
+        return _Out("Sleep", attrs)
+
+    def sequence(self, node: SequenceNode) -> _Out:
+        return _Out("Sequence" if node.memory else "ReactiveSequence", [], list(node.children))
+
+    def selector(self, node: Selector) -> _Out:
+        return _Out("Fallback" if node.memory else "ReactiveFallback", [], list(node.children))
+
+    def placeholder(self, node: Placeholder) -> _Out:
+        name = [("name", PLACEHOLDER_PREFIX + node.name)]
+        kids: list[Node | _Out | str] = list(node.children) or [_Out("AlwaysFailure", [])]
+        return _Out("ReactiveFallback", name, kids)
+
+    def parallel(self, node: Parallel) -> _Out:
+        n, m = len(node.children), node.threshold
+        counts = [("success_count", "-1" if m is None else str(m))]
+        counts.append(("failure_count", str(1 if m is None else n - m + 1)))
+        return _Out("Parallel", counts, list(node.children))
+
+    def inverter(self, node: Inverter) -> _Out:
+        return _Out("Inverter", [], list(node.children))
+
+    def wait_timer(self, node: WaitTimer) -> _Out:
+        return self._timer(TT1, node)
+
+    def run_timer(self, node: RunTimer) -> _Out:
+        return self._timer(TT2, node)
+
+    def _timer(self, ident: str, node: WaitTimer | RunTimer) -> _Out:
         self.custom.add(ident)
-        return _Out(ident, [("ticks", self._ticks(node, node.ticks))], kids)
+        return _Out(ident, [("ticks", self._ticks(node, node.ticks))], list(node.children))
 
     def model(self) -> list[_Out]:
         entries: list[tuple[str, str, list[Node | _Out | str]]] = []
@@ -337,7 +349,7 @@ def _write(top: _Out, depth: int, exporter: _Exporter, lines: list[str]) -> None
         if isinstance(item, str):
             lines.append(pad + item)
             continue
-        out = item if isinstance(item, _Out) else exporter.element(item)
+        out = item if isinstance(item, _Out) else exporter.visit(item)
         head = pad + f"<{out.tag}{_attrs(out.attrs)}"
         kids = out.children
         if not kids:

@@ -37,7 +37,17 @@ from ktbt_proto.registry import Registry
 from ktbt_proto.render import call_text
 from ktbt_proto.runtime import Halt, LiveTree, Tick
 from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
-from ktbt_proto.tree import Action, Condition, Container, Node, Placeholder, Tree, Wait, walk
+from ktbt_proto.tree import (
+    Action,
+    Condition,
+    Container,
+    Node,
+    Placeholder,
+    Tree,
+    Visitor,
+    Wait,
+    walk,
+)
 
 try:
     import msgpack
@@ -183,16 +193,24 @@ class _View:
         self.xml = ET.tostring(doc, encoding="unicode").encode()
 
 
-def _leaf_name(node: Node) -> str:
+class _LeafNames(Visitor[str]):
     """A leaf as stringBT writes it, for Groot2 to show: ``TargetSeen(colour=1)``, ``!_inZoneF``
     (the command line's own forms: ``items.show_sequence``, ``render``'s calls)."""
-    if isinstance(node, Condition):
+
+    def condition(self, node: Condition) -> str:
         return show_sequence([node])
-    if isinstance(node, Action):
+
+    def action(self, node: Action) -> str:
         return call_text(node.name, node.args)
-    if isinstance(node, Wait):
+
+    def wait(self, node: Wait) -> str:
         return f"wait {format_value(node.duration)} {node.unit}"
-    raise RequestRefused(f"a {type(node).__name__} is not a leaf")
+
+    def other(self, node: Node) -> str:
+        raise RequestRefused(f"a {type(node).__name__} is not a leaf")
+
+
+_leaf_name = _LeafNames().visit
 
 
 def _json_value(value: Any) -> Any:

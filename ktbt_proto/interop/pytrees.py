@@ -48,6 +48,7 @@ from ktbt_proto.tree import (
     Selector,
     SequenceNode,
     Tree,
+    Visitor,
     Wait,
     WaitTimer,
     as_node,
@@ -275,26 +276,71 @@ def _leaf(node: Condition | Action, behaviours: Behaviours) -> behaviour.Behavio
     return made
 
 
+class _Builder(Visitor[behaviour.Behaviour]):
+    """Each node as its py_trees behaviour; a leaf the user gave a behaviour of their own
+    (``behaviours``) is theirs. Validation bounds the depth, so building children through
+    :func:`build` (recursion) is safe; py_trees ticks recursively anyway."""
+
+    def __init__(self, registry: Registry, bb: Any, clock: Clock, behaviours: Behaviours):
+        self.registry, self.bb, self.clock, self.behaviours = registry, bb, clock, behaviours
+
+    def _kids(self, node: Container) -> list[behaviour.Behaviour]:
+        return [
+            build(child, self.registry, self.bb, self.clock, self.behaviours)
+            for child in node.children
+        ]
+
+    def condition(self, node: Condition) -> behaviour.Behaviour:
+        own = _leaf(node, self.behaviours) if self.behaviours else None
+        if own is not None:
+            return own
+        holds = self.registry.bind_condition(node.name, self.bb, node.args)
+        return _Condition(node.name, holds, node.negated)
+
+    def action(self, node: Action) -> behaviour.Behaviour:
+        own = _leaf(node, self.behaviours) if self.behaviours else None
+        if own is not None:
+            return own
+        bound = self.registry.bind_action(node.name, self.bb, node.args)  # (tick, halt, ...)
+        return _Action(node.name, bound[0], bound[1])
+
+    def wait(self, node: Wait) -> behaviour.Behaviour:
+        if node.unit == "ticks":
+            return _WaitTicks(int(node.duration))
+        return _WaitSeconds(float(node.duration), self.clock)
+
+    def sequence(self, node: SequenceNode) -> behaviour.Behaviour:
+        name = "Sequence*" if node.memory else "Sequence"
+        return composites.Sequence(name, node.memory, self._kids(node))
+
+    def selector(self, node: Selector) -> behaviour.Behaviour:
+        name = "Selector*" if node.memory else "Selector"
+        return composites.Selector(name, node.memory, self._kids(node))
+
+    def placeholder(self, node: Placeholder) -> behaviour.Behaviour:
+        return composites.Selector(f"k:{node.name}", False, self._kids(node))
+
+    def parallel(self, node: Parallel) -> behaviour.Behaviour:
+        kids = self._kids(node)
+        if node.threshold is None or node.threshold == len(kids):
+            policy = common.ParallelPolicy.SuccessOnAll(synchronise=False)
+            return composites.Parallel("Parallel", policy, kids)
+        return _ThresholdParallel(f"Parallel({node.threshold})", kids, node.threshold)
+
+    def inverter(self, node: Inverter) -> behaviour.Behaviour:
+        return decorators.Inverter("Inverter", self._kids(node)[0])
+
+    def wait_timer(self, node: WaitTimer) -> behaviour.Behaviour:
+        return _WaitTimer(f"TT1({node.ticks})", self._kids(node)[0], node.ticks)
+
+    def run_timer(self, node: RunTimer) -> behaviour.Behaviour:
+        return _RunTimer(f"TT2({node.ticks})", self._kids(node)[0], node.ticks)
+
+
 def _build(
     node: Node, registry: Registry, bb: Any, clock: Clock, behaviours: Behaviours
 ) -> behaviour.Behaviour:
-    # Validation bounds the depth, so recursion is safe; py_trees ticks recursively anyway.
-    if behaviours and isinstance(node, Condition | Action):
-        own = _leaf(node, behaviours)
-        if own is not None:
-            return own
-    if isinstance(node, Condition):
-        holds = registry.bind_condition(node.name, bb, node.args)
-        return _Condition(node.name, holds, node.negated)
-    if isinstance(node, Action):
-        bound = registry.bind_action(node.name, bb, node.args)  # (tick, halt, ...)
-        return _Action(node.name, bound[0], bound[1])
-    if isinstance(node, Wait):
-        if node.unit == "ticks":
-            return _WaitTicks(int(node.duration))
-        return _WaitSeconds(float(node.duration), clock)
-    if not isinstance(node, Container):
-        raise TypeError(f"not a stringBT node: {node!r}")
+    return _Builder(registry, bb, clock, behaviours).visit(node)
     kids = [build(child, registry, bb, clock, behaviours) for child in node.children]
     if isinstance(node, SequenceNode):
         return composites.Sequence("Sequence*" if node.memory else "Sequence", node.memory, kids)

@@ -328,7 +328,7 @@ def screenshot(path: Path, peers: int = 20) -> None:
 
     fleet, http = _port(), _port()
     work = Path(tempfile.mkdtemp(prefix="ktbt-shot-"))
-    knowledge = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
     (work / "bad.sbt").write_text(BAD)
     for c in (1, 2):
         (work / f"c{c}.sbt").write_text(ONE.format(c=c))
@@ -392,7 +392,8 @@ def publish_cost(rounds: int) -> dict[str, Any]:
     from benchmarks import bench_transfer as bt
     from benchmarks.timing import gc_paused
     from ktbt_proto.exchange.signing import Identity
-    from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
+    from ktbt_proto.interop.knowledge_file import load_knowledge
+    from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
     from ktbt_proto.transport.zenoh import ZenohTransport, peers
 
     kb = load_knowledge(bt.KNOWLEDGE_PATH)

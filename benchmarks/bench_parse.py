@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import ktbt_proto as kp
+from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.syntax import _lark, parse_reference
 
 from .timing import Stats, interleaved, machine, markdown_table, time_once, write_json
@@ -92,7 +93,7 @@ def _limits_for(text: str) -> kp.Limits:
 def _check_inputs(compact: str, pretty: str, big: str, big_limits: kp.Limits) -> int:
     """Make sure every input is valid stringBT on which both parsers agree; return the big
     tree's node count."""
-    for text, limits in ((compact, kp.DEFAULT_LIMITS), (pretty, kp.DEFAULT_LIMITS)):
+    for text, limits in ((compact, DEFAULT_LIMITS), (pretty, DEFAULT_LIMITS)):
         tree = kp.parse(text, limits=limits)
         kp.validate(tree, limits=limits)
         assert tree == parse_reference(text, limits=limits)

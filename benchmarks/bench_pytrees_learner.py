@@ -3,7 +3,7 @@
 Run with ``python -m benchmarks.bench_pytrees_learner`` (or ``python -m benchmarks``). Prints a
 Markdown table and writes ``benchmarks/results/pytrees_learner.json``.
 
-The search-and-rescue control tree of ``ktbt_proto/examples/sar_control.sbt``, already running its
+The search-and-rescue control tree of ``examples/sar_control.sbt``, already running its
 fallback,
 learns the 5-node item ``Sequence(TargetSeen(colour), Sequence(PickTreasure,
 AssignCollectionPoint(colour)))`` into its ``new`` placeholder; the time covers the merge of the

@@ -15,7 +15,7 @@ conditions and two actions), all calling the same 40 leaf functions where they c
 "Full traversal" scripts the leaves so that every node ticks on every tick (each Sequence fails on
 its last action, the last one is RUNNING); "early exit" lets the first Sequence succeed.
 
-Hot merge: the search-and-rescue control tree of ``ktbt_proto/examples/sar_control.sbt``, already
+Hot merge: the search-and-rescue control tree of ``examples/sar_control.sbt``, already
 running,
 learns a 5-node knowledge item ``Sequence(TargetSeen, Sequence(PickTreasure,
 AssignCollectionPoint))`` into its ``new`` placeholder; the time covers the merge and the first
@@ -60,7 +60,7 @@ BUILD_ROUNDS = 600
 """Interleaved rounds of the build benchmark."""
 MERGE_ROUNDS = 1500
 """Rounds of the hot-merge benchmark (each times every variant once on fresh trees)."""
-SAR_PATH = Path(__file__).resolve().parents[1] / "ktbt_proto" / "examples" / "sar_control.sbt"
+SAR_PATH = Path(__file__).resolve().parents[1] / "examples" / "sar_control.sbt"
 SCENARIOS = ("full", "early")
 CONTENDERS = ("ours", "py_trees", "flat")
 
@@ -373,7 +373,7 @@ def _pt_sel(name: str, *children: Behaviour) -> PtSelector:
 
 
 def py_trees_sar(bb: dict[str, Any]) -> tuple[BehaviourTree, PtSelector]:
-    """``ktbt_proto/examples/sar_control.sbt`` in py_trees (placeholders as reactive Selectors);
+    """``examples/sar_control.sbt`` in py_trees (placeholders as reactive Selectors);
     returns the tree and its ``new`` placeholder."""
     new = _pt_sel("new")
     root = _pt_sel(
@@ -525,9 +525,7 @@ def run_merge(rounds: int, warmup: int = 20) -> dict[str, Any]:
     # Sanity: both trees have the same shape.
     ours_nodes = sum(1 for _ in sar.walk())
     if ours_nodes != sum(1 for _ in py_trees_running(0)[0].root.iterate()):
-        raise AssertionError(
-            "the py_trees SAR tree does not match ktbt_proto/examples/sar_control.sbt"
-        )
+        raise AssertionError("the py_trees SAR tree does not match examples/sar_control.sbt")
 
     names = list(MERGE_VARIANTS)
     variants = [MERGE_VARIANTS[name] for name in names]

@@ -11,7 +11,7 @@ to it):
   replies with a fixed payload; the time covers the get and reading every reply's bytes. Its
   payloads have exactly the sizes of ours' query and response.
 * ours: a learner ``ZenohTransport`` asks a teacher ``ZenohTransport`` serving
-  ``ktbt_proto/examples/knowledge/colours.sbt`` through ``lookup=`` (as ``ktbt peer serve`` does).
+  ``examples/knowledge/colours.sbt`` through ``lookup=`` (as ``ktbt peer serve`` does).
   The time
   covers building the ``Query``, ``learner.ask(query, timeout)`` (encode, get, the teacher's
   lookup and reply, decode), the checks of ``Agent.accept`` (the answer is to the question, the
@@ -48,8 +48,9 @@ from ktbt_proto.exchange.messages import Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
+from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.items import parse_sequence
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session, peers
 
 from .timing import gc_paused, interleaved, machine, markdown_table, percentile, write_json
@@ -64,9 +65,7 @@ GET_TIMEOUT = 2.0
 """Seconds a get may wait; the replies end it long before."""
 CONNECT_TIMEOUT = 10.0
 """Seconds to wait for each pair of sessions to see each other."""
-KNOWLEDGE_PATH = (
-    Path(__file__).resolve().parents[1] / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
-)
+KNOWLEDGE_PATH = Path(__file__).resolve().parents[1] / "examples" / "knowledge" / "colours.sbt"
 TEACHER, LEARNER = "teacher", "learner"
 COLOURS = (1, 2, 3, 4)
 RAW_SELECTOR = "bench/raw/*"

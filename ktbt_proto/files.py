@@ -1,7 +1,9 @@
 """Files: the package's own data, bounded reads, and the one durable write.
 
-Packaged data (the grammar, the examples) is found one way, :func:`packaged`, through
-``importlib.resources``, so a wheel and a source checkout read the same files. A file someone
+Packaged data (the grammar, the examples) is found one way, :func:`packaged`, so a wheel and a
+source checkout read the same files: the grammar lives inside the package, the examples at the
+top of a checkout (``examples/``, beside ``spec/`` and ``tests/``, where people look for them),
+and the wheel carries a copy of them inside the package. A file someone
 else may have written (a key, a trust store, a knowledge base, a tree) is read one way,
 :func:`read_bounded`, so a path such as ``/dev/zero`` is refused, not read until memory runs out.
 
@@ -21,16 +23,32 @@ import contextlib
 import glob
 import importlib.resources
 import os
+import re
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
 
+TOP_LEVEL = frozenset({"examples"})
+"""Data that sits at the top of a source checkout, beside the package, and inside the package
+only in a wheel (which maps the folder in)."""
+
 
 def packaged(*parts: str) -> Path:
-    """A file or folder shipped inside the package: ``packaged("examples", "sar_control.sbt")``,
+    """A file or folder shipped with the package: ``packaged("examples", "sar_control.sbt")``,
     ``packaged("grammar", "stringbt.lark")``. The package is installed as files (a wheel or a
-    source checkout), so the resource is a real path other processes can be handed."""
-    return Path(str(importlib.resources.files("ktbt_proto").joinpath(*parts)))
+    source checkout), so the resource is a real path other processes can be handed.
+
+    The examples are found inside the package (a wheel carries them there) or else at the top
+    of the checkout the package is imported from (an editable install or a clone), the folder
+    that holds ``pyproject.toml``; a name outside :data:`TOP_LEVEL` is always the package's own.
+    """
+    package = Path(str(importlib.resources.files("ktbt_proto")))
+    inside = package.joinpath(*parts)
+    if parts and parts[0] in TOP_LEVEL and not inside.exists():
+        checkout = package.parent
+        if (checkout / "pyproject.toml").is_file() and (checkout / parts[0]).is_dir():
+            return checkout.joinpath(*parts)
+    return inside
 
 
 class TooLarge(ValueError):
@@ -63,7 +81,10 @@ def temporaries(path: str | Path) -> list[Path]:
     """The temporary files a replace of ``path`` killed midway may have left (a symlink is
     followed, as :func:`replacing` follows it), oldest name first."""
     final = Path(os.path.realpath(path))
-    return sorted(final.parent.glob(f".{glob.escape(final.name)}.*.tmp"))
+    # ``.<name>.<pid>[.<hex>].tmp`` only: ``.kb.json.bak.1.ab12cd34.tmp`` is kb.json.bak's.
+    own = re.compile(rf"\.{re.escape(final.name)}\.[0-9]+(?:\.[0-9a-f]+)?\.tmp")
+    found = final.parent.glob(f".{glob.escape(final.name)}.*.tmp")
+    return sorted(p for p in found if own.fullmatch(p.name))
 
 
 def fsync_folder(folder: Path) -> None:

@@ -26,17 +26,15 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache, partial
 from pathlib import Path
-from typing import Annotated, Any, Literal, Protocol, TypeVar, runtime_checkable
-
-import annotated_types as at
-from pydantic import Field, TypeAdapter
-from pydantic import ValidationError as PydanticError
-from pydantic.fields import FieldInfo
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, TypeVar, runtime_checkable
 
 from ktbt_proto.files import TooLarge, read_bounded
 from ktbt_proto.status import FAILURE, Status
 from ktbt_proto.syntax import NAME_RE
 from ktbt_proto.tree import Args
+
+if TYPE_CHECKING:
+    from pydantic import TypeAdapter
 
 F = TypeVar("F", bound=Callable[..., Any])
 Kind = Literal["condition", "action"]
@@ -71,6 +69,9 @@ class _Entry:
     doc: str = field(default="", compare=False)
     types: Mapping[str, Any] = field(default_factory=dict, compare=False)
     """Parameter name -> its annotation, for the parameters that have one."""
+    reserved: frozenset[str] = frozenset()
+    """Names no argument may take: the blackboard parameter's, which a behaviour taking
+    ``**kw`` would otherwise be given twice (``holds(bb, **kw)`` called with ``bb=1``)."""
 
 
 def _parameters(fn: Any) -> inspect.Signature:
@@ -121,12 +122,20 @@ def _own_parameters(target: Any, is_class: bool) -> list[inspect.Parameter] | No
 
 @lru_cache(maxsize=1024)
 def _adapter(annotation: Any) -> TypeAdapter[Any]:
+    from pydantic import TypeAdapter
+
     return TypeAdapter(annotation)
 
 
 def _value_problem(annotation: Any, value: Any) -> str | None:
     """Why ``value`` does not fit ``annotation`` in pydantic's strict mode (an ``int`` takes no
-    bool or float; ``Annotated[int, Field(ge=1, le=4)]`` takes 1 to 4), or None if it does."""
+    bool or float; ``Annotated[int, Field(ge=1, le=4)]`` takes 1 to 4), or None if it does.
+
+    pydantic is imported here, where an argument is first checked, so that parsing and
+    formatting a tree never load it."""
+    from pydantic import TypeAdapter
+    from pydantic import ValidationError as PydanticError
+
     try:
         adapter = _adapter(annotation)
     except TypeError:  # an unhashable annotation: build it afresh
@@ -139,18 +148,20 @@ def _value_problem(annotation: Any, value: Any) -> str | None:
     return None
 
 
-def _behaviour(target: Any, is_class: bool) -> tuple[_Params, dict[str, Any]]:
-    """A behaviour's keyword parameters after the blackboard, and their annotations."""
+def _behaviour(target: Any, is_class: bool) -> tuple[_Params, dict[str, Any], frozenset[str]]:
+    """A behaviour's keyword parameters after the blackboard, their annotations, and the
+    names no argument may take (the blackboard parameter's, when it can be named)."""
     params = _own_parameters(target, is_class)
     if params is None:  # builtins without a signature: take anything
-        return (frozenset(), frozenset(), True), {}
+        return (frozenset(), frozenset(), True), {}, frozenset()
     if not params or params[0].kind not in (
         inspect.Parameter.POSITIONAL_ONLY,
         inspect.Parameter.POSITIONAL_OR_KEYWORD,
     ):
         raise TypeError(f"{target!r} must take the blackboard as its first parameter")
     names, required, var_kw, types = _describe(params[1:])
-    return (names, required, var_kw), types
+    named = params[0].kind is inspect.Parameter.POSITIONAL_OR_KEYWORD
+    return (names, required, var_kw), types, frozenset({params[0].name} if named else ())
 
 
 _STATUS_NAMES = frozenset(("Status", "kp.Status", "ktbt_proto.Status", "ktbt_proto.status.Status"))
@@ -207,9 +218,9 @@ class Registry:
         return register
 
     def add_condition(self, name: str, fn: Callable[..., Any]) -> None:
-        (params, required, var_kw), types = _behaviour(fn, False)
+        (params, required, var_kw), types, reserved = _behaviour(fn, False)
         self._conditions[name] = _Entry(
-            fn, params, required, var_kw, doc=fn.__doc__ or "", types=types
+            fn, params, required, var_kw, doc=fn.__doc__ or "", types=types, reserved=reserved
         )
 
     def add_action(
@@ -218,7 +229,7 @@ class Registry:
         is_class = isinstance(target, type)
         if is_class and not callable(getattr(target, "tick", None)):
             raise TypeError(f"action class {target.__name__} needs a tick() method")
-        (params, required, var_kw), types = _behaviour(target, is_class)
+        (params, required, var_kw), types, reserved = _behaviour(target, is_class)
         trusted = _returns_status(target.tick if is_class else target)
         self._actions[name] = _Entry(
             target,
@@ -230,6 +241,7 @@ class Registry:
             trusted=trusted,
             doc=target.__doc__ or "",
             types=types,
+            reserved=reserved,
         )
 
     def flags(self, *names: str) -> None:
@@ -313,7 +325,9 @@ class Registry:
         if entry is None or (not args and not entry.required):
             return None
         given = {k for k, _ in args}
-        unknown = sorted(given - entry.params) if not entry.var_kw else []
+        unknown = (
+            sorted(given - entry.params) if not entry.var_kw else sorted(given & entry.reserved)
+        )
         missing = sorted(entry.required - given)
         if unknown:
             return f"{kind} {name!r} takes no argument {', '.join(map(repr, unknown))}"
@@ -519,6 +533,8 @@ def _annotation_of(spec: Any, where: str) -> Any:
     """The annotation an argument's declaration stands for: ``{type = "int", ge = 1, le = 4}``
     is ``Annotated[int, Field(ge=1, le=4)]``, ``{type = "str", choices = ["l", "r"]}`` is
     ``Literal["l", "r"]``, ``{}`` is ``Any``."""
+    from pydantic import Field
+
     if not isinstance(spec, dict):
         raise ValueError(f'{where} must be a table such as {{ type = "int", ge = 0 }}')
     unknown = set(spec) - _ARGUMENT_KEYS
@@ -562,6 +578,9 @@ def _annotation_of(spec: Any, where: str) -> Any:
 def _spec_of(annotation: Any) -> dict[str, Any]:
     """An argument's declaration in the vocabulary file (the inverse of :func:`_annotation_of`);
     raises ``ValueError`` for an annotation that has no form there."""
+    import annotated_types as at
+    from pydantic.fields import FieldInfo
+
     if annotation is Any:
         return {}
     base: Any = annotation

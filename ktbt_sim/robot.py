@@ -18,6 +18,7 @@ import numpy as np
 
 import ktbt_proto as kp
 from ktbt_proto.items import sequence_key
+from ktbt_proto.tree import Node
 from ktbt_sim.kernel import jit
 
 if TYPE_CHECKING:
@@ -56,7 +57,7 @@ def sequence_of(colour: int) -> str:
 
 
 @cache
-def skill(colour: int) -> kp.Node:
+def skill(colour: int) -> Node:
     """The action subtree of colour ``colour``: pick the target up, head for its zone."""
     return kp.parse(
         f"<sq><a>(PickTreasure, colour={colour})<a>(AssignCollectionPoint, colour={colour})<e>"

@@ -5,7 +5,17 @@ from __future__ import annotations
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.tree import Comments, Node
+from ktbt_proto.tree import (
+    Comments,
+    Inverter,
+    Node,
+    Parallel,
+    Placeholder,
+    RunTimer,
+    Selector,
+    Wait,
+    WaitTimer,
+)
 
 RESERVED = {"true", "false"}
 
@@ -43,9 +53,9 @@ def leaves(with_comments: bool) -> st.SearchStrategy[Node]:
     return st.one_of(
         st.builds(kp.Condition, names, st.booleans(), args, comments=notes),
         st.builds(kp.Action, names, args, comments=notes),
-        st.builds(kp.Wait, st.integers(0, 10**6), st.just("ticks"), comments=notes),
+        st.builds(Wait, st.integers(0, 10**6), st.just("ticks"), comments=notes),
         st.builds(
-            kp.Wait,
+            Wait,
             st.floats(0, 1e6, allow_nan=False) | st.integers(0, 1000),
             st.just("seconds"),
             comments=notes,
@@ -63,20 +73,20 @@ def trees(with_comments: bool = False, valid: bool = False) -> st.SearchStrategy
         one = children.map(lambda c: (c,)) if valid else many
         return st.one_of(
             st.builds(kp.SequenceNode, many, st.booleans(), comments=notes),
-            st.builds(kp.Selector, many, st.booleans(), comments=notes),
+            st.builds(Selector, many, st.booleans(), comments=notes),
             many.flatmap(
                 lambda ch: st.builds(
-                    kp.Parallel,
+                    Parallel,
                     st.just(ch),
                     st.none() | st.integers(1, max(len(ch), 1)),
                     comments=notes,
                 )
             ),
-            st.builds(kp.Inverter, one, comments=notes),
-            st.builds(kp.WaitTimer, one, st.integers(0, 10**6), comments=notes),
-            st.builds(kp.RunTimer, one, st.integers(0, 10**6), comments=notes),
+            st.builds(Inverter, one, comments=notes),
+            st.builds(WaitTimer, one, st.integers(0, 10**6), comments=notes),
+            st.builds(RunTimer, one, st.integers(0, 10**6), comments=notes),
             st.builds(
-                kp.Placeholder,
+                Placeholder,
                 st.lists(children, max_size=3).map(tuple),
                 names,
                 comments=notes,

@@ -135,7 +135,7 @@ def ktbt_run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess[str
 
 def serving(port: int, *extra: str, name: str = "teacher") -> Any:
     """A ``ktbt peer serve`` of the example colour skills on ``port``."""
-    knowledge = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
     return ktbt_process(
         "peer", "serve", "--id", name, "--knowledge", str(knowledge),
         "--listen", endpoint(port), *extra, ready="serving",

@@ -64,8 +64,9 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.answers import answers
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry, load_knowledge
+from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.items import parse_sequence
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.inbox import Lookup
 from ktbt_proto.transport.ros2 import Ros2Transport, exchange_qos, to_msg
 

@@ -150,7 +150,7 @@ class AgentCore:
         if not callable(control) and not isinstance(control, str | Tree | Node):
             kind = type(control)
             hint = (
-                "pass py_trees_control(tree, behaviours={...}) from ktbt_proto.interop"
+                "pass py_trees_control(tree, behaviours={...}) from ktbt_proto"
                 if kind.__module__.split(".")[0] == "py_trees"
                 else "pass stringBT text, a Tree, or a backend's factory"
             )

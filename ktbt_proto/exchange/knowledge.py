@@ -19,6 +19,7 @@ from ktbt_proto.items import (
     split_item,
 )
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
+from ktbt_proto.merge import merge
 from ktbt_proto.syntax import parse
 from ktbt_proto.tree import (
     Condition,
@@ -117,8 +118,16 @@ class KnowledgeBase:
         """The items as a tree: each in a placeholder named for its segment, under a selector
         (what a teacher that ticks no tree shows, spec/protocol.md section 10)."""
         segments: dict[str, list[Node]] = {}
+        # An item inside another's placeholder is shown there, in its parent, not again.
+        inner = {
+            node.name
+            for item in self
+            for node, _ in walk(item.subtree)
+            if isinstance(node, Placeholder)
+        }
         for item in self:
-            segments.setdefault(item.segment, []).append(item.item())
+            if item.segment not in inner:
+                segments.setdefault(item.segment, []).append(item.item())
         slots = tuple(Placeholder(tuple(items), name) for name, items in segments.items())
         return Tree(Selector(slots or (Placeholder((), "new"),)))
 
@@ -239,3 +248,36 @@ def remove_stale_temporaries(path: str | Path) -> list[Path]:
             continue
         removed.append(tmp)
     return removed
+
+
+def learning_slot(tree: Tree) -> str | None:
+    """The placeholder a robot learns into: ``<k>(new)`` if its control tree has one, else its
+    last placeholder (the lowest priority in a selector); None without any (spec/protocol.md
+    section 4.5)."""
+    names = [n.name for n, _ in tree.walk() if isinstance(n, Placeholder)]
+    if not names:
+        return None
+    return "new" if "new" in names else names[-1]
+
+
+def with_knowledge(
+    control: str | Tree, knowledge: KnowledgeBase | None, fallback: str = "prior"
+) -> str | Tree:
+    """The control tree with ``knowledge``'s items in their placeholders (``fallback`` when the
+    tree has no placeholder of an item's name, ``prior`` if it has one): what the agent starts
+    knowing, and teaches."""
+    if knowledge is None or not len(knowledge):
+        return control
+    tree = parse(control) if isinstance(control, str) else control
+    names = {n.name for n, _ in tree.walk() if isinstance(n, Placeholder)}
+    for item in knowledge:
+        tree = merge(tree, item.subtree, item_slot(names, item.segment, fallback), item.conditions)
+    return tree
+
+
+def item_slot(names: set[str], segment: str, fallback: str) -> str:
+    """Where an item a robot starts with goes, its control tree having the placeholders
+    ``names``: the one its ``segment`` names, else ``prior``, else ``fallback``."""
+    if segment in names:
+        return segment
+    return "prior" if "prior" in names else fallback

@@ -83,12 +83,20 @@ class Listed:
     reading raises anything else is refused: counted in :attr:`refused`, logged at WARNING,
     skipped from then on (section 2.1)."""
 
-    def __init__(self, name: str, registry: Registry, say: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        name: str,
+        registry: Registry,
+        say: Callable[[str], None],
+        refuse: Callable[[str], None] | None = None,
+    ) -> None:
         self.name, self.registry, self.say = name, registry, say
         self.found: list[str] = []
         self.skipped: set[str] = set()
         self.refused = 0
         self._warn = Throttle(log.warning)
+        self._refuse = refuse
+        """Who else is told of a refusal (a member's agent, which counts and records it)."""
 
     def read(self, listed: Catalog) -> list[str]:
         """Take in the catalogs read (peer -> entries); the sequences new to this learner."""
@@ -108,9 +116,11 @@ class Listed:
                 except Exception as exc:
                     self.skipped.add(given)
                     self.refused += 1
-                    self._warn(
-                        f"{self.name} refused: the catalog of {peer[:64]}: {internal_error(exc)}"
-                    )
+                    reason = f"the catalog of {peer[:64]}: {internal_error(exc)}"
+                    if self._refuse is not None:
+                        self._refuse(reason)
+                    else:
+                        self._warn(f"{self.name} refused: {reason}")
                     continue
                 key = sequence_key(conds) if not problems else given
                 if key in self.found or key in self.skipped:
@@ -213,7 +223,9 @@ class FleetMember:
         name = self.agent.name
         self.todo = [] if self.sequences is None else list(self.sequences)
         self.listed = (
-            Listed(name, self.agent.registry, self.say) if self.sequences is None else None
+            Listed(name, self.agent.registry, self.say, self.agent.refuse)
+            if self.sequences is None
+            else None
         )
         self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
         self._reported = set(self.agent.metrics.learned)
@@ -231,8 +243,9 @@ class FleetMember:
 
     @property
     def refused(self) -> int:
-        """Refusals of the agent and of the catalogs it read (its transport counts its own)."""
-        return self.agent.metrics.refused + (self.listed.refused if self.listed else 0)
+        """Refusals of the agent, the catalogs' it read included (its transport counts its
+        own)."""
+        return self.agent.metrics.refused
 
     def timing(self, wait: float, cooldown: float) -> None:
         """A new wait and cool-down (a host whose tick rate changed)."""

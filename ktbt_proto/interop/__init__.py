@@ -1,4 +1,8 @@
-"""Trees in other behaviour-tree tools: BehaviorTree.CPP v4 XML (Groot2) and py_trees.
+"""Trees in other behaviour-tree tools: BehaviorTree.CPP v4 XML (Groot2) and py_trees, and
+KT-BT inside other robot stacks: a py_trees tree an agent learns into (``pytrees_control``,
+whose ``py_trees_control`` is also ``kp.py_trees_control``), a BehaviorTree.CPP program beside
+its agent (``sidecar``), Groot2 monitoring (``groot2``) and a ROS 2 node (``ros2``, whose
+``attach`` is also ``kp.attach``).
 
 py_trees is optional (``pip install ktbt[py-trees]``), so ``to_py_trees`` is imported on first
 use: this package loads without it.

@@ -14,16 +14,80 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 import typer
+from pydantic import Field
 
+from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.files import packaged
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
+from ktbt_proto.registry import Registry
 from ktbt_proto.render import render
+from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
 from ktbt_proto.validate import Vocabulary, find_problems
+
+Colour = Annotated[int, Field(ge=1, le=4)]
+"""The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
+
+DEMO_CONTROL = """<sl>
+    <sq>
+        <c>(Carrying)
+        <a>(DeliverToZone)
+    <e>
+    <k>(prior)<e>
+    <k>(new)<e>
+    <a>(RandomWalk)
+<e>
+"""
+"""The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
+
+DEMO_CONTROL = """<sl>
+    <sq>
+        <c>(Carrying)
+        <a>(DeliverToZone)
+    <e>
+    <k>(prior)<e>
+    <k>(new)<e>
+    <a>(RandomWalk)
+<e>
+"""
+"""The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
+
+
+def demo_registry() -> Registry:
+    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
+    reg = Registry()
+    reg.flags("Carrying")
+
+    @reg.condition("TargetSeen")
+    def target_seen(bb: Blackboard, colour: Colour) -> bool:
+        return bool(bb.get("target") == colour)
+
+    @reg.action("PickTreasure")
+    def pick(bb: Blackboard) -> Status:
+        bb["Carrying"] = True
+        return SUCCESS
+
+    @reg.action("AssignCollectionPoint")
+    def assign(bb: Blackboard, colour: Colour) -> Status:
+        bb["zone"] = colour
+        return SUCCESS
+
+    @reg.action("DeliverToZone")
+    def deliver(bb: Blackboard) -> Status:
+        bb["Carrying"] = False
+        bb["delivered"] = bb.get("delivered", 0) + 1
+        return SUCCESS
+
+    @reg.action("RandomWalk")
+    def walk(bb: Blackboard) -> Status:
+        return RUNNING
+
+    return reg
+
 
 _BROKEN = """<sl>
     <sq>

@@ -22,7 +22,7 @@ from typing import Any
 
 from ktbt_proto.exchange.answers import answers, catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.knowledge import KnowledgeBase, with_knowledge
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
@@ -32,7 +32,6 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.robot import with_knowledge
 from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.items import sequence_key, show_sequence, shown
 from ktbt_proto.registry import Registry

@@ -510,8 +510,8 @@ class Ros2Transport:
             full = not replay and len(self._seen) >= self.max_pending
             if not replay and not full:
                 self._seen[key] = now + self.answer_window
-        if replay:
-            self._refuse(f"query {query.id} from {query.sender} is already open")
+        if replay:  # heard again: an open query announced to a newcomer reaches every robot
+            self.node.get_logger().debug(f"query {query.id} from {query.sender} heard again")
         elif full:  # left unanswered, as a teacher in cool-down would, but counted
             self._refuse(f"query {query.id} from {query.sender}: {self.max_pending} queries open")
         else:

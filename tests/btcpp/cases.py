@@ -9,9 +9,19 @@ from pathlib import Path
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.tree import Args, Node
+from ktbt_proto.tree import (
+    Args,
+    Container,
+    Inverter,
+    Node,
+    Placeholder,
+    RunTimer,
+    Selector,
+    Wait,
+    WaitTimer,
+)
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CONDITIONS = ("C0", "C1", "C2", "nav.Near")
 ACTIONS = ("A0", "A1", "A2", "nav.Go")
 
@@ -56,7 +66,7 @@ def leaves(with_ports: bool, ticks: bool) -> st.SearchStrategy[Node]:
         st.builds(kp.Action, st.sampled_from(ACTIONS), port_args(with_ports)),
     ]
     if ticks:
-        choices.append(st.builds(kp.Wait, st.integers(0, 3), st.just("ticks")))
+        choices.append(st.builds(Wait, st.integers(0, 3), st.just("ticks")))
     return st.one_of(choices)
 
 
@@ -70,13 +80,13 @@ def trees(with_ports: bool = True, ticks: bool = True) -> st.SearchStrategy[Node
         one = children.map(lambda c: (c,))
         choices = [
             st.builds(kp.SequenceNode, many, st.booleans()),
-            st.builds(kp.Selector, many, st.booleans()),
-            st.builds(kp.Inverter, one),
-            st.builds(kp.Placeholder, st.lists(children, max_size=3).map(tuple), st.just("k")),
+            st.builds(Selector, many, st.booleans()),
+            st.builds(Inverter, one),
+            st.builds(Placeholder, st.lists(children, max_size=3).map(tuple), st.just("k")),
         ]
         if ticks:
-            choices.append(st.builds(kp.WaitTimer, one, st.integers(0, 3)))
-            choices.append(st.builds(kp.RunTimer, one, st.integers(0, 3)))
+            choices.append(st.builds(WaitTimer, one, st.integers(0, 3)))
+            choices.append(st.builds(RunTimer, one, st.integers(0, 3)))
         return st.one_of(choices)
 
     return st.recursive(leaves(with_ports, ticks), extend, max_leaves=14).map(_unique)
@@ -87,9 +97,9 @@ def _unique(root: Node) -> Node:
     counter = itertools.count()
 
     def go(node: Node) -> Node:
-        if isinstance(node, kp.Container):
+        if isinstance(node, Container):
             node = dataclasses.replace(node, children=tuple(go(c) for c in node.children))
-            if isinstance(node, kp.Placeholder):
+            if isinstance(node, Placeholder):
                 node = dataclasses.replace(node, name=f"k{next(counter)}")
         return node
 

@@ -10,6 +10,7 @@ from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
+from ktbt_proto.items import sequence_key
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
@@ -130,9 +131,7 @@ def test_a_fleet_member_learns_from_its_buffer_without_asking() -> None:
     exchange(learner, teacher)
     ear.receive()
     assert ear.buffered == ["<c>(TargetSeen,colour=2)"] and not ear.knows(SEQUENCE)
-    Learner(ear, Backoff(seed="e"), wait=2.0, cooldown=0.5).step(
-        0.0, [kp.sequence_key(SEQUENCE)], []
-    )
+    Learner(ear, Backoff(seed="e"), wait=2.0, cooldown=0.5).step(0.0, [sequence_key(SEQUENCE)], [])
     assert ear.knows(SEQUENCE) and ear.metrics.learned_buffered == 1
     assert ear.metrics.queries_sent == 0 and ear.open_query is None
 

@@ -9,6 +9,7 @@ import pytest
 import ktbt_proto as kp
 from ktbt_proto.exchange.answers import answer_to
 from ktbt_proto.exchange.knowledge import Knowledge
+from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, check, read, vet
 from ktbt_proto.items import parse_sequence, sequence_key
 
@@ -29,8 +30,8 @@ def registry() -> kp.Registry:
     return reg
 
 
-def answer(subtree: str, sequence: str = SEQUENCE, sender: str = "t") -> kp.Response:
-    return kp.Response(id="q1", sender=sender, sequence=sequence, subtree=subtree)
+def answer(subtree: str, sequence: str = SEQUENCE, sender: str = "t") -> Response:
+    return Response(id="q1", sender=sender, sequence=sequence, subtree=subtree)
 
 
 def test_an_answer_that_passes_comes_back_parsed() -> None:
@@ -54,7 +55,7 @@ def test_an_unsigned_answer_is_refused_when_signatures_are_required() -> None:
 def test_a_signed_answer_passes_a_trust_store_that_names_its_author() -> None:
     author = kp.Identity.generate()
     item = Knowledge(parse_sequence(SEQUENCE), kp.Action("Pick"))
-    signed = answer_to(kp.Query(id="q1", sender="l", sequence=SEQUENCE), "t", item, author)
+    signed = answer_to(Query(id="q1", sender="l", sequence=SEQUENCE), "t", item, author)
     store = kp.TrustStore.parse(f"t {author.public}")
     vet(signed, SEQUENCE, kp.Policy.TRUSTED, store)
     with pytest.raises(Refused):

@@ -12,12 +12,13 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.interop import convert, from_xml, to_xml
 from ktbt_proto.interop.btcpp import decode_value, encode_value
-from ktbt_proto.tree import Node
+from ktbt_proto.tree import Container, Node, Parallel, Placeholder
 from tests.strategies import trees, values
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 HEAD = '<?xml version="1.0" encoding="UTF-8"?>\n<root BTCPP_format="4">\n<BehaviorTree ID="T">\n'
 TAIL = "\n</BehaviorTree>\n</root>\n"
 
@@ -150,18 +151,18 @@ def test_parallel_counts() -> None:
     }
     for attrs, threshold in cases.items():
         node = from_xml(doc(f"<Parallel {attrs}>{three}</Parallel>")).root
-        assert isinstance(node, kp.Parallel) and node.threshold == threshold
+        assert isinstance(node, Parallel) and node.threshold == threshold
     err = error(doc(f'<Parallel success_count="2" failure_count="1">{three}</Parallel>'))
-    assert (err.code, err.line, err.column) == (kp.ErrorCode.INVALID_THRESHOLD, 4, 1)
+    assert (err.code, err.line, err.column) == (ErrorCode.INVALID_THRESHOLD, 4, 1)
 
 
 def unique_placeholders(node: Node) -> Node:
     counter = itertools.count()
 
     def go(n: Node) -> Node:
-        if isinstance(n, kp.Container):
+        if isinstance(n, Container):
             n = dataclasses.replace(n, children=tuple(go(c) for c in n.children))
-            if isinstance(n, kp.Placeholder):
+            if isinstance(n, Placeholder):
                 n = dataclasses.replace(n, name=f"k{next(counter)}")
         return n
 
@@ -176,7 +177,7 @@ def test_random_trees_round_trip(root: Node) -> None:
     try:
         xml = to_xml(tree)
     except kp.ValidationError as err:  # a name or a subnormal BT.CPP cannot load: refused
-        assert err.code in (kp.ErrorCode.INVALID_NAME, kp.ErrorCode.INVALID_VALUE), err
+        assert err.code in (ErrorCode.INVALID_NAME, ErrorCode.INVALID_VALUE), err
         assume(False)
     assert from_xml(xml) == tree
     assert from_xml(xml.encode()) == tree
@@ -218,7 +219,7 @@ def test_values_are_quoted_only_when_needed() -> None:
 def test_names_bt_cpp_cannot_load_are_refused(text: str, reason: str) -> None:
     with pytest.raises(kp.ValidationError, match=reason) as info:
         to_xml(kp.parse(text))
-    assert info.value.code is kp.ErrorCode.INVALID_NAME
+    assert info.value.code is ErrorCode.INVALID_NAME
 
 
 @pytest.mark.parametrize(
@@ -234,7 +235,7 @@ def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str, limit: tuple[
     assert attribute in to_xml(kp.parse(re.sub(r"\(\d+\)", f"({largest})", text, count=1)))
     with pytest.raises(kp.ValidationError, match="unsigned int") as info:
         to_xml(kp.parse(text))
-    assert info.value.code is kp.ErrorCode.INVALID_DURATION
+    assert info.value.code is ErrorCode.INVALID_DURATION
 
 
 @pytest.mark.parametrize(
@@ -248,7 +249,7 @@ def test_tick_counts_beyond_an_unsigned_int_are_refused(text: str, limit: tuple[
 def test_import_refuses_counts_btcpp_cannot_load(body: str) -> None:
     assert from_xml(doc(body.replace("4294967296", "4294967295")))
     err = error(doc(body))
-    assert err.code is kp.ErrorCode.INVALID_DURATION and "unsigned int" in err.message
+    assert err.code is ErrorCode.INVALID_DURATION and "unsigned int" in err.message
 
 
 @pytest.mark.parametrize("value", [5e-324, -1e-310, 2.225073858507201e-308])
@@ -257,7 +258,7 @@ def test_subnormal_doubles_are_refused(value: float) -> None:
     assert from_xml(to_xml(smallest_normal)) == smallest_normal
     with pytest.raises(kp.ValidationError, match="subnormal") as info:
         to_xml(kp.Tree(kp.Action("Go", (("v", value),))))
-    assert info.value.code is kp.ErrorCode.INVALID_VALUE
+    assert info.value.code is ErrorCode.INVALID_VALUE
 
 
 def test_the_tree_id_is_escaped() -> None:
@@ -295,41 +296,41 @@ def test_unsupported_elements_are_located(body: str, code: str, column: int, wor
 
 
 def test_document_level_errors() -> None:
-    assert error("").code is kp.ErrorCode.EMPTY
+    assert error("").code is ErrorCode.EMPTY
     assert error("<tree/>").message.startswith("<tree> is not supported")
-    assert error('<root BTCPP_format="3"/>').code is kp.ErrorCode.UNEXPECTED_TOKEN
-    assert error("<root/>").code is kp.ErrorCode.EMPTY
+    assert error('<root BTCPP_format="3"/>').code is ErrorCode.UNEXPECTED_TOKEN
+    assert error("<root/>").code is ErrorCode.EMPTY
     assert error('<root main_tree_to_execute="X"><BehaviorTree ID="Y"/></root>').line == 1
     err = error(HEAD + '<Action ID="A"/>\n  <Action ID="B"/>' + TAIL)
-    assert (err.code, err.line, err.column) == (kp.ErrorCode.EXTRA_ROOT, 5, 3)
+    assert (err.code, err.line, err.column) == (ErrorCode.EXTRA_ROOT, 5, 3)
     err = error('<root>\n<include path="x.xml"/></root>')
-    assert (err.code, err.line, err.column) == (kp.ErrorCode.UNKNOWN_TAG, 2, 1)
+    assert (err.code, err.line, err.column) == (ErrorCode.UNKNOWN_TAG, 2, 1)
 
 
 def test_malformed_xml_is_located() -> None:
     err = error(doc('<Sequence>\n  <Action ID="A">\n</Sequence>'))
-    assert (err.code, err.line, err.column) == (kp.ErrorCode.UNEXPECTED_TOKEN, 6, 3)
+    assert (err.code, err.line, err.column) == (ErrorCode.UNEXPECTED_TOKEN, 6, 3)
     assert "malformed XML: mismatched tag" in err.message and "^" in str(err)
     # Columns count characters, not UTF-8 bytes.
     err = error(doc('<Action ID="é" x="ü"/> <'))
     assert (err.line, err.column) == (4, 25)
     err = error(doc('<Action ID="é" x="ü" x="1"/>'))
     assert (err.line, err.column) == (4, 22)
-    assert error(b"<root>\xff</root>").code is kp.ErrorCode.INVALID_UTF8
-    assert error("<root>\ud800</root>").code is kp.ErrorCode.INVALID_UTF8
+    assert error(b"<root>\xff</root>").code is ErrorCode.INVALID_UTF8
+    assert error("<root>\ud800</root>").code is ErrorCode.INVALID_UTF8
 
 
 def test_doctype_and_entities_are_refused() -> None:
     laughs = '<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa">]>\n<root>&a;</root>'
     err = error(laughs)
-    assert (err.code, err.line) == (kp.ErrorCode.UNEXPECTED_TOKEN, 2) and "DOCTYPE" in err.message
+    assert (err.code, err.line) == (ErrorCode.UNEXPECTED_TOKEN, 2) and "DOCTYPE" in err.message
     assert "undefined entity" in error(doc('<Action ID="&ext;"/>')).message
 
 
 def test_limits_apply() -> None:
     deep = "<Inverter>" * 200 + '<Action ID="A"/>' + "</Inverter>" * 200
-    assert error(doc(deep)).code is kp.ErrorCode.TOO_DEEP
-    assert error(doc(f'<Action ID="A" x="{"1" * 5000}"/>')).code is kp.ErrorCode.LITERAL_TOO_LONG
+    assert error(doc(deep)).code is ErrorCode.TOO_DEEP
+    assert error(doc(f'<Action ID="A" x="{"1" * 5000}"/>')).code is ErrorCode.LITERAL_TOO_LONG
 
 
 _SOUP_WORDS = (

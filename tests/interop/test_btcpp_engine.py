@@ -18,7 +18,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.interop import from_xml, to_xml
+from ktbt_proto.merge import remove
+from ktbt_proto.tree import Node
 from tests.btcpp import build
 from tests.btcpp.cases import ACTIONS, CONDITIONS, SAR_SCRIPTS, example, outcomes, trees
 from tests.btcpp.trace import btcpp_trace, compact, live_trace, script_for
@@ -72,7 +75,7 @@ def test_learned_item_ticks_the_same(harness: Path, tmp_path: Path) -> None:
         "<msq><tt1>(2)<a>(PickTreasure)<e><tt2>(3)<a>(AssignCollectionPoint, colour=2)<e><w>(1)<e>"
     )
     red = ["TargetSeen(colour=1)"]  # scripts go by name: the red item would answer first
-    control = kp.remove(example("sar_control.sbt"), "prior", red)
+    control = remove(example("sar_control.sbt"), "prior", red)
     tree = kp.merge(control, kp.parse(skill), "new", ["TargetSeen(colour=2)"])
     script = {"TargetSeen": "FFSSSSSSSSSS", "PickTreasure": "RS", "AssignCollectionPoint": "RRRRS"}
     live, engine = both(harness, tree, script, tmp_path, ticks=14)
@@ -97,14 +100,14 @@ def test_the_timers_as_the_spec_defines_them(harness: Path, tmp_path: Path) -> N
 )
 @given(trees(), outcomes(CONDITIONS, ACTIONS))
 def test_random_trees_with_ports_and_timers(
-    harness: Path, tmp_path: Path, root: kp.Node, script: dict[str, str]
+    harness: Path, tmp_path: Path, root: Node, script: dict[str, str]
 ) -> None:
     tree = kp.Tree(root)
     try:
         to_xml(tree)
     except kp.ValidationError as err:  # refused by design, and only so:
-        twice = err.code is kp.ErrorCode.INVALID_NAME and "both a condition and" in err.message
-        subnormal = err.code is kp.ErrorCode.INVALID_VALUE and "subnormal" in err.message
+        twice = err.code is ErrorCode.INVALID_NAME and "both a condition and" in err.message
+        subnormal = err.code is ErrorCode.INVALID_VALUE and "subnormal" in err.message
         assert twice or subnormal, err
         assume(False)
     live, engine = both(harness, tree, script, tmp_path)

@@ -2,7 +2,7 @@
 
 ``ktbt peer serve`` teaches the colour skills over zenoh on loopback; ``ktbt peer run
 --export-learned DIR`` learns the green one and writes it into DIR; the C++ program
-``ktbt_proto/examples/btcpp/learner.cpp``, built against BehaviorTree.CPP and ``ktbt_btcpp/``,
+``examples/btcpp/learner.cpp``, built against BehaviorTree.CPP and ``ktbt_btcpp/``,
 watches DIR,
 rebuilds its tree at a tick boundary and then runs the learned skill. The test then removes the
 item's file itself, as the agent does when it forgets the item, and the robot rebuilds without
@@ -45,7 +45,7 @@ pytestmark = pytest.mark.skipif(
     reason="builds BehaviorTree.CPP from source (minutes): run with make interop",
 )
 
-EXAMPLE = ROOT / "ktbt_proto" / "examples" / "btcpp"
+EXAMPLE = ROOT / "examples" / "btcpp"
 
 
 @contextmanager

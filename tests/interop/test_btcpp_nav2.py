@@ -1,6 +1,6 @@
 """Nav2 picks a learned tree by its ID (``make interop``; spec/stringbt.md section 12.2).
 
-``ktbt_proto/examples/btcpp/nav2_loader.cpp``, built against BehaviorTree.CPP 4.8.2 from source,
+``examples/btcpp/nav2_loader.cpp``, built against BehaviorTree.CPP 4.8.2 from source,
 loads a folder as Nav2's bt_navigator loads its ``bt_search_directories`` for a
 ``NavigateToPose`` goal naming a tree ID (``registerBehaviorTreeFromFile`` for each ``.xml``
 file whose IDs are not registered yet, then ``createTree(ID)``) and ticks the tree. The folder

@@ -12,6 +12,7 @@ from hypothesis import given, settings
 
 import ktbt_proto as kp
 from ktbt_proto.interop import from_xml, to_xml
+from ktbt_proto.tree import Node
 from tests.btcpp.cases import ACTIONS, CONDITIONS, SAR_SCRIPTS, example, outcomes, trees
 from tests.btcpp.trace import compact, live_trace, script_for, wheel_trace
 
@@ -51,7 +52,7 @@ def test_paper_shaped_random_outcomes(script: dict[str, str]) -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(trees(with_ports=False, ticks=False), outcomes(CONDITIONS, ACTIONS))
-def test_random_port_less_trees(root: kp.Node, script: dict[str, str]) -> None:
+def test_random_port_less_trees(root: Node, script: dict[str, str]) -> None:
     tree = kp.Tree(root)
     live, engine = both(tree, script)
     assert engine == live

@@ -404,7 +404,7 @@ def test_without_the_extra_one_line_says_how_to_install() -> None:
     assert "ImportError: Groot2 monitoring needs pyzmq and msgpack: pip install 'ktbt[groot]'" in (
         library.stderr
     )
-    knowledge = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
     args = ["peer", "serve", "--knowledge", str(knowledge), "--listen", endpoint(free_port())]
     run = "from ktbt_proto.tools.cli import main; sys.argv = ['ktbt', *sys.argv[1:]]; main()"
     command = subprocess.run(

@@ -25,7 +25,7 @@ from ktbt_proto.tree import Node, walk
 from tests.interop.test_btcpp import unique_placeholders
 from tests.strategies import trees
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 FLAGS = ("_collisionDetectedF", "_waitF", "_treasureOnBoardF", "_inZoneF")
 Trace = list[tuple[kp.Status, list[str]]]
 
@@ -193,7 +193,7 @@ def _pick(bb: kp.Blackboard, name: str, n: int) -> int:
 
 
 def _condition(name: str) -> Callable[..., bool]:
-    def holds(bb: kp.Blackboard, **kw: Any) -> bool:
+    def holds(bb: kp.Blackboard, /, **kw: Any) -> bool:  # any argument name, "bb" too
         bb["log"].append(f"{name}?")
         return _pick(bb, name, 2) == 0
 
@@ -201,11 +201,11 @@ def _condition(name: str) -> Callable[..., bool]:
 
 
 def _action(name: str) -> tuple[Callable[..., kp.Status], Callable[..., None]]:
-    def act(bb: kp.Blackboard, **kw: Any) -> kp.Status:
+    def act(bb: kp.Blackboard, /, **kw: Any) -> kp.Status:
         bb["log"].append(name)
         return STATUSES[_pick(bb, "a " + name, len(STATUSES))]
 
-    def halt(bb: kp.Blackboard, **kw: Any) -> None:
+    def halt(bb: kp.Blackboard, /, **kw: Any) -> None:
         bb["log"].append(f"~{name}")
 
     return act, halt

@@ -1,7 +1,7 @@
 """A py_trees tree its user built in py_trees, as an agent's control tree (spec/protocol.md 4.4).
 
 The robot's own behaviours are plain py_trees behaviours that log into the blackboard; a
-``LiveTree`` of ``ktbt_proto/examples/sar_control.sbt`` over the same registry is the reference:
+``LiveTree`` of ``examples/sar_control.sbt`` over the same registry is the reference:
 both get
 the same inputs each tick and must give the same status, calls and halts.
 """
@@ -18,6 +18,7 @@ from py_trees.common import Status as Pt
 
 import ktbt_proto as kp
 from ktbt_proto.control import ControlTree
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.interop import to_py_trees
@@ -28,7 +29,7 @@ from tests.door_robot import MEMORY as DOOR_MEMORY
 from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
 from tests.door_robot import Degrees, Side, door_blackboard, door_registry
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 FLAGS = ("_collisionDetectedF", "_waitF", "_treasureOnBoardF", "_inZoneF")
 C, W, T, Z = FLAGS
 ACTIONS = (
@@ -156,7 +157,7 @@ def sel(name: str, *children: py_trees.behaviour.Behaviour) -> py_trees.composit
 
 
 def py_trees_sar(bb: kp.Blackboard, reg: kp.Registry) -> py_trees.trees.BehaviourTree:
-    """``ktbt_proto/examples/sar_control.sbt`` as its user would write it in py_trees:
+    """``examples/sar_control.sbt`` as its user would write it in py_trees:
     placeholders are ``k:NAME`` selectors; the prior knowledge was built from stringBT (so it can
     be taught)."""
     prior = to_py_trees(
@@ -390,7 +391,7 @@ def test_limits_and_a_failing_factory_change_nothing() -> None:
     faulty = PyTreesControl(py_trees_sar(bb, reg), reg, bb, behaviours={"PickTreasure": broken})
     with pytest.raises(kp.MergeError) as caught:  # the application's failure, as a refusal
         faulty.merge(LEARNED, "new", when=SEEN_2)
-    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert caught.value.code == ErrorCode.BEHAVIOUR_FAILED
     assert "no such gripper" in caught.value.message
     assert not faulty.knows("new", SEEN_2)
     assert faulty.tick() is kp.RUNNING and faulty.bt.root.children[4].children == []
@@ -400,7 +401,7 @@ def test_two_placeholders_with_one_name_are_refused() -> None:
     bt = py_trees.trees.BehaviourTree(sel("Root", sel("k:new"), sel("k:new")))
     with pytest.raises(kp.ValidationError) as caught:
         PyTreesControl(bt, sar_registry())
-    assert caught.value.code == kp.ErrorCode.DUPLICATE_PLACEHOLDER
+    assert caught.value.code == ErrorCode.DUPLICATE_PLACEHOLDER
 
 
 # -- an agent over a py_trees tree ------------------------------------------------------------
@@ -567,7 +568,7 @@ def test_a_py_trees_robot_learns_with_its_own_behaviours_and_no_stubs() -> None:
     wide = kp.parse("<a>(TurnHandle, degrees=120)")
     [problem] = kp.find_problems(wide, learner.registry)
     assert str(problem) == str(kp.find_problems(wide, door_registry())[0])
-    assert problem.code is kp.ErrorCode.INVALID_VALUE
+    assert problem.code is ErrorCode.INVALID_VALUE
 
 
 def test_registering_only_the_conditions_no_longer_refuses_every_answer() -> None:
@@ -579,7 +580,7 @@ def test_registering_only_the_conditions_no_longer_refuses_every_answer() -> Non
     assert bb["log"] == ["grasp", "turn 30/60", "turn 60/60", "push"]  # the memory form
     with pytest.raises(kp.StringBTError) as info:
         control.merge("<sq><c>(DoorClosed)<a>(Fly)<e>", "new")
-    assert info.value.code is kp.ErrorCode.UNKNOWN_ACTION
+    assert info.value.code is ErrorCode.UNKNOWN_ACTION
 
 
 def test_what_is_not_a_control_tree_is_refused_in_one_line() -> None:

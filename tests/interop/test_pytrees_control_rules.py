@@ -19,11 +19,13 @@ from py_trees.common import ParallelPolicy
 from py_trees.common import Status as Pt
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.interop import to_py_trees
 from ktbt_proto.interop.pytrees import from_py_trees_status
 from ktbt_proto.interop.pytrees_control import PyTreesControl, py_trees_control
 from ktbt_proto.transport.memory import MemoryNetwork
+from ktbt_proto.tree import Node
 from tests.interop.test_btcpp import unique_placeholders
 from tests.interop.test_pytrees import _anything
 from tests.interop.test_pytrees_control import (
@@ -149,22 +151,22 @@ def _state(control: PyTreesControl) -> tuple[Any, ...]:
 @pytest.mark.parametrize(
     ("subtree", "slot", "when", "code"),
     [
-        (LEARNED, "nowhere", SEEN_2, kp.ErrorCode.UNKNOWN_SLOT),
-        ("<a>(Fly)", "new", SEEN_2, kp.ErrorCode.UNKNOWN_ACTION),
-        ("<a>(AssignCollectionPoint, colour=true)", "new", SEEN_2, kp.ErrorCode.INVALID_VALUE),
-        ("<a>(PickTreasure)", "new", ["Levitating"], kp.ErrorCode.UNKNOWN_CONDITION),
-        ("<a>(PickTreasure)", "prior", ["TargetSeen(colour=1)"], kp.ErrorCode.KNOWLEDGE_CONFLICT),
+        (LEARNED, "nowhere", SEEN_2, ErrorCode.UNKNOWN_SLOT),
+        ("<a>(Fly)", "new", SEEN_2, ErrorCode.UNKNOWN_ACTION),
+        ("<a>(AssignCollectionPoint, colour=true)", "new", SEEN_2, ErrorCode.INVALID_VALUE),
+        ("<a>(PickTreasure)", "new", ["Levitating"], ErrorCode.UNKNOWN_CONDITION),
+        ("<a>(PickTreasure)", "prior", ["TargetSeen(colour=1)"], ErrorCode.KNOWLEDGE_CONFLICT),
         ("<sq><k>(prior)<e><a>(PickTreasure)<e>", "new", SEEN_2,
-         kp.ErrorCode.DUPLICATE_PLACEHOLDER),
+         ErrorCode.DUPLICATE_PLACEHOLDER),
         ("<sq><k>(inner)<e><a>(PickTreasure)<e>", "new", SEEN_2,
-         kp.ErrorCode.DUPLICATE_PLACEHOLDER),
-        ("<sq><a>(PickTreasure)", "new", SEEN_2, kp.ErrorCode.UNEXPECTED_END),
-        ("<a>(PickTreasure)", "new", None, kp.ErrorCode.NOT_KNOWLEDGE),
-        ("<a>(StopWalk)", "inner", [Z], kp.ErrorCode.KNOWLEDGE_CONFLICT),
-        ("<a>(Broken)", "inner", SEEN_2, kp.ErrorCode.BEHAVIOUR_FAILED),
+         ErrorCode.DUPLICATE_PLACEHOLDER),
+        ("<sq><a>(PickTreasure)", "new", SEEN_2, ErrorCode.UNEXPECTED_END),
+        ("<a>(PickTreasure)", "new", None, ErrorCode.NOT_KNOWLEDGE),
+        ("<a>(StopWalk)", "inner", [Z], ErrorCode.KNOWLEDGE_CONFLICT),
+        ("<a>(Broken)", "inner", SEEN_2, ErrorCode.BEHAVIOUR_FAILED),
     ],
 )  # fmt: skip
-def test_refusals_change_nothing(subtree: str, slot: str, when: Any, code: kp.ErrorCode) -> None:
+def test_refusals_change_nothing(subtree: str, slot: str, when: Any, code: ErrorCode) -> None:
     bb, reg = kp.Blackboard(log=[]), sar_registry()
     reg.add_action("Broken", lambda bb: kp.SUCCESS)
 
@@ -230,7 +232,7 @@ def test_a_livetree_refuses_what_its_registry_cannot_build_too() -> None:
     before = kp.format_tree(live.tree), counts(live)
     with pytest.raises(kp.MergeError) as caught:
         live.merge("<a>(Grip)", when=SEEN_2)
-    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert caught.value.code == ErrorCode.BEHAVIOUR_FAILED
     assert (kp.format_tree(live.tree), counts(live)) == before and not live.knows("new", SEEN_2)
     assert live.tick() is kp.RUNNING
 
@@ -310,7 +312,7 @@ def test_merged_behaviours_are_set_up_and_pruned_ones_shut_down() -> None:
     before = _state(control)
     with pytest.raises(kp.MergeError) as caught:
         control.merge("<sq><a>(PickTreasure)<a>(StopWalk)<e>", "new", when=SEEN_2)
-    assert caught.value.code == kp.ErrorCode.BEHAVIOUR_FAILED
+    assert caught.value.code == ErrorCode.BEHAVIOUR_FAILED
     assert "no action server" in caught.value.message
     assert _state(control) == before and not control.knows("new", SEEN_2)
     assert [e[:2] for e in journal if e[1] == "Pick"] == [("setup", "Pick"), ("shutdown", "Pick")]
@@ -348,7 +350,7 @@ def test_a_placeholder_name_stringbt_cannot_write_is_refused(name: str) -> None:
     bt = py_trees.trees.BehaviourTree(sel("Root", sel(name), py_trees.behaviours.Running("W")))
     with pytest.raises(kp.ValidationError) as caught:
         PyTreesControl(bt, kp.Registry())
-    assert caught.value.code == kp.ErrorCode.INVALID_NAME
+    assert caught.value.code == ErrorCode.INVALID_NAME
     assert bt.pre_tick_handlers == []
 
 
@@ -446,7 +448,7 @@ def test_merges_from_another_thread_while_the_tree_ticks() -> None:
 
 @settings(max_examples=100, deadline=None)
 @given(trees(valid=True), st.integers(0, 2**32), st.integers(1, 10))
-def test_the_learners_tick_is_behaviour_tree_tick(root: kp.Node, seed: int, ticks: int) -> None:
+def test_the_learners_tick_is_behaviour_tree_tick(root: Node, seed: int, ticks: int) -> None:
     tree = kp.Tree(unique_placeholders(root))
     reg = _anything(tree)
     runs = []

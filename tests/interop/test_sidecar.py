@@ -19,7 +19,7 @@ from tests.door_robot import SEQUENCE as DOOR_SEQUENCE
 from tests.door_robot import VOCABULARY, door_blackboard, door_registry
 from tests.exchange.test_agent import KNOWER, SEQUENCE, agent, run
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples" / "btcpp"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "btcpp"
 GREEN = "<sq><c>(TargetSeen,colour=2)<a>(Pick,colour=2)<e>"
 
 

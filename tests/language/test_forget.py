@@ -1,4 +1,4 @@
-"""Forgetting, the inverse of merging: ``kp.remove`` on trees and ``LiveTree.forget`` on a
+"""Forgetting, the inverse of merging: ``remove`` on trees and ``LiveTree.forget`` on a
 running tree, which takes effect at a tick boundary and never cuts a running action short."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
+from ktbt_proto.merge import remove
 
 CONTROL = "<sl><sq><c>(Danger)<a>(Avoid)<e><k>(new)<e><a>(Walk)<e>"
 COLOURS = ("Red", "Green", "Yellow", "Blue")
@@ -61,21 +62,21 @@ def test_remove_is_the_inverse_of_merge() -> None:
     control = kp.parse(CONTROL)
     merged = kp.merge(control, kp.parse('<a>(Pick, colour="red")'), "new", when=["SeesRed"])
     both = kp.merge(merged, kp.parse("<a>(Pick)"), "new", when=["SeesBlue"])
-    assert kp.format_tree(kp.remove(both, "new", ["SeesBlue"]), "compact") == kp.format_tree(
+    assert kp.format_tree(remove(both, "new", ["SeesBlue"]), "compact") == kp.format_tree(
         merged, "compact"
     )
-    assert kp.format_tree(kp.remove(merged, "new", ["SeesRed"]), "compact") == kp.format_tree(
+    assert kp.format_tree(remove(merged, "new", ["SeesRed"]), "compact") == kp.format_tree(
         control, "compact"
     )
-    assert kp.remove(merged, "new", ["SeesGreen"]) == merged  # nothing answers it: unchanged
+    assert remove(merged, "new", ["SeesGreen"]) == merged  # nothing answers it: unchanged
     with pytest.raises(kp.MergeError) as err:
-        kp.remove(merged, "old", ["SeesRed"])
+        remove(merged, "old", ["SeesRed"])
     assert err.value.code.value == "SBT401"
 
 
 def test_a_flat_item_is_removed_by_its_conditions() -> None:
     tree = kp.parse("<sl><k>(new)<sq><c>(SeesRed)<a>(Pick)<a>(Walk)<e><e><a>(Walk)<e>")
-    assert kp.format_tree(kp.remove(tree, "new", ["SeesRed"]), "compact") == (
+    assert kp.format_tree(remove(tree, "new", ["SeesRed"]), "compact") == (
         "<sl><k>(new)<e><a>(Walk)<e>"
     )
 

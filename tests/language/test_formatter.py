@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
-from ktbt_proto.tree import Comments, walk
+from ktbt_proto.tree import Comments, Node, Value, walk
 from tests.language.test_syntax import PAPER, RELEASE
 from tests.strategies import trees
 
@@ -98,7 +98,7 @@ def test_compact_has_no_blanks_and_no_comments() -> None:
         ("ü", '"ü"'),
     ],
 )
-def test_value_literals(value: kp.tree.Value, literal: str) -> None:
+def test_value_literals(value: Value, literal: str) -> None:
     node = kp.Action("F", (("v", value),))
     assert kp.format_tree(node, "compact") == f"<a>(F,v={literal})"
     assert kp.parse(kp.format_tree(node, "compact")).root == node
@@ -114,7 +114,7 @@ def test_unrepresentable_values_are_refused() -> None:
 @pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(), st.sampled_from(["pretty", "compact"]))
-def test_round_trip(tree: kp.Node, style: str) -> None:
+def test_round_trip(tree: Node, style: str) -> None:
     text = kp.format_tree(tree, style)  # type: ignore[arg-type]
     assert kp.parse(text).root == tree
     if style == "compact":
@@ -124,7 +124,7 @@ def test_round_trip(tree: kp.Node, style: str) -> None:
 @pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(with_comments=True), st.sampled_from(["pretty", "compact"]))
-def test_idempotent(tree: kp.Node, style: str) -> None:
+def test_idempotent(tree: Node, style: str) -> None:
     once = kp.format_tree(tree, style)  # type: ignore[arg-type]
     twice = kp.format_tree(kp.parse(once), style)  # type: ignore[arg-type]
     assert twice == once
@@ -133,7 +133,7 @@ def test_idempotent(tree: kp.Node, style: str) -> None:
 @pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(trees(with_comments=True))
-def test_pretty_keeps_every_comment(tree: kp.Node) -> None:
+def test_pretty_keeps_every_comment(tree: Node) -> None:
     texts: list[str] = []
     for node, _ in walk(tree):
         c = node.comments
@@ -154,7 +154,7 @@ def test_pretty_keeps_every_comment(tree: kp.Node) -> None:
 @pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(trees(), trees())
-def test_compact_form_is_a_digest(a: kp.Node, b: kp.Node) -> None:
+def test_compact_form_is_a_digest(a: Node, b: Node) -> None:
     assert (kp.format_tree(a, "compact") == kp.format_tree(b, "compact")) == (a == b)
 
 

@@ -15,9 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
-from ktbt_proto.interop.robot import load_knowledge
+from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.items import (
     actions_rerun,
     find_warnings,
@@ -35,7 +36,7 @@ from tests.runtime_helpers import Harness
 from tests.strategies import names, values
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "ktbt_proto" / "examples"
+EXAMPLES = ROOT / "examples"
 VECTORS = json.loads((ROOT / "spec" / "vectors" / "knowledge.json").read_text(encoding="utf-8"))
 
 FLAT = "<sq><c>(TargetSeen, colour=1)<a>(PickTreasure)<a>(AssignCollectionPoint, colour=1)<e>"
@@ -72,7 +73,7 @@ def test_merge_treats_flat_and_nested_as_one_item() -> None:
     other = kp.parse("<sq><c>(TargetSeen, colour=1)<a>(PickTreasure)<a>(Drop)<e>")
     with pytest.raises(kp.MergeError) as info:
         kp.merge(control, other, "new")
-    assert info.value.code is kp.ErrorCode.KNOWLEDGE_CONFLICT
+    assert info.value.code is ErrorCode.KNOWLEDGE_CONFLICT
 
 
 SCRIPTS = st.lists(st.sampled_from([kp.SUCCESS, kp.FAILURE, kp.RUNNING]), min_size=1, max_size=4)
@@ -127,7 +128,7 @@ def test_the_flat_form_runs_earlier_actions_again_and_is_warned_about() -> None:
     assert run_door(DOOR_FLAT) == ["grasp", "turn 30/60", "grasp", "turn 60/60", "push"]
     assert run_door(DOOR_MEMORY) == ["grasp", "turn 30/60", "turn 60/60", "push"]
     [warning] = actions_rerun(kp.parse(f"<k>(new){DOOR_FLAT}<e>"))
-    assert (warning.code, warning.line, warning.column) == (kp.ErrorCode.ACTIONS_RERUN, 1, 56)
+    assert (warning.code, warning.line, warning.column) == (ErrorCode.ACTIONS_RERUN, 1, 56)
     assert warning.message == (
         "<a>(GraspHandle) runs again on every tick while <a>(TurnHandle,degrees=60) is "
         "RUNNING: if it must run once, put the actions in one <msq>...<e> (the memory form)"

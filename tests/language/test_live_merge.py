@@ -184,9 +184,7 @@ def test_live_tree_from_file_and_tree_objects() -> None:
         "RandomWalk",
     ]:
         reg.add_action(name, lambda bb: kp.RUNNING)
-    text = (
-        Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples" / "paper_control.sbt"
-    ).read_text()
+    text = (Path(__file__).resolve().parents[2] / "examples" / "paper_control.sbt").read_text()
     assert kp.LiveTree(kp.parse(text), reg).tick() is kp.RUNNING
     assert kp.LiveTree(kp.parse(text).root, reg).tick() is kp.RUNNING
     with pytest.raises(kp.MergeError):  # the paper's tree has no placeholder

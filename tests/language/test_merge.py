@@ -9,23 +9,24 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.merge import conditions, find_placeholder
-from ktbt_proto.tree import walk
+from ktbt_proto.tree import Node, Placeholder, Selector, walk
 from tests.strategies import names, trees
 from tests.tools.test_cli import ktbt
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CONTROL = kp.parse((EXAMPLES / "sar_control.sbt").read_text())
 SKILL = kp.parse("<sq><a>(PickTreasure)<a>(AssignCollectionPoint, colour=2)<e>")
 
 
-def slot(tree: kp.Tree, name: str) -> kp.Placeholder:
+def slot(tree: kp.Tree, name: str) -> Placeholder:
     path = find_placeholder(tree, name)
     assert path is not None
-    node: kp.Node = tree.root
+    node: Node = tree.root
     for i in path:
         node = node.children[i]  # type: ignore[attr-defined]
-    assert isinstance(node, kp.Placeholder)
+    assert isinstance(node, Placeholder)
     return node
 
 
@@ -47,7 +48,7 @@ def test_merge_shares_untouched_subtrees_and_leaves_the_original_alone() -> None
     merged = kp.merge(CONTROL, SKILL, "new", when=["X"])
     assert kp.format_tree(CONTROL, "compact") == before
     old_root, new_root = CONTROL.root, merged.root
-    assert isinstance(old_root, kp.Selector) and isinstance(new_root, kp.Selector)
+    assert isinstance(old_root, Selector) and isinstance(new_root, Selector)
     same = [a is b for a, b in zip(old_root.children, new_root.children, strict=True)]
     assert same == [True, True, True, True, False, True]
     assert merged.root.children[0].comments == CONTROL.root.children[0].comments  # type: ignore[attr-defined]
@@ -62,13 +63,13 @@ def test_conflicting_answer_is_refused() -> None:
     once = kp.merge(CONTROL, SKILL, "new", when=["TargetSeen(colour=2)"])
     with pytest.raises(kp.MergeError) as info:
         kp.merge(once, kp.parse("<a>(RandomWalk)"), "new", when=["TargetSeen(colour=2)"])
-    assert info.value.code is kp.ErrorCode.KNOWLEDGE_CONFLICT
+    assert info.value.code is ErrorCode.KNOWLEDGE_CONFLICT
 
 
 def test_unknown_slot() -> None:
     with pytest.raises(kp.MergeError) as info:
         kp.merge(CONTROL, SKILL, "learned")
-    assert info.value.code is kp.ErrorCode.UNKNOWN_SLOT
+    assert info.value.code is ErrorCode.UNKNOWN_SLOT
 
 
 def test_without_when_the_subtree_is_the_item() -> None:
@@ -92,17 +93,17 @@ def test_conditions_from_text() -> None:
 def control_trees(draw: st.DrawFn) -> kp.Tree:
     body = draw(st.lists(trees(valid=True), min_size=0, max_size=3))
     existing = draw(st.lists(trees(valid=True), max_size=3))
-    return kp.Tree(kp.Selector((*body, kp.Placeholder(tuple(existing), name="new"))))
+    return kp.Tree(Selector((*body, Placeholder(tuple(existing), name="new"))))
 
 
 @pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(control_trees(), trees(valid=True), st.lists(names, min_size=1, max_size=3))
-def test_merge_properties(control: kp.Tree, subtree: kp.Node, when: list[str]) -> None:
+def test_merge_properties(control: kp.Tree, subtree: Node, when: list[str]) -> None:
     try:
         merged = kp.merge(control, subtree, "new", when=when)
     except kp.MergeError as err:
-        assert err.code is kp.ErrorCode.KNOWLEDGE_CONFLICT
+        assert err.code is ErrorCode.KNOWLEDGE_CONFLICT
         return
     item = kp.SequenceNode((*(kp.Condition(n) for n in when), subtree))
     assert item in slot(merged, "new").children

@@ -15,9 +15,10 @@ from pydantic import Field
 
 import ktbt_proto as kp
 from ktbt_proto.registry import load_vocabulary
+from ktbt_proto.validate import SupportsNames
 from tests.door_robot import FLAT, MEMORY, VOCABULARY, door_blackboard, door_registry
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 REFUSED = [
     ("<a>(TurnHandle, degrees=120)", "SBT310"),
@@ -33,7 +34,7 @@ REFUSED = [
 ]
 
 
-def problems(text: str, registry: kp.SupportsNames) -> list[str]:
+def problems(text: str, registry: SupportsNames) -> list[str]:
     return [str(p) for p in kp.find_problems(kp.parse(text), registry)]
 
 
@@ -251,3 +252,24 @@ def test_copy_is_independent() -> None:
     other = reg.copy()
     other.declare("action", "Wave", {"times": Any})
     assert other.has_action("Wave") and not reg.has_action("Wave")
+
+
+def test_an_argument_named_as_the_blackboard_parameter_is_refused_not_given_twice() -> None:
+    """A behaviour taking ``**kw`` takes any argument name but its blackboard parameter's: a
+    peer's ``<c>(A, bb=1)`` is refused by validation (SBT311), where it would raise at the
+    tick; a positional-only blackboard (``bb, /``) leaves the name free."""
+    reg = kp.Registry()
+
+    def named(bb: kp.Blackboard, **kw: object) -> bool:
+        return True
+
+    def positional(bb: kp.Blackboard, /, **kw: object) -> bool:
+        return bool(kw)
+
+    reg.add_condition("A", named)
+    reg.add_condition("B", positional)
+    problems = kp.find_problems(kp.parse("<c>(A, bb=1)"), reg)
+    assert [(p.code.value, p.message) for p in problems] == [
+        ("SBT311", "condition 'A' takes no argument 'bb'")
+    ]
+    assert kp.LiveTree(kp.parse("<c>(B, bb=1)"), reg).tick() is kp.SUCCESS

@@ -4,7 +4,9 @@ import re
 
 import pytest
 
-from ktbt_proto import (
+from ktbt_proto.render import render
+from ktbt_proto.syntax import parse
+from ktbt_proto.tree import (
     Action,
     Condition,
     Inverter,
@@ -16,9 +18,7 @@ from ktbt_proto import (
     SequenceNode,
     Wait,
     WaitTimer,
-    parse,
 )
-from ktbt_proto.render import render
 
 SMALL = "<sl><sq><c>(!a)<a>(B, x=1)<e><k>(new)<e><a>(C)<e>"
 

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.status import Status
 from tests.runtime_helpers import F, FakeClock, Harness, R, S
 
@@ -434,24 +435,24 @@ def refusing_registry() -> tuple[kp.Registry, kp.Blackboard]:
 @pytest.mark.parametrize(
     ("text", "code"),
     [
-        ("<a>(Teleport)", kp.ErrorCode.UNKNOWN_ACTION),
-        ("<sq><c>(Flag)<a>Teleport<e>", kp.ErrorCode.UNKNOWN_ACTION),
-        ("<c>(Unknown)", kp.ErrorCode.UNKNOWN_CONDITION),
-        ("<sq><c>(!Unknown)<a>(Move, speed=1)<e>", kp.ErrorCode.UNKNOWN_CONDITION),
-        ("<a>(Flag)", kp.ErrorCode.UNKNOWN_ACTION),  # a condition is not an action
-        ("<c>(Move, speed=1)", kp.ErrorCode.UNKNOWN_CONDITION),  # nor an action a condition
-        ("<a>(Move, speed=1, turbo=true)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<a>(Move)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<a>Move", kp.ErrorCode.INVALID_ARGUMENTS),
-        ('<a>(Move, frame="odom")', kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<c>(Near, far=1)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<c>(!Near)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<c>(Flag, strict=true)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ("<a>(Steps)", kp.ErrorCode.INVALID_ARGUMENTS),
-        ('<a>(Steps, tag="a", m=2)', kp.ErrorCode.INVALID_ARGUMENTS),
+        ("<a>(Teleport)", ErrorCode.UNKNOWN_ACTION),
+        ("<sq><c>(Flag)<a>Teleport<e>", ErrorCode.UNKNOWN_ACTION),
+        ("<c>(Unknown)", ErrorCode.UNKNOWN_CONDITION),
+        ("<sq><c>(!Unknown)<a>(Move, speed=1)<e>", ErrorCode.UNKNOWN_CONDITION),
+        ("<a>(Flag)", ErrorCode.UNKNOWN_ACTION),  # a condition is not an action
+        ("<c>(Move, speed=1)", ErrorCode.UNKNOWN_CONDITION),  # nor an action a condition
+        ("<a>(Move, speed=1, turbo=true)", ErrorCode.INVALID_ARGUMENTS),
+        ("<a>(Move)", ErrorCode.INVALID_ARGUMENTS),
+        ("<a>Move", ErrorCode.INVALID_ARGUMENTS),
+        ('<a>(Move, frame="odom")', ErrorCode.INVALID_ARGUMENTS),
+        ("<c>(Near, far=1)", ErrorCode.INVALID_ARGUMENTS),
+        ("<c>(!Near)", ErrorCode.INVALID_ARGUMENTS),
+        ("<c>(Flag, strict=true)", ErrorCode.INVALID_ARGUMENTS),
+        ("<a>(Steps)", ErrorCode.INVALID_ARGUMENTS),
+        ('<a>(Steps, tag="a", m=2)', ErrorCode.INVALID_ARGUMENTS),
     ],
 )
-def test_live_tree_refuses_what_the_registry_cannot_execute(text: str, code: kp.ErrorCode) -> None:
+def test_live_tree_refuses_what_the_registry_cannot_execute(text: str, code: ErrorCode) -> None:
     reg, bb = refusing_registry()
     with pytest.raises(kp.StringBTError) as caught:
         kp.LiveTree(text, reg, bb)
@@ -473,7 +474,7 @@ def test_live_tree_refuses_the_whole_tree_before_making_any_action_instance() ->
     text = '<sq><a>(Steps, tag="a")<a>(Move, speed=1)<a>(Teleport)<e>'
     with pytest.raises(kp.StringBTError) as caught:
         kp.LiveTree(text, reg, bb)
-    assert caught.value.code is kp.ErrorCode.UNKNOWN_ACTION
+    assert caught.value.code is ErrorCode.UNKNOWN_ACTION
     assert bb["made"] == []
 
 

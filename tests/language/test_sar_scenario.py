@@ -7,7 +7,7 @@ from pathlib import Path
 
 import ktbt_proto as kp
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 FLAGS = ("_collisionDetectedF", "_waitF", "_treasureOnBoardF", "_inZoneF")
 ACTIONS = (
     "CollisionAvoidance",

@@ -13,10 +13,20 @@ from hypothesis import strategies as st
 import ktbt_proto as kp
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.syntax import _parse_fast, parse_reference
-from ktbt_proto.tree import walk
+from ktbt_proto.tree import (
+    Inverter,
+    Node,
+    Parallel,
+    Placeholder,
+    RunTimer,
+    Selector,
+    Wait,
+    WaitTimer,
+    walk,
+)
 from tests.strategies import SOUP_TOKENS, soup, trees
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 # The paper's algorithm "stringBT for T_Control in the SAR case study", LaTeX stripped, with its
 # line breaks and indentation.
@@ -53,7 +63,7 @@ def test_paper_control_tree_verbatim() -> None:
     tree = kp.parse(PAPER)
     kp.validate(tree)
     root = tree.root
-    assert isinstance(root, kp.Selector) and not root.memory
+    assert isinstance(root, Selector) and not root.memory
     assert len(root.children) == 4
     collision = root.children[0]
     assert collision == kp.SequenceNode(
@@ -63,7 +73,7 @@ def test_paper_control_tree_verbatim() -> None:
     carry = root.children[2]
     assert isinstance(carry, kp.SequenceNode)
     inner = carry.children[1]
-    assert isinstance(inner, kp.Selector)
+    assert isinstance(inner, Selector)
     negated = inner.children[1].children[0]  # type: ignore[attr-defined]
     assert negated == kp.Condition("_inZoneF", negated=True)
     assert root.children[3] == kp.Action("RandomWalk")
@@ -78,23 +88,23 @@ def test_paper_example_file_is_the_paper_tree() -> None:
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
-        ("<w>5", kp.Wait(5)),
-        ("<w>(5)", kp.Wait(5)),
-        ("<w> ( 5 )", kp.Wait(5)),
-        ("<wt>(0.5)", kp.Wait(0.5, "seconds")),
-        ("<wt>2", kp.Wait(2, "seconds")),
-        ("<neg><c>(X)<e>", kp.Inverter((kp.Condition("X"),))),
+        ("<w>5", Wait(5)),
+        ("<w>(5)", Wait(5)),
+        ("<w> ( 5 )", Wait(5)),
+        ("<wt>(0.5)", Wait(0.5, "seconds")),
+        ("<wt>2", Wait(2, "seconds")),
+        ("<neg><c>(X)<e>", Inverter((kp.Condition("X"),))),
         ("<c>X", kp.Condition("X")),
         ("<c>!X", kp.Condition("X", negated=True)),
         ("<c>( ! X )", kp.Condition("X", negated=True)),
         ("<a>RandomWalk", kp.Action("RandomWalk")),
-        ("<pl><a>(A)<a>(B)<e>", kp.Parallel((kp.Action("A"), kp.Action("B")))),
-        ("<pl>(1)<a>(A)<a>(B)<e>", kp.Parallel((kp.Action("A"), kp.Action("B")), threshold=1)),
+        ("<pl><a>(A)<a>(B)<e>", Parallel((kp.Action("A"), kp.Action("B")))),
+        ("<pl>(1)<a>(A)<a>(B)<e>", Parallel((kp.Action("A"), kp.Action("B")), threshold=1)),
         ("<msq><a>(A)<e>", kp.SequenceNode((kp.Action("A"),), memory=True)),
-        ("<msl><a>(A)<e>", kp.Selector((kp.Action("A"),), memory=True)),
-        ("<tt1>(1000)<a>(A)<e>", kp.WaitTimer((kp.Action("A"),), ticks=1000)),
-        ("<tt2>(10)<a>(A)<e>", kp.RunTimer((kp.Action("A"),), ticks=10)),
-        ("<k>(new)<e>", kp.Placeholder((), name="new")),
+        ("<msl><a>(A)<e>", Selector((kp.Action("A"),), memory=True)),
+        ("<tt1>(1000)<a>(A)<e>", WaitTimer((kp.Action("A"),), ticks=1000)),
+        ("<tt2>(10)<a>(A)<e>", RunTimer((kp.Action("A"),), ticks=10)),
+        ("<k>(new)<e>", Placeholder((), name="new")),
         (
             '<a>(MoveTo, x=1, y=-2.5e1, label="a\\"b", fast=true)',
             kp.Action("MoveTo", (("x", 1), ("y", -25.0), ("label", 'a"b'), ("fast", True))),
@@ -104,7 +114,7 @@ def test_paper_example_file_is_the_paper_tree() -> None:
         ("# c\n<Root> # d\n<a>(A)", kp.Action("A")),
     ],
 )
-def test_node_spellings(text: str, expected: kp.Node) -> None:
+def test_node_spellings(text: str, expected: Node) -> None:
     assert kp.parse(text).root == expected
     assert parse_reference(text).root == expected
 
@@ -261,7 +271,7 @@ def test_agrees_with_reference_on_mutated_trees(text: str) -> None:
 @pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(trees(with_comments=True), st.sampled_from(["pretty", "compact"]))
-def test_agrees_with_reference_on_formatted_trees(tree: kp.Node, style: str) -> None:
+def test_agrees_with_reference_on_formatted_trees(tree: Node, style: str) -> None:
     text = kp.format_tree(tree, style)  # type: ignore[arg-type]
     fast = _parse_fast(text, DEFAULT_LIMITS)
     assert fast is not None

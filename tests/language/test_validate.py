@@ -8,18 +8,20 @@ import pytest
 
 import ktbt_proto as kp
 from ktbt_proto.errors import ErrorCode
+from ktbt_proto.tree import Inverter, Node, Parallel, Placeholder, RunTimer, Value, Wait, WaitTimer
+from ktbt_proto.validate import SupportsNames
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "ktbt_proto" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 Where = tuple[str, int, int]
 """(code, line, column) of one problem."""
 
 
-def problems(tree: kp.Tree | kp.Node, registry: kp.SupportsNames | None = None) -> list[Where]:
+def problems(tree: kp.Tree | Node, registry: SupportsNames | None = None) -> list[Where]:
     return [(p.code.value, p.line, p.column) for p in kp.find_problems(tree, registry)]
 
 
-def codes_of(text: str, registry: kp.SupportsNames | None = None) -> list[Where]:
+def codes_of(text: str, registry: SupportsNames | None = None) -> list[Where]:
     return problems(kp.parse(text), registry)
 
 
@@ -75,12 +77,12 @@ def test_empty_placeholder_is_valid() -> None:
         kp.Condition("x-y"),
         kp.Action("ok", args=(("x-y", 1),)),
         kp.Condition("ok", args=(("true", 1),)),
-        kp.Placeholder((), name=""),
-        kp.Placeholder((kp.Action("A"),), name="new knowledge"),
+        Placeholder((), name=""),
+        Placeholder((kp.Action("A"),), name="new knowledge"),
     ],
     ids=repr,
 )
-def test_invalid_name(node: kp.Node) -> None:
+def test_invalid_name(node: Node) -> None:
     assert problems(node) == [("SBT303", 0, 0)]
 
 
@@ -221,36 +223,34 @@ def test_valid_duration(text: str) -> None:
 @pytest.mark.parametrize(
     "node",
     [
-        kp.Wait(float("inf"), "seconds"),
-        kp.Wait(float("nan"), "seconds"),
-        kp.Wait(True, "ticks"),
-        kp.Wait(True, "seconds"),
-        kp.Wait(1, "minutes"),  # type: ignore[arg-type]
-        kp.Wait("1", "seconds"),  # type: ignore[arg-type]
-        kp.WaitTimer((kp.Action("A"),), ticks=True),
-        kp.RunTimer((kp.Action("A"),), ticks=-1),
+        Wait(float("inf"), "seconds"),
+        Wait(float("nan"), "seconds"),
+        Wait(True, "ticks"),
+        Wait(True, "seconds"),
+        Wait(1, "minutes"),  # type: ignore[arg-type]
+        Wait("1", "seconds"),  # type: ignore[arg-type]
+        WaitTimer((kp.Action("A"),), ticks=True),
+        RunTimer((kp.Action("A"),), ticks=-1),
     ],
     ids=repr,
 )
-def test_invalid_duration_on_programmatic_node(node: kp.Node) -> None:
+def test_invalid_duration_on_programmatic_node(node: Node) -> None:
     assert problems(node) == [("SBT307", 0, 0)]
 
 
 def test_huge_integer_seconds_are_checked_without_crashing() -> None:
     # 400 digits is within the literal limit; an integer too large for a float is still finite.
     assert kp.find_problems(kp.parse("<wt>(" + "9" * 400 + ")")) == []
-    assert problems(kp.Wait(-(10**400), "seconds")) == [("SBT307", 0, 0)]
+    assert problems(Wait(-(10**400), "seconds")) == [("SBT307", 0, 0)]
 
 
 def test_unhashable_names_are_problems_not_crashes() -> None:
-    bad = kp.SequenceNode((kp.Action(["x"]), kp.Placeholder((), name=["y"])))  # type: ignore[arg-type]
+    bad = kp.SequenceNode((kp.Action(["x"]), Placeholder((), name=["y"])))  # type: ignore[arg-type]
     assert [p.code.value for p in kp.find_problems(bad)] == ["SBT303", "SBT303"]
 
 
 def test_a_limit_problem_is_raised_before_rule_problems() -> None:
-    tree = kp.SequenceNode(
-        (kp.Inverter(()), kp.SequenceNode((kp.SequenceNode((kp.Action("A"),)),)))
-    )
+    tree = kp.SequenceNode((Inverter(()), kp.SequenceNode((kp.SequenceNode((kp.Action("A"),)),))))
     with pytest.raises(kp.LimitError) as info:
         kp.validate(tree, limits=kp.Limits(max_depth=2))
     assert info.value.code is ErrorCode.TOO_DEEP
@@ -282,7 +282,7 @@ def test_valid_threshold(text: str) -> None:
 
 
 def test_bool_threshold_is_invalid() -> None:
-    node = kp.Parallel((kp.Action("A"),), threshold=True)
+    node = Parallel((kp.Action("A"),), threshold=True)
     assert problems(node) == [("SBT308", 0, 0)]
 
 
@@ -315,7 +315,7 @@ def test_invalid_value(value: object) -> None:
 
 
 @pytest.mark.parametrize("value", [0, -7, 10**30, 1.5, -0.0, "", "ü✓", True, False], ids=repr)
-def test_valid_value(value: kp.tree.Value) -> None:
+def test_valid_value(value: Value) -> None:
     assert problems(kp.Condition("C", args=(("x", value),))) == []
 
 
@@ -334,7 +334,7 @@ def test_every_argument_problem_is_reported_in_order() -> None:
 
 
 def test_non_node_is_rejected() -> None:
-    assert problems(kp.SequenceNode((kp.Node(),))) == [("SBT310", 0, 0)]
+    assert problems(kp.SequenceNode((Node(),))) == [("SBT310", 0, 0)]
 
 
 # validate.
@@ -377,11 +377,11 @@ def test_validate_returns_none_for_valid_tree() -> None:
 # Limits.
 
 
-def chain(depth: int) -> kp.Node:
+def chain(depth: int) -> Node:
     """Inverters nested ``depth - 1`` deep around one action: ``depth`` levels in all."""
-    node: kp.Node = kp.Action("A")
+    node: Node = kp.Action("A")
     for _ in range(depth - 1):
-        node = kp.Inverter((node,))
+        node = Inverter((node,))
     return node
 
 

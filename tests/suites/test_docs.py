@@ -139,7 +139,7 @@ def test_every_path_the_readme_links_is_committed() -> None:
 @pytest.fixture
 def clone(tmp_path: Path) -> Path:
     """What a newcomer's clone has that the pages name: the examples."""
-    shutil.copytree(ROOT / "ktbt_proto" / "examples", tmp_path / "ktbt_proto" / "examples")
+    shutil.copytree(ROOT / "examples", tmp_path / "examples")
     return tmp_path
 
 

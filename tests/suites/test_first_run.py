@@ -22,7 +22,7 @@ from ktbt_sim.world import World
 from tests.zenoh_helpers import endpoint, free_port, ktbt_run, serving, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "ktbt_proto" / "examples"
+EXAMPLES = ROOT / "examples"
 
 
 def ktbt(
@@ -419,7 +419,7 @@ def test_a_py_trees_tree_given_the_wrong_way_is_one_line() -> None:
         kp.Agent("r", bt, kp.Registry(), net.join("r"))  # type: ignore[arg-type]
     assert str(built.value) == (
         "Agent cannot run a BehaviourTree as its control tree: pass "
-        "py_trees_control(tree, behaviours={...}) from ktbt_proto.interop"
+        "py_trees_control(tree, behaviours={...}) from ktbt_proto"
     )
     with pytest.raises(TypeError) as rooted:
         py_trees_control(root)  # type: ignore[arg-type]

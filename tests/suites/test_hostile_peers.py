@@ -22,13 +22,13 @@ from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog, read
 from ktbt_proto.exchange.trust import Policy, TrustStore
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_run, see, settings, wait_until
 
 pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 HONEST = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
 FORGED = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>"

@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 import ktbt_proto as kp
+from ktbt_proto.errors import ErrorCode
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.syntax import _parse_fast, grammar_path, grammar_text, parse_reference
 
@@ -37,7 +38,7 @@ def test_the_packaged_grammar_is_the_normative_one() -> None:
 
 def test_spec_error_table_matches_the_codes() -> None:
     rows = re.findall(r"^\| `(SBT\d{3})` \| ([a-z0-9-]+) \|", STRINGBT_MD, re.M)
-    assert rows == [(c.value, c.name.lower().replace("_", "-")) for c in kp.ErrorCode]
+    assert rows == [(c.value, c.name.lower().replace("_", "-")) for c in ErrorCode]
 
 
 def test_spec_limit_defaults_match_the_code() -> None:
@@ -99,7 +100,7 @@ def test_vectors_cover_every_parse_error_code() -> None:
         "SBT402",
         "SBT403",
     }
-    assert {c.value for c in kp.ErrorCode} - not_in_vectors <= seen
+    assert {c.value for c in ErrorCode} - not_in_vectors <= seen
 
 
 def test_message_schema_file_matches_the_models() -> None:

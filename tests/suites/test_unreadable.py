@@ -97,7 +97,7 @@ def test_a_learner_refuses_what_it_cannot_read_lives_and_learns_from_an_honest_t
         out.wait_for(
             "refused knowledge: from mallory: SBT101 unexpected character '.'",
             f"refused knowledge: from mallory: {INTERNAL}",
-            f"r refused: the catalog of mallory: {INTERNAL}",
+            f"r refused knowledge: the catalog of mallory: {INTERNAL}",
         )
         assert learner.poll() is None, out.text()  # alive after all of it
         with serving(pt, "--connect", endpoint(pl)):
@@ -121,7 +121,7 @@ def test_a_learner_refuses_what_it_cannot_read_lives_and_learns_from_an_honest_t
 def test_a_server_that_overhears_refuses_what_it_cannot_read_and_serves_an_honest_answer() -> None:
     ps, pm, ph = free_port(), free_port(), free_port()
     door = "<c>(DoorOpen)"
-    knowledge = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
     with (
         ktbt_process(
             "peer", "serve", "--id", "s", "--knowledge", str(knowledge), "--listen",

@@ -15,7 +15,7 @@ from tests.door_robot import FLAT, VOCABULARY
 pytestmark = pytest.mark.network  # every test runs the ktbt command as a process
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "ktbt_proto" / "examples"
+EXAMPLES = ROOT / "examples"
 
 UGLY = "<sl><sq> <c>(X)   # why\n<a>(Y)<e><a>(Z)<e>"
 PRETTY = "<sl>\n    <sq>\n        <c>(X)  # why\n        <a>(Y)\n    <e>\n    <a>(Z)\n<e>\n"

@@ -14,7 +14,7 @@ from tests.zenoh_helpers import ROOT, endpoint, ktbt_process, wait_until
 pytest.importorskip("btview", reason="pip install -e '.[dev]'")
 pytest.importorskip("zmq", reason="pip install 'ktbt[groot]'")
 
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 
 
 def btview(*args: str) -> str:

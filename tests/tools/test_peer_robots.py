@@ -11,8 +11,10 @@ from pathlib import Path
 import pytest
 
 import ktbt_proto as kp
+from ktbt_proto.files import packaged
 from ktbt_proto.interop import from_xml
 from ktbt_proto.items import item_digest, sequence_key, split_item
+from ktbt_proto.tree import Node
 from tests.door_robot import FLAT, VOCABULARY
 from tests.zenoh_helpers import endpoint, free_port, ktbt_process, ktbt_run
 
@@ -54,7 +56,7 @@ SKILLS_XML = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def _item(node: kp.Node) -> str:
+def _item(node: Node) -> str:
     """An item's identity: its condition sequence and subtree (flat or nested, the same)."""
     split = split_item(node)
     assert split is not None
@@ -81,7 +83,7 @@ def test_a_door_robot_learns_what_its_fleet_lists_and_exports_it_for_btcpp(
     never refused); the exported items read back as learned, and the port-less one runs in
     BehaviorTree.CPP with the robot's own node names."""
     vocabulary, control, knowledge = _door(tmp_path)
-    colours = Path(kp.__file__).parent / "examples" / "knowledge" / "colours.sbt"
+    colours = packaged("examples", "knowledge", "colours.sbt")
     port, other = free_port(), free_port()
     learned = tmp_path / "learned"
     with (

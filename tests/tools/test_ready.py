@@ -13,7 +13,7 @@ from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, wait_un
 
 pytestmark = pytest.mark.network
 
-COLOURS = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+COLOURS = ROOT / "examples" / "knowledge" / "colours.sbt"
 
 
 @pytest.mark.parametrize(

@@ -17,7 +17,7 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import ErrorReply, Query, Response, decode, encode
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, peers
 from tests.zenoh_helpers import (
     ROOT,
@@ -33,7 +33,7 @@ from tests.zenoh_helpers import (
 
 pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 
 
@@ -200,7 +200,7 @@ def test_a_program_written_from_the_spec_asks_a_ktbt_peer() -> None:
         proc = subprocess.run(
             [
                 sys.executable,
-                str(ROOT / "ktbt_proto" / "examples" / "ask_with_raw_zenoh.py"),
+                str(ROOT / "examples" / "ask_with_raw_zenoh.py"),
                 endpoint(port),
                 "<c>(TargetSeen,colour=4)",
             ],

@@ -1,4 +1,4 @@
-"""The shipped access-control profile (ktbt_proto/examples/zenoh/acl-router.json5) over mutual TLS
+"""The shipped access-control profile (examples/zenoh/acl-router.json5) over mutual TLS
 on
 loopback: a robot answers, publishes events and serves its tree under its own name, a robot
 whose certificate names another peer cannot declare that peer's queryables, and only the
@@ -27,8 +27,8 @@ from tests.zenoh_helpers import ROOT, free_port, see, wait_until
 
 pytestmark = pytest.mark.network  # a zenoh router and robots over mutual TLS on loopback
 
-PROFILE = ROOT / "ktbt_proto" / "examples" / "zenoh" / "acl-router.json5"
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+PROFILE = ROOT / "examples" / "zenoh" / "acl-router.json5"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 
 

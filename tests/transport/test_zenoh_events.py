@@ -76,13 +76,13 @@ def test_in_memory_agents_stream_the_same_events() -> None:
     import ktbt_proto as kp
     from ktbt_proto.exchange.agent import Agent
     from ktbt_proto.exchange.knowledge import KnowledgeBase
-    from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
+    from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
     from ktbt_proto.transport import MemoryNetwork
     from ktbt_proto.transport.stream import AgentStream
     from tests.zenoh_helpers import ROOT
 
     colours = KnowledgeBase.from_tree(
-        kp.parse((ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt").read_text())
+        kp.parse((ROOT / "examples" / "knowledge" / "colours.sbt").read_text())
     )
     reg = demo_registry()
     net = MemoryNetwork(in_range=lambda a, b: True, loss=0.0, latency=0)

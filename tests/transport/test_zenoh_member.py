@@ -12,16 +12,16 @@ from pathlib import Path
 
 import pytest
 
-import ktbt_proto as kp
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
+from ktbt_proto.items import sequence_key
 from ktbt_proto.tools.peer import Member
 from ktbt_proto.transport.zenoh import stable_zid
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, serving
 
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 pytestmark = pytest.mark.network  # ktbt peer processes on loopback
 
 
@@ -177,7 +177,7 @@ def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
     teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
     other = ApplicationTimedAgent("x", CONTROL, registry(), net.join("x"))
     learner = Learner(robot, Backoff(seed="l"), wait=2.0, cooldown=0.5)
-    missing = [kp.sequence_key(SEQUENCE)]
+    missing = [sequence_key(SEQUENCE)]
     learner.backoff.lost(0.0)  # an unanswered query before: it would not broadcast now
     learner.step(0.1, missing, ["t"])
     teacher.receive(), other.receive()

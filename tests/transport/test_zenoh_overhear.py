@@ -20,8 +20,8 @@ from ktbt_proto.exchange.messages import Query, Response, encode
 from ktbt_proto.exchange.overhearing import Ear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
-from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
 from ktbt_proto.syntax import parse
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import (
     ROOT,
@@ -38,7 +38,7 @@ from tests.zenoh_helpers import (
 
 pytestmark = pytest.mark.network  # zenoh sessions and ktbt processes on loopback
 
-KNOWLEDGE = ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"
+KNOWLEDGE = ROOT / "examples" / "knowledge" / "colours.sbt"
 GREEN = "<c>(TargetSeen,colour=2)"
 HONEST = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
 

@@ -46,14 +46,14 @@ from ktbt_proto.control import ControlFactory
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.knowledge import KnowledgeBase, item_slot, learning_slot
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
+from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
-from ktbt_proto.interop.robot import item_slot, learning_slot, load_knowledge
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
 from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry

@@ -135,8 +135,8 @@ def fmt_command(
         if diff:
             sys.stdout.writelines(
                 difflib.unified_diff(
-                    old.splitlines(keepends=True),
-                    new.splitlines(keepends=True),
+                    _diff_lines(old),
+                    _diff_lines(new),
                     fromfile=f"{name}\t(original)",
                     tofile=f"{name}\t(formatted)",
                 )
@@ -163,6 +163,15 @@ def fmt_command(
         raise typer.Exit(EXIT_ERROR)
     if check_only and changed:
         raise typer.Exit(1)
+
+
+def _diff_lines(text: str) -> list[str]:
+    """Lines for a unified diff, each ending in a newline: a last line without one is marked
+    as ``diff`` and ``patch`` mark it (``\\ No newline at end of file``)."""
+    lines = text.splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines[-1] += "\n\\ No newline at end of file\n"
+    return lines
 
 
 def check_command(

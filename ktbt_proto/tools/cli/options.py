@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from ktbt_proto.exchange.knowledge import KnowledgeBase
     from ktbt_proto.exchange.security import Security
     from ktbt_proto.registry import Registry
+    from ktbt_proto.tools.robot import Robot
     from ktbt_proto.transport.zenoh import ZenohSettings
 
 EXIT_USAGE = 2
@@ -281,7 +282,7 @@ def knowledge_or_exit(path: Path, registry: Registry | None = None) -> Knowledge
     With the robot's ``registry``, an item it could not execute is refused too, with the code
     a peer's receive check gives (spec/protocol.md section 2): a robot never teaches, nor
     starts with, what it would refuse to learn."""
-    from ktbt_proto.interop.robot import load_knowledge
+    from ktbt_proto.interop.knowledge_file import load_knowledge
     from ktbt_proto.validate import find_problems
 
     try:
@@ -303,79 +304,27 @@ def knowledge_or_exit(path: Path, registry: Registry | None = None) -> Knowledge
 
 
 def vocabulary_or_exit(spec: str) -> Registry:
-    """The registry ``--vocabulary`` names (:func:`ktbt_proto.registry.load_vocabulary`: a
-    vocabulary file, or a Python registry as ``module:callable``); a missing file, a module
-    that does not import, a name it lacks: one line naming the option, exit 2."""
-    from ktbt_proto.registry import load_vocabulary
-
-    looks_like_file = spec.endswith(".toml") or ":" not in spec
-    if looks_like_file and not Path(spec).is_file():
-        raise refuse(f"--vocabulary: {spec} not found (a FILE.toml, or module:callable)")
-    try:
-        return load_vocabulary(spec)
-    except ValueError as exc:
-        raise refuse(f"--vocabulary: {exc}") from None
-
-
-@dataclass(frozen=True)
-class Robot:
-    """What a robot command runs (``ktbt peer run``, ``ktbt fleet run``): the robot's
-    vocabulary, its control tree as stringBT and the placeholder learned items go into."""
-
-    registry: Registry
-    control: str
-    slot: str
-    vocabulary: str | None = None
-    """The ``--vocabulary`` given (None: the demo robot's)."""
+    """The registry ``--vocabulary`` names (a vocabulary file, or a Python registry as
+    ``module:callable``); a missing file, a module that does not import, a name it lacks: one
+    line naming the option, exit 2."""
+    return robot_or_exit(spec, None, False).registry
 
 
 def robot_or_exit(
     vocabulary: str | None, control: Path | None, demo: bool, *, quiet: bool = False
 ) -> Robot:
-    """The robot the options describe. ``--demo``, or neither ``--vocabulary`` nor
-    ``--control``: the search-and-rescue demo robot (``ktbt_proto.tools.demo``), said in one
-    line on stderr unless asked for or ``quiet``. ``--vocabulary`` alone: a learner that runs
-    only what it knows (``ktbt_proto.interop.robot.LEARNER_CONTROL``, the sidecar's case). A
-    control tree that does not parse, names what the vocabulary lacks or has no placeholder
-    is refused in one line naming ``--control``, exit 2 (spec/protocol.md section 4.5)."""
-    from ktbt_proto.files import read_at_most
-    from ktbt_proto.interop.robot import LEARNER_CONTROL, learning_slot
-    from ktbt_proto.limits import DEFAULT_LIMITS
-    from ktbt_proto.syntax import parse
-    from ktbt_proto.validate import find_problems
+    """The robot the options describe (:func:`ktbt_proto.tools.robot.build_robot`); the demo
+    robot, unless asked for (``--demo``) or ``quiet``, is said in one line on stderr. Anything
+    wrong is one line naming the option, exit 2 (spec/protocol.md section 4.5)."""
+    from ktbt_proto.tools.robot import RobotError, build_robot
 
-    if demo and (vocabulary is not None or control is not None):
-        raise refuse("--demo: the demo robot has its own; leave out --vocabulary and --control")
-    if vocabulary is None and control is not None:
-        raise refuse(f"--control {control}: give --vocabulary too (the names its tree runs)")
-    if vocabulary is None:
-        from ktbt_proto.interop.robot import DEMO_CONTROL, demo_registry
-
-        if not (demo or quiet):
-            say(DEMO_NOTE)
-        return Robot(demo_registry(), DEMO_CONTROL, "new")
-    registry = vocabulary_or_exit(vocabulary)
-    if control is None:
-        return Robot(registry, LEARNER_CONTROL, "new", vocabulary)
     try:
-        text = read_at_most(control, DEFAULT_LIMITS.max_size)
-    except OSError as exc:
-        raise refuse(f"--control: cannot read {control}: {io_reason(exc)}") from None
-    try:
-        tree = parse(text)
-        problems = find_problems(tree, registry)
-        if problems:
-            raise problems[0]
-    except StringBTError as err:
-        where = f":{err.line}:{err.column}" if err.line else ""
-        raise refuse(f"--control {control}{where}: {err.code} {err.message}") from None
-    slot = learning_slot(tree)
-    if slot is None:
-        raise refuse(
-            f"--control {control}: no <k>(...) placeholder, so nothing learned could ever run; "
-            "add one where learned skills belong, e.g. <sl><k>(new)<e>...<e>"
-        )
-    return Robot(registry, text.decode("utf-8"), slot, vocabulary)
+        robot = build_robot(vocabulary, control, demo, named=lambda name: f"--{name}")
+    except RobotError as exc:
+        raise refuse(str(exc)) from None
+    if robot.vocabulary is None and not (demo or quiet):
+        say(DEMO_NOTE)
+    return robot
 
 
 def address(text: str, option: str) -> tuple[str, int]:

@@ -6,5 +6,7 @@ Modules, in the order data flows: ``plan`` (what to run: peers, links, addresses
 fault schedule), ``proxy`` (the user-space TCP proxy per link: delay, silent partition, hard cut,
 heal), ``netns`` (a network namespace with an nftables loss rule), ``runner`` (processes,
 schedule, observation, the record), ``check`` (the properties over a record), ``figure``,
-``study`` and ``cli``.
+``study`` and ``cli``. Names are imported from their modules: this package loads nothing.
 """
+
+__all__: list[str] = []

@@ -60,7 +60,7 @@ OUTPUTS = (
 
 def authored_items(path: str | Path) -> dict[str, str]:
     """The teachers' items: sequence key -> the item's digest (``items.item_digest``)."""
-    from ktbt_proto.interop.robot import load_knowledge
+    from ktbt_proto.interop.knowledge_file import load_knowledge
 
     return {item.key: item_digest(item.key, item.subtree) for item in load_knowledge(path)}
 

@@ -22,10 +22,9 @@ from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
 from typing import Any, cast
 
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
@@ -34,20 +33,14 @@ from rclpy.parameter import Parameter
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.knowledge import with_knowledge
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.overhearing import Ear, Overhear
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
-from ktbt_proto.interop.robot import (
-    DEMO_CONTROL,
-    LEARNER_CONTROL,
-    demo_registry,
-    learning_slot,
-    load_knowledge,
-    with_knowledge,
-)
+from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.interop.ros2.showing import (
     FleetCatalogs,
     Services,
@@ -59,9 +52,10 @@ from ktbt_proto.interop.ros2.showing import (
 )
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.items import read_sequence, sequence_key
-from ktbt_proto.registry import load_vocabulary
-from ktbt_proto.syntax import parse
+from ktbt_proto.tools.robot import build_robot
 from ktbt_proto.transport.ros2 import Ros2Transport, Topics, robot_name
+from ktbt_proto.tree import SequenceNode
+from ktbt_proto.validate import find_problems
 
 __all__ = ["SETUP", "KtbtNode", "event_json", "event_msg", "events_qos", "latched", "problem"]
 
@@ -87,13 +81,19 @@ SETUP = (
 
 
 def problem(name: str, value: Any) -> str | None:
-    """What is wrong with a value of the node's parameter ``name``, in one line, or None."""
-    if name == "tick_rate" and not 0 < float(value) <= 1000:
-        return f"tick_rate {value}: use (0, 1000] Hz"
-    if name == "snapshot_period" and not 0 <= float(value) <= 3600:
-        return f"snapshot_period {value}: use [0, 3600] s (0: only on change)"
-    if name in ("wait_ticks", "cooldown_ticks") and not 1 <= int(value) <= 1_000_000:
-        return f"{name} {value}: use 1 to 1000000 ticks"
+    """What is wrong with a value of the node's parameter ``name``, in one line, or None. A
+    number may be given as an integer where a float is declared (``tick_rate:=50``)."""
+    number = (
+        float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+    )
+    if name == "tick_rate" and (number is None or not 0 < number <= 1000):
+        return f"tick_rate {value!r}: use a number of Hz in (0, 1000]"
+    if name == "snapshot_period" and (number is None or not 0 <= number <= 3600):
+        return f"snapshot_period {value!r}: use a number of seconds in [0, 3600] (0: on change)"
+    if name in ("wait_ticks", "cooldown_ticks") and (
+        not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 1_000_000
+    ):
+        return f"{name} {value!r}: use 1 to 1000000 ticks"
     if name == "overhear" and value not in ("off", "update", "buffer"):
         return f"overhear {value!r}: use off, update or buffer"
     if name == "policy" and value not in [p.value for p in Policy]:
@@ -110,11 +110,13 @@ def problem(name: str, value: Any) -> str | None:
 
 
 class _ToNodeLogger(logging.Handler):
-    """The library's log records (``ktbt.*``) through the node's logger."""
+    """The library's log records (``ktbt.*``) through the node's logger, at the node's own
+    level (``--ros-args --log-level``): rclpy's severities are Python's numbers (DEBUG 10 to
+    FATAL 50), so the level is passed as it is."""
 
     def __init__(self, node: LifecycleNode) -> None:
-        super().__init__(logging.INFO)
         self.logger = node.get_logger()
+        super().__init__(int(self.logger.get_effective_level()))
 
     def emit(self, record: logging.LogRecord) -> None:
         text = record.getMessage()
@@ -122,8 +124,10 @@ class _ToNodeLogger(logging.Handler):
             self.logger.error(text)
         elif record.levelno >= logging.WARNING:
             self.logger.warning(text)
-        else:
+        elif record.levelno >= logging.INFO:
             self.logger.info(text)
+        else:
+            self.logger.debug(text)
 
 
 class KtbtNode(LifecycleNode):
@@ -134,9 +138,20 @@ class KtbtNode(LifecycleNode):
         self.logger = Node.get_logger(self)
         """The node's logger (named for the node, namespace included)."""
 
-        def declare(name: str, default: Any, when: str) -> None:
+        def declare(name: str, default: Any, when: str, **limits: Any) -> None:
             # One descriptor each: rclpy writes the parameter's type into the one it is given.
-            self.declare_parameter(name, default, ParameterDescriptor(description=when))
+            descriptor = ParameterDescriptor(description=when, **limits)
+            self.declare_parameter(name, default, descriptor)
+
+        def ticks() -> dict[str, Any]:
+            return {"integer_range": [IntegerRange(from_value=1, to_value=1_000_000, step=1)]}
+
+        def seconds(most: float) -> dict[str, Any]:
+            # An integer is a number too (tick_rate:=50): typed dynamically, checked by problem.
+            return {
+                "dynamic_typing": True,
+                "additional_constraints": f"a number from 0 to {most:g}",
+            }
 
         setup, live = "read at configure", "applied at once"
         declare("agent_name", "", setup)  # "": the namespace's last name, else the node's
@@ -149,8 +164,8 @@ class KtbtNode(LifecycleNode):
         declare("trust", "", setup)
         declare("log", "", setup)
         declare("overhear", "off", setup)
-        declare("wait_ticks", 200, setup)
-        declare("cooldown_ticks", 50, setup)
+        declare("wait_ticks", 200, setup, **ticks())
+        declare("cooldown_ticks", 50, setup, **ticks())
         declare("queries_topic", Topics().queries, setup)
         declare("answers_topic", Topics().answers, setup)
         declare("errors_topic", Topics().errors, setup)
@@ -166,14 +181,14 @@ class KtbtNode(LifecycleNode):
             Parameter.Type.STRING_ARRAY,
             ParameterDescriptor(description=f"{live}; unset: what the fleet's catalogs list"),
         )
-        declare("tick_rate", 100.0, live)
-        declare("snapshot_period", 0.0, live)
+        declare("tick_rate", 100.0, f"{live}; Hz", **seconds(1000))
+        declare("snapshot_period", 0.0, f"{live}; seconds, 0: only on change", **seconds(3600))
         self.add_on_set_parameters_callback(self._on_parameters)
         self._handler = _ToNodeLogger(self)
         library = logging.getLogger("ktbt")
         library.addHandler(self._handler)
-        if library.level == logging.NOTSET or library.level > logging.INFO:
-            library.setLevel(logging.INFO)
+        if library.level == logging.NOTSET or library.level > self._handler.level:
+            library.setLevel(self._handler.level)
         self.finalized = False
         """Shut down (the lifecycle's finalized state): the process running it may end."""
         self.agent: ApplicationTimedAgent | None = None
@@ -246,21 +261,12 @@ class KtbtNode(LifecycleNode):
                 raise ValueError(why)
         name = robot_name(self, str(self._param("agent_name")), "agent_name")
         vocabulary, control_path = str(self._param("vocabulary")), str(self._param("control"))
-        if control_path and not vocabulary:
-            raise ValueError(f"control {control_path}: give vocabulary too (the names it runs)")
-        registry = load_vocabulary(vocabulary) if vocabulary else demo_registry()
-        if control_path:
-            control = Path(control_path).read_text(encoding="utf-8")
-        else:
-            control = LEARNER_CONTROL if vocabulary else DEMO_CONTROL
-        try:
-            slot = learning_slot(parse(control))
-        except StringBTError as err:
-            where = control_path or "the control tree"
-            why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
-            raise ValueError(why) from None
-        if slot is None:
-            raise ValueError(f"control {control_path}: no placeholder (<k>(new)) to learn into")
+        robot = build_robot(vocabulary or None, control_path or None)  # RobotError: one line
+        registry, control, slot = robot.registry, robot.control, robot.slot
+        for text in self._param("sequences") or ():  # never learnable: refused now, with its code
+            found = find_problems(SequenceNode(read_sequence(text)), registry)
+            if found:
+                raise ValueError(f"sequences: {text!r}: {found[0].code} {found[0].message}")
         knowledge = load_knowledge(self._param("knowledge")) if self._param("knowledge") else None
         key = str(self._param("key"))
         identity = Identity.load(key) if key else None
@@ -444,6 +450,8 @@ class KtbtNode(LifecycleNode):
 
     def _show(self, periodic: bool = False) -> None:
         """Publish the tree snapshot and the catalog when they changed (the snapshot on the
-        snapshot period even if not: ``changed`` false)."""
-        if self.agent is not None and self._shown is not None:
+        snapshot period even if not: ``changed`` false); nothing while inactive (an item
+        forgotten then is shown at the next activation, which publishes a snapshot)."""
+        active = self.transport is not None and self.transport.active
+        if active and self.agent is not None and self._shown is not None:
             self._shown.show(self.agent.control.tree, periodic)

@@ -1,6 +1,6 @@
 """A KT-BT agent in its user's own rclpy node and py_trees tree (spec/protocol.md section 11,
 "Embedding"), and the lifecycle node reading the fleet's catalogs (section 4.5): the example
-docking robot (``ktbt_proto/examples/ros2/``), a real ``Dock`` action server in another process,
+docking robot (``examples/ros2/``), a real ``Dock`` action server in another process,
 a ``ktbt ros2 run`` teacher and learner, all real rclpy processes in one network namespace
 shared by this module's tests (``rosns``), every wait a topic or output condition with a
 deadline."""
@@ -64,12 +64,12 @@ def fleet(ros2_built: None, tmp_path_factory: pytest.TempPathFactory) -> Iterato
             probe.subscribe(topic, "FleetEvent")
         probe.subscribe("/learner/ktbt/tree", "TreeSnapshot", latched=True)
         probe.subscribe("/dock_robot/ktbt/catalog", "Catalog", latched=True)
-        example = [sys.executable, "-m", "ktbt_proto.examples.ros2"]
-        ns.start([*example[:2], f"{example[2]}.dock_server"], "server")
+        example = packaged("examples", "ros2")
+        ns.start([sys.executable, str(example / "dock_server.py")], "server")
         teacher = ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/teacher",
                           "-p", f"vocabulary:={VOCABULARY}", "-p", f"knowledge:={DOCK}",
                           name="teacher")  # fmt: skip
-        ns.start([*example[:2], f"{example[2]}.dock_robot"], "robot")
+        ns.start([sys.executable, str(example / "dock_robot.py")], "robot")
         yield ns, probe, teacher
     finally:
         ns.close()

@@ -27,7 +27,7 @@ SEEING = '''\
 import logging
 
 from ktbt_proto.blackboard import Blackboard
-from ktbt_proto.interop.robot import Colour
+from ktbt_proto.tools.demo import Colour
 from ktbt_proto.registry import Registry
 from ktbt_proto.status import SUCCESS, Status
 

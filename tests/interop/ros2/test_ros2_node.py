@@ -133,7 +133,7 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
          "values": {"wait_ticks": 10, "tick_rate": 0.0, "sequences": ["TargetSeen(colour="]}}
     )["results"]  # fmt: skip
     assert refused[0] == [False, "wait_ticks is read at configure: clean up first"]
-    assert refused[1] == [False, "tick_rate 0.0: use (0, 1000] Hz"]
+    assert refused[1] == [False, "tick_rate 0.0: use a number of Hz in (0, 1000]"]
     assert refused[2][0] is False and refused[2][1].startswith(
         "sequences: 'TargetSeen(colour=': SBT"
     )
@@ -215,7 +215,9 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
         "error: /broken/ktbt refused configure (see its log)\n",
     )
     assert lifecycle(ns, "/broken/ktbt", "get") == "unconfigured"
-    assert f"configure failed: {missing}: No such file or directory" in ns.log("broken")
+    assert f"configure failed: control: cannot read {missing}: No such file or directory" in ns.log(
+        "broken"
+    )
     assert "Traceback" not in ns.log("broken")
     # And the teacher goes on: it still answers what it is asked.
     listed = probe.until({"op": "call", "service": "/teacher/ktbt/list_knowledge",

@@ -194,7 +194,7 @@ def test_peers_transfers_refusals_and_departures_show_live(
     # A killed peer is marked gone.
     victim = stack.enter_context(
         ktbt_process("peer", "serve", "--id", "victim", "--knowledge",
-                     str(ROOT / "ktbt_proto" / "examples" / "knowledge" / "colours.sbt"),
+                     str(ROOT / "examples" / "knowledge" / "colours.sbt"),
                      "--connect", endpoint(port), ready="serving")
     )  # fmt: skip
     assert wait_until(lambda: page.status("victim") == "present", 15)

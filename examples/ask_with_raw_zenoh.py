@@ -1,6 +1,6 @@
 """Ask a ktbt peer for knowledge using eclipse-zenoh directly, from spec/protocol.md alone.
 
-    python ktbt_proto/examples/ask_with_raw_zenoh.py tcp/127.0.0.1:7447 "<c>(TargetSeen,colour=2)"
+    python examples/ask_with_raw_zenoh.py tcp/127.0.0.1:7447 "<c>(TargetSeen,colour=2)"
 
 Prints the first response (JSON) and exits 0, or exits 1 if no peer answered in time.
 """

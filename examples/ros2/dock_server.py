@@ -1,7 +1,7 @@
 """A docking station: a real ROS 2 action server for ``ktbt_interfaces/action/Dock`` on
 ``/dock``, in a process of its own (docs/tutorials/ros2.md, "Embedding in your own node").
 
-    python -m ktbt_proto.examples.ros2.dock_server   # until Ctrl-C
+    python examples/ros2/dock_server.py   # until Ctrl-C
 
 It knows the docks ``A`` and ``B``: a goal for either is driven to (feedback: the distance left)
 and docked (``docked`` true); any other is aborted with ``docked`` false and the reason. It

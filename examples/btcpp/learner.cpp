@@ -1,9 +1,9 @@
 // A BehaviorTree.CPP robot that learns through a KT-BT agent running beside it.
 //
 //   ktbt peer run --id robot --export-learned learned/ --sequence 'TargetSeen(colour=2)' ...
-//   learner ktbt_proto/examples/btcpp/control.xml learned/ --target 2
+//   learner examples/btcpp/control.xml learned/ --target 2
 //
-// The robot ticks control.xml (what `ktbt convert ktbt_proto/examples/btcpp/control.sbt` writes). The agent
+// The robot ticks control.xml (what `ktbt convert examples/btcpp/control.sbt` writes). The agent
 // writes each item it learns into the folder as its own BehaviorTree.CPP document and removes
 // it when the item is forgotten (spec/stringbt.md, section 12.1). BehaviorTree.CPP cannot edit
 // a running tree, so at the first tick boundary after every change of the folder the robot

@@ -1,9 +1,9 @@
 """A docking robot written as a ROS 2 user writes one: its own rclpy node, its own py_trees
-tree ticked by its own timer, and one call, :func:`ktbt_proto.interop.ros2.embed.attach`, that
-lets the tree learn and teach over ROS 2 (docs/tutorials/ros2.md, "Embedding in your own
-node").
+tree ticked by its own timer, and one call, ``kp.attach``
+(:func:`ktbt_proto.interop.ros2.embed.attach`), that lets the tree learn and teach over ROS 2
+(docs/tutorials/ros2.md, "Embedding in your own node").
 
-    python -m ktbt_proto.examples.ros2.dock_robot [--name NAME] [--sequence SEQ ...]
+    python examples/ros2/dock_robot.py [--name NAME] [--sequence SEQ ...]
 
 The robot patrols, and its battery drains. It does not know how to dock: its tree has a
 placeholder (``k:new``) where learned knowledge runs, before patrolling. Told no sequence, it
@@ -30,8 +30,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
-from ktbt_proto.interop.ros2.embed import attach
-from ktbt_proto.registry import Registry
+import ktbt_proto as kp
 
 VOCABULARY = Path(__file__).with_name("dock.toml")
 Status = py_trees.common.Status
@@ -98,8 +97,8 @@ def main(argv: list[str] | None = None) -> None:
     tree = py_trees.trees.BehaviourTree(root)
 
     # The one call: the tree learns and teaches over ROS 2 from now on.
-    robot = attach(
-        node, tree, Registry.load(VOCABULARY), behaviours={"Dock": DockClient},
+    robot = kp.attach(
+        node, tree, kp.Registry.load(VOCABULARY), behaviours={"Dock": DockClient},
         sequences=args.sequence,
     )  # fmt: skip
 

@@ -25,7 +25,9 @@ driver and ``--iterations 20``, since a window would wait for someone to close i
 ``--record`` ``--frames 3 --every 10``, since a full recording simulates 30,000 iterations;
 a block that runs ``ktbt ros2`` runs in a network namespace of its own with only loopback up,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a ``ROS_DOMAIN_ID`` of its own, since DDS
-discovers by multicast. Whatever a block leaves behind must be ignored by the repository's
+discovers by multicast; a ``source`` line runs with unset variables allowed (``set +u``), as in
+the interactive shell a reader types it into, since ROS's setup scripts read some (colcon's
+``COLCON_TRACE``). Whatever a block leaves behind must be ignored by the repository's
 ``.gitignore``, so following the documentation leaves a clone clean.
 """
 
@@ -138,8 +140,9 @@ def test_every_path_the_readme_links_is_committed() -> None:
 
 @pytest.fixture
 def clone(tmp_path: Path) -> Path:
-    """What a newcomer's clone has that the pages name: the examples."""
+    """What a newcomer's clone has that the pages name: the examples and the ROS packages."""
     shutil.copytree(ROOT / "examples", tmp_path / "examples")
+    shutil.copytree(ROOT / "ros2", tmp_path / "ros2")
     return tmp_path
 
 
@@ -226,7 +229,9 @@ def adapt(block: str, chosen: dict[str, str]) -> str:
         if line.startswith("make "):
             continue
         command, hash_, rest = _split_comment(line)
-        if command.startswith(("ktbt demo", "ktbt sim run")):
+        if command.startswith("source "):  # a setup script of ROS's reads unset variables
+            command = f"set +u; {command}; set -u"
+        elif command.startswith(("ktbt demo", "ktbt sim run")):
             command += SMALL
         elif command.startswith("ktbt sim view"):
             command += " --frames 3 --every 10" if "--record" in command else " --iterations 20"

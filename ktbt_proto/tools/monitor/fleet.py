@@ -6,12 +6,12 @@ changes kept. What does not fit is dropped and counted, so a flooding or hostile
 the monitor a counter, not its memory. The items table is shared fairly: when it is full, the
 items of peers the monitor has least reason to believe go first (a name not in the trust store
 and with no liveliness token), and among equals the peers that hold the most of it give way
-(:meth:`Fleet._make_room`), so one peer, or a few, listing junk cannot crowd out what the rest
+(:meth:`FleetState._make_room`), so one peer, or a few, listing junk cannot crowd out what the rest
 of the fleet knows. What each peer holds is kept up to date as peers learn and forget, so
 making room costs a look at the peers, not a sum over the table. A page that falls behind
 the kept changes gets a fresh snapshot instead. Data flows one way: zenoh callbacks call
-:meth:`Fleet.peer_joined`, :meth:`Fleet.event` and friends; the web side reads
-:meth:`Fleet.changes_since` and :meth:`Fleet.snapshot`.
+:meth:`FleetState.peer_joined`, :meth:`FleetState.event` and friends; the web side reads
+:meth:`FleetState.changes_since` and :meth:`FleetState.snapshot`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ LOST_AFTER = 5.0
 EPSILON = 1e-9
 """Loads closer than this are equal (they are sums of fractions)."""
 TIERS = 3
-"""How much the monitor believes a peer's name, low to high (:meth:`Fleet._tier`)."""
+"""How much the monitor believes a peer's name, low to high (:meth:`FleetState._tier`)."""
 
 
 PEER_NAME = re.compile(NAME_PATTERN)
@@ -79,7 +79,7 @@ class Peer:
     """When anything last came from or about it (monotonic): the oldest idle peer goes first."""
     load: float = 0.0
     """Its share of the items table: the sum, over the items it knows, of one over the number
-    of peers that know each (:meth:`Fleet._make_room`), kept up to date as peers learn and
+    of peers that know each (:meth:`FleetState._make_room`), kept up to date as peers learn and
     forget."""
 
     def view(self) -> dict[str, Any]:

@@ -44,18 +44,6 @@ DEMO_CONTROL = """<sl>
 """
 """The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
 
-DEMO_CONTROL = """<sl>
-    <sq>
-        <c>(Carrying)
-        <a>(DeliverToZone)
-    <e>
-    <k>(prior)<e>
-    <k>(new)<e>
-    <a>(RandomWalk)
-<e>
-"""
-"""The demo robot's control tree: deliver what it carries, else what it knows, else walk."""
-
 
 def demo_registry() -> Registry:
     """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""

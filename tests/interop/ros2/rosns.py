@@ -122,6 +122,17 @@ class RosNamespace:
                 proc.stdout.close()
 
 
+def wait_for_line(ns: RosNamespace, name: str, text: str, timeout: float = 120) -> str:
+    """The first line of a process's output holding ``text``; fails at the deadline."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for line in ns.log(name).splitlines():
+            if text in line:
+                return line
+        time.sleep(0.05)
+    raise AssertionError(f"{name} never printed {text!r}:\n{ns.log(name)[-2000:]}")
+
+
 class Probe:
     """The test's own ROS participant in the namespace (``probe.py``), one JSON request and
     one JSON answer a line."""

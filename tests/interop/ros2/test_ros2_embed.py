@@ -19,7 +19,7 @@ import pytest
 
 from ktbt_proto.files import packaged
 from tests.interop.ros2.probe import echo
-from tests.interop.ros2.rosns import Probe, RosNamespace
+from tests.interop.ros2.rosns import Probe, RosNamespace, wait_for_line
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -28,17 +28,6 @@ DOCK = packaged("examples", "ros2", "dock.sbt")
 SEQUENCE = "<c>(BatteryLow)"
 ECHO = os.environ.get("KTBT_ECHO_TO")
 """A folder to write what ``ros2 topic echo`` would show of the learner (the tutorial's)."""
-
-
-def wait_for_line(ns: RosNamespace, name: str, text: str, timeout: float = 120) -> str:
-    """The first line of a process's output holding ``text``; fails at the deadline."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        for line in ns.log(name).splitlines():
-            if text in line:
-                return line
-        time.sleep(0.05)
-    raise AssertionError(f"{name} never printed {text!r}:\n{ns.log(name)[-2000:]}")
 
 
 def wait_for_item(probe: Probe, catalog: str, teacher: str, timeout: float = 120) -> None:

@@ -7,14 +7,13 @@ rclpy processes in a network namespace of the module's own (``rosns``)."""
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
 
 from ktbt_proto.files import packaged
-from tests.interop.ros2.rosns import RosNamespace
+from tests.interop.ros2.rosns import RosNamespace, wait_for_line
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -51,16 +50,6 @@ except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
 finally:
     robot.close()
 '''
-
-
-def wait_for_line(ns: RosNamespace, name: str, text: str, timeout: float = 90) -> str:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        for line in ns.log(name).splitlines():
-            if text in line:
-                return line
-        time.sleep(0.05)
-    raise AssertionError(f"{name} never printed {text!r}:\n{ns.log(name)[-2000:]}")
 
 
 @pytest.fixture(scope="module")

@@ -45,11 +45,12 @@ if TYPE_CHECKING:
     from ktbt_proto.interop.ros2.embed import attach
     from ktbt_proto.limits import Limits
     from ktbt_proto.merge import MergeError, merge
-    from ktbt_proto.registry import Registry, load_vocabulary
+    from ktbt_proto.registry import Registry
     from ktbt_proto.render import render
     from ktbt_proto.runtime import LiveTree
     from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
     from ktbt_proto.syntax import parse
+    from ktbt_proto.tools.robot import load_vocabulary
     from ktbt_proto.transport.memory import MemoryNetwork
     from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport
     from ktbt_proto.tree import Action, Condition, SequenceNode, Tree
@@ -70,7 +71,7 @@ _HOME = {
     "Condition": "ktbt_proto.tree",
     "SequenceNode": "ktbt_proto.tree",
     "Registry": "ktbt_proto.registry",
-    "load_vocabulary": "ktbt_proto.registry",
+    "load_vocabulary": "ktbt_proto.tools.robot",
     "Blackboard": "ktbt_proto.blackboard",
     "LiveTree": "ktbt_proto.runtime",
     "ControlTree": "ktbt_proto.control",

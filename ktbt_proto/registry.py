@@ -6,26 +6,24 @@ touches the running tree.
 
 A robot's vocabulary can also be a file (spec/stringbt.md, section 5.1): the conditions and
 actions with their arguments' names, types and ranges, what a Python registry learns from its
-behaviours' annotations. :func:`load_vocabulary` reads one (or imports a Python registry named
-``module:callable``) and :meth:`Registry.to_toml` writes one, so that a robot written in another
-language (a BehaviorTree.CPP program) is checked exactly as a Python one is.
+behaviours' annotations. :meth:`Registry.load` reads one and :meth:`Registry.to_toml` writes
+one, so that a robot written in another language (a BehaviorTree.CPP program) is checked
+exactly as a Python one is; the tools also take a Python registry named ``module:callable``
+(:func:`ktbt_proto.tools.robot.load_vocabulary`, which imports the user's module).
 """
 
 from __future__ import annotations
 
-import importlib
 import inspect
 import logging
 import math
 import os
 import re
-import sys
 import tomllib
 import typing
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache, partial
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, TypeVar, runtime_checkable
 
 from ktbt_proto.files import TooLarge, read_bounded
@@ -401,7 +399,7 @@ class Registry:
     # -- the vocabulary file (spec/stringbt.md, section 5.1) ---------------------------------
 
     def to_toml(self) -> str:
-        """This registry as a vocabulary file, which :func:`load_vocabulary` reads back into a
+        """This registry as a vocabulary file, which :meth:`load` reads back into a
         registry that checks knowledge exactly as this one does. Raises ``ValueError`` (one
         line) for an argument whose annotation has no form there (int, float, str, bool, a
         ``Literal`` of one of them, with ``ge``/``gt``/``le``/``lt`` or length bounds)."""
@@ -649,61 +647,3 @@ def _toml_value(value: Any) -> str:
         return "[" + ", ".join(map(_toml_value, value)) + "]"
     items = ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items())
     return "{ " + items + " }" if items else "{}"
-
-
-def load_vocabulary(spec: str | os.PathLike[str]) -> Registry:
-    """The registry a robot's vocabulary names: a vocabulary file (``robot.toml``), or a Python
-    registry as ``module:callable`` (``mypkg.robot:make_registry``, called with no argument,
-    or a ``Registry`` object itself), imported with the current folder on the path. Raises
-    ``ValueError`` with one line: a file that cannot be read or declares something wrong, a
-    module that is missing or fails to import, a name it lacks, a callable that fails or
-    returns something other than a ``Registry``."""
-    text = os.fspath(spec)
-    path = Path(text)
-    if path.is_file() or text.endswith(".toml") or _MODULE.fullmatch(text) is None:
-        if not path.is_file() and not text.endswith(".toml"):
-            raise ValueError(
-                f"registry {text}: neither a vocabulary file (.toml) nor a Python registry "
-                "named module:callable"
-            )
-        return Registry.load(path)
-    module_name, _, attribute = text.partition(":")
-    if os.getcwd() not in sys.path and "" not in sys.path:
-        sys.path.insert(0, os.getcwd())  # as `python -m` would: the robot's own package
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and module_name.startswith(exc.name):
-            raise ValueError(f"registry {text}: no module named {exc.name!r}") from None
-        raise ValueError(
-            f"registry {text}: cannot import {module_name}: {_one_line(exc)}"
-        ) from None
-    except Exception as exc:
-        raise ValueError(
-            f"registry {text}: cannot import {module_name}: {_one_line(exc)}"
-        ) from None
-    target: Any = module
-    for part in attribute.split("."):
-        if not hasattr(target, part):
-            raise ValueError(f"registry {text}: {module_name} has no {attribute!r}")
-        target = getattr(target, part)
-    if not isinstance(target, Registry):
-        if not callable(target):
-            raise ValueError(f"registry {text}: {attribute} is neither a Registry nor callable")
-        try:
-            target = target()
-        except Exception as exc:
-            raise ValueError(f"registry {text}: {attribute}() failed: {_one_line(exc)}") from None
-        if not isinstance(target, Registry):
-            raise ValueError(
-                f"registry {text}: {attribute}() returned {type(target).__name__}, not a Registry"
-            )
-    return target
-
-
-_MODULE = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

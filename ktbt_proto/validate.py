@@ -51,7 +51,7 @@ class SupportsNames(Protocol):
 class Vocabulary:
     """The condition and action names a robot knows, without their arguments: the two questions
     validation asks of any registry. For a vocabulary file with its arguments' types and ranges
-    checked too, use :func:`~ktbt_proto.registry.load_vocabulary`, which gives a ``Registry``.
+    checked too, use :func:`~ktbt_proto.tools.robot.load_vocabulary`, which gives a ``Registry``.
     """
 
     conditions: frozenset[str]

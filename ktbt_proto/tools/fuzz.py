@@ -1,10 +1,7 @@
 """Mutation fuzzing of what a peer or a file can feed us: ``make fuzz`` (``python -m
 ktbt_proto.tools.fuzz``).
 
-Inputs are mutations of a seed corpus (the conformance vectors, the examples and wire
-messages): bit and byte flips, stringBT tokens and hostile literals inserted, spans deleted,
-duplicated or spliced from another seed, nesting deepened. Every input is checked against the
-properties the specification promises:
+Every input is checked against the properties the specification promises:
 
 - the parser returns a tree or raises a ``StringBTError``, for str and bytes alike, and never
   anything else (``spec/stringbt.md`` sections 8 and 9);
@@ -16,21 +13,40 @@ properties the specification promises:
 - the message decoder returns a message or raises ``MessageRefused``; a message that decodes
   encodes and decodes back to itself (``spec/protocol.md`` section 1).
 
+Inputs are mutations of the seeds: the conformance vectors (``spec/vectors/``), every ``.sbt``
+file of the repository (the packaged examples, outside a source checkout) and wire messages.
+Bugs in a parser hide where tokens meet, so most mutations know the tokens of section 1: a
+name, number, string or boolean is swapped for another literal (``true``, ``1e400``, a JSON
+fragment), a fragment is glued right after or before a token (``.``, ``.5``, ``1e``, ``(``), a
+leaf is rewritten with or without its parentheses (``<c>X`` is ``<c>(X)``, section 2) around
+another literal, tags are swapped, dropped or doubled, and leaves and subtrees cut from the
+seeds are spliced in. A leaf, a subtree or a whole seed is the starting point, so the short
+inputs where such bugs show are common. Rougher mutations (characters flipped, spans deleted,
+duplicated or spliced from another seed, nesting deepened) and gentle ones (a literal changed in
+a valid text, so that the round trip is exercised) make up the rest. The inputs that broke
+something once are kept in ``tests/data/fuzz/`` and checked by ``make test``.
+
 A failing input is written to ``fuzz-failures/`` with the property it broke, and the run ends
-with exit status 1. The run reports inputs per second.
+with exit status 1. A run lasts a set time or a set number of inputs, on one worker process per
+core, and reports inputs per second.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import os
+import queue
 import random
 import re
 import sys
 import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.messages import MessageRefused, Query, Response, decode, encode
@@ -40,7 +56,9 @@ from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import parse, parse_reference
 from ktbt_proto.validate import find_problems
 
-ROOT = Path(__file__).resolve().parents[2]  # the repository, for its spec/vectors
+ROOT = Path(__file__).resolve().parents[2]  # the repository, for its spec/vectors and .sbt files
+MAX_TEXT = 20_000
+"""Longer inputs cost time and find nothing the size limit tests do not (section 8)."""
 
 TOKENS = [
     "<sq>",
@@ -97,6 +115,104 @@ TOKENS = [
 ]
 """Fragments worth inserting: every tag, punctuation, and the literals that broke things."""
 
+TAGS = [
+    "<sq>",
+    "<msq>",
+    "<sl>",
+    "<msl>",
+    "<pl>",
+    "<neg>",
+    "<tt1>",
+    "<tt2>",
+    "<k>",
+    "<e>",
+    "<c>",
+    "<a>",
+    "<w>",
+    "<wt>",
+    "<Root>",
+    "<foo>",
+    "<C>",
+    "<>",
+    "<e",
+    "e>",
+    "<sq",
+]
+"""The tags of section 1, and near misses of them."""
+
+NAMES = ["A", "B", "X", "TargetSeen", "nav.MoveTo", "_x", "k", "colour", "e", "sq", "Root", "a1"]
+"""Names the fuzz registry knows, and names that look like tags."""
+
+LITERALS = [
+    ["true", "false", "null"],
+    ["True", "FALSE", "truex", "true_", "false1", "true.x", "false.e_", "falsetrue"],
+    ["0", "-0.0", "7", "1.5", "2.5e-07", "1e+16", "1e308", "-1e308", "1e400", "-1e400", "9" * 300],
+    [".5", "1.", "1e", "1e+", "-", "--1", "0x10", "1.5.5", "1e5e5"],
+    ["a.b.c", "a..b", "a.", ".a", "é", "x" * 1025],
+]
+"""Section 1's literals, in groups: the keywords, names that start as a keyword, numbers, near
+numbers, near names (and a name one character over the literal limit of section 8). A group is
+drawn first, so that the long ones do not drown the short."""
+
+JSON_FRAGMENTS = [
+    '""',
+    '"s"',
+    '"é\\u0000"',
+    '"\\ud800"',
+    '"\\uD800\\udc00"',
+    '"\\/"',
+    '"\\b\\f"',
+    '"a\\"b"',
+    '"\\x"',
+    '"\\u12"',
+    '"a\nb"',
+    '"💡"',
+    '"#(<e>"',
+    '{"a":1}',
+    "[1,2]",
+    "[]",
+    "{}",
+    "-0",
+    "1E5",
+    "1e999",
+]
+"""JSON values and near misses: a stringBT string is a JSON string (section 1), a message is
+JSON (``spec/protocol.md`` section 1)."""
+
+GLUE = [
+    [".", "..", ".5", ".x", ".true", ".e", "._"],
+    ["1e", "e5", "e", "E+", "_", "0", "-", "x"],
+    ["(", ")", "()", ",", "=", "!", "<", ">", "<e>", '"', "\\"],
+    [" ", "\n", "\r", "#", "# (<e>\n", "\x00", "é"],
+]
+"""What may be glued to a token with no blank between, in groups: what continues a name (or
+does not), a number, what ends a leaf, blanks and odd characters."""
+
+WORDS = [NAMES, *LITERALS, JSON_FRAGMENTS]
+
+
+NUMBERS = ["0", "-0.0", "1.5", "2.5e-07", "1e+16", "1e308", "-1e308", "1e400", "9" * 300, "7"]
+STRINGS = ['"\\ud800"', '"é\\u0000"', '"\\uD800\\udc00"', '"💡"', '"a\\nb"', '""', '"#(<e>"']
+LEAVES = ["<a>(X)", "<c>(A)", "<c>(!A)", "<w>(1)", "<wt>(0.25)", "<a>(X, k=1)", '<c>(B,k="s")']
+_NUMBER_RE = re.compile(r"-?[0-9]+(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?")
+_STRING_RE = re.compile(r'"(?:[^"\\]|\\.)*"')
+_OPEN_RE = re.compile(r"<(?:sq|msq|sl|msl|neg|pl)>|<(?:pl|tt1|tt2|k)>\([^)]*\)")
+# Tokens roughly as section 1 has them, and whatever else stands between them, one character at
+# a time: the mutations work on the boundaries. A number before a name, so that ``1e5`` stays one.
+_TOKEN_RE = re.compile(
+    r"<[A-Za-z0-9_]*>"
+    r"|-?[0-9]+(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?"
+    r"|[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*"
+    r'|"(?:[^"\\\n]|\\.)*"'
+    r"|#[^\n]*"
+    r"|[ \t\r\n]+"
+    r"|[\s\S]"
+)
+_WORD_START = frozenset('-0123456789"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_')
+# A leaf: its tag, then its parenthesised part (closed or not), or the bare name of ``<c>X``.
+_LEAF_RE = re.compile(r"<(c|a|w|wt)>(?:\([^()<>]*\)?|[ \t]*!?[ \t]*[^\s<>()#,]*)")
+_OPEN_TAG_RE = re.compile(r"<(?:sq|msq|sl|msl|neg|pl|tt1|tt2|k)>(?:\([^()<>]*\))?|<e>")
+
 MESSAGE_FIELDS: list[tuple[str, object]] = [
     ("v", True),
     ("v", 1.0),
@@ -116,18 +232,69 @@ MESSAGE_FIELDS: list[tuple[str, object]] = [
     ("sequence", ["nested"]),
     ("subtree", {"a": 1}),
 ]
+_TREE_FIELDS = ("sequence", "subtree")
+_JSON_GAP_RE = re.compile(rb"[{\[:,]")
+
+
+@dataclass
+class Corpus:
+    """The seeds, and what the mutations splice in: every leaf and every closed subtree of the
+    stringBT seeds (short, valid inputs, one mutation away from the bugs of sections 1 and 2)."""
+
+    texts: list[str]
+    messages: list[bytes]
+    pieces: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.pieces:
+            self.pieces = _pieces(self.texts) or list(LEAVES)
+
+
+def _pieces(texts: list[str]) -> list[str]:
+    """Every leaf and every subtree up to 2,000 characters long, once each, in order."""
+    found: dict[str, None] = {}
+    for text in texts:
+        for m in _LEAF_RE.finditer(text):
+            found[m.group()] = None
+        opened: list[int] = []
+        for m in _OPEN_TAG_RE.finditer(text):
+            if m.group() != "<e>":
+                opened.append(m.start())
+            elif opened:
+                start = opened.pop()
+                if m.end() - start <= 2_000:
+                    found[text[start : m.end()]] = None
+    return list(found)
+
+
+def _repository_sbt_files() -> list[Path]:
+    """Every ``.sbt`` file of a source checkout, outside hidden folders (``.venv``, ``.git``)
+    and the top-level folders runs write into."""
+    generated = {"build", "dist", "out", "results", "fuzz-failures", "keys", "ktbt-demo"}
+    found: list[Path] = []
+    for folder, dirs, files in os.walk(ROOT):
+        top = Path(folder) == ROOT
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (top and d in generated))
+        found += [Path(folder) / f for f in sorted(files) if f.endswith(".sbt")]
+    return found
 
 
 def seed_corpus() -> tuple[list[str], list[bytes]]:
-    """stringBT seeds (vectors and examples) and message seeds (valid messages)."""
+    """stringBT seeds (the vectors' inputs and every ``.sbt`` file) and message seeds (the
+    vectors' messages and a few valid ones)."""
     texts: list[str] = []
-    for name in ("valid", "invalid", "validation"):
-        path = ROOT / "spec" / "vectors" / f"{name}.json"
+    vectors = ROOT / "spec" / "vectors"
+    for name in ("valid", "invalid", "validation", "knowledge"):
+        path = vectors / f"{name}.json"
         if path.exists():
             texts += [case["input"] for case in json.loads(path.read_text(encoding="utf-8"))]
-    for path in sorted(packaged("examples").rglob("*.sbt")):
+    if vectors.is_dir():
+        sbt_files = _repository_sbt_files()
+    else:
+        sbt_files = sorted(packaged("examples").rglob("*.sbt"))
+    for path in sbt_files:
         texts.append(path.read_text(encoding="utf-8"))
-    texts = [t for t in texts if len(t) <= 20_000] or ["<sq><c>(A)<a>(B)<e>"]
+    texts = [t for t in texts if len(t) <= MAX_TEXT] or ["<sq><c>(A)<a>(B)<e>"]
     messages = [
         encode(Query(id="q1", sender="r1", sequence="<c>(TargetSeen,colour=2)")),
         encode(
@@ -140,19 +307,20 @@ def seed_corpus() -> tuple[list[str], list[bytes]]:
         ),
         b'{"v":1,"type":"error","id":"0","sender":"r","code":"refused","message":"bad"}',
     ]
-    signing = ROOT / "spec" / "vectors" / "signing.json"
+    path = vectors / "messages.json"
+    if path.exists():
+        for case in json.loads(path.read_text(encoding="utf-8")):
+            messages.append(json.dumps(case["message"], ensure_ascii=False).encode())
+    signing = vectors / "signing.json"
     if signing.exists():
         vector = json.loads(signing.read_text(encoding="utf-8"))
         messages.append(json.dumps(vector["response"], ensure_ascii=False).encode())
     return texts, messages
 
 
-NUMBERS = ["0", "-0.0", "1.5", "2.5e-07", "1e+16", "1e308", "-1e308", "1e400", "9" * 300, "7"]
-STRINGS = ['"\\ud800"', '"é\\u0000"', '"\\uD800\\udc00"', '"💡"', '"a\\nb"', '""', '"#(<e>"']
-LEAVES = ["<a>(X)", "<c>(A)", "<c>(!A)", "<w>(1)", "<wt>(0.25)", "<a>(X, k=1)", '<c>(B,k="s")']
-_NUMBER_RE = re.compile(r"-?[0-9]+(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?")
-_STRING_RE = re.compile(r'"(?:[^"\\]|\\.)*"')
-_OPEN_RE = re.compile(r"<(?:sq|msq|sl|msl|neg|pl)>|<(?:pl|tt1|tt2|k)>\([^)]*\)")
+def load_corpus() -> Corpus:
+    texts, messages = seed_corpus()
+    return Corpus(texts, messages)
 
 
 def _gentle(rng: random.Random, text: str) -> str:
@@ -173,43 +341,140 @@ def _gentle(rng: random.Random, text: str) -> str:
     return text[: m.end()] + rng.choice(("  # a (comment) <e>\n", "\n#)\n", " ")) + text[m.end() :]
 
 
-def mutate_text(rng: random.Random, text: str, corpus: list[str]) -> str:
-    """Gentle mutations half the time (most stay valid, and exercise the round trip), else one
-    to four rough ones."""
+def _rough(rng: random.Random, text: str, corpus: list[str]) -> str:
+    """A mutation blind to tokens: a character or a span changed, deleted, repeated or spliced
+    from another seed, nesting deepened."""
+    n = len(text)
+    i, j = sorted((rng.randint(0, n), rng.randint(0, n)))
+    kind = rng.randrange(8)
+    if kind == 0:
+        return text[:i] + rng.choice(TOKENS) + text[i:]
+    if kind == 1:
+        return text[:i] + text[j:]
+    if kind == 2:
+        return text[:i] + text[i:j] * rng.randint(2, 4) + text[j:]
+    if kind == 3 and n:
+        c = chr(rng.choice((rng.randrange(32, 127), rng.randrange(0, 0x3000))))
+        return text[:i] + c + text[i + 1 :]
+    if kind == 4:
+        other = rng.choice(corpus)
+        a, b = sorted((rng.randint(0, len(other)), rng.randint(0, len(other))))
+        return text[:i] + other[a:b] + text[j:]
+    if kind == 5:
+        depth = rng.choice((2, 8, 40, 200))
+        return "<sq>" * depth + text + "<e>" * rng.choice((depth, depth - 1, 0))
+    if kind == 6:
+        return text[:i] + text[i:j].swapcase() + text[j:]
+    return text[:i] + "".join(rng.choices(TOKENS, k=rng.randint(1, 6))) + text[j:]
+
+
+def _draw(rng: random.Random, groups: list[list[str]]) -> str:
+    """A group first, then a fragment of it (``LITERALS``)."""
+    return rng.choice(rng.choice(groups))
+
+
+def _rewrite_leaf(rng: random.Random, tag: str) -> str:
+    """A leaf of the same kind around another literal: parenthesised or bare (section 2), with
+    blanks, a comment or a ``!`` before the literal, something glued after it, and maybe an
+    argument or no closing parenthesis."""
+    word = _draw(rng, WORDS)
     if rng.random() < 0.5:
+        word += _draw(rng, GLUE)
+    bang = rng.choice(("", "", "!", " ! ")) if tag == "c" else rng.choice(("", "", "", "!"))
+    if rng.random() < 0.5:
+        blank = rng.choice(("", "", "", " ", "\n", "\t", " # c\n"))
+        return f"<{tag}>{blank}{bang}{word}"
+    close = rng.choice((")", ")", ")", "", f",k={_draw(rng, WORDS)})", ", k = 1 )"))
+    return f"<{tag}>({bang}{word}{close}"
+
+
+def _token_edit(rng: random.Random, text: str, pieces: list[str]) -> str:
+    """One token-aware mutation (module docstring): the places bugs of sections 1 and 2 hide
+    are where one token ends and the next begins. Leaves are rewritten twice as often as the
+    rest is changed: they hold the literals."""
+    kind = rng.randrange(9)
+    if kind == 0 or kind == 8:  # a leaf rewritten
+        leaves = list(_LEAF_RE.finditer(text))
+        if leaves:
+            m = rng.choice(leaves)
+            return text[: m.start()] + _rewrite_leaf(rng, m.group(1)) + text[m.end() :]
+        return text + _rewrite_leaf(rng, rng.choice(("c", "a", "w", "wt")))
+    spans = [m.span() for m in _TOKEN_RE.finditer(text)]
+    if not spans:
+        return rng.choice(pieces)
+    i, j = rng.choice(spans)
+    if kind == 1:  # a literal swapped for another
+        words = [(a, b) for a, b in spans if text[a] in _WORD_START]
+        if words:
+            i, j = rng.choice(words)
+        return text[:i] + _draw(rng, WORDS) + text[j:]
+    if kind == 2:  # a fragment glued after a token (or before it)
+        glue = _draw(rng, GLUE) if rng.random() < 0.6 else _draw(rng, WORDS)
+        if rng.random() < 0.75:
+            return text[:j] + glue + text[j:]
+        return text[:i] + glue + text[i:]
+    if kind == 3:  # a tag swapped, added or dropped
+        tags = [(a, b) for a, b in spans if text[a] == "<"]
+        if tags:
+            i, j = rng.choice(tags)
+        choice = rng.randrange(3)
+        if choice == 0:
+            return text[:i] + rng.choice(TAGS) + text[j:]
+        if choice == 1:
+            return text[:i] + rng.choice(TAGS) + text[i:]
+        return text[:i] + text[j:]
+    if kind == 4:  # tokens dropped
+        k = min(len(spans), spans.index((i, j)) + rng.randint(1, 3))
+        return text[:i] + text[spans[k - 1][1] :]
+    if kind == 5:  # a token repeated
+        return text[:j] + text[i:j] * rng.randint(1, 3) + text[j:]
+    if kind == 6:  # a leaf or subtree of a seed spliced in at a token boundary
+        piece = rng.choice(pieces)
+        if rng.random() < 0.5:
+            return text[:j] + piece + text[j:]
+        return text[:i] + piece + text[j:]
+    # two tokens swapped
+    a, b = rng.choice(spans)
+    if a < i:
+        a, b, i, j = i, j, a, b
+    return text[:i] + text[a:b] + text[j:a] + text[i:j] + text[b:]
+
+
+def mutate_text(
+    rng: random.Random, text: str, corpus: list[str], pieces: list[str] | None = None
+) -> str:
+    """One to three token-aware mutations, or gentle ones, or one to four rough ones (module
+    docstring): one family at a time, so that each family's inputs stay near valid text."""
+    family = rng.random()
+    if family < 0.5:
+        pieces = pieces or _pieces([text]) or list(LEAVES)
+        for _ in range(rng.randint(1, 3)):
+            text = _token_edit(rng, text, pieces)
+    elif family < 0.75:
         for _ in range(rng.randint(1, 3)):
             text = _gentle(rng, text)
-        return text
-    for _ in range(rng.randint(1, 4)):
-        n = len(text)
-        i, j = sorted((rng.randint(0, n), rng.randint(0, n)))
-        kind = rng.randrange(8)
-        if kind == 0:
-            text = text[:i] + rng.choice(TOKENS) + text[i:]
-        elif kind == 1:
-            text = text[:i] + text[j:]
-        elif kind == 2:
-            text = text[:i] + text[i:j] * rng.randint(2, 4) + text[j:]
-        elif kind == 3 and n:
-            c = chr(rng.choice((rng.randrange(32, 127), rng.randrange(0, 0x3000))))
-            text = text[:i] + c + text[i + 1 :]
-        elif kind == 4:
-            other = rng.choice(corpus)
-            a, b = sorted((rng.randint(0, len(other)), rng.randint(0, len(other))))
-            text = text[:i] + other[a:b] + text[j:]
-        elif kind == 5:
-            depth = rng.choice((2, 8, 40, 200))
-            text = "<sq>" * depth + text + "<e>" * rng.choice((depth, depth - 1, 0))
-        elif kind == 6:
-            text = text[:i] + text[i:j].swapcase() + text[j:]
-        else:
-            text = text[:i] + "".join(rng.choices(TOKENS, k=rng.randint(1, 6))) + text[j:]
-    return text[:20_000]
+    else:
+        for _ in range(rng.randint(1, 4)):
+            text = _rough(rng, text, corpus)
+    return text[:MAX_TEXT]
 
 
-def mutate_message(rng: random.Random, data: bytes) -> bytes:
-    """A wire message with fields changed, or its bytes mangled."""
-    if rng.random() < 0.5:
+def next_text(rng: random.Random, corpus: Corpus) -> str:
+    """One text input: a seed, or a leaf or subtree cut from one, mutated. The shorter of two
+    draws is taken: the bugs of sections 1 and 2 show in a few tokens, and a short input is
+    checked faster than a long one (the limits of section 8 have mutations of their own)."""
+    pool = corpus.pieces if rng.random() < 0.5 else corpus.texts
+    base, other = rng.choice(pool), rng.choice(pool)
+    if len(other) < len(base):
+        base = other
+    return mutate_text(rng, base, corpus.texts, corpus.pieces)
+
+
+def mutate_message(rng: random.Random, data: bytes, corpus: Corpus | None = None) -> bytes:
+    """A wire message with fields changed (a stringBT field to a mutated text), JSON fragments
+    spliced between its tokens, or its bytes mangled."""
+    roll = rng.random()
+    if roll < 0.5:
         try:
             obj = json.loads(data)
         except ValueError:
@@ -217,12 +482,22 @@ def mutate_message(rng: random.Random, data: bytes) -> bytes:
         if isinstance(obj, dict):
             for _ in range(rng.randint(1, 3)):
                 key, value = rng.choice(MESSAGE_FIELDS)
+                if corpus is not None and rng.random() < 0.4:
+                    key, value = rng.choice(_TREE_FIELDS), next_text(rng, corpus)
                 if value is None:
                     obj.pop(key, None)
                 else:
                     obj[key] = value
             return json.dumps(obj, ensure_ascii=rng.random() < 0.5).encode("utf-8", "replace")
     raw = bytearray(data)
+    if roll < 0.7:
+        gaps = [m.end() for m in _JSON_GAP_RE.finditer(raw)]
+        for _ in range(rng.randint(1, 3)):
+            if not gaps:
+                break
+            i = rng.choice(gaps)
+            raw[i:i] = _draw(rng, WORDS).encode("utf-8", "surrogatepass")
+        return bytes(raw)
     for _ in range(rng.randint(1, 6)):
         if not raw:
             break
@@ -256,16 +531,22 @@ def _fuzz_registry() -> Registry:
 
 
 def check_text(text: str, registry: Registry) -> None:
-    """Every property of section "the parser", for one text."""
-    outcome: list[object] = []
-    for parser in (parse, parse_reference):
-        try:
-            outcome.append(parser(text).root)
-        except StringBTError as err:
-            outcome.append((err.code, err.line, err.column))
-        except Exception as exc:
-            raise Failure(f"{parser.__name__} raised {type(exc).__name__}: {exc}") from exc
-    fast, reference = outcome
+    """Every property of section "the parser", for one text. The fast parser runs first (it is
+    the cheap one, and the one peers reach), and its tree is the one formatted and validated."""
+    tree = None
+    try:
+        tree = parse(text)
+        fast: object = tree.root
+    except StringBTError as err:
+        fast = (err.code, err.line, err.column)
+    except Exception as exc:
+        raise Failure(f"parse raised {type(exc).__name__}: {exc}") from exc
+    try:
+        reference: object = parse_reference(text).root
+    except StringBTError as err:
+        reference = (err.code, err.line, err.column)
+    except Exception as exc:
+        raise Failure(f"parse_reference raised {type(exc).__name__}: {exc}") from exc
     if fast != reference:
         raise Failure(f"parse gives {fast!r:.200}, parse_reference gives {reference!r:.200}")
     try:
@@ -281,9 +562,8 @@ def check_text(text: str, registry: Registry) -> None:
             raise Failure(f"parse(bytes) raised {type(exc).__name__}: {exc}") from exc
         if by_bytes != fast and not (isinstance(fast, tuple) and isinstance(by_bytes, tuple)):
             raise Failure("parse of the text and of its UTF-8 bytes disagree")
-    if isinstance(fast, tuple):
+    if tree is None:
         return
-    tree = parse(text)
     for reg in (None, registry):
         try:
             find_problems(tree, reg)
@@ -302,6 +582,7 @@ def check_text(text: str, registry: Registry) -> None:
 
 
 def check_message(data: bytes) -> None:
+    """The decoder's properties (``spec/protocol.md`` section 1), for one received message."""
     try:
         message = decode(data)
     except MessageRefused:
@@ -315,65 +596,223 @@ def check_message(data: bytes) -> None:
         raise Failure(f"a message with v={sent.get('v')!r:.20} or no type was accepted")
 
 
+Emit = Callable[[tuple[Any, ...]], None]
+"""How a worker tells the run what happened: ``("fail", line)``, ``("count", worker, inputs,
+failures)`` now and then, and ``("done", worker, inputs, failures)`` at the end."""
+
+
+def _worker_seed(seed: int, worker: int) -> int | str:
+    """Worker 0 draws what a one-worker run with the same seed draws."""
+    return seed if worker == 0 else f"{seed}w{worker}"
+
+
+def _fuzz(
+    worker: int,
+    inputs: int | None,
+    deadline: float | None,
+    seed: int,
+    out: Path,
+    corpus: Corpus,
+    emit: Emit,
+    every: float,
+) -> None:
+    """One worker's loop: draw, check and save inputs until its share or the time is used up."""
+    rng = random.Random(_worker_seed(seed, worker))
+    registry = _fuzz_registry()
+    failures = n = drawn = 0
+    name = str(_worker_seed(seed, worker))
+    last = time.perf_counter()
+    seen: set[int] = set()  # what was checked already, by hash: a repeat is not counted again
+    try:
+        while inputs is None or n < inputs:
+            drawn += 1
+            if drawn & 63 == 0:
+                now = time.perf_counter()
+                if deadline is not None and now >= deadline:
+                    break
+                if now - last >= every:
+                    last = now
+                    emit(("count", worker, n, failures))
+            text = None
+            if rng.random() < 0.2:
+                target, body = "message", mutate_message(rng, rng.choice(corpus.messages), corpus)
+            else:
+                text = next_text(rng, corpus)
+                target, body = "text", text.encode("utf-8", "surrogatepass")
+            key = hash((target, body))
+            if key in seen:
+                continue
+            if len(seen) >= 1_000_000:
+                seen.clear()
+            seen.add(key)
+            n += 1
+            try:
+                if text is None:
+                    check_message(body)
+                else:
+                    check_text(text, registry)
+            except Failure as error:
+                failures += 1
+                stem = f"{target}-{name}-{n}"
+                _save(out, stem, body, error)
+                emit(("fail", f"FAIL {stem}: {error}"))
+    except KeyboardInterrupt:  # Ctrl-C ends the run early, and it says what it checked
+        pass
+    emit(("done", worker, n, failures))
+
+
+def _save(out: Path, stem: str, body: bytes, error: Failure) -> None:
+    """The input as it was checked (a text as UTF-8, lone surrogates kept), and what it broke."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.bin").write_bytes(body)
+    (out / f"{stem}.txt").write_text(
+        f"{error}\n\n{''.join(traceback.format_exception(error))}", encoding="utf-8"
+    )
+
+
+def _worker_main(
+    worker: int,
+    inputs: int | None,
+    deadline: float | None,
+    seed: int,
+    out: Path,
+    corpus: Corpus,
+    results: Any,
+    every: float,
+) -> None:
+    try:
+        _fuzz(worker, inputs, deadline, seed, out, corpus, results.put, every)
+    except BaseException as exc:  # the run must hear of it, or it would wait for this worker
+        results.put(("fail", f"FAIL worker {worker}: {type(exc).__name__}: {exc}"))
+        results.put(("done", worker, 0, 1))
+        raise
+
+
 def run(
-    inputs: int,
+    inputs: int | None,
     seed: int,
     out: Path,
     report: Callable[[str], None] = print,
     every: float = 30.0,
+    *,
+    seconds: float | None = None,
+    workers: int = 1,
 ) -> int:
-    """Fuzz ``inputs`` inputs; returns the number of failures (each saved under ``out``)."""
-    rng = random.Random(seed)
-    texts, messages = seed_corpus()
-    registry = _fuzz_registry()
-    failures = 0
-    start = last = time.perf_counter()
-    for n in range(1, inputs + 1):
-        if rng.random() < 0.2:
-            data = mutate_message(rng, rng.choice(messages))
-            target, body = "message", data
-            try:
-                check_message(data)
-                error = None
-            except Failure as exc:
-                error = exc
-        else:
-            text = mutate_text(rng, rng.choice(texts), texts)
-            target, body = "text", text.encode("utf-8", "surrogatepass")
-            try:
-                check_text(text, registry)
-                error = None
-            except Failure as exc:
-                error = exc
-        if error is not None:
-            failures += 1
-            out.mkdir(parents=True, exist_ok=True)
-            stem = out / f"{target}-{seed}-{n}"
-            stem.with_suffix(".bin").write_bytes(body)
-            stem.with_suffix(".txt").write_text(
-                f"{error}\n\n{''.join(traceback.format_exception(error))}", encoding="utf-8"
-            )
-            report(f"FAIL {stem.name}: {error}")
+    """Fuzz ``inputs`` inputs, or for ``seconds`` (whichever ends first), on ``workers``
+    processes; returns the number of failures (each saved under ``out``). Inputs per second
+    are counted over the whole run, all workers together."""
+    if inputs is None and seconds is None:
+        raise ValueError("a run needs a number of inputs or a time")
+    corpus = load_corpus()
+    parse_reference("<a>(X)")  # the grammar is compiled once, before any worker starts
+    workers = max(1, min(workers, inputs if inputs is not None else workers))
+    if "fork" not in multiprocessing.get_all_start_methods():
+        workers = 1
+    shares: list[int | None] = [None] * workers
+    if inputs is not None:
+        shares = [inputs // workers + (k < inputs % workers) for k in range(workers)]
+    bounds = []
+    if inputs is not None:
+        bounds.append(f"{inputs:,} inputs")
+    if seconds is not None:
+        bounds.append(f"{seconds:g} s")
+    report(f"fuzzing for {' or '.join(bounds)}, seed {seed}, {_workers(workers)}")
+    start = time.perf_counter()
+    deadline = None if seconds is None else start + seconds
+    done: dict[int, tuple[int, int]] = {}
+    counts: dict[int, tuple[int, int]] = {}
+    last = start
+
+    def progress(event: tuple[Any, ...]) -> None:
+        nonlocal last
+        kind = event[0]
+        if kind == "fail":
+            report(event[1])
+            return
+        counts[event[1]] = (event[2], event[3])
+        if kind == "done":
+            done[event[1]] = (event[2], event[3])
         now = time.perf_counter()
-        if now - last >= every:
+        if kind == "count" and now - last >= every:
             last = now
-            report(f"{n:,} inputs, {n / (now - start):,.0f}/s, {failures} failures")
+            n = sum(c[0] for c in counts.values())
+            failed = sum(c[1] for c in counts.values())
+            report(f"{n:,} inputs, {n / (now - start):,.0f}/s, {failed} failures")
+
+    if workers == 1:
+        _fuzz(0, shares[0], deadline, seed, out, corpus, progress, every)
+    else:
+        context = multiprocessing.get_context("fork")  # the workers share the compiled corpus
+        results = context.Queue()
+        procs = [
+            context.Process(
+                target=_worker_main,
+                args=(k, shares[k], deadline, seed, out, corpus, results, min(every, 1.0)),
+                daemon=True,
+            )
+            for k in range(workers)
+        ]
+        for proc in procs:
+            proc.start()
+        interrupted = False
+        while len(done) < workers:
+            try:
+                progress(results.get(timeout=1.0))
+            except KeyboardInterrupt:  # the workers had it too: they stop and report
+                if interrupted:
+                    raise
+                interrupted = True
+            except queue.Empty:
+                for k, proc in enumerate(procs):
+                    if k not in done and not proc.is_alive() and proc.exitcode:
+                        report(f"FAIL worker {k} ended with exit code {proc.exitcode}")
+                        done[k] = counts.get(k, (0, 0))[0], counts.get(k, (0, 0))[1] + 1
+        for proc in procs:
+            proc.join()
     elapsed = time.perf_counter() - start
+    n = sum(d[0] for d in done.values())
+    failures = sum(d[1] for d in done.values())
     report(
-        f"done: {inputs:,} inputs in {elapsed:,.0f} s ({inputs / elapsed:,.0f} inputs/s), "
-        f"seed {seed}, {failures} failures"
+        f"done: {n:,} inputs in {elapsed:,.1f} s ({n / elapsed:,.0f} inputs/s, "
+        f"{_workers(workers)}), seed {seed}, {failures} failures"
     )
     return failures
 
 
+def _workers(n: int) -> str:
+    return f"{n} worker{'s' if n > 1 else ''}"
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on every platform
+        return os.cpu_count() or 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m ktbt_proto.tools.fuzz", description=__doc__)
-    parser.add_argument("--inputs", type=int, default=100_000, help="how many inputs")
+    parser.add_argument("--seconds", type=float, default=None, help="how long to run")
+    parser.add_argument(
+        "--inputs", type=int, default=None, help="how many inputs (default: 100,000 if no time)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: time)")
+    parser.add_argument(
+        "--workers", type=int, default=None, help="worker processes (default: one per core)"
+    )
     parser.add_argument("--out", type=Path, default=Path("fuzz-failures"))
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else int(time.time())
-    failures = run(args.inputs, seed, args.out, lambda line: print(line, flush=True))
+    inputs = args.inputs if args.inputs is not None or args.seconds else 100_000
+    workers = args.workers if args.workers is not None else _cores()
+    failures = run(
+        inputs,
+        seed,
+        args.out,
+        lambda line: print(line, flush=True),
+        seconds=args.seconds,
+        workers=workers,
+    )
     return 1 if failures else 0
 
 

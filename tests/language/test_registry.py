@@ -14,7 +14,7 @@ import pytest
 from pydantic import Field
 
 import ktbt_proto as kp
-from ktbt_proto.registry import load_vocabulary
+from ktbt_proto.tools.robot import load_vocabulary
 from ktbt_proto.validate import SupportsNames
 from tests.door_robot import FLAT, MEMORY, VOCABULARY, door_blackboard, door_registry
 

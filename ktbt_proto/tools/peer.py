@@ -374,6 +374,28 @@ def keygen(path: Path, name: str, say: Say) -> int:
     return 0
 
 
+def fleet_keys(folder: Path, names: Sequence[str], say: Say) -> int:
+    """A fleet's keys in one go (spec/protocol.md section 7): ``FOLDER/NAME.key`` (private)
+    and ``.pub`` for each robot, and ``FOLDER/trust.txt``, the trust store naming them all,
+    which every robot of the fleet is given with the ``trusted`` policy. Nothing is written
+    over an existing file: a name whose key exists already is refused before any is made."""
+    taken = [n for n in names if (folder / f"{n}.key").exists()]
+    store = folder / "trust.txt"
+    if taken or store.exists():
+        raise FileExistsError(
+            f"{folder}: {', '.join(f'{n}.key' for n in taken) or 'trust.txt'} exists; "
+            "keys are never overwritten"
+        )
+    lines = []
+    for name in names:
+        identity = Identity.generate()
+        identity.save(folder / f"{name}.key")
+        lines.append(f"{name} {identity.public}")
+    write_atomic(store, "\n".join(lines) + "\n")
+    say(f"wrote {len(names)} key pairs and {store}: give each robot its key and the store")
+    return 0
+
+
 def configure_logging() -> None:
     """Refusals and other exchange events to stderr, so an operator sees them."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s", force=False)

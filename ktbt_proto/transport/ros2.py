@@ -104,6 +104,18 @@ def robot_name(node: Node, given: str | None = None, what: str = "name") -> str:
     return name
 
 
+def open_to_strangers(node: Node, name: str, policy: str) -> str | None:
+    """The one WARNING a robot on the ``any`` policy logs when it starts listening (section 7):
+    every participant of its ROS domain can teach it; None under ``signed`` or ``trusted``."""
+    if policy != "any":
+        return None
+    domain = node.context.get_domain_id()
+    return (
+        f"{name}: policy any: every participant of ROS domain {domain} can teach this robot; "
+        "give the fleet keys (ktbt peer keys) and the policy trusted"
+    )
+
+
 @dataclass(frozen=True)
 class Topics:
     """The fleet's three topics; absolute names, shared by every robot of the fleet."""

@@ -316,3 +316,27 @@ def test_a_control_tree_without_a_placeholder_is_refused_saying_how_to_add_one(
     assert code == 2
     assert err == f"error: --control {control}:1:16: SBT306 unknown action 'Fly'\n"
     assert not (tmp_path / "run").exists()
+
+
+def test_peer_keys_makes_a_fleets_keys_and_trust_store_and_overwrites_none(
+    tmp_path: Path,
+) -> None:
+    """One command, every robot's key pair and the store naming them (spec/protocol.md
+    section 7); the keys load, the store binds each name to its key, and nothing is made
+    again over what exists."""
+    from ktbt_proto.exchange.signing import Identity
+    from ktbt_proto.exchange.trust import TrustStore
+
+    keys = tmp_path / "keys"
+    code, _, err = ktbt("peer", "keys", str(keys), "teacher", "robot1")
+    assert code == 0, err
+    store = TrustStore.load(keys / "trust.txt")
+    for name in ("teacher", "robot1"):
+        assert store.names[name] == Identity.load(keys / f"{name}.key").public
+    assert (keys / "teacher.key").stat().st_mode & 0o077 == 0  # private
+    before = (keys / "trust.txt").read_bytes()
+    code, _, err = ktbt("peer", "keys", str(keys), "robot2", "teacher")
+    assert code == 1 and err == f"error: {keys}: teacher.key exists; keys are never overwritten\n"
+    assert not (keys / "robot2.key").exists() and (keys / "trust.txt").read_bytes() == before
+    code, _, err = ktbt("peer", "keys", str(tmp_path / "other"), "a b")
+    assert code == 2 and "one robot name each" in err and "Traceback" not in err

@@ -57,7 +57,7 @@ from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours,
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
 from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
-from ktbt_proto.transport.ros2 import Ros2Transport, Topics, robot_name
+from ktbt_proto.transport.ros2 import Ros2Transport, Topics, open_to_strangers, robot_name
 from ktbt_proto.tree import Condition, Placeholder, SequenceNode
 from ktbt_proto.validate import find_problems
 
@@ -210,6 +210,9 @@ class Embedded:
         )
         self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
         self.closed = False
+        warning = open_to_strangers(node, name, security.policy)
+        if warning is not None:
+            node.get_logger().warning(warning)
         self._timer = node.create_timer(period, self._run)
         self.shown.show(self._control.tree)
         node.get_logger().info(

@@ -345,6 +345,27 @@ def peer_keygen(
     _peer_call(lambda: peer.keygen(path, name, typer.echo))
 
 
+@peer_app.command(
+    "keys", epilog=example("ktbt peer keys keys/ teacher robot1 robot2   # then --policy trusted")
+)
+def peer_keys(
+    folder: Annotated[Path, typer.Argument(metavar="FOLDER", help="Where the keys go.")],
+    names: Annotated[list[str], typer.Argument(metavar="NAME...", help="The robots' names.")],
+) -> None:
+    """Make a fleet's key pairs and its trust store in one go.
+
+    FOLDER/NAME.key for each robot (its key), and FOLDER/trust.txt naming every robot's public
+    key (the store each robot is given, with the trusted policy)."""
+    import re
+
+    from ktbt_proto.tools import peer
+
+    bad = [n for n in names if re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", n) is None]
+    if bad or len(set(names)) != len(names):
+        raise refuse(f"NAME: {', '.join(map(repr, bad)) or 'a name twice'}: one robot name each")
+    _peer_call(lambda: peer.fleet_keys(folder, names, typer.echo))
+
+
 def register(app: typer.Typer) -> None:
     """Add ``ktbt peer`` to the ``ktbt`` app."""
     app.add_typer(peer_app, name="peer")

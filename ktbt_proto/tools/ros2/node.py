@@ -53,7 +53,7 @@ from ktbt_proto.interop.ros2.showing import (
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.items import read_sequence, sequence_key
 from ktbt_proto.tools.robot import build_robot
-from ktbt_proto.transport.ros2 import Ros2Transport, Topics, robot_name
+from ktbt_proto.transport.ros2 import Ros2Transport, Topics, open_to_strangers, robot_name
 from ktbt_proto.tree import SequenceNode
 from ktbt_proto.validate import find_problems
 
@@ -345,6 +345,10 @@ class KtbtNode(LifecycleNode):
         if self.transport is None:  # lifecycle allows activate only after configure
             return TransitionCallbackReturn.FAILURE
         self.transport.active = True
+        if self.agent is not None:
+            warning = open_to_strangers(self, self.transport.name, self.agent.security.policy)
+            if warning is not None:
+                self.logger.warning(warning)
         self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
         self._show(periodic=True)  # a snapshot on every activation, changed or not
         self.logger.info(f"{self.transport.name}: active")

@@ -76,6 +76,8 @@ def test_two_robots_both_named_bt_by_their_nodes_learn_from_each_other(pair: Any
     ns = pair
     wait_for_line(ns, "robot1", "attached as robot1")
     wait_for_line(ns, "robot2", "attached as robot2")
+    # On the default policy, each says once who can teach it.
+    wait_for_line(ns, "robot1", f"robot1: policy any: every participant of ROS domain {ns.domain}")
     wait_for_line(ns, "robot2", f"robot2: learned {GREEN} from robot1")
     assert "refused" not in ns.log("robot2"), ns.log("robot2")
 

@@ -80,11 +80,17 @@ studies: $(VENV)/.installed
 	$(BIN)/ktbt sim compare results/calibration/calibration-rl $(RELEASE_DATA)/$(RELEASE_RL) --out docs/results/calibration-rl
 
 # Mutation fuzzing of the parsers, the formatter round trip, the validator and the message
-# decoder (not part of `make test`): FUZZ_INPUTS=... FUZZ_SEED=... make fuzz
-FUZZ_INPUTS ?= 1000000
+# decoder for FUZZ_SECONDS, one worker process per core, printing inputs per second (not part of
+# `make test`, which runs a short fixed-seed run and the inputs kept in tests/data/fuzz/):
+# FUZZ_SECONDS=... FUZZ_INPUTS=... FUZZ_SEED=... FUZZ_WORKERS=... make fuzz
+FUZZ_SECONDS ?= 60
+FUZZ_INPUTS ?=
 FUZZ_SEED ?=
+FUZZ_WORKERS ?=
 fuzz: $(VENV)/.installed-dev
-	$(BIN)/python -m ktbt_proto.tools.fuzz --inputs $(FUZZ_INPUTS) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED))
+	$(BIN)/python -m ktbt_proto.tools.fuzz $(if $(FUZZ_SECONDS),--seconds $(FUZZ_SECONDS)) \
+		$(if $(FUZZ_INPUTS),--inputs $(FUZZ_INPUTS)) $(if $(FUZZ_SEED),--seed $(FUZZ_SEED)) \
+		$(if $(FUZZ_WORKERS),--workers $(FUZZ_WORKERS))
 
 # BehaviorTree.CPP itself as the judge of our XML, and a C++ robot learning beside a KT-BT agent
 # (not part of `make test`): the library is built from source once per version and compiler into

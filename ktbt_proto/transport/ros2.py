@@ -531,16 +531,18 @@ class Ros2Transport:
 
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when
-        that much of it could be read; an oversized one is never deserialized (to no one)."""
-        to = ""
-        if len(data) <= self.max_bytes + CDR_SLACK:
-            try:
-                sender = cdr.read(data, cdr.QUERY)["sender"]
-                to = sender if re.fullmatch(NAME, sender) else ""
-            except cdr.CdrError:  # nothing of it could be read
-                pass
+        that much of it could be read and is a name; else none is sent (a reply addressed to
+        no one helps no one), and an oversized query is never deserialized to find out."""
+        if len(data) > self.max_bytes + CDR_SLACK:
+            return
+        try:
+            sender = cdr.read(data, cdr.QUERY)["sender"]
+        except Exception:  # nothing of it could be read (cdr.CdrError), or the reader failed
+            return
+        if re.fullmatch(NAME, sender) is None:
+            return
         error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
-        self._errors.publish(serialized(error, to))
+        self._errors.publish(serialized(error, sender))
 
     def _answer_at_once(self, query: Query, lookup: Lookup) -> None:
         """An answer to each sequence of ``query`` this robot knows, published at once

@@ -358,8 +358,11 @@ class Bridge:
                 break
             taken = {p[0].get_name() for p in self.proxies.values()}
             try:
-                proxy = Node(
-                    ros_name(name, taken), namespace=self.proxy_space, context=self.node.context
+                proxy = Node(  # never spun: it offers no parameter services to time out on
+                    ros_name(name, taken),
+                    namespace=self.proxy_space,
+                    context=self.node.context,
+                    start_parameter_services=False,
                 )
             except Exception as exc:  # rclpy refused the name: one line, the peer unbridged
                 self._refuse(f"zenoh peer {name}: no ROS node ({type(exc).__name__})")

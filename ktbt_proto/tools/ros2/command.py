@@ -17,6 +17,7 @@ the last three for machines without the ``ros2`` command line.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from collections.abc import Iterator
@@ -165,6 +166,9 @@ def run_command(
         code = 1
     finally:
         if node is not None:
+            if not node.finalized:  # Ctrl-C or SIGTERM: through the shutdown transition
+                with contextlib.suppress(Exception):
+                    node.trigger_shutdown()
             node.destroy_node()
         try_shutdown()
     raise typer.Exit(code)

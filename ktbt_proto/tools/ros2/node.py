@@ -366,7 +366,9 @@ class KtbtNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Finalized: ``ktbt ros2 run`` ends once the transition is answered."""
+        """Finalized: ``ktbt ros2 run`` ends once the transition is answered; on Ctrl-C or
+        SIGTERM it takes this transition itself before it ends."""
+        self.logger.info(f"shutting down from {state.label}")
         self._cleanup()
         self.finalized = True
         return TransitionCallbackReturn.SUCCESS

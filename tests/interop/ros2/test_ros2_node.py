@@ -320,3 +320,26 @@ def test_hostile_answers_to_an_open_query_are_refused_and_the_signed_skill_learn
     summary = [line for line in ns.log("learner").splitlines() if "queries sent" in line]
     assert "refused 5," in summary[-1], summary
     assert "Traceback" not in ns.log("learner")
+
+
+def test_ctrl_c_takes_the_shutdown_transition_and_a_malformed_query_gets_no_reply_to_no_one(
+    rosns: Any,
+) -> None:
+    """A robot ended by SIGINT goes through the lifecycle's shutdown transition (its summary
+    logged, its files closed) and exits 0; a query whose sender cannot be read is refused
+    and counted with no error reply, as no one could read it (section 11)."""
+    from tests.interop.ros2.rosns import wait_for_line
+
+    ns: RosNamespace = rosns
+    probe = Probe(ns)
+    probe.subscribe("/ktbt/errors", "ErrorReply")
+    robot = ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/r1", name="r1")
+    wait_for_line(ns, "r1", "r1: active", 60)
+    garbage = "00" * 12  # not a Query: no sender to be read from it
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage})
+    wait_for_line(ns, "r1", "r1 refused: on /ktbt/queries", 60)
+    robot.send_signal(signal.SIGINT)
+    assert robot.wait(timeout=60) == 0, ns.log("r1")
+    log = ns.log("r1")
+    assert "shutting down from active" in log and "r1: queries sent" in log
+    assert probe.messages("/ktbt/errors") == []

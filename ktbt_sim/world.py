@@ -23,8 +23,8 @@ import pymunk
 import pymunk.batch
 
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory import MemoryPolicy
-from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.memory_policy import MemoryPolicy
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.transport.memory import MemoryNetwork
 from ktbt_sim import geometry, motion, records, teaching
 from ktbt_sim import robot as rb
@@ -198,7 +198,7 @@ class World:
                 rb.control_tree(rb.KINDS[kind]),
                 self.registry,
                 self.network.join(self.names[i]),
-                ear=Ear(overhear, buffer_size=4),  # at most one answer a colour (§9.4)
+                ear=Overhearing(overhear, buffer_size=4),  # at most one answer a colour (§9.4)
             )
             if scenario.memory_when_full == "evict":
                 # The release counts known colours; the tree's common item (carry to the zone)

@@ -19,9 +19,9 @@ from pathlib import Path
 from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.control import ControlFactory
 from ktbt_proto.exchange.core import AgentCore
-from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.overhearing import Ear
+from ktbt_proto.exchange.overhearing import Overhearing
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import Event
 from ktbt_proto.exchange.transport import Transport
@@ -106,7 +106,7 @@ class Agent(AgentCore):
         blackboard: Blackboard | None = None,
         security: Security = Security(),  # noqa: B008
         memory: MemoryPolicy = MemoryPolicy(),  # noqa: B008
-        ear: Ear | None = None,
+        ear: Overhearing | None = None,
         knowledge_path: str | Path | None = None,
         slot: str = "new",
     ) -> None:

@@ -38,9 +38,9 @@ from ktbt_proto.exchange.knowledge import (
     remove_stale_temporaries,
     salvage,
 )
-from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.overhearing import Ear, Heard
+from ktbt_proto.exchange.overhearing import Heard, Overhearing
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, read, vet
 from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.security import Security
@@ -117,7 +117,7 @@ class AgentCore:
         blackboard: Blackboard | None = None,
         security: Security = Security(),  # noqa: B008 (frozen: one default is safe to share)
         memory: MemoryPolicy = MemoryPolicy(),  # noqa: B008 (frozen too)
-        ear: Ear | None = None,
+        ear: Overhearing | None = None,
         knowledge_path: str | Path | None = None,
         slot: str = "new",
     ) -> None:
@@ -126,7 +126,7 @@ class AgentCore:
         self.registry = registry
         self.security = security
         self.memory = memory
-        self.ear = ear or Ear()
+        self.ear = ear or Overhearing()
         self.slot = slot
         self.knowledge_path = Path(knowledge_path) if knowledge_path is not None else None
         self.metrics = Metrics()

@@ -40,7 +40,7 @@ __all__ = [
     "Catalogs",
     "FleetMember",
     "Learner",
-    "Listed",
+    "ListedSequences",
 ]
 
 log = logging.getLogger("ktbt.member")
@@ -76,7 +76,7 @@ class Catalogs(Protocol):
         ...
 
 
-class Listed:
+class ListedSequences:
     """The sequences a learner told none meets (section 4.5): those its fleet's catalogs list,
     that its vocabulary can execute, in the order found. A sequence its vocabulary cannot
     execute is skipped (never asked, so never refused) with one INFO line. An entry whose
@@ -199,11 +199,11 @@ class FleetMember:
     ``agent``: the robot (its knowledge, control tree and metrics), built on a transport that
     answers at once; ``network``: the peers that appeared; ``catalogs``: the fleet's catalogs,
     read only when ``sequences`` is None (then it meets what they list and its vocabulary can
-    execute, :class:`Listed`); ``sequences``: the sequence keys to meet. ``wait``: seconds a
-    query stays open; ``cooldown``: seconds held back after a query nobody answered. ``say``:
-    where a learned item and a newly listed sequence are reported (the host's log). ``export``:
-    kept in step with what it knows. ``ticks_control``: whether a step ticks the control tree
-    (an embedded robot's tree is ticked by its user)."""
+    execute, :class:`ListedSequences`); ``sequences``: the sequence keys to meet. ``wait``:
+    seconds a query stays open; ``cooldown``: seconds held back after a query nobody answered.
+    ``say``: where a learned item and a newly listed sequence are reported (the host's log).
+    ``export``: kept in step with what it knows. ``ticks_control``: whether a step ticks the
+    control tree (an embedded robot's tree is ticked by its user)."""
 
     agent: ApplicationTimedAgent
     network: Appearing
@@ -216,14 +216,14 @@ class FleetMember:
     ticks_control: bool = True
     todo: list[str] = field(init=False)
     """The sequence keys still to learn."""
-    listed: Listed | None = field(init=False)
+    listed: ListedSequences | None = field(init=False)
     learner: Learner = field(init=False)
 
     def __post_init__(self) -> None:
         name = self.agent.name
         self.todo = [] if self.sequences is None else list(self.sequences)
         self.listed = (
-            Listed(name, self.agent.registry, self.say, self.agent.refuse)
+            ListedSequences(name, self.agent.registry, self.say, self.agent.refuse)
             if self.sequences is None
             else None
         )

@@ -3,8 +3,9 @@ section 4.3), for an agent and a knowledge server alike.
 
 ``update`` learns it at once, through the owner's own ``learn`` (which runs every check of a
 direct answer); ``buffer`` keeps it, unchecked, the first answer heard for a sequence winning,
-and hands it over when the owner needs that sequence (:meth:`Ear.take`), to be checked then. A
-newcomer to a full buffer is refused. The owner counts and logs what :meth:`Ear.hear` reports.
+and hands it over when the owner needs that sequence (:meth:`Overhearing.take`), to be checked
+then. A newcomer to a full buffer is refused. The owner counts and logs what
+:meth:`Overhearing.hear` reports.
 A server hears in one thread and looks up in zenoh's, so the buffer is guarded by a lock.
 """
 
@@ -45,7 +46,7 @@ class Heard(StrEnum):
     """``buffer``: the buffer is full, the newcomer refused."""
 
 
-class Ear:
+class Overhearing:
     """One peer's overhearing: its mode and its buffer of ``buffer_size`` answers."""
 
     def __init__(self, mode: Overhear = "off", buffer_size: int = 16) -> None:
@@ -90,8 +91,8 @@ class Ear:
             return list(self._buffer)
 
 
-class ServerEar:
-    """A knowledge server that overhears (section 4.3), through the one :class:`Ear` and the
+class ServerOverhearing:
+    """A knowledge server that overhears (section 4.3), through the one :class:`Overhearing` and the
     one set of receive checks (``ktbt_proto.exchange.receiving``; the trust policy also runs in
     the transport): an answer another peer published is added to what the server serves, at
     once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
@@ -109,7 +110,7 @@ class ServerEar:
         buffer_size: int = 16,
     ) -> None:
         self.name, self.knowledge, self.served, self.on_learned = name, knowledge, served, learned
-        self.ear = Ear(mode, buffer_size)
+        self.ear = Overhearing(mode, buffer_size)
         self.learned: dict[str, SignedItem] = {}
         self.refused = 0
         self.lock = threading.Lock()

@@ -2,7 +2,7 @@
 
 Every command is a real zenoh peer (or router) with explicit endpoints, and closes its session
 on exit, including on SIGINT and SIGTERM. A fleet member (``serve``, ``run``) is a
-:class:`Member`: its name, network settings (with a zenoh id derived from its name, so a
+:class:`PeerSettings`: its name, network settings (with a zenoh id derived from its name, so a
 restarted peer is the same peer), security, and what it publishes and overhears; an option
 every member takes is one field there.
 """
@@ -25,7 +25,7 @@ from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import KnowledgeBase, with_knowledge
 from ktbt_proto.exchange.member import FleetMember
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.overhearing import Ear, Overhear, ServerEar
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing, ServerOverhearing
 from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
@@ -52,7 +52,7 @@ log = logging.getLogger("ktbt.peer")
 
 
 @dataclass(frozen=True)
-class Member:
+class PeerSettings:
     """A long-running fleet member (``ktbt peer serve``, ``ktbt peer run``): what both take.
     Its zenoh id is derived from ``name`` unless the settings name one (spec/protocol.md
     section 3)."""
@@ -119,12 +119,12 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
-def serve(member: Member, knowledge: KnowledgeBase, say: Say) -> int:
+def serve(member: PeerSettings, knowledge: KnowledgeBase, say: Say) -> int:
     """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
     overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
     is shown to Groot2 (spec/groot2.md)."""
     security = member.security
-    ear = ServerEar(
+    ear = ServerOverhearing(
         member.name,
         knowledge,
         answers(knowledge, security.identity),
@@ -230,7 +230,7 @@ def provenance(answer: Response) -> str:
 
 
 def run_agent(
-    member: Member,
+    member: PeerSettings,
     sequences: Sequence[str] | None,
     say: Say,
     *,
@@ -252,9 +252,9 @@ def run_agent(
     asking again with a bounded backoff while it is missing, and at once when a new peer
     appears; it teaches what it knows to whoever asks, and prints what it learned. With
     ``sequences`` None, the sequences it meets are those its fleet's catalogs list and its
-    vocabulary can execute (:class:`Listed`), the catalogs read again whenever a peer appears
-    and every ``CATALOG_PERIOD`` seconds (section 4.5); ``exit_when_done`` then stops once it
-    knows every one found, and it has found one. Refusals are logged (to stderr and, with a
+    vocabulary can execute (:class:`ListedSequences`), the catalogs read again whenever a peer
+    appears and every ``CATALOG_PERIOD`` seconds (section 4.5); ``exit_when_done`` then stops
+    once it knows every one found, and it has found one. Refusals are logged (to stderr and, with a
     transfer log, there) and the summary counts all of them, transport ones too; the
     network's own errors are counted apart. ``export_learned``: a folder (or an export made
     already) to mirror learned items into as BT.CPP documents (spec/stringbt.md section
@@ -275,7 +275,7 @@ def run_agent(
             knowledge_path=knowledge_path,
             # with --publish-events, the transport has a log even without --log
             security=replace(security, log=transport.log),
-            ear=Ear(member.overhear),
+            ear=Overhearing(member.overhear),
             slot=slot,
         )
         # The agent attached itself to the transport (ZenohTransport.attach): it answers every

@@ -20,7 +20,7 @@ from typing import Any
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity

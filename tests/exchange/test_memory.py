@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.transport import MemoryNetwork
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.items import sequence_key
@@ -23,7 +23,7 @@ def trio(
     learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
     teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
     ear = ApplicationTimedAgent(
-        "e", CONTROL, registry(), net.join("e"), ear=Ear(overhear), security=security
+        "e", CONTROL, registry(), net.join("e"), ear=Overhearing(overhear), security=security
     )
     return learner, teacher, ear, net
 
@@ -54,7 +54,7 @@ def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
     net = MemoryNetwork(overhear=True)
     learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
     teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
-    ear = Agent("e", CONTROL, registry(), net.join("e"), ear=Ear("buffer"))  # tree-timed
+    ear = Agent("e", CONTROL, registry(), net.join("e"), ear=Overhearing("buffer"))  # tree-timed
     exchange(learner, teacher)
     ear.tick()  # reads the transport; nothing encountered yet, so nothing asked
     assert ear.metrics.learned_passive == 0 and ear.metrics.queries_sent == 0
@@ -83,7 +83,9 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
     reg = kp.Registry()
     reg.add_condition("TargetSeen", lambda bb, colour: False)
     reg.add_action("Walk", lambda bb: kp.SUCCESS)
-    ear = ApplicationTimedAgent("e", CONTROL, reg, net.join("e"), ear=Ear("update"))  # no Pick
+    ear = ApplicationTimedAgent(
+        "e", CONTROL, reg, net.join("e"), ear=Overhearing("update")
+    )  # no Pick
     before = kp.format_tree(ear.control.tree, "compact")
     exchange(learner, teacher)
     assert ear.receive() == 0
@@ -106,7 +108,9 @@ def test_a_full_buffer_refuses_the_newcomer() -> None:
     )
     learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
     teacher = ApplicationTimedAgent("t", knows_two, registry(), net.join("t"))
-    ear = ApplicationTimedAgent("e", CONTROL, registry(), net.join("e"), ear=Ear("buffer", 1))
+    ear = ApplicationTimedAgent(
+        "e", CONTROL, registry(), net.join("e"), ear=Overhearing("buffer", 1)
+    )
     for colour in (2, 3):
         learner.ask([f"TargetSeen(colour={colour})"])
         teacher.receive()

@@ -12,7 +12,7 @@ import pytest
 
 from ktbt_proto.exchange import core, events, messages, receiving, refusals
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.member import Listed
+from ktbt_proto.exchange.member import ListedSequences
 from ktbt_proto.exchange.messages import MessageRefused, Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import Refused
 from ktbt_proto.transport import MemoryNetwork
@@ -119,7 +119,7 @@ def test_a_catalog_entry_that_cannot_be_read_is_refused_once_and_the_rest_read(
 ) -> None:
     fail_on_marker(monkeypatch, "item")
     said: list[str] = []
-    listed = Listed("l", registry(), said.append)
+    listed = ListedSequences("l", registry(), said.append)
     hostile = [{"sequence": "<c>true."}, {"sequence": "<c>(ktbt-fault)"}, {"sequence": GREEN}]
     assert listed.read({"mallory": hostile}) == [GREEN]
     assert listed.refused == 1

@@ -84,7 +84,7 @@ def test_a_name_outside_the_front_door_is_an_attribute_error() -> None:
     with pytest.raises(AttributeError, match="no attribute 'Query'"):
         _ = kp.Query  # type: ignore[attr-defined]
     with pytest.raises(ImportError):
-        exec("from ktbt_proto import Ear", {})
+        exec("from ktbt_proto import Overhearing", {})
 
 
 def test_functions_named_as_their_modules_stay_functions() -> None:

@@ -20,8 +20,8 @@ import pytest
 
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.items import sequence_digest
-from ktbt_proto.tools.monitor.fleet import FleetState
 from ktbt_proto.tools.monitor.listen import Listener
+from ktbt_proto.tools.monitor.state import FleetState
 from ktbt_proto.transport.stream import AgentStream
 from ktbt_proto.transport.zenoh import ZenohSettings, catalog_replies, open_session
 from tests.zenoh_helpers import endpoint, free_port, ktbt_process, wait_until

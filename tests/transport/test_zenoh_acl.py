@@ -197,8 +197,8 @@ def test_only_the_monitor_asks_for_trees_and_each_robot_serves_its_own(
     never leaves the router, and a robot asking for a tree gets none."""
     from ktbt_proto.formatter import format_tree
     from ktbt_proto.render import render
-    from ktbt_proto.tools.monitor.fleet import FleetState
     from ktbt_proto.tools.monitor.listen import Listener
+    from ktbt_proto.tools.monitor.state import FleetState
     from ktbt_proto.transport.zenoh import open_session
 
     make_fleet_pki(tmp_path, "t", "r1", "monitor")

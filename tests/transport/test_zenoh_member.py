@@ -17,7 +17,7 @@ from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query
 from ktbt_proto.exchange.signing import Identity, item_bytes, verify
 from ktbt_proto.items import sequence_key
-from ktbt_proto.tools.peer import Member
+from ktbt_proto.tools.peer import PeerSettings
 from ktbt_proto.transport.zenoh import stable_zid
 from tests.zenoh_helpers import ROOT, endpoint, free_port, ktbt_process, ktbt_run, serving
 
@@ -102,7 +102,7 @@ def test_a_member_killed_with_sigkill_comes_back_the_same_peer_with_what_it_save
     assert f"r: learned {colours[2]} from teacher" in again.stdout
     assert "learned TargetSeen(colour=1)" not in again.stdout  # not learned twice
     assert len(KnowledgeBase.load(save)) == 3
-    with Member("r").transport() as same:  # what both runs opened: the same zenoh peer
+    with PeerSettings("r").transport() as same:  # what both runs opened: the same zenoh peer
         assert str(same._session.info.zid()) == stable_zid("r")
 
 

@@ -11,7 +11,7 @@ behaviour's ``setup``). What ``attach`` adds to the node:
 - one timer, on the node's executor, that asks for what the robot is missing (the sequences
   given, else what the fleet's catalogs list that its vocabulary can execute) with section
   4.5's backoff, and checks and merges the answers (section 2);
-- what it shows (:class:`~ktbt_proto.interop.ros2.showing.Shown`) under ``~/ktbt``:
+- what it shows (:class:`~ktbt_proto.interop.ros2.showing.ShownTopics`) under ``~/ktbt``:
   ``events``, ``tree`` and ``catalog``, so the user's own topics keep their names.
 
 The tree learns through :class:`~ktbt_proto.interop.pytrees_control.PyTreesControl` (section
@@ -48,13 +48,13 @@ from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import KnowledgeBase, item_slot, learning_slot
 from ktbt_proto.exchange.member import FleetMember
-from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
-from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, Shown
+from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, ShownTopics
 from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.ros2 import Ros2Transport, Topics, open_to_strangers, robot_name
@@ -177,7 +177,7 @@ class Embedded:
                 registry,
                 self.transport,
                 security=replace(security, log=log),
-                ear=Ear(overhear),
+                ear=Overhearing(overhear),
             )
             self._control: PyTreesControl = self.agent.control  # type: ignore[assignment]
             slot = learning_slot(self._control.tree)
@@ -191,7 +191,7 @@ class Embedded:
             self._unhook()
             raise
         agent = self.agent
-        self.shown = Shown(node, name, catalog(agent.knowledge, security.identity), log,
+        self.shown = ShownTopics(node, name, catalog(agent.knowledge, security.identity), log,
                            security.identity, PREFIX)  # fmt: skip
         self._catalogs = (
             FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)

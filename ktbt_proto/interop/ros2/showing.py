@@ -2,9 +2,9 @@
 11, "ROS 2 binding"), whoever runs it: the lifecycle node (``ktbt ros2 run``) and a robot
 embedded in its user's own node (:mod:`ktbt_proto.interop.ros2.embed`) alike.
 
-- :class:`Shown`: its fleet events (section 10) on ``events``, its control tree on ``tree`` and
-  its catalog on ``catalog``, under one prefix (``~`` for the lifecycle node, ``~/ktbt`` for an
-  embedded robot, so that the user's own topics keep their names);
+- :class:`ShownTopics`: its fleet events (section 10) on ``events``, its control tree on
+  ``tree`` and its catalog on ``catalog``, under one prefix (``~`` for the lifecycle node,
+  ``~/ktbt`` for an embedded robot, so that the user's own topics keep their names);
 - :class:`FleetCatalogs`: the other robots' latched catalogs, found on the ROS graph by their
   type, which a learner told no sequences reads to know what to ask for (section 4.5, as
   ``ktbt peer run`` reads zenoh's catalog queryables), and the bridge reads to mirror the
@@ -49,7 +49,7 @@ __all__ = [
     "EVENT_TEXT",
     "FleetCatalogs",
     "Services",
-    "Shown",
+    "ShownTopics",
     "event_json",
     "event_msg",
     "events_qos",
@@ -128,7 +128,7 @@ def catalog_entries(known: list[str | dict[str, Any]]) -> list[CatalogEntry]:
     ]
 
 
-class Shown:
+class ShownTopics:
     """A robot's events, tree snapshot and catalog on ``node``, as ``PREFIX/events``,
     ``PREFIX/tree`` and ``PREFIX/catalog`` (section 11): the events of ``log`` as they are
     recorded (signed with ``identity`` if given), the tree and the catalog when :meth:`show`
@@ -207,7 +207,7 @@ class Shown:
 class Services:
     """What a fleet member offers on ROS 2, whoever hosts it (section 11): ``PREFIX/
     list_knowledge`` (what it knows, as catalog entries) and ``PREFIX/forget`` (a learned item
-    forgotten; innate knowledge never), under the prefix its :class:`Shown` uses, so ``ktbt
+    forgotten; innate knowledge never), under the prefix its :class:`ShownTopics` uses, so ``ktbt
     ros2 list`` and ``forget`` reach the lifecycle node and an embedded robot alike. After a
     forget, ``changed`` is called (the host shows its tree and catalog again). A request whose
     reading raises is answered with the reason and logged (section 2.1)."""
@@ -216,7 +216,7 @@ class Services:
         self,
         node: Node,
         member: FleetMember,
-        shown: Shown,
+        shown: ShownTopics,
         changed: Callable[[], None],
         prefix: str = "~",
     ) -> None:
@@ -267,10 +267,10 @@ class FleetCatalogs:
     ``ktbt_interfaces/msg/Catalog`` on the graph with a publisher, but ``own`` and those
     ``skip`` names, is followed, latched, as :meth:`refresh` finds it (at most ``limit``; one
     beyond is refused once); :meth:`read` gives what each lists, by peer, in the form
-    :class:`ktbt_proto.exchange.member.Listed` reads, and ``heard``, if given, is told of each
-    catalog read (its topic, the peer it names as given, its entries). ``version`` counts the
-    catalogs received, so a learner reads again when one changed. A catalog that is too large
-    or does not deserialize is refused with a WARNING, and read no further."""
+    :class:`ktbt_proto.exchange.member.ListedSequences` reads, and ``heard``, if given, is told
+    of each catalog read (its topic, the peer it names as given, its entries). ``version``
+    counts the catalogs received, so a learner reads again when one changed. A catalog that is
+    too large or does not deserialize is refused with a WARNING, and read no further."""
 
     def __init__(
         self,

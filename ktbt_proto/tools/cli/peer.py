@@ -111,7 +111,7 @@ def peer_serve(
     registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
     served = knowledge_or_exit(knowledge, registry)
     secure = security(key, Policy.ANY, None, log)
-    member = peer.Member(
+    member = peer.PeerSettings(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
     )
     _peer_call(lambda: peer.serve(member, served, typer.echo))
@@ -254,7 +254,7 @@ def peer_run(
     start = knowledge_or_exit(knowledge, registry) if knowledge is not None else None
     secure = security(key, policy, trust, log)
     export = _export_or_exit(export_learned, tree_id or [])
-    member = peer.Member(
+    member = peer.PeerSettings(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
     )
     _peer_call(

@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 from ktbt_proto.exchange.transferlog import Event
 
-Status = Literal["pass", "fail", "skipped"]
+Outcome = Literal["pass", "fail", "skipped"]
 RSS_GROWTH = 0.20
 """Median resident memory of the peers never killed may grow by at most this fraction from
 the end of the first churn round to the end of the run."""
@@ -33,7 +33,7 @@ FD_GROWTH = 16
 @dataclass(frozen=True)
 class Verdict:
     name: str
-    status: Status
+    status: Outcome
     detail: str
 
 
@@ -206,7 +206,7 @@ def _convergence(h: History) -> Verdict:
     if short:
         return Verdict("convergence", "fail", "save files short: " + ", ".join(short[:5]))
     took = max(0.0, done - ref)
-    status: Status = "pass" if took <= bound else "fail"
+    status: Outcome = "pass" if took <= bound else "fail"
     return Verdict("convergence", status, f"{took:.2f} s after the reference (bound {bound:g} s)")
 
 

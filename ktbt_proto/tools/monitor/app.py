@@ -31,7 +31,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from ktbt_proto.tools.monitor.fleet import FleetState
+from ktbt_proto.tools.monitor.state import FleetState
 
 STATIC = Path(__file__).resolve().parent / "static"
 BATCH = 0.1

@@ -94,8 +94,8 @@ def monitor_command(
         import uvicorn
 
         from ktbt_proto.tools.monitor.app import create_app
-        from ktbt_proto.tools.monitor.fleet import FleetState
         from ktbt_proto.tools.monitor.listen import Listener
+        from ktbt_proto.tools.monitor.state import FleetState
     except ImportError:
         typer.echo(INSTALL, err=True)
         raise typer.Exit(2) from None

@@ -24,7 +24,7 @@ from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.limits import Limits
 from ktbt_proto.render import render
 from ktbt_proto.syntax import parse
-from ktbt_proto.tools.monitor.fleet import MAX_PEERS, PEER_NAME, FleetState
+from ktbt_proto.tools.monitor.state import MAX_PEERS, PEER_NAME, FleetState
 from ktbt_proto.transport import zenoh as zenoh_transport
 from ktbt_proto.transport.zenoh import ZenohSettings, catalog_replies, open_session
 

@@ -35,8 +35,8 @@ from ktbt_proto.exchange.events import PREFIX
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES
 from ktbt_proto.exchange.refusals import internal_error
 from ktbt_proto.interop.ros2.showing import event_json, events_qos, latched
-from ktbt_proto.tools.monitor.fleet import MAX_PEERS, PEER_NAME, FleetState
 from ktbt_proto.tools.monitor.listen import shown_tree
+from ktbt_proto.tools.monitor.state import MAX_PEERS, PEER_NAME, FleetState
 
 _M = TypeVar("_M")
 

@@ -35,7 +35,7 @@ from ktbt_proto.exchange.answers import catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import with_knowledge
 from ktbt_proto.exchange.member import FleetMember
-from ktbt_proto.exchange.overhearing import Ear, Overhear
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
@@ -44,7 +44,7 @@ from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.interop.ros2.showing import (
     FleetCatalogs,
     Services,
-    Shown,
+    ShownTopics,
     event_json,
     event_msg,
     events_qos,
@@ -198,7 +198,7 @@ class KtbtNode(LifecycleNode):
         self._offered: Services | None = None
         self._timer: Any = None
         self._snapshot_timer: Any = None
-        self._shown: Shown | None = None
+        self._shown: ShownTopics | None = None
         self._catalogs: FleetCatalogs | None = None
 
     # -- parameters -----------------------------------------------------------------------------
@@ -308,7 +308,7 @@ class KtbtNode(LifecycleNode):
                 self.transport,
                 knowledge_path=save or None,
                 security=Security(identity, policy, trust, self.log),
-                ear=Ear(overhear),
+                ear=Overhearing(overhear),
                 slot=slot,
             )
         except StringBTError as err:  # the control tree, with its knowledge, against the registry
@@ -316,7 +316,9 @@ class KtbtNode(LifecycleNode):
             why = f"control {where}:{err.line}:{err.column}: {err.code} {err.message}"
             raise ValueError(why) from None
         agent = self.agent  # attached: the transport answers from what it knows (section 4.5)
-        self._shown = Shown(self, name, catalog(agent.knowledge, identity), self.log, identity)
+        self._shown = ShownTopics(
+            self, name, catalog(agent.knowledge, identity), self.log, identity
+        )
         if todo is None:
             self._catalogs = FleetCatalogs(
                 self, self._shown.catalog_topic, fleet=self.transport.peers

@@ -3,7 +3,7 @@ monitor`` started for one run, reaching each fleet member over a unix socket in 
 the run's own and serving its page there too, so that :func:`view` reads what the page shows
 (spec/protocol.md section 10, docs/howto/fleet.md).
 
-Shown here with real processes on loopback and unix sockets only: the monitor is started, says
+ShownTopics here with real processes on loopback and unix sockets only: the monitor is started, says
 where to watch, shows a real ``ktbt peer serve`` that listens on its member's socket (present,
 and what it knows), and is stopped with its folder removed; a monitor that ends during the run
 is reported, one that cannot start (its address taken) is a ``MonitorFailed`` with its words,

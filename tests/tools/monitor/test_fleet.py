@@ -12,8 +12,8 @@ from ktbt_proto.exchange.events import FleetEvent, signed_bytes
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import TrustStore
 from ktbt_proto.items import sequence_digest
-from ktbt_proto.tools.monitor import fleet as fleet_module
-from ktbt_proto.tools.monitor.fleet import FleetState
+from ktbt_proto.tools.monitor import state as fleet_module
+from ktbt_proto.tools.monitor.state import FleetState
 from tests.zenoh_helpers import ROOT
 
 GREEN = "<c>(TargetSeen,colour=2)"

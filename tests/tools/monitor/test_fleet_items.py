@@ -1,4 +1,4 @@
-"""The monitor's items table under hostile but valid peers (ktbt_proto/tools/monitor/fleet.py): when
+"""The monitor's items table under hostile but valid peers (ktbt_proto/tools/monitor/state.py): when
 it is full, the peers holding the most of it give way first, so a peer, or a few, listing junk
 sequences cannot crowd out what the rest of the fleet knows; what is refused or evicted is
 counted; and a page that applies the changes ends with the snapshot's state."""
@@ -16,8 +16,8 @@ from ktbt_proto.exchange.events import FleetEvent, signed_bytes
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import TrustStore
 from ktbt_proto.items import parse_sequence, sequence_digest
-from ktbt_proto.tools.monitor import fleet as fleet_module
-from ktbt_proto.tools.monitor.fleet import FleetState
+from ktbt_proto.tools.monitor import state as fleet_module
+from ktbt_proto.tools.monitor.state import FleetState
 
 T = "2026-12-01T00:00:00.000+00:00"
 COLOURS = [f"<c>(TargetSeen,colour={c})" for c in range(1, 5)]

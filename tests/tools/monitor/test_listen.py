@@ -12,8 +12,8 @@ import pytest
 from ktbt_proto.exchange.events import FleetEvent, encode_event, signed_bytes
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.tools.monitor import listen
-from ktbt_proto.tools.monitor.fleet import FleetState
 from ktbt_proto.tools.monitor.listen import Listener
+from ktbt_proto.tools.monitor.state import FleetState
 from tests.zenoh_helpers import endpoint, free_port, settings, wait_until
 
 GREEN = "<c>(TargetSeen,colour=2)"

@@ -44,7 +44,7 @@ from .bench_runtime import (
     learned_text,
     py_trees_learned,
     py_trees_sar,
-    sar_registry,
+    sar_vocabulary,
 )
 from .timing import Stats, gc_paused, machine, markdown_table, write_json
 
@@ -185,7 +185,7 @@ def run(rounds: int = ROUNDS, warmup: int = 30) -> dict[str, Any]:
     py_trees.logging.level = py_trees.logging.Level.ERROR
     started = time.perf_counter()
     sar = kp.parse(SAR_PATH.read_text(encoding="utf-8"))
-    reg = sar_registry()
+    reg = sar_vocabulary()
     calls = [VARIANTS[name] for name in NAMES]
     samples: dict[str, list[int]] = {name: [] for name in NAMES}
     with gc_paused():

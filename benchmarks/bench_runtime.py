@@ -319,7 +319,7 @@ SAR_ACTIONS: dict[str, kp.Status] = {
 }
 
 
-def sar_registry() -> kp.Registry:
+def sar_vocabulary() -> kp.Registry:
     reg = kp.Registry()
     reg.flags(*SAR_FLAGS)
 
@@ -485,7 +485,7 @@ MERGE_VARIANTS: dict[str, Callable[[_MergeRound], Timed]] = {
 def run_merge(rounds: int, warmup: int = 20) -> dict[str, Any]:
     """Time merge + first tick on fresh, already running trees; a new colour every round."""
     sar = kp.parse(SAR_PATH.read_text(encoding="utf-8"))
-    reg = sar_registry()
+    reg = sar_vocabulary()
 
     def ours_running(colour: int) -> kp.LiveTree:
         live = kp.LiveTree(sar, reg, kp.Blackboard(target=colour))

@@ -41,7 +41,7 @@ from ktbt_proto.exchange.knowledge import (
 from ktbt_proto.exchange.memory_policy import MemoryPolicy
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Heard, Overhearing
-from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, read, vet
+from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, check_provenance, read_item
 from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.transferlog import Event, TransferLog
@@ -412,10 +412,10 @@ class AgentCore:
         # The answer is to one of the sequences asked (a query may name several: section 1).
         wanted = response.sequence if response.sequence in asked.sequences else asked.sequence
         try:
-            vet(response, wanted, self.security.policy, self.security.trust)
+            check_provenance(response, wanted, self.security.policy, self.security.trust)
             if wanted in self.knowledge:  # known already (perhaps innate): nothing to do
                 return True
-            conds, subtree = read(response, RECEIVE_LIMITS, self.registry)
+            conds, subtree = read_item(response, RECEIVE_LIMITS, self.registry)
             if not self._make_room():
                 raise Refused(f"from {response.sender}: memory full ({self.memory.capacity} items)")
             changed = self.control.merge(subtree, self.slot, when=conds)

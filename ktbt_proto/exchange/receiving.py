@@ -2,9 +2,10 @@
 
 The one set of checks every receiver runs, whoever it is: an agent before it merges (direct,
 overheard or buffered), a knowledge server before it serves what it overheard, ``ktbt peer ask``
-before it prints. :func:`vet` is the cheap part (the answer is to the sequence asked, its
-signatures satisfy the trust policy); :func:`read` parses the sequence and the subtree within the
-receive limits and validates them against the receiver's registry, when it has one. Each raises
+before it prints. :func:`check_provenance` is the cheap part (the answer is to the sequence
+asked, its signatures satisfy the trust policy); :func:`read_item` parses the sequence and the
+subtree within the receive limits and validates them against the receiver's registry, when it
+has one. Each raises
 :class:`Refused` with the reason a receiver counts and logs.
 """
 
@@ -35,7 +36,9 @@ class Refused(Exception):
         self.reason = reason
 
 
-def vet(response: Response, sequence: str, policy: Policy, trust: TrustStore | None = None) -> None:
+def check_provenance(
+    response: Response, sequence: str, policy: Policy, trust: TrustStore | None = None
+) -> None:
     """Rules 2 and 3 of section 2: the answer is to ``sequence``, and its signatures satisfy
     ``policy`` (and the names ``trust`` binds to keys)."""
     if response.sequence != sequence:
@@ -45,7 +48,7 @@ def vet(response: Response, sequence: str, policy: Policy, trust: TrustStore | N
         raise Refused(f"from {response.sender}: {why}")
 
 
-def read(
+def read_item(
     response: Response, limits: Limits = RECEIVE_LIMITS, registry: Registry | None = None
 ) -> tuple[tuple[Condition, ...], Node]:
     """Rules 4 and 5: the conditions and the subtree, parsed within ``limits`` (numbers
@@ -70,6 +73,6 @@ def check(
     limits: Limits = RECEIVE_LIMITS,
     registry: Registry | None = None,
 ) -> tuple[tuple[Condition, ...], Node]:
-    """:func:`vet`, then :func:`read`."""
-    vet(response, sequence, policy, trust)
-    return read(response, limits, registry)
+    """:func:`check_provenance`, then :func:`read_item`."""
+    check_provenance(response, sequence, policy, trust)
+    return read_item(response, limits, registry)

@@ -104,7 +104,7 @@ def examples_folder() -> Path:
 def run_demo(examples: Path) -> int:
     """The tour: each section one command and what it shows, in about 40 lines."""
     paper = examples / "paper_control.sbt"
-    registry = examples / "sar_registry.toml"
+    registry = examples / "sar_vocabulary.toml"
     for path in (paper, registry):
         if not path.is_file():
             typer.echo(f"error: --examples: {path} not found", err=True)

@@ -10,7 +10,13 @@ import ktbt_proto as kp
 from ktbt_proto.exchange.answers import answer_to
 from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.exchange.messages import Query, Response
-from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, check, read, vet
+from ktbt_proto.exchange.receiving import (
+    RECEIVE_LIMITS,
+    Refused,
+    check,
+    check_provenance,
+    read_item,
+)
 from ktbt_proto.items import parse_sequence, sequence_key
 
 SEQUENCE = sequence_key(["TargetSeen(colour=2)"])
@@ -43,12 +49,12 @@ def test_an_answer_that_passes_comes_back_parsed() -> None:
 def test_an_answer_to_another_question_is_refused() -> None:
     other = sequence_key(["TargetSeen(colour=3)"])
     with pytest.raises(Refused, match=r"^from t: answers .* not the question$"):
-        vet(answer("<a>(Pick)", other), SEQUENCE, kp.Policy.ANY)
+        check_provenance(answer("<a>(Pick)", other), SEQUENCE, kp.Policy.ANY)
 
 
 def test_an_unsigned_answer_is_refused_when_signatures_are_required() -> None:
     with pytest.raises(Refused, match=r"^from t: ") as refused:
-        vet(answer("<a>(Pick)"), SEQUENCE, kp.Policy.SIGNED)
+        check_provenance(answer("<a>(Pick)"), SEQUENCE, kp.Policy.SIGNED)
     assert "\n" not in refused.value.reason
 
 
@@ -57,9 +63,9 @@ def test_a_signed_answer_passes_a_trust_store_that_names_its_author() -> None:
     item = Knowledge(parse_sequence(SEQUENCE), kp.Action("Pick"))
     signed = answer_to(Query(id="q1", sender="l", sequence=SEQUENCE), "t", item, author)
     store = kp.TrustStore.parse(f"t {author.public}")
-    vet(signed, SEQUENCE, kp.Policy.TRUSTED, store)
+    check_provenance(signed, SEQUENCE, kp.Policy.TRUSTED, store)
     with pytest.raises(Refused):
-        vet(signed, SEQUENCE, kp.Policy.TRUSTED, kp.TrustStore.parse(""))
+        check_provenance(signed, SEQUENCE, kp.Policy.TRUSTED, kp.TrustStore.parse(""))
 
 
 @pytest.mark.parametrize(
@@ -73,5 +79,5 @@ def test_a_signed_answer_passes_a_trust_store_that_names_its_author() -> None:
 )
 def test_what_the_receiver_cannot_run_is_refused_with_its_code(subtree: str, code: str) -> None:
     with pytest.raises(Refused) as refused:
-        read(answer(subtree), RECEIVE_LIMITS, registry())
+        read_item(answer(subtree), RECEIVE_LIMITS, registry())
     assert refused.value.reason.startswith(f"from t: {code}")

@@ -63,7 +63,7 @@ def test_a_decoder_that_raises_refuses_the_message_naming_the_exception(
 def test_a_reader_that_raises_is_a_refusal_from_the_sender(monkeypatch: pytest.MonkeyPatch) -> None:
     answer = Response(id="q", sender="mallory", sequence=GREEN, subtree="<sq><c>true.5<e>")
     with pytest.raises(Refused) as parsed:
-        receiving.read(answer)  # the parser's own error, positioned
+        receiving.read_item(answer)  # the parser's own error, positioned
     assert parsed.value.reason == "from mallory: SBT101 unexpected character '.'"
 
     def explode(*_: Any, **__: Any) -> Any:
@@ -71,7 +71,7 @@ def test_a_reader_that_raises_is_a_refusal_from_the_sender(monkeypatch: pytest.M
 
     monkeypatch.setattr(receiving, "parse", explode)
     with pytest.raises(Refused) as raised:
-        receiving.read(answer.model_copy(update={"subtree": "<a>(Pick)"}))
+        receiving.read_item(answer.model_copy(update={"subtree": "<a>(Pick)"}))
     assert raised.value.reason == "from mallory: internal error reading a message: AssertionError"
 
 
@@ -83,7 +83,7 @@ def test_an_agent_refuses_what_it_cannot_read_keeps_its_tree_and_learns_after(
     teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
     before = learner.control.tree
     caplog.set_level(logging.WARNING)
-    real = receiving.read
+    real = receiving.read_item
     raising = True
 
     def read(*args: Any, **kwargs: Any) -> Any:
@@ -91,7 +91,7 @@ def test_an_agent_refuses_what_it_cannot_read_keeps_its_tree_and_learns_after(
             raise AssertionError
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(core, "read", read)
+    monkeypatch.setattr(core, "read_item", read)
     learner.ask(SEQUENCE)
     teacher.receive()
     heard = teacher.heard("l")

@@ -97,7 +97,7 @@ class CollisionAvoidance:
         self.ticks = 0
 
 
-def sar_registry() -> kp.Registry:
+def sar_vocabulary() -> kp.Registry:
     reg = kp.Registry()
     reg.flags(*FLAGS)
     reg.add_action("CollisionAvoidance", CollisionAvoidance)
@@ -152,7 +152,7 @@ SCENARIO: list[tuple[dict[str, bool], kp.Status, list[str]]] = [
 
 def test_sar_scenario_ticks_identically() -> None:
     tree = kp.parse((EXAMPLES / "sar_control.sbt").read_text())
-    reg = sar_registry()
+    reg = sar_vocabulary()
     runs = [Runner(tree, reg, engine) for engine in ("live", "py_trees")]
     for flags, status, calls in SCENARIO:
         assert [run.tick(**flags) for run in runs] == [(status, calls)] * 2, flags

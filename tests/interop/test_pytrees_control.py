@@ -65,7 +65,7 @@ def outcome(bb: kp.Blackboard, name: str) -> kp.Status:
     return status
 
 
-def sar_registry() -> kp.Registry:
+def sar_vocabulary() -> kp.Registry:
     """The robot's capabilities, what received knowledge is checked against (and what a
     LiveTree's leaves call)."""
     reg = kp.Registry()
@@ -212,7 +212,7 @@ class Twin:
 
 
 def twins() -> tuple[Twin, Twin]:
-    reg = sar_registry()
+    reg = sar_vocabulary()
     live_bb, py_bb = kp.Blackboard(log=[]), kp.Blackboard(log=[])
     text = (EXAMPLES / "sar_control.sbt").read_text()
     live = kp.LiveTree(text, reg, live_bb)
@@ -237,7 +237,7 @@ def test_the_py_trees_tree_reads_as_its_stringbt_twin() -> None:
     assert pyt.control.knows("prior", ["TargetSeen(colour=1)"])
     assert not pyt.control.knows("new", SEEN_2) and not pyt.control.knows("nowhere", SEEN_2)
     assert not live.control.knows("nowhere", SEEN_2)
-    assert not kp.LiveTree("<a>(RandomWalk)", sar_registry()).knows("new", SEEN_2)
+    assert not kp.LiveTree("<a>(RandomWalk)", sar_vocabulary()).knows("new", SEEN_2)
     text = kp.format_tree(pyt.control.tree, "compact")
     assert "<k>(new)<e>" in text and "<k>(common)<sq><a>(_treasureOnBoardF)" in text
 
@@ -272,7 +272,7 @@ def test_merge_takes_effect_between_ticks_and_ticks_as_livetree() -> None:
 
 def test_a_behaviour_running_outside_the_placeholder_keeps_running() -> None:
     bb = kp.Blackboard(log=[])
-    reg = sar_registry()
+    reg = sar_vocabulary()
     walker = Act(bb, "RandomWalk")
     root = py_trees.composites.Parallel(
         "Root",
@@ -377,7 +377,7 @@ def test_nested_placeholders_merge_and_go_with_their_item() -> None:
 
 
 def test_limits_and_a_failing_factory_change_nothing() -> None:
-    bb, reg = kp.Blackboard(log=[]), sar_registry()
+    bb, reg = kp.Blackboard(log=[]), sar_vocabulary()
     tight = PyTreesControl(
         py_trees_sar(bb, reg), reg, bb, limits=kp.Limits(max_depth=4, max_nodes=10_000)
     )
@@ -400,7 +400,7 @@ def test_limits_and_a_failing_factory_change_nothing() -> None:
 def test_two_placeholders_with_one_name_are_refused() -> None:
     bt = py_trees.trees.BehaviourTree(sel("Root", sel("k:new"), sel("k:new")))
     with pytest.raises(kp.ValidationError) as caught:
-        PyTreesControl(bt, sar_registry())
+        PyTreesControl(bt, sar_vocabulary())
     assert caught.value.code == ErrorCode.DUPLICATE_PLACEHOLDER
 
 
@@ -409,7 +409,7 @@ def test_two_placeholders_with_one_name_are_refused() -> None:
 
 def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
     net = MemoryNetwork()
-    reg = sar_registry()
+    reg = sar_vocabulary()
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),
@@ -449,7 +449,7 @@ def test_an_agent_learns_into_and_teaches_from_a_py_trees_tree() -> None:
 
 def test_an_agent_refuses_what_its_py_trees_behaviours_cannot_build() -> None:
     net = MemoryNetwork()
-    reg = sar_registry()
+    reg = sar_vocabulary()
     text = (EXAMPLES / "sar_control.sbt").read_text()
     teacher = Agent(
         "t", text.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>"),

@@ -36,7 +36,7 @@ from tests.interop.test_pytrees_control import (
     Twin,
     behaviours,
     py_trees_sar,
-    sar_registry,
+    sar_vocabulary,
     sel,
     twins,
 )
@@ -167,7 +167,7 @@ def _state(control: PyTreesControl) -> tuple[Any, ...]:
     ],
 )  # fmt: skip
 def test_refusals_change_nothing(subtree: str, slot: str, when: Any, code: ErrorCode) -> None:
-    bb, reg = kp.Blackboard(log=[]), sar_registry()
+    bb, reg = kp.Blackboard(log=[]), sar_vocabulary()
     reg.add_action("Broken", lambda bb: kp.SUCCESS)
 
     def broken() -> py_trees.behaviour.Behaviour:
@@ -201,7 +201,7 @@ def test_an_agent_resumes_past_saved_knowledge_its_behaviours_cannot_build(
     item = {"sequence": "<c>(TargetSeen,colour=2)", "subtree": LEARNED.replace(" ", "")}
     saved.write_text(json.dumps({"version": 1, "knowledge": [{**item, "segment": "new",
                                  "source": "t", "learned_at": 3}]}))  # fmt: skip
-    bb, reg = kp.Blackboard(log=[]), sar_registry()
+    bb, reg = kp.Blackboard(log=[]), sar_vocabulary()
 
     def no_gripper() -> py_trees.behaviour.Behaviour:
         raise RuntimeError("no gripper on this robot")
@@ -218,7 +218,7 @@ def test_an_agent_resumes_past_saved_knowledge_its_behaviours_cannot_build(
 
 
 def test_a_livetree_refuses_what_its_registry_cannot_build_too() -> None:
-    reg = sar_registry()
+    reg = sar_vocabulary()
 
     class Gripper:
         def __init__(self, bb: kp.Blackboard) -> None:
@@ -238,7 +238,7 @@ def test_a_livetree_refuses_what_its_registry_cannot_build_too() -> None:
 
 
 def test_an_agent_takes_a_factory_not_a_built_backend() -> None:
-    reg, net = sar_registry(), MemoryNetwork()
+    reg, net = sar_vocabulary(), MemoryNetwork()
     bb = kp.Blackboard(log=[])
     built: list[Any] = [
         PyTreesControl(py_trees_sar(bb, reg), reg, bb),
@@ -250,7 +250,7 @@ def test_an_agent_takes_a_factory_not_a_built_backend() -> None:
 
 
 def test_one_tree_is_wrapped_once() -> None:
-    bb, reg = kp.Blackboard(log=[]), sar_registry()
+    bb, reg = kp.Blackboard(log=[]), sar_vocabulary()
     bt = py_trees_sar(bb, reg)
     PyTreesControl(bt, reg, bb)
     with pytest.raises(ValueError, match="once"):
@@ -284,7 +284,7 @@ class Device(py_trees.behaviour.Behaviour):
 
 def test_merged_behaviours_are_set_up_and_pruned_ones_shut_down() -> None:
     journal: list[Any] = []
-    bb, reg = kp.Blackboard(log=[]), sar_registry()
+    bb, reg = kp.Blackboard(log=[]), sar_vocabulary()
     own: dict[str, Any] = {
         "PickTreasure": lambda: Device(journal, "Pick"),
         "AssignCollectionPoint": lambda colour: Device(journal, f"Assign {colour}"),
@@ -402,7 +402,7 @@ def test_any_tree_a_user_builds_reads_as_stringbt_that_parses(
 
 
 def test_merges_from_another_thread_while_the_tree_ticks() -> None:
-    reg = sar_registry()
+    reg = sar_vocabulary()
     colours = list(range(3, 43))
     bb = kp.Blackboard(log=[])
     walker = Act(bb, "RandomWalk")

@@ -40,7 +40,7 @@ from tests.interop.test_pytrees_control import (
     door_conditions,
     door_tree,
     py_trees_sar,
-    sar_registry,
+    sar_vocabulary,
 )
 from tests.zenoh_helpers import endpoint, free_port, ktbt_process, see, wait_until
 from tests.zenoh_helpers import settings as zenoh_settings
@@ -61,7 +61,7 @@ TICK = st.fixed_dictionaries(
 
 
 def test_a_py_trees_robot_learns_over_zenoh_and_ticks_as_its_teacher() -> None:
-    reg = sar_registry()
+    reg = sar_vocabulary()
     sar = (EXAMPLES / "sar_control.sbt").read_text()
     knows_2 = sar.replace("<k>(new)<e>", f"<k>(new)<sq><c>(TargetSeen, colour=2){LEARNED}<e><e>")
     a, b = free_port(), free_port()

@@ -158,7 +158,7 @@ def test_the_rerun_warning_looks_at_what_may_run(text: str, columns: list[int]) 
     assert [w.column for w in actions_rerun(kp.parse(text))] == columns
 
 
-def sar_registry() -> kp.Registry:
+def sar_vocabulary() -> kp.Registry:
     """The example control tree's vocabulary, with actions that record what they did."""
     reg = kp.Registry()
     reg.flags("_collisionDetectedF", "_waitF", "_treasureOnBoardF", "_inZoneF")
@@ -187,7 +187,7 @@ def sar_registry() -> kp.Registry:
 def test_an_agent_built_on_the_example_knows_red_and_asks_only_for_green() -> None:
     control = (EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8")
     net = MemoryNetwork()
-    robot = Agent("r1", control, sar_registry(), net.join("r1"), timing=Timing(wait=5))
+    robot = Agent("r1", control, sar_vocabulary(), net.join("r1"), timing=Timing(wait=5))
     assert robot.knows(["TargetSeen(colour=1)"])
     robot.blackboard["target"] = 1
     robot.encounter(["TargetSeen(colour=1)"])
@@ -220,7 +220,7 @@ def test_every_example_checks_clean_without_warnings(path: Path) -> None:
     """Against its own robot's vocabulary (the ``.toml`` of the same name beside it), else the
     search-and-rescue robot's."""
     own = path.with_suffix(".toml")
-    vocabulary = own if own.exists() else EXAMPLES / "sar_registry.toml"
+    vocabulary = own if own.exists() else EXAMPLES / "sar_vocabulary.toml"
     tree = kp.parse(path.read_bytes())
     assert kp.find_problems(tree, kp.Vocabulary.load(vocabulary)) == []
     assert stray_nodes(tree) == []

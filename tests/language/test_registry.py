@@ -86,7 +86,7 @@ def test_declared_behaviours_check_and_merge_and_do_not_pretend_to_run(
 
 
 def test_old_name_only_files_keep_working() -> None:
-    reg = load_vocabulary(EXAMPLES / "sar_registry.toml")
+    reg = load_vocabulary(EXAMPLES / "sar_vocabulary.toml")
     tree = kp.parse((EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8"))
     assert kp.find_problems(tree, reg) == []
     assert problems("<c>(TargetSeen, colour=2, anything=true)", reg) == []  # names only

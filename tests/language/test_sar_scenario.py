@@ -19,7 +19,7 @@ ACTIONS = (
 )
 
 
-def sar_registry(log: list[str]) -> kp.Registry:
+def sar_vocabulary(log: list[str]) -> kp.Registry:
     reg = kp.Registry()
     reg.flags(*FLAGS)
 
@@ -60,7 +60,7 @@ def run(live: kp.LiveTree, log: list[str], **flags: object) -> list[str]:
 
 def test_paper_control_tree_scenario() -> None:
     log: list[str] = []
-    live = kp.LiveTree((EXAMPLES / "paper_control.sbt").read_text(), sar_registry(log))
+    live = kp.LiveTree((EXAMPLES / "paper_control.sbt").read_text(), sar_vocabulary(log))
     # Nothing sensed: the fallback random walk.
     assert run(live, log) == ["RandomWalk"]
     assert run(live, log) == ["RandomWalk"]
@@ -85,7 +85,7 @@ def test_paper_control_tree_scenario() -> None:
 
 def test_prior_and_learned_knowledge() -> None:
     log: list[str] = []
-    live = kp.LiveTree((EXAMPLES / "sar_control.sbt").read_text(), sar_registry(log))
+    live = kp.LiveTree((EXAMPLES / "sar_control.sbt").read_text(), sar_vocabulary(log))
     assert run(live, log) == ["RandomWalk"]
     # Prior knowledge: red (colour 1) targets are picked up.
     assert run(live, log, target=1) == ["PickTreasure", "halt RandomWalk"]

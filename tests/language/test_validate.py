@@ -165,7 +165,7 @@ def test_vocabulary_load_missing_keys_default_to_empty(tmp_path: Path) -> None:
 
 
 def test_example_registry_accepts_example_tree() -> None:
-    vocab = kp.Vocabulary.load(EXAMPLES / "sar_registry.toml")
+    vocab = kp.Vocabulary.load(EXAMPLES / "sar_vocabulary.toml")
     tree = kp.parse((EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8"))
     assert kp.find_problems(tree, vocab) == []
 

@@ -310,7 +310,7 @@ def test_unreadable_files_get_one_line_not_a_usage_box(tmp_path: Path) -> None:
     folder.mkdir()
     files = {
         "u.sbt": (EXAMPLES / "sar_control.sbt").read_text(),
-        "u.toml": (EXAMPLES / "sar_registry.toml").read_text(),
+        "u.toml": (EXAMPLES / "sar_vocabulary.toml").read_text(),
         "u.json": "{}",
     }
     for name, text in files.items():

@@ -105,7 +105,7 @@ def test_check_reports_every_problem(tmp_path: Path) -> None:
         f"{f}:2:5: SBT301 <neg> needs exactly one child, not 0",
         f"{f}:3:5: SBT308 parallel threshold 3 is not in 1..1",
     ]
-    code, out, _ = ktbt("check", "--vocabulary", str(EXAMPLES / "sar_registry.toml"), str(f))
+    code, out, _ = ktbt("check", "--vocabulary", str(EXAMPLES / "sar_vocabulary.toml"), str(f))
     assert f"{f}:3:12: SBT306 unknown action 'Go'" in out.splitlines()
     assert f"{f}:4:5: SBT306 unknown action 'Fly'" in out.splitlines()
 
@@ -114,7 +114,7 @@ def test_check_clean_files_and_bad_inputs(tmp_path: Path) -> None:
     code, out, _ = ktbt(
         "check",
         "--vocabulary",
-        str(EXAMPLES / "sar_registry.toml"),
+        str(EXAMPLES / "sar_vocabulary.toml"),
         str(EXAMPLES / "sar_control.sbt"),
         str(EXAMPLES / "paper_control.sbt"),
     )

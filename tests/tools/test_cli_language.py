@@ -232,7 +232,7 @@ def test_convert_names_the_file_it_cannot_read_or_write(tmp_path: Path) -> None:
 
 def test_tour_reads_the_examples_folder_it_is_given(tmp_path: Path) -> None:
     (tmp_path / "paper_control.sbt").write_text("<sl>\n    <a>(Hello)\n<e>\n")
-    (tmp_path / "sar_registry.toml").write_text('conditions = ["TargetSeen"]\nactions = []\n')
+    (tmp_path / "sar_vocabulary.toml").write_text('conditions = ["TargetSeen"]\nactions = []\n')
     code, out, _ = ktbt("tour", "--examples", str(tmp_path))
     assert code == 0
     lines = out.splitlines()
@@ -240,7 +240,7 @@ def test_tour_reads_the_examples_folder_it_is_given(tmp_path: Path) -> None:
     # Its own vocabulary: this one has no actions, so the tour's skill is refused twice over.
     assert "knowledge.sbt:1:30: SBT306 unknown action 'PickTreasure'" in lines
     assert "knowledge.sbt:1:47: SBT306 unknown action 'Teleport'" in lines
-    (tmp_path / "sar_registry.toml").unlink()
+    (tmp_path / "sar_vocabulary.toml").unlink()
     code, out, err = ktbt("tour", "--examples", str(tmp_path))
     assert (code, out) == (1, "")
-    assert err == f"error: --examples: {tmp_path / 'sar_registry.toml'} not found\n"
+    assert err == f"error: --examples: {tmp_path / 'sar_vocabulary.toml'} not found\n"

@@ -206,7 +206,7 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     assert "Traceback" not in log
     # A robot whose files are wrong refuses to configure, with one line, and stays unconfigured.
     missing = tmp_path / "missing.sbt"
-    vocabulary = packaged("examples", "sar_registry.toml")
+    vocabulary = packaged("examples", "sar_vocabulary.toml")
     ns.ktbt("ros2", "run", "--ros-args", "-r", "__ns:=/broken", "-p", f"control:={missing}",
             "-p", f"vocabulary:={vocabulary}", name="broken")  # fmt: skip
     refused = ns.run("ros2", "lifecycle", "/broken/ktbt", "configure", "--timeout", "60")

@@ -23,7 +23,7 @@ import pymunk
 import pymunk.batch
 
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory_policy import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy, WhenFull
 from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.transport.memory import MemoryNetwork
 from ktbt_sim import geometry, motion, records, teaching
@@ -190,8 +190,8 @@ class World:
         self.registry = rb.registry(self)
         """The behaviours: they write their effects into this world's arrays (``state``)."""
         self.agents: list[ApplicationTimedAgent] = []
-        modes: dict[Mode, Overhear] = {Mode.PASSIVE_BUFFER: "buffer", Mode.PASSIVE: "update"}
-        overhear = modes.get(scenario.mode, "off")
+        modes = {Mode.PASSIVE_BUFFER: Overhear.BUFFER, Mode.PASSIVE: Overhear.UPDATE}
+        overhear = modes.get(scenario.mode, Overhear.OFF)
         for i, kind in enumerate(self.kinds):
             agent = ApplicationTimedAgent(
                 self.names[i],
@@ -205,7 +205,7 @@ class World:
                 # is knowledge too, but not a colour: it does not take a colour's place.
                 others = len(agent.knowledge) - len(rb.KINDS[kind])
                 agent.memory = MemoryPolicy(
-                    capacity=scenario.memory_size + others, when_full="evict"
+                    capacity=scenario.memory_size + others, when_full=WhenFull.EVICT
                 )
             agent.blackboard[rb.INDEX] = i
             self.agents.append(agent)

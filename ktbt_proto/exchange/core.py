@@ -38,7 +38,7 @@ from ktbt_proto.exchange.knowledge import (
     remove_stale_temporaries,
     salvage,
 )
-from ktbt_proto.exchange.memory_policy import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy, WhenFull
 from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.overhearing import Heard, Overhearing
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, check_provenance, read_item
@@ -330,7 +330,7 @@ class AgentCore:
         capacity = self.memory.capacity
         if capacity is None or self._held() < capacity:
             return True
-        if self.memory.when_full != "evict":
+        if self.memory.when_full != WhenFull.EVICT:
             return False
         learned = self._learned_items()
         if not learned:

@@ -10,9 +10,15 @@ item expire on its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from enum import StrEnum
 
-WhenFull = Literal["refuse", "evict"]
+
+class WhenFull(StrEnum):
+    """What a full memory does with a lesson (section 4.2): an option's value, as
+    :class:`~ktbt_proto.exchange.trust.Policy` is."""
+
+    REFUSE = "refuse"
+    EVICT = "evict"
 
 
 @dataclass(frozen=True)
@@ -27,7 +33,7 @@ class MemoryPolicy:
 
     capacity: int | None = None
     count_innate: bool = True
-    when_full: WhenFull = "refuse"
+    when_full: WhenFull = WhenFull.REFUSE
     forget_after: int | None = None
     expire_after: int | None = None
 
@@ -36,5 +42,5 @@ class MemoryPolicy:
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 1):
                 raise ValueError(f"{name} must be a whole number of at least 1, or None")
-        if self.when_full not in ("refuse", "evict"):
+        if self.when_full not in tuple(WhenFull):
             raise ValueError(f"when_full must be 'refuse' or 'evict', not {self.when_full!r}")

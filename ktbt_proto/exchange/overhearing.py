@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable
 from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Any, Literal
+from typing import Any
 
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
 from ktbt_proto.exchange.messages import Response
@@ -24,9 +24,18 @@ from ktbt_proto.exchange.receiving import Refused, check
 from ktbt_proto.exchange.refusals import Throttle, guarded
 from ktbt_proto.exchange.signing import SignedItem
 
-Overhear = Literal["off", "update", "buffer"]
-"""What a peer does with answers to others' queries."""
-MODES: tuple[Overhear, ...] = ("off", "update", "buffer")
+
+class Overhear(StrEnum):
+    """What a peer does with answers to others' queries (section 4.3); an option's value, as
+    :class:`~ktbt_proto.exchange.trust.Policy` is (each member is its name on the command line
+    and in a parameter file)."""
+
+    OFF = "off"
+    UPDATE = "update"
+    BUFFER = "buffer"
+
+
+MODES: tuple[Overhear, ...] = tuple(Overhear)
 
 
 class Heard(StrEnum):
@@ -49,10 +58,10 @@ class Heard(StrEnum):
 class Overhearing:
     """One peer's overhearing: its mode and its buffer of ``buffer_size`` answers."""
 
-    def __init__(self, mode: Overhear = "off", buffer_size: int = 16) -> None:
+    def __init__(self, mode: Overhear = Overhear.OFF, buffer_size: int = 16) -> None:
         if mode not in MODES:
             raise ValueError(f"overhear must be 'off', 'update' or 'buffer', not {mode!r}")
-        self.mode: Overhear = mode
+        self.mode = Overhear(mode)
         self.buffer_size = buffer_size
         self._buffer: dict[str, Response] = {}
         self._lock = threading.Lock()

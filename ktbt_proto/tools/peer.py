@@ -61,7 +61,7 @@ class PeerSettings:
     settings: ZenohSettings = field(default_factory=ZenohSettings)
     security: Security = field(default_factory=Security)
     publish_answers: bool = False
-    overhear: Overhear = "off"
+    overhear: Overhear = Overhear.OFF
     publish_events: bool = False
     """Publish this member's fleet events (``ktbt_proto.exchange.events``, for ``ktbt monitor``)."""
     groot: int | None = None

@@ -20,7 +20,7 @@ from typing import Any
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory_policy import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy, WhenFull
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
@@ -212,7 +212,7 @@ def test_a_lesson_refused_for_memory_is_accepted_once_room_is_made() -> None:
 
 def test_eviction_never_takes_innate_knowledge_so_a_memory_full_of_it_refuses() -> None:
     net = MemoryNetwork()
-    policy = MemoryPolicy(capacity=1, when_full="evict")  # the innate item fills it
+    policy = MemoryPolicy(capacity=1, when_full=WhenFull.EVICT)  # the innate item fills it
     robot = ApplicationTimedAgent("l", KNOWER, registry(), net.join("l"), memory=policy)
     teacher = ApplicationTimedAgent("t", knower(3), registry(), net.join("t"))
     robot.ask([BLUE])

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.memory_policy import MemoryPolicy
+from ktbt_proto.exchange.memory_policy import MemoryPolicy, WhenFull
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.transport import MemoryNetwork
 
@@ -93,7 +93,7 @@ def test_innate_knowledge_counts_when_the_policy_says_so() -> None:
 
 
 def test_eviction_forgets_the_least_recently_used_item() -> None:
-    learner, teacher = pair(capacity=2, count_innate=False, when_full="evict")
+    learner, teacher = pair(capacity=2, count_innate=False, when_full=WhenFull.EVICT)
     assert teach(learner, teacher, 2)
     assert teach(learner, teacher, 3)
     see(learner, 2, ticks=3)  # green is used; yellow is not

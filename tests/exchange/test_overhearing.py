@@ -37,7 +37,7 @@ def exchange(learner: ApplicationTimedAgent, teacher: ApplicationTimedAgent) -> 
 
 
 def test_update_learns_an_overheard_answer_at_once() -> None:
-    learner, teacher, ear, _net = trio("update")
+    learner, teacher, ear, _net = trio(Overhear.UPDATE)
     exchange(learner, teacher)
     assert ear.receive() == 1
     assert ear.knows(SEQUENCE)
@@ -54,7 +54,9 @@ def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
     net = MemoryNetwork(overhear=True)
     learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
     teacher = ApplicationTimedAgent("t", KNOWER, registry(), net.join("t"))
-    ear = Agent("e", CONTROL, registry(), net.join("e"), ear=Overhearing("buffer"))  # tree-timed
+    ear = Agent(
+        "e", CONTROL, registry(), net.join("e"), ear=Overhearing(Overhear.BUFFER)
+    )  # tree-timed
     exchange(learner, teacher)
     ear.tick()  # reads the transport; nothing encountered yet, so nothing asked
     assert ear.metrics.learned_passive == 0 and ear.metrics.queries_sent == 0
@@ -70,7 +72,7 @@ def test_buffer_keeps_an_overheard_answer_and_uses_it_without_asking() -> None:
 
 
 def test_off_refuses_an_answer_addressed_to_another() -> None:
-    learner, teacher, ear, _net = trio("off")
+    learner, teacher, ear, _net = trio(Overhear.OFF)
     exchange(learner, teacher)
     assert ear.receive() == 0
     assert not ear.knows(SEQUENCE) and ear.metrics.refused == 1
@@ -84,7 +86,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
     reg.add_condition("TargetSeen", lambda bb, colour: False)
     reg.add_action("Walk", lambda bb: kp.SUCCESS)
     ear = ApplicationTimedAgent(
-        "e", CONTROL, reg, net.join("e"), ear=Overhearing("update")
+        "e", CONTROL, reg, net.join("e"), ear=Overhearing(Overhear.UPDATE)
     )  # no Pick
     before = kp.format_tree(ear.control.tree, "compact")
     exchange(learner, teacher)
@@ -95,7 +97,7 @@ def test_an_overheard_answer_that_fails_a_check_is_refused_and_counted() -> None
 
 
 def test_an_overheard_answer_is_trusted_no_more_than_a_direct_one() -> None:
-    learner, teacher, ear, _net = trio("update", Security(policy=Policy.SIGNED))
+    learner, teacher, ear, _net = trio(Overhear.UPDATE, Security(policy=Policy.SIGNED))
     exchange(learner, teacher)  # the teacher signs nothing
     assert ear.receive() == 0 and not ear.knows(SEQUENCE)
     assert ear.metrics.refused == 1
@@ -109,7 +111,7 @@ def test_a_full_buffer_refuses_the_newcomer() -> None:
     learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"))
     teacher = ApplicationTimedAgent("t", knows_two, registry(), net.join("t"))
     ear = ApplicationTimedAgent(
-        "e", CONTROL, registry(), net.join("e"), ear=Overhearing("buffer", 1)
+        "e", CONTROL, registry(), net.join("e"), ear=Overhearing(Overhear.BUFFER, 1)
     )
     for colour in (2, 3):
         learner.ask([f"TargetSeen(colour={colour})"])
@@ -131,7 +133,7 @@ def test_a_fleet_member_learns_from_its_buffer_without_asking() -> None:
     from ktbt_proto.exchange.backoff import Backoff
     from ktbt_proto.exchange.member import Learner
 
-    learner, teacher, ear, _net = trio("buffer")
+    learner, teacher, ear, _net = trio(Overhear.BUFFER)
     exchange(learner, teacher)
     ear.receive()
     assert ear.buffered == ["<c>(TargetSeen,colour=2)"] and not ear.knows(SEQUENCE)

@@ -17,7 +17,7 @@ from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.answers import answers
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, encode
-from ktbt_proto.exchange.overhearing import Overhearing
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.syntax import parse
@@ -53,7 +53,7 @@ def ear(port: int, teacher: int, save: str, conn: Connection) -> None:
             DEMO_CONTROL,
             demo_registry(),
             transport,
-            ear=Overhearing("update"),
+            ear=Overhearing(Overhear.UPDATE),
             knowledge_path=save,
         )
         reached(transport, "teacher")  # so the subscription has reached the teacher
@@ -153,9 +153,11 @@ def test_buffer_and_the_trust_policy_over_zenoh() -> None:
         ZenohTransport("buf", settings(pb, pt), overhear=True) as tb,
         ZenohTransport("strict", settings(ps, pt), overhear=True) as ts,
     ):
-        buffering = Agent("buf", DEMO_CONTROL, demo_registry(), tb, ear=Overhearing("buffer"))
+        buffering = Agent(
+            "buf", DEMO_CONTROL, demo_registry(), tb, ear=Overhearing(Overhear.BUFFER)
+        )
         strict = Agent(
-            "strict", DEMO_CONTROL, demo_registry(), ts, ear=Overhearing("update"),
+            "strict", DEMO_CONTROL, demo_registry(), ts, ear=Overhearing(Overhear.UPDATE),
             security=Security(policy=Policy.SIGNED),
         )  # fmt: skip
         for t in (learner, tb, ts):

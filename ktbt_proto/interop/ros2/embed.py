@@ -78,7 +78,7 @@ def attach(
     sequences: Iterable[str] | None = None,
     topics: Topics | None = None,
     security: Security | None = None,
-    overhear: Overhear = "off",
+    overhear: Overhear = Overhear.OFF,
     wait: float = 2.0,
     period: float = 0.1,
 ) -> Embedded:

@@ -5,7 +5,7 @@ commands through the ``ktbt.commands`` entry point (``monitor``, ``fleet``).
 Each option is a typed ``Annotated`` alias that a command lists explicitly among its
 parameters, its default given there. Fixed choices are the protocol's own types (the trust
 policy :class:`~ktbt_proto.exchange.trust.Policy`, the overhearing mode
-:data:`~ktbt_proto.exchange.overhearing.Overhear`, the zenoh mode
+:class:`~ktbt_proto.exchange.overhearing.Overhear`, the zenoh mode
 :data:`~ktbt_proto.transport.zenoh.MemberMode`), so the help lists them and a value outside
 them is refused. A value that cannot be right (a peer name, a number of seconds) is refused by
 the option itself (``typer.BadParameter``, one line naming the option, exit 2: the root app's

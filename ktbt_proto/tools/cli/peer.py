@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from ktbt_proto.errors import StringBTError
+from ktbt_proto.exchange.overhearing import Overhear
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.tools.cli.options import (
     Connect,
@@ -88,7 +89,7 @@ def peer_serve(
     key: KeyFile = None,
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
-    overhear: OverhearOption = "off",
+    overhear: OverhearOption = Overhear.OFF,
     publish_events: PublishEvents = False,
     groot: GrootPort = None,
     ready: ReadyFile = None,
@@ -206,7 +207,7 @@ def peer_run(
     trust: TrustFile = None,
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
-    overhear: OverhearOption = "off",
+    overhear: OverhearOption = Overhear.OFF,
     export_learned: Annotated[
         Path | None,
         typer.Option(

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any, cast
+from typing import Any
 
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
@@ -275,7 +275,7 @@ class KtbtNode(LifecycleNode):
         trust = TrustStore.load(trust_path) if trust_path else None
         if policy == Policy.TRUSTED and trust is None:
             raise ValueError("policy trusted needs a trust file (parameter trust)")
-        overhear = cast(Overhear, str(self._param("overhear")))
+        overhear = Overhear(str(self._param("overhear")))  # checked by problem() first
         sequences = self._param("sequences")
         todo = None if sequences is None else [sequence_key(read_sequence(s)) for s in sequences]
         wait_ticks, cooldown_ticks = (

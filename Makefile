@@ -94,8 +94,11 @@ fuzz: $(VENV)/.installed-dev
 
 # BehaviorTree.CPP itself as the judge of our XML, and a C++ robot learning beside a KT-BT agent
 # (not part of `make test`): the library is built from source once per version and compiler into
-# ~/.cache/ktbt (minutes the first time), then the differential and sidecar tests run against it,
-# and Nav2's way of loading a folder of trees by ID (test_btcpp_nav2.py).
+# ~/.cache/ktbt (minutes the first time), with the example programs and KT-BT's plugin library
+# libktbt_nodes.so (examples/btcpp/), then the differential and sidecar tests run against it, and
+# Nav2's two ways of loading a learned tree (test_btcpp_nav2.py): Jazzy's, a navigation tree
+# by file path that runs it as a <SubTree>, and newer Nav2's, by ID from a folder; the KTBT_
+# nodes loaded by name from the plugin library, as Nav2 loads its plugin_lib_names.
 interop: $(VENV)/.installed-dev
 	$(BIN)/python -m tests.btcpp.build
 	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/interop/test_btcpp_engine.py tests/interop/test_btcpp_learner.py \

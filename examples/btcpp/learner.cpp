@@ -5,13 +5,15 @@
 //
 // The robot ticks control.xml (what `ktbt convert examples/btcpp/control.sbt` writes). The agent
 // writes each item it learns into the folder as its own BehaviorTree.CPP document and removes
-// it when the item is forgotten (spec/stringbt.md, section 12.1). BehaviorTree.CPP cannot edit
-// a running tree, so at the first tick boundary after every change of the folder the robot
-// builds its tree again, with each learned item, in the order of their numbers, as a <SubTree>
-// at the end of its placeholder <ReactiveFallback name="k:NAME"> (found with tinyxml2, whatever
-// the control tree's layout), then halts the old tree and runs the new one. A file it cannot
-// load is refused (printed) and left out; the rest of the tree is built without it. A port
-// value that does not read fails its node.
+// it when the item is forgotten (spec/stringbt.md, section 12.1): the numbered files, which this
+// robot places (an item under a tree ID given with --tree-id is <ID>.xml instead, for a tree
+// that names it as a <SubTree>: section 12.3, navigate_with_learned.xml). BehaviorTree.CPP
+// cannot edit a running tree, so at the first tick boundary after every change of the folder
+// the robot builds its tree again, with each learned item, in the order of their numbers, as a
+// <SubTree> at the end of its placeholder <ReactiveFallback name="k:NAME"> (found with
+// tinyxml2, whatever the control tree's layout), then halts the old tree and runs the new one.
+// A file it cannot load is refused (printed) and left out; the rest of the tree is built
+// without it. A port value that does not read fails its node.
 //
 // Its nodes are the search-and-rescue robot's (compiled in below) and, for a robot with its own
 // node names, every other condition and action that the <TreeNodesModel> of its control

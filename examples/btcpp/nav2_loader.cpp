@@ -22,15 +22,15 @@
 //   nav2_behavior_tree/bt_action_server_impl.hpp), which bt_navigator calls with the
 //   default_nav_to_pose_bt_xml parameter at activation and with a NavigateToPose goal's
 //   behavior_tree field (NavigateToPoseNavigator::goalReceived, nav2_bt_navigator/src/
-//   navigators/navigate_to_pose.cpp): the field is a file path, never an ID (Jazzy has no
-//   bt_search_directories). The file must open (std::ifstream::good), then
+//   navigators/navigate_to_pose.cpp): the field is a file path, never an ID (Jazzy, like
+//   Kilted, has no bt_search_directories). The file must open (std::ifstream::good), then
 //   createTreeFromFile(FILE, blackboard) builds its main_tree_to_execute: BT.CPP reads each
 //   <include path="..."> of it relative to the including file's folder, so a learned item at
 //   a stable path (<ID>.xml) is a <SubTree ID="..."> of the robot's navigation tree.
 //
-// * By ID: navigation2's main branch (since its PR #5426, August 2025), BtActionServer::
-//   loadBehaviorTree for a goal naming an ID (not a name ending in .xml) with
-//   BehaviorTreeEngine::parseTreeInfo: for each directory in turn, for each directory entry
+// * By ID: navigation2's main branch (since its PR #5426, August 2025; also its lyrical
+//   branch), BtActionServer::loadBehaviorTree for a goal naming an ID (not a name ending in
+//   .xml) with BehaviorTreeEngine::parseTreeInfo: for each directory in turn, for each entry
 //   whose extension is ".xml", read the IDs of its <BehaviorTree> elements with tinyxml2 (a
 //   file that does not parse or has no ID is skipped; several trees without
 //   main_tree_to_execute is an error); a file with an ID already registered is skipped and

@@ -52,14 +52,23 @@ name used both as a condition and an action (BT.CPP has one namespace of node ID
 Values. XML attributes are strings; numbers are written as their stringBT literals and booleans
 as ``true``/``false``, which BT.CPP's converters read. A string is written as is, unless it would
 read back as something else or cannot be an XML character: if it looks like a number or boolean,
-starts with ``"``, is ``{...}`` (spaces aside: BT.CPP would read a blackboard reference, so a
-peer's string could name a key of the robot's blackboard), or holds a control character, it is
-written as its JSON literal (quotes included). A subnormal double (``5e-324``) is refused
-(``SBT310``): BT.CPP's converter cannot read it. The ``ticks`` of the ``KTBT_`` nodes and
-``Sleep``'s ``msec`` are ``unsigned int`` ports: a larger count is refused (``SBT307``), both
-ways. Import reads ``true``/``false``, then stringBT numbers, then JSON string literals;
-anything else is a string. A ``{key}`` blackboard reference imports as that literal string, and
-port defaults declared in a TreeNodesModel are not applied.
+starts with ``"``, is ``{...}`` (spaces aside, BT.CPP's test for a blackboard reference) without
+being a reference as below, or holds a control character, it is written as its JSON literal
+(quotes included). A subnormal double (``5e-324``) is refused (``SBT310``): BT.CPP's converter
+cannot read it. The ``ticks`` of the ``KTBT_`` nodes and ``Sleep``'s ``msec`` are ``unsigned
+int`` ports: a larger count is refused (``SBT307``), both ways. Import reads ``true``/``false``,
+then stringBT numbers, then JSON string literals; anything else is a string. Port defaults
+declared in a TreeNodesModel are not applied.
+
+Blackboard references (spec/stringbt.md section 12). A string that is exactly a key between
+braces, ``"{goal}"`` (the key a letter, then letters, digits or ``_``, and not ``name`` or
+``ID``: a name BT.CPP accepts as a port), is written unquoted, ``goal="{goal}"``, so BT.CPP wires
+the port to the blackboard entry ``goal`` (a Nav2 tree's goal, its path). Such an argument is
+declared in the model without a type (the entry's type is the program's), and the tree's
+``<SubTree ID=...>`` model lists every key it refers to as an ``inout_port``, so a tree that runs
+it as a ``<SubTree>`` wires each one (``goal="{goal}"``, or ``_autoremap="true"``) and BT.CPP
+refuses to load one that forgets a key. Import reads ``{goal}`` back as the string ``"{goal}"``,
+so the stringBT tree round-trips.
 
 Import accepts both ``<X/>`` (when the TreeNodesModel declares X) and the explicit
 ``<Action ID="X"/>``, ``<Condition ID="X"/>`` and ``<Decorator ID="KTBT_TT1">`` forms; the
@@ -135,7 +144,10 @@ _NUMBER = re.compile(r"-?[0-9]+(\.[0-9]+)?([eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"([^"\\\x00-\x1f]|\\["\\/bfnrt]|\\u[0-9a-fA-F]{4})*"')
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
 # BT.CPP reads a port value as a blackboard reference when, spaces stripped, it is ``{...}``.
-_REFERENCE = re.compile(r" *\{.*\} *", re.DOTALL)
+_BRACED = re.compile(r" *\{.*\} *", re.DOTALL)
+# The braced strings written as references: a key that is a BT.CPP port name (a letter, then
+# letters, digits or _, not name or ID), so a <SubTree> can remap it.
+_REFERENCE = re.compile(r"\{(?!(?:name|ID)\})(?P<key>[A-Za-z][A-Za-z0-9_]*)\}")
 _PORT = re.compile(r"[A-Za-z][A-Za-z0-9_]*(-[A-Za-z_][A-Za-z0-9_]*)*")
 _ATTR_ESCAPES = str.maketrans(
     {
@@ -160,14 +172,26 @@ _CUSTOM_MODELS = {
 # -- values and names ------------------------------------------------------------------------
 
 
+def reference(value: Value) -> str | None:
+    """The blackboard key a string argument refers to once exported (``"{goal}"`` -> ``goal``),
+    or None: a string that is exactly a key between braces (spec/stringbt.md section 12)."""
+    if not isinstance(value, str):
+        return None
+    match = _REFERENCE.fullmatch(value)
+    return match["key"] if match is not None else None
+
+
 def encode_value(value: Value) -> str:
     """Attribute text BT.CPP's converters read naturally, and :func:`decode_value` reads back to
-    the same value and type (see the module docstring)."""
+    the same value and type (see the module docstring); a blackboard reference (``"{goal}"``) is
+    written as BT.CPP reads one, unquoted (spec/stringbt.md section 12)."""
     if not isinstance(value, str):
         return format_value(value)
     if value in ("true", "false") or value.startswith('"') or _NUMBER.fullmatch(value):
         return json.dumps(value, ensure_ascii=False)
     if _REFERENCE.fullmatch(value):
+        return value
+    if _BRACED.fullmatch(value):
         return json.dumps(value, ensure_ascii=False)
     if _NOT_XML.search(value):
         quoted = json.dumps(value, ensure_ascii=False)
@@ -223,6 +247,7 @@ class _Exporter(Visitor[_Out]):
         self.kinds: dict[str, str] = {}  # node ID -> "Condition" | "Action"
         self.ports: dict[str, dict[str, set[str]]] = {}  # node ID -> port -> types
         self.custom: set[str] = set()
+        self.references: set[str] = set()  # the blackboard keys the tree's arguments name
 
     def _refuse(self, node: Node, message: str) -> NoReturn:
         raise ValidationError(ErrorCode.INVALID_NAME, message, node.line, node.column)
@@ -243,7 +268,12 @@ class _Exporter(Visitor[_Out]):
             if isinstance(value, float) and 0 < abs(value) < sys.float_info.min:
                 message = f"argument {key!r}: BT.CPP cannot read the subnormal double {value!r}"
                 raise ValidationError(ErrorCode.INVALID_VALUE, message, node.line, node.column)
-            ports.setdefault(port, set()).add(_PORT_TYPES[type(value)])
+            types = ports.setdefault(port, set())
+            entry = reference(value)
+            if entry is None:
+                types.add(_PORT_TYPES[type(value)])
+            else:  # the entry's type is the program's: the port is declared untyped
+                self.references.add(entry)
             attrs.append((port, encode_value(value)))
         return _Out(ident, attrs)
 
@@ -302,8 +332,16 @@ class _Exporter(Visitor[_Out]):
         self.custom.add(ident)
         return _Out(ident, [("ticks", self._ticks(node, node.ticks))], list(node.children))
 
-    def model(self) -> list[_Out]:
+    def model(self, tree_id: str) -> list[_Out]:
+        """The ``<TreeNodesModel>`` entries: each condition and action with its ports, each
+        ``KTBT_`` node, and the tree itself as a ``<SubTree>`` whose ports are the blackboard
+        keys it refers to (none: no entry)."""
         entries: list[tuple[str, str, list[Node | _Out | str]]] = []
+        if self.references:
+            keys: list[Node | _Out | str] = [
+                _Out("inout_port", [("name", key)]) for key in sorted(self.references)
+            ]
+            entries.append(("SubTree", tree_id, keys))
         for ident, kind in self.kinds.items():
             ports: list[Node | _Out | str] = []
             for port, types in sorted(self.ports[ident].items()):
@@ -335,7 +373,7 @@ def to_xml(tree: Tree | Node, *, tree_id: str = MAIN_TREE) -> str:
     lines.append(f"<root{_attrs([('BTCPP_format', '4'), ('main_tree_to_execute', tree_id)])}>")
     # Convert the tree first, so the model below knows every node it used.
     _write(body, 1, exporter, lines)
-    _write(_Out("TreeNodesModel", [], [*exporter.model()]), 1, exporter, lines)
+    _write(_Out("TreeNodesModel", [], [*exporter.model(tree_id)]), 1, exporter, lines)
     lines.append("</root>\n")
     return "\n".join(lines)
 

@@ -6,9 +6,11 @@ tests, examples, tools, SQLite logger or Groot2 interface, and installed (with t
 bundled tinyxml2, whose symbols the library exports) under
 ``~/.cache/ktbt/btcpp-<version>-<compiler>/`` (``$KTBT_CACHE`` overrides ``~/.cache/ktbt``): outside
 the clone, so a fresh clone reuses it. A file lock makes parallel test processes wait for one
-build instead of starting two. Programs are cached by a digest of their sources.
+build instead of starting two. Programs and plugin libraries are cached by a digest of their
+sources.
 
-``python -m tests.btcpp.build`` builds the library and prints its prefix and build time.
+``python -m tests.btcpp.build`` builds the library and prints its prefix and build time, then
+builds the example programs and KT-BT's plugin library (``examples/btcpp/ktbt_nodes.cpp``).
 """
 
 from __future__ import annotations
@@ -144,27 +146,32 @@ def engine() -> Path:
     return prefix
 
 
-def program(name: str, *sources: Path) -> Path:
-    """Compile ``sources`` with ``ktbt_btcpp/`` on the include path, linked against the engine;
-    cached by the digest of the sources, the headers beside them and the header library."""
-    prefix = engine()
+def _digest(sources: tuple[Path, ...]) -> str:
+    """The digest of ``sources``, the headers beside them and the header library."""
     digest = hashlib.sha256()
     beside = sorted({header for source in sources for header in source.parent.glob("*.hpp")})
     for path in (*sources, *beside, *sorted(HEADERS.glob("*.hpp"))):
         digest.update(path.read_bytes())
-    binary = prefix / "programs" / f"{name}-{digest.hexdigest()[:16]}"
-    if binary.exists():
-        return binary
-    with locked(binary.parent / f"{binary.name}.lock"):
-        if binary.exists():
-            return binary
-        partial = binary.parent / f"{binary.name}.partial"
+    return digest.hexdigest()[:16]
+
+
+def _compile(target: Path, sources: tuple[Path, ...], *flags: str) -> Path:
+    """``sources`` compiled into ``target`` (once: another process waits for the first)."""
+    prefix = engine()
+    if target.exists():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with locked(target.parent / f"{target.name}.lock"):
+        if target.exists():
+            return target
+        partial = target.parent / f"{target.name}.partial"
         cxx = os.environ.get("CXX", "g++")
         _run(
             [
                 cxx,
                 "-std=c++17",
                 "-O1",
+                *flags,
                 "-I",
                 str(prefix / "include"),
                 "-I",
@@ -179,10 +186,43 @@ def program(name: str, *sources: Path) -> Path:
                 str(partial),
             ]
         )
-        partial.replace(binary)
-    return binary
+        partial.replace(target)
+    return target
+
+
+def program(name: str, *sources: Path) -> Path:
+    """Compile ``sources`` with ``ktbt_btcpp/`` on the include path, linked against the engine;
+    cached by the digest of the sources, the headers beside them and the header library."""
+    return _compile(engine() / "programs" / f"{name}-{_digest(sources)}", sources)
+
+
+def plugin(name: str, *sources: Path) -> Path:
+    """A BehaviorTree.CPP plugin library, ``lib<name>.so`` (``BT_PLUGIN_EXPORT`` defined, so
+    its ``BT_REGISTER_NODES`` is exported), alone in a folder of its own: a loader finds it by
+    name (``registerFromPlugin(getOSName(name))``) with the folder on ``LD_LIBRARY_PATH``.
+    Cached as :func:`program` is."""
+    folder = engine() / "plugins" / f"{name}-{_digest(sources)}"
+    return _compile(folder / f"lib{name}.so", sources, "-shared", "-fPIC", "-DBT_PLUGIN_EXPORT")
+
+
+EXAMPLES = REPO / "examples" / "btcpp"
+"""The example programs and the plugin library ``make interop`` builds before its tests."""
+
+
+def examples() -> dict[str, Path]:
+    """The example programs and KT-BT's plugin library, built (``make interop`` builds them
+    first, so their build time is not the tests')."""
+    return {
+        "learner": program("learner", EXAMPLES / "learner.cpp"),
+        "nav2_loader": program("nav2_loader", EXAMPLES / "nav2_loader.cpp"),
+        "libktbt_nodes.so": plugin("ktbt_nodes", EXAMPLES / "ktbt_nodes.cpp"),
+    }
 
 
 if __name__ == "__main__":
     built = engine()
     print(built, "built in", (built / "built").read_text().strip(), "s")
+    start = time.monotonic()
+    for path in examples().values():
+        print(path)
+    print(f"examples ready in {time.monotonic() - start:.1f} s")

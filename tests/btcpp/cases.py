@@ -9,6 +9,7 @@ from pathlib import Path
 from hypothesis import strategies as st
 
 import ktbt_proto as kp
+from ktbt_proto.interop.btcpp import reference
 from ktbt_proto.tree import (
     Args,
     Container,
@@ -40,8 +41,10 @@ def outcomes(
 
 
 # Port values: ints within BT.CPP's 32-bit int; subnormal doubles on purpose (the export refuses
-# them, BT.CPP cannot read them) next to the smallest normal one; "{key}" strings, which BT.CPP
-# would read as blackboard references were they not quoted.
+# them, BT.CPP cannot read them) next to the smallest normal one; braced strings such as "{x}"
+# and " {x}", which BT.CPP would read as blackboard references were they not quoted. A string
+# exported as a reference ("{x}" itself, spec/stringbt.md section 12) reads BT.CPP's blackboard,
+# which LiveTree has not: those are tested apart (test_btcpp_engine.py), not compared here.
 port_values = st.one_of(
     st.booleans(),
     st.integers(-(2**31), 2**31 - 1),
@@ -49,7 +52,7 @@ port_values = st.one_of(
     st.sampled_from((5e-324, -1e-310, 2.2250738585072014e-308)),
     st.text(st.characters(codec="utf-8", exclude_categories=["Cs"]), max_size=8),
     st.text("{}x ", max_size=5),
-)
+).filter(lambda value: reference(value) is None)
 port_names = st.sampled_from(("x", "goal", "nav.frame"))
 
 

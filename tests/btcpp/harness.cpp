@@ -8,6 +8,8 @@
 //   ticks N                          how many times to tick the root
 //   c NAME OUTCOMES PORT:TYPE ...    a condition; OUTCOMES is S/F per tick, cycled
 //   a NAME OUTCOMES PORT:TYPE ...    an action; OUTCOMES is S/F/R per tick, cycled
+//   set KEY TEXT                     the blackboard entry KEY, a string: TEXT, the rest of
+//                                    the line (a port whose attribute is {KEY} reads it)
 // TYPE is int, double, bool or string (the type the TreeNodesModel declares, string if none).
 //
 // Output, per tick: "tick K", then one line per leaf call ("call NAME port=value ...", the
@@ -215,6 +217,7 @@ int main(int argc, char** argv)
     std::ifstream script(argv[2]);
     std::map<std::string, Leaf> leaves;
     std::vector<std::pair<char, std::string>> order;
+    auto blackboard = BT::Blackboard::create();
     unsigned ticks = 0;
     std::string line;
     while(std::getline(script, line))
@@ -225,6 +228,14 @@ int main(int argc, char** argv)
       if(kind == "ticks")
       {
         words >> ticks;
+        continue;
+      }
+      if(kind == "set")
+      {
+        std::string key, text;
+        words >> key;
+        std::getline(words >> std::ws, text);
+        blackboard->set<std::string>(key, text);
         continue;
       }
       if(kind != "c" && kind != "a")
@@ -257,7 +268,7 @@ int main(int argc, char** argv)
         registerLeaf<ScriptedAction>(factory, name, leaf, BT::NodeType::ACTION);
       }
     }
-    auto tree = factory.createTreeFromFile(std::filesystem::absolute(argv[1]));
+    auto tree = factory.createTreeFromFile(std::filesystem::absolute(argv[1]), blackboard);
     for(current_tick = 1; current_tick <= ticks; ++current_tick)
     {
       std::cout << "tick " << current_tick << "\n";

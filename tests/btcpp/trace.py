@@ -5,7 +5,8 @@ leaf's result depends only on its name and the tick, never on how often an engin
 A trace lists, per tick, ``tick K``, the leaf calls with the arguments the node received
 (``call NAME port=value``), the halted actions (``halt NAME``) and ``status STATUS``; after the
 last tick the whole tree is halted (``halt tree``), as a program that stops does. The C++ side
-is ``tests/btcpp/harness.cpp``.
+is ``tests/btcpp/harness.cpp``, which may also set blackboard entries for ``{key}`` references
+(spec/stringbt.md section 12) to read; the two engines are compared on trees without them.
 """
 
 from __future__ import annotations
@@ -36,9 +37,13 @@ class Leaf:
 class Script:
     ticks: int
     leaves: dict[str, Leaf] = field(default_factory=dict)  # BT.CPP ID -> leaf
+    blackboard: dict[str, str] = field(default_factory=dict)
+    """The harness's blackboard entries (strings), which a ``{key}`` reference reads: BT.CPP's
+    alone (``LiveTree`` has no blackboard), so :func:`live_trace` refuses a script with any."""
 
     def text(self) -> str:
         lines = [f"ticks {self.ticks}"]
+        lines.extend(f"set {key} {text}" for key, text in self.blackboard.items())
         for ident, leaf in self.leaves.items():
             ports = " ".join(f"{port}:{kind}" for port, kind in leaf.ports)
             lines.append(f"{leaf.kind} {ident} {leaf.outcomes} {ports}".rstrip())
@@ -103,6 +108,7 @@ _STATUS = {"S": kp.SUCCESS, "F": kp.FAILURE, "R": kp.RUNNING}
 
 def live_trace(tree: kp.Tree, script: Script) -> list[str]:
     """Tick ``tree`` in a ``LiveTree`` whose leaves follow ``script``; the trace."""
+    assert not script.blackboard, "LiveTree has no blackboard for {key} references to read"
     log: list[str] = []
     clock = [0]
 

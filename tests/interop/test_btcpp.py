@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -13,8 +15,9 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.errors import ErrorCode
+from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop import convert, from_xml, to_xml
-from ktbt_proto.interop.btcpp import decode_value, encode_value
+from ktbt_proto.interop.btcpp import decode_value, encode_value, reference
 from ktbt_proto.tree import Container, Node, Parallel, Placeholder
 from tests.strategies import trees, values
 
@@ -192,12 +195,60 @@ def test_values_keep_their_type(value: bool | int | float | str) -> None:
 def test_values_are_quoted_only_when_needed() -> None:
     plain = ["map", "", "{goal", "a {goal}", "1 m", "True"]
     assert [encode_value(v) for v in plain] == plain
-    quoted = ["1", "-2.5e3", "true", '"x', "\x01", "{goal}", " {a b} ", "{}"]
+    quoted = ["1", "-2.5e3", "true", '"x', "\x01", " {goal}", " {a b} ", "{}", "{=}"]
     assert [encode_value(v) for v in quoted] == [
-        '"1"', '"-2.5e3"', '"true"', '"\\"x"', '"\\u0001"', '"{goal}"', '" {a b} "', '"{}"'
+        '"1"', '"-2.5e3"', '"true"', '"\\"x"', '"\\u0001"', '" {goal}"', '" {a b} "', '"{}"',
+        '"{=}"',
     ]  # fmt: skip
-    # A blackboard reference for BT.CPP: quoted, so a peer's string stays a string.
-    assert from_xml(to_xml(kp.parse('<a>(Go, s="{x}")'))) == kp.parse('<a>(Go, s="{x}")')
+    # Braced but no reference: quoted, so a peer's string stays a string in BT.CPP.
+    assert from_xml(to_xml(kp.parse('<a>(Go, s="{x }")'))) == kp.parse('<a>(Go, s="{x }")')
+
+
+# Exactly a key between braces, the key a BT.CPP port name: a blackboard reference (spec
+# section 12). Anything else braced is a string, quoted.
+REFERENCES = {"{goal}": "goal", "{path}": "path", "{map_frame2}": "map_frame2", "{X}": "X"}
+NOT_REFERENCES = ["{_x}", "{2x}", "{name}", "{ID}", "{a.b}", "{a-b}", "{ goal}", "{goal }",
+                  "{goal} ", "{}", "{{x}}", "{=}", "{\u00e9}", "{goal}\n", "goal"]  # fmt: skip
+
+
+def test_a_braced_key_is_exported_as_a_blackboard_reference() -> None:
+    for text, key in REFERENCES.items():
+        assert reference(text) == key and encode_value(text) == text
+    for text in NOT_REFERENCES:
+        assert reference(text) is None, text
+        braced = text.strip(" ")  # what BT.CPP would read as a reference: quoted
+        if braced.startswith("{") and braced.endswith("}"):
+            assert encode_value(text) == json.dumps(text, ensure_ascii=False), text
+        else:
+            assert decode_value(encode_value(text)) == text
+    assert reference(3) is None and reference(True) is None
+
+
+def test_references_round_trip_and_are_the_subtree_ports() -> None:
+    text = (
+        '<sq><c>(DoorClosed, side="{side}")<a>(ComputePath, goal="{goal}", path="{path}")'
+        '<a>(FollowPath, path="{path}", speed=0.5)<a>(Say, text="{goal")<e>'
+    )
+    tree = kp.parse(text)
+    xml = to_xml(tree, tree_id="OpenDoor")
+    assert '<ComputePath goal="{goal}" path="{path}"/>' in xml
+    assert '<Say text="{goal"/>' in xml  # not a reference: a string as it is
+    assert from_xml(xml) == tree
+    assert format_tree(from_xml(xml), "compact") == format_tree(tree, "compact")
+    doc = ET.fromstring(xml.encode())
+    model = {el.get("ID"): el for el in doc.iterfind("TreeNodesModel/*")}
+    # The subtree's ports: every key its arguments refer to, for a tree including it to wire.
+    subtree = model["OpenDoor"]
+    assert subtree.tag == "SubTree"
+    assert [(p.tag, p.get("name")) for p in subtree] == [
+        ("inout_port", "goal"), ("inout_port", "path"), ("inout_port", "side")
+    ]  # fmt: skip
+    # A port given only references is untyped: its type is the blackboard entry's.
+    ports = {p.get("name"): p.get("type") for p in model["FollowPath"]}
+    assert ports == {"path": None, "speed": "double"}
+    assert {p.get("name"): p.get("type") for p in model["DoorClosed"]} == {"side": None}
+    # No reference, no <SubTree> model.
+    assert "<SubTree" not in to_xml(kp.parse('<a>(Go, s="{x }")'))
     numbers = [encode_value(v) for v in (1, 1.0, 1e16, -0.0, True)]
     assert numbers == ["1", "1.0", "1e+16", "-0.0", "true"]
 

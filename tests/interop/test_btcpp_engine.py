@@ -189,8 +189,41 @@ def test_a_timer_whose_count_cannot_be_read_starts_no_activation() -> None:
 
 
 def test_a_braced_string_reaches_the_port_as_a_string(harness: Path, tmp_path: Path) -> None:
-    # Unquoted, BT.CPP would read {x} as the blackboard entry x (absent: an error).
-    tree = kp.parse('<sq><a>(A0, goal="{x}")<a>(A1, goal=" {goal} ")<e>')
-    live, engine = both(harness, tree, {"A0": "S", "A1": "S"}, tmp_path, ticks=1)
+    # Not a reference (spaces, no key, not a port name): quoted, the port gets the string.
+    tree = kp.parse('<sq><a>(A0, goal=" {goal} ")<a>(A1, goal="{a b}")<a>(A2, goal="{name}")<e>')
+    live, engine = both(harness, tree, {"A0": "S", "A1": "S", "A2": "S"}, tmp_path, ticks=1)
     assert engine == live
-    assert 'call A0 goal="\\"{x}\\""' in live, live
+    assert 'call A1 goal="\\"{a b}\\""' in live, live
+
+
+def test_a_reference_reads_the_blackboard_entry_it_names(harness: Path, tmp_path: Path) -> None:
+    """``"{goal}"`` is exported unquoted (spec/stringbt.md section 12): BT.CPP wires the port
+    to the blackboard entry ``goal``, alone or inside a ``<SubTree>`` that remaps it."""
+    tree = kp.parse('<sq><a>(A0, goal="{goal}", n=3)<a>(A1, frame="{map_frame}")<e>')
+    xml = to_xml(tree, tree_id="Learned")
+    assert '<A0 goal="{goal}" n="3"/>' in xml and '<A1 frame="{map_frame}"/>' in xml
+    assert from_xml(xml) == tree  # the stringBT tree back, the references as strings
+    plan = script_for(xml, {"A0": "S", "A1": "S"}, 1)
+    plan.blackboard = {"goal": "door b", "map_frame": "map"}
+    lines = btcpp_trace(harness, xml, plan, tmp_path)
+    assert lines[1:3] == ['call A0 goal="door b" n=3', 'call A1 frame="map"'], lines
+    # The same tree as a <SubTree> of another: its model makes each key a port to remap.
+    (tmp_path / "learned.xml").write_text(xml)
+    outer = (
+        '<root BTCPP_format="4" main_tree_to_execute="Outer"><include path="learned.xml"/>'
+        '<BehaviorTree ID="Outer"><SubTree ID="Learned" goal="{target}" map_frame="{frame}"/>'
+        "</BehaviorTree></root>"
+    )
+    plan.blackboard = {"target": "dock", "frame": "odom", "goal": "unused"}
+    lines = btcpp_trace(harness, outer, plan, tmp_path)
+    assert lines[1:3] == ['call A0 goal="dock" n=3', 'call A1 frame="odom"'], lines
+    # A key the including tree does not remap (nor _autoremap="true"): BT.CPP refuses to load.
+    (tmp_path / "tree.xml").write_text(outer.replace(' map_frame="{frame}"', ""))
+    done = subprocess.run(
+        [str(harness), str(tmp_path / "tree.xml"), str(tmp_path / "script.txt")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2 and "mandatory port called [map_frame]" in done.stdout, done

@@ -8,6 +8,7 @@ leaves without ports); ``make interop`` does the same in C++ against the from-so
 from __future__ import annotations
 
 import logging
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +16,12 @@ import pytest
 from typer.testing import CliRunner
 
 import ktbt_proto as kp
+from ktbt_proto import files
 from ktbt_proto.exchange.knowledge import Knowledge
+from ktbt_proto.interop import to_xml
 from ktbt_proto.interop.btcpp import document_tree_ids
-from ktbt_proto.interop.sidecar import LearnedExport, read_skills, tree_id
-from ktbt_proto.items import sequence_key, split_item
+from ktbt_proto.interop.sidecar import LearnedExport, read_skills, tree_id, tree_ids
+from ktbt_proto.items import item_digest, sequence_key, split_item
 from ktbt_proto.tools.cli import app
 
 NAV2_TREE = """\
@@ -107,7 +110,8 @@ def test_nav2_builds_a_learned_tree_by_the_id_given_or_derived(folder: Path) -> 
         assert ids[0] not in trees  # no ID twice: Nav2 would skip one of the files
         trees[ids[0]] = path.name
     assert set(trees) == {"NavigateToPose", "OpenDoor", derived}
-    assert trees["OpenDoor"].startswith("000001-new-")
+    assert trees["OpenDoor"] == "OpenDoor.xml"  # a given ID: a path that stays
+    assert trees[derived].startswith("000001-new-")  # derived: numbered in learning order
     skills = read_skills((folder / trees["OpenDoor"]).read_bytes())
     assert [item.subtree for item in skills] == [door.subtree]  # our own reader reads it back
     assert nav2_load([folder], "OpenDoor") == (["DoorClosed", "GraspHandle", "Push"], [])
@@ -118,20 +122,155 @@ def test_nav2_builds_a_learned_tree_by_the_id_given_or_derived(folder: Path) -> 
 def test_learning_again_keeps_one_file_per_tree_id(folder: Path) -> None:
     export = LearnedExport(folder, {DOOR: "OpenDoor"})
     export.sync([learned(OPEN)])
-    first = sorted(folder.glob("0*.xml"))
+    stable = folder / "OpenDoor.xml"
+    first = stable.read_text()
     export.sync([learned(OPEN)])  # the same item again: nothing new
     export.sync([])  # forgotten ...
+    assert not stable.exists()
     export.sync([learned(OPEN)])  # ... and learned again: one file, the same tree
-    [again] = sorted(folder.glob("0*.xml"))
-    assert len(first) == 1 and document_tree_ids(again.read_bytes())[0] == ["OpenDoor"]
+    assert stable.read_text() == first and not list(folder.glob("0*.xml"))
     export.sync([learned(OPEN_AGAIN)])  # the sequence learned with another subtree
-    [other] = sorted(folder.glob("0*.xml"))
-    assert other != again and document_tree_ids(other.read_bytes())[0] == ["OpenDoor"]
+    assert sorted(folder.glob("*.xml")) == [stable, folder / "navigate_to_pose.xml"]
+    assert document_tree_ids(stable.read_bytes())[0] == ["OpenDoor"]
     assert nav2_load([folder], "OpenDoor") == (["DoorClosed", "Push"], [])
-    # A restart with another ID for the sequence rewrites the same file with it.
-    LearnedExport(folder, {DOOR: "PushDoor"}).sync([learned(OPEN_AGAIN)])
-    assert sorted(folder.glob("0*.xml")) == [other]
-    assert document_tree_ids(other.read_bytes()) == (["PushDoor"], "PushDoor")
+    # A restart adopts its file (its second line names the item), and another ID for the
+    # sequence moves the item to that ID's file.
+    assert LearnedExport(folder, {DOOR: "OpenDoor"}).files == export.files
+    moved = LearnedExport(folder, {DOOR: "PushDoor"})
+    moved.sync([learned(OPEN_AGAIN)])
+    assert not stable.exists()
+    assert document_tree_ids((folder / "PushDoor.xml").read_bytes()) == (["PushDoor"], "PushDoor")
+    # Without a given ID the item goes back to its numbered file, under its derived ID.
+    LearnedExport(folder).sync([learned(OPEN_AGAIN)])
+    [numbered] = folder.glob("0*.xml")
+    assert not (folder / "PushDoor.xml").exists()
+    assert document_tree_ids(numbered.read_bytes())[0] == [tree_id(learned(OPEN_AGAIN))]
+
+
+def test_a_relearned_item_replaces_its_file_in_one_rename(
+    folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Learned again with another subtree, the item under a given ID replaces its file whole:
+    a program reading ``OpenDoor.xml`` at any moment reads the old item or the new one, never
+    no file (spec/stringbt.md section 12.2)."""
+    export = LearnedExport(folder, {DOOR: "OpenDoor"})
+    export.sync([learned(OPEN)])
+    stable = folder / "OpenDoor.xml"
+    seen: list[tuple[str, bool]] = []
+    write = files.write_atomic
+
+    def watched(path: Path, data: str | bytes) -> None:
+        seen.append(("write", stable.exists()))
+        write(path, data)
+
+    unlink = Path.unlink
+
+    def watched_unlink(path: Path, missing_ok: bool = False) -> None:
+        seen.append((f"unlink {path.name}", stable.exists()))
+        unlink(path, missing_ok=missing_ok)
+
+    monkeypatch.setattr("ktbt_proto.interop.sidecar.write_atomic", watched)
+    monkeypatch.setattr(Path, "unlink", watched_unlink)
+    export.sync([learned(OPEN_AGAIN)])
+    assert seen == [("write", True)]  # replaced where it was, nothing removed
+    [item] = read_skills(stable.read_bytes())
+    assert item.subtree == learned(OPEN_AGAIN).subtree
+    digest = item_digest(DOOR, learned(OPEN_AGAIN).subtree)
+    assert stable.read_text().splitlines()[1].startswith(f"<!-- ktbt learned item new {digest}:")
+    assert export.files == {("new", digest): stable}
+
+
+def test_a_file_of_an_earlier_export_is_taken_over(folder: Path) -> None:
+    # A numbered file holding a given ID (what the export wrote before IDs had their own
+    # path), and the same item's <ID>.xml beside it (a run killed between writing one and
+    # removing the other): the restart keeps one file for the item, at its ID's path.
+    item = learned(OPEN)
+    key = ("new", item_digest(item.key, item.subtree))
+    old = folder / f"000003-new-{key[1]}.xml"
+    old.write_text(to_xml(item.item(), tree_id="OpenDoor"))
+    export = LearnedExport(folder, {DOOR: "OpenDoor"})
+    export.sync([item])
+    assert not old.exists() and export.files == {key: folder / "OpenDoor.xml"}
+    old.write_text(to_xml(item.item(), tree_id="OpenDoor"))
+    again = LearnedExport(folder, {DOOR: "OpenDoor"})
+    again.sync([item])
+    assert not old.exists() and sorted(p.name for p in folder.glob("*.xml")) == [
+        "OpenDoor.xml",
+        "navigate_to_pose.xml",
+    ]
+    # The earlier file's item relearned with another subtree: never two files with the ID
+    # (the old one goes first), then the new item under it.
+    (folder / "OpenDoor.xml").unlink()
+    old.write_text(to_xml(item.item(), tree_id="OpenDoor"))
+    third = LearnedExport(folder, {DOOR: "OpenDoor"})
+    third.sync([learned(OPEN_AGAIN)])
+    assert not old.exists()
+    third.sync([learned(OPEN_AGAIN)])
+    [skill] = read_skills((folder / "OpenDoor.xml").read_bytes())
+    assert skill.subtree == learned(OPEN_AGAIN).subtree and not list(folder.glob("0*.xml"))
+
+
+def test_an_id_file_the_export_did_not_write_is_never_replaced(
+    folder: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # navigate_to_pose.xml holds NavigateToPose: as a tree ID it is held, as a file name (the
+    # ID navigate_to_pose) it is someone else's file.
+    with pytest.raises(ValueError, match=r"its file .*navigate_to_pose\.xml is another file"):
+        LearnedExport(folder, {DOOR: "navigate_to_pose"})
+    export = LearnedExport(folder, {DOOR: "OpenDoor"})
+    mine = folder / "OpenDoor.xml"
+    mine.write_text(NAV2_TREE.replace("NavigateToPose", "SomethingElse"))  # written by hand
+    with caplog.at_level(logging.WARNING, logger="ktbt_proto.interop.sidecar"):
+        export.sync([learned(OPEN)])
+    assert "OpenDoor.xml is another file of the folder" in caplog.text
+    assert "SomethingElse" in mine.read_text() and len(export.refused) == 1
+    # A restart does not take a file without the export's mark for its own.
+    with pytest.raises(ValueError, match="is another file of the folder"):
+        LearnedExport(folder, {DOOR: "OpenDoor"})
+
+
+EXAMPLE_TREE = (
+    Path(__file__).resolve().parents[2] / "examples" / "btcpp" / "navigate_with_learned.xml"
+)
+
+
+def test_the_example_navigation_tree_runs_the_learned_id_as_a_subtree(tmp_path: Path) -> None:
+    """``examples/btcpp/navigate_with_learned.xml``: the file Jazzy's bt_navigator loads by
+    path, including the learned item's stable file and running it as a ``<SubTree>`` wired to
+    Nav2's goal (spec/stringbt.md section 12.3); ``make interop`` loads it in BT.CPP."""
+    ids, main = document_tree_ids(EXAMPLE_TREE.read_bytes())
+    assert ids == ["NavigateWithLearned"] and main == "NavigateWithLearned"
+    root = ET.parse(EXAMPLE_TREE).getroot()
+    [include] = [el.get("path", "") for el in root.iterfind("include")]
+    [subtree] = root.iter("SubTree")
+    # What an agent given --tree-id OpenLeftDoor=... exports beside the tree, into learned/,
+    # is the file the tree includes, holding the tree its <SubTree> names, and every key the
+    # learned item refers to is a port the <SubTree> wires.
+    given = tree_ids(['OpenLeftDoor=DoorClosed, HandleSeen(side="left")'])
+    skill = learned(
+        '<sq><c>(DoorClosed)<c>(HandleSeen, side="left")'
+        '<msq><a>(GraspHandle)<a>(Push)<a>(DriveThrough, goal="{goal}")<e><e>'
+    )
+    LearnedExport(tmp_path / "learned", given).sync([skill])
+    exported = tmp_path / include
+    assert document_tree_ids(exported.read_bytes()) == ([subtree.get("ID")], subtree.get("ID"))
+    model = ET.parse(exported).getroot().find(f"TreeNodesModel/SubTree[@ID='{subtree.get('ID')}']")
+    assert model is not None
+    assert {port.get("name") for port in model} <= set(subtree.attrib) - {"ID"}
+    assert subtree.get("goal") == "{goal}"
+
+
+def test_the_export_keeps_a_learned_reference_for_the_including_tree_to_wire(
+    tmp_path: Path,
+) -> None:
+    folder = tmp_path / "learned"
+    export = LearnedExport(folder, {DOOR: "OpenDoor"})
+    export.sync([learned('<sq><c>(DoorClosed)<a>(Push)<a>(DriveThrough, goal="{goal}")<e>')])
+    text = (folder / "OpenDoor.xml").read_text()
+    assert '<DriveThrough goal="{goal}"/>' in text
+    assert '<SubTree ID="OpenDoor">\n      <inout_port name="goal"/>' in text
+    [item] = read_skills(text)
+    assert dict(item.subtree.children[1].args)["goal"] == "{goal}"  # type: ignore[attr-defined]
 
 
 def test_an_id_held_by_another_file_or_a_bad_folder_is_one_clear_error(

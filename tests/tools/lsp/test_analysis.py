@@ -1,0 +1,294 @@
+"""The language server's functions of a document's text, without a client: positions in the
+three ways of counting (spec/stringbt.md section 1 against LSP's UTF-16), the outline of text
+being typed, problems with their ranges, formatting that keeps meaning, completion, hover, the
+project's settings, and the fuzzer's corpus through every feature without an exception.
+
+The same features over a real client are tests/tools/lsp/test_server.py's."""
+
+from __future__ import annotations
+
+import json
+import random
+import sys
+from pathlib import Path
+
+import pytest
+from lsprotocol import types as lsp
+
+from ktbt_proto.formatter import format_tree
+from ktbt_proto.registry import Registry
+from ktbt_proto.syntax import parse
+from ktbt_proto.tools import fuzz
+from ktbt_proto.tools.lsp import assist, navigation
+from ktbt_proto.tools.lsp.diagnostics import MAX_PROBLEMS, check
+from ktbt_proto.tools.lsp.document import UTF8, UTF16, UTF32, Document
+from ktbt_proto.tools.lsp.formatting import apply, close_open_nodes, format_edits, memory_form
+from ktbt_proto.tools.lsp.outline import read
+from ktbt_proto.tools.lsp.vocabulary import Known, Vocabularies
+from ktbt_proto.tools.project import ProjectError, find_project
+from tests.door_robot import FLAT, MEMORY, VOCABULARY, door_registry
+
+ROOT = Path(__file__).resolve().parents[3]
+DOOR = Known(Registry.from_toml(VOCABULARY), "door.toml")
+
+
+def test_positions_count_utf16_units_where_stringbt_counts_code_points() -> None:
+    # "é" is one code point and one UTF-16 unit; the emoji one code point and two units.
+    text = '<sq>\n    <a>(Say, text="é😀") <zz>\n<e>\n'
+    (problem,) = check(text).problems
+    assert problem.error.code.value == "SBT102"
+    assert (problem.error.line, problem.error.column) == (2, 25)  # code points, 1-based
+    document = Document("file:///t.sbt", text)
+    start = document.position_at(problem.start)
+    assert (start.line, start.character) == (1, 25)  # 24 code points before it, one is two units
+    assert document.offset_at(start) == problem.start
+    for encoding, character in ((UTF8, 28), (UTF32, 24)):
+        other = Document("file:///t.sbt", text, encoding=encoding)
+        assert other.position_at(problem.start).character == character
+        assert other.offset_at(lsp.Position(1, character)) == problem.start
+    # Half a surrogate pair is not a place: it rounds down to before the emoji.
+    emoji = text.index("😀")
+    assert document.offset_at(lsp.Position(1, document.position_at(emoji).character + 1)) == emoji
+
+
+def test_lsp_lines_break_at_a_lone_cr_and_stringbt_lines_do_not() -> None:
+    text = "<sq> # a\rb\n  <zz>\n<e>"
+    (problem,) = check(text).problems
+    assert (problem.error.line, problem.error.column) == (2, 3)
+    position = Document("file:///t.sbt", text).position_at(problem.start)
+    assert (position.line, position.character) == (2, 2)
+
+
+def test_incremental_changes_apply_in_order_whatever_the_line_breaks() -> None:
+    document = Document("file:///t.sbt", '<sq>\n  <a>(Say, text="a\u2028b")\n<e>\n')
+    change = lsp.TextDocumentContentChangePartial(
+        range=lsp.Range(start=lsp.Position(2, 0), end=lsp.Position(2, 3)), text="<e> # done"
+    )
+    whole = lsp.TextDocumentContentChangeWholeDocument(text="<a>(X)")
+    document.apply([change], 2)
+    assert document.text.endswith("<e> # done\n") and document.version == 2
+    document.apply([whole, change], 3)
+    assert document.text == "<a>(X)<e> # done"  # past the last line: the end, as LSP says
+
+
+@pytest.mark.parametrize(
+    ("text", "code", "underlined"),
+    [
+        ("<sq><a>(Fly)<e>", "SBT306", "Fly"),
+        ("<sq><c>(!Hovering)<a>(Push)<e>", "SBT305", "Hovering"),
+        ("<sq><a>(TurnHandle, degrees=600)<e>", "SBT310", "<a>(TurnHandle, degrees=600)"),
+        ("<sq><a>(Push, force=1)<e>", "SBT311", "<a>(Push, force=1)"),
+        ("<sq><e>", "SBT302", "<sq>"),
+        ("<sq><a>(Push)<e><e>", "SBT105", "<e>"),
+        ("<sq><a>(Push)", "SBT104", ""),
+        ("<sq><a>(Push)<e> <a>(Push)", "SBT106", "<a>"),
+        ("<sq> & <e>", "SBT101", "&"),
+        ("<sq><k>(a)<e><k>(a)<e><e>", "SBT304", "<k>(a)"),
+        ("<neg><a>(Push)<a>(Push)<e>", "SBT301", "<neg>"),
+    ],
+)
+def test_each_problem_underlines_its_token_head_or_name(
+    text: str, code: str, underlined: str
+) -> None:
+    problems = [p for p in check(text, DOOR.registry).problems if p.error.code.value == code]
+    assert problems, check(text, DOOR.registry).problems
+    problem = problems[-1]
+    assert text[problem.start : problem.end] == underlined
+    assert not problem.warning
+
+
+def test_a_thousand_problems_at_most_each_placed_in_constant_time() -> None:
+    # 50,000 unknown actions on 50,000 lines: placing each by walking the lines from the
+    # start would take minutes; the editor gets the first thousand at once.
+    text = "<sq>\n" + "<a>(Fly)\n" * 50_000 + "<e>\n"
+    problems = check(text, DOOR.registry).problems
+    assert len(problems) == MAX_PROBLEMS
+    assert [text[p.start : p.end] for p in problems[-2:]] == ["Fly", "Fly"]
+    assert Document("file:///t.sbt", text).position_at(problems[-1].start).line == MAX_PROBLEMS
+
+
+def test_the_rerun_trap_is_a_warning_at_the_action_that_runs_again() -> None:
+    (problem,) = check(FLAT, DOOR.registry).problems
+    assert problem.error.code.value == "SBT502" and problem.warning
+    assert FLAT[problem.start : problem.end] == "<a>(GraspHandle)"
+
+
+def test_formatting_gives_the_pretty_form_in_runs_of_lines_and_keeps_comments() -> None:
+    text = "<sl>  # the root\n<sq><c>(A) <a>B<e>\n    <a>(C)\n# the end\n<e>"
+    edits = format_edits(text)
+    formatted = apply(text, edits)
+    assert formatted == format_tree(parse(text))
+    assert "# the root" in formatted and "# the end" in formatted
+    assert format_edits(formatted) == []
+    assert format_edits("<sq><a>(") == []  # a text that does not parse is left as it is
+    # A range formats the runs of lines it touches, and only those.
+    in_range = apply(text, format_edits(text, (1, 1)))
+    assert in_range.splitlines()[0] == "<sl>  # the root"
+    assert "    <sq>\n        <c>(A)\n        <a>(B)\n    <e>\n" in in_range
+    assert format_tree(parse(in_range)) == formatted
+
+
+def test_the_memory_form_fix_wraps_the_actions_and_removes_the_warning() -> None:
+    (problem,) = check(FLAT, DOOR.registry).problems
+    fix = memory_form(FLAT, problem.error)
+    assert fix is not None and apply(FLAT, fix.edits) == MEMORY
+    pretty = format_tree(parse(FLAT))
+    (problem,) = check(pretty, DOOR.registry).problems
+    fix = memory_form(pretty, problem.error)
+    assert fix is not None
+    fixed = apply(pretty, fix.edits)
+    assert fixed == format_tree(parse(MEMORY))  # one node a line, still
+    assert check(fixed, DOOR.registry).problems == []
+
+
+def test_the_missing_e_fix_closes_every_open_node_at_its_indentation() -> None:
+    text = "<sl>\n    <sq>\n        <a>(Push)"
+    fix = close_open_nodes(text)
+    assert fix is not None
+    assert apply(text, fix.edits) == "<sl>\n    <sq>\n        <a>(Push)\n    <e>\n<e>\n"
+    assert close_open_nodes("<sq><a>(Push") is None  # no <e> makes that parse: no fix
+
+
+def _complete(text: str, known: Known | None = DOOR) -> list[tuple[str, str, str]]:
+    items = assist.complete(text, read(text), len(text), known)
+    return [(i.label, i.insert, text[i.start : i.end]) for i in items]
+
+
+def test_completion_offers_what_may_stand_where_the_cursor_is() -> None:
+    tags = _complete("<sl>\n    <sq>\n        <c>(DoorClosed)\n        <")
+    assert tags[0] == ("<e>", "<e>", "<")  # a container is open: its <e> first
+    assert {"<sq>", "<msq>", "<k>", "<tt1>"} <= {label for label, _, _ in tags}
+    assert "<e>" not in {label for label, _, _ in _complete("<sq><a>(Push)<e>\n")}
+    assert _complete("<sq><a>(") == [
+        ("GraspHandle", "GraspHandle", ""),
+        ("Push", "Push", ""),
+        ("TurnHandle", "TurnHandle", ""),
+    ]
+    # Every name, over the word typed: the client filters them by it.
+    assert ("HandleSeen", "HandleSeen", "Han") in _complete("<sq><c>(!Han")
+    assert ("DoorClosed", "(DoorClosed)", "") in _complete("<sq><c>")
+    assert _complete("<sq><a>(TurnHandle, ") == [("degrees", "degrees=", "")]
+    assert _complete('<sq><c>(HandleSeen, side="l') == [
+        ('"left"', '"left"', '"l'),
+        ('"right"', '"right"', '"l'),
+    ]
+    assert _complete("<sq> # <") == []
+    assert _complete("<sq><a>(", known=None) == []  # no vocabulary: no names to offer
+    (argument,) = assist.complete("<a>(TurnHandle, ", read("<a>(TurnHandle, "), 16, DOOR)
+    assert argument.detail == "degrees: int, 1 <= degrees <= 90"
+
+
+def test_hover_says_what_a_word_means() -> None:
+    text = (
+        '<sl>\n  <k>(new)\n    <sq><c>(HandleSeen, side="left")<a>(TurnHandle, degrees=3)<e>\n'
+        "  <e>\n<e>"
+    )
+    outline = read(text)
+
+    def said(word: str, known: Known | None = DOOR) -> str:
+        found = assist.hover(text, outline, text.index(word) + 1, known)
+        assert found is not None, word
+        return found.markdown
+
+    assert "Selector (fallback), reactive" in said("<sl>")
+    assert "segment of knowledge learned from other robots" in said("new")
+    assert "1 sequence now" in said("new")
+    turn = said("TurnHandle")
+    assert "action TurnHandle(degrees: int, 1 <= degrees <= 90)" in turn
+    assert "30 degrees a tick" in turn
+    assert said("degrees") == "argument `degrees: int, 1 <= degrees <= 90`"
+    assert "no vocabulary is configured" in said("TurnHandle", known=None)
+
+
+def test_outline_folds_and_tokens_follow_a_text_being_typed() -> None:
+    text = '<sl>\n  <k>(new)\n    <sq><c>(HandleSeen, side="left")\n      <a>(Push)'
+    document = Document("file:///t.sbt", text)
+    outline = read(text)
+    (root,) = navigation.symbols(document, outline)
+    assert root.name == "<sl>" and root.children is not None
+    (placeholder,) = root.children
+    assert placeholder.detail == "placeholder, 1 item"
+    assert placeholder.children is not None and placeholder.children[0].name == "item HandleSeen"
+    closed = text + "\n    <e>\n  <e>\n<e>\n"
+    folds = navigation.folding_ranges(Document("file:///t.sbt", closed), read(closed))
+    assert [(f.start_line, f.end_line) for f in folds] == [(0, 6), (1, 5), (2, 4)]
+    data = navigation.semantic_tokens(document, outline)
+    assert data is not None
+    kinds = [navigation.TOKEN_TYPES[data[i + 3]] for i in range(0, len(data), 5)]
+    assert kinds == [
+        "keyword", "keyword", "namespace", "keyword", "keyword", "variable", "parameter",
+        "string", "keyword", "function",
+    ]  # fmt: skip
+
+
+def test_definitions_lead_to_the_vocabulary_file_or_the_python_code(tmp_path: Path) -> None:
+    vocabulary = tmp_path / "door.toml"
+    vocabulary.write_text(VOCABULARY, encoding="utf-8")
+    from_file = Known(Registry.load(vocabulary), "door.toml", vocabulary)
+    assert from_file.definition("action", "TurnHandle") == (vocabulary, 16)
+    assert VOCABULARY.splitlines()[16] == "[actions.TurnHandle]"
+    path, line = Known(door_registry(), "door").definition("action", "TurnHandle") or (None, 0)
+    assert path == ROOT / "tests" / "door_robot.py"
+    assert "class TurnHandle" in path.read_text().splitlines()[line]
+    assert from_file.definition("action", "Fly") is None
+
+
+def test_project_settings_are_found_upward_and_refused_in_one_line(tmp_path: Path) -> None:
+    (tmp_path / "door.toml").write_text(VOCABULARY, encoding="utf-8")
+    (tmp_path / "ktbt.toml").write_text('vocabulary = "door.toml"\n', encoding="utf-8")
+    trees = tmp_path / "trees" / "deep"
+    trees.mkdir(parents=True)
+    project = find_project(trees / "a.sbt")
+    assert project is not None and project.vocabulary_file() == tmp_path / "door.toml"
+    known, reason = Vocabularies().for_path(trees / "a.sbt")
+    assert reason is None and known is not None and known.entry("action", "Push") is not None
+    py = tmp_path / "py"
+    py.mkdir()
+    (py / "pyproject.toml").write_text('[tool.ktbt]\nvocabulary = "gone.toml"\n', "utf-8")
+    known, reason = Vocabularies().for_path(py / "a.sbt")
+    assert known is None and reason is not None
+    assert reason.startswith(f"{py / 'pyproject.toml'} [tool.ktbt]: vocabulary: ")
+    (py / "pyproject.toml").write_text("[tool.ktbt]\nvocabulary = 1\ncontrol = 2\n", "utf-8")
+    with pytest.raises(ProjectError, match=r"unknown keys \['control'\]"):
+        find_project(py)
+
+
+def test_the_fuzzers_corpus_goes_through_every_feature_without_an_exception() -> None:
+    found = json.loads((ROOT / "tests" / "data" / "fuzz" / "inputs.json").read_text("utf-8"))
+    corpus = fuzz.load_corpus()
+    rng = random.Random(0)
+    texts = [case["input"] for case in found["texts"]]
+    texts += [fuzz.next_text(rng, corpus) for _ in range(400)]
+    texts += ["\ud800<sq>", "<sq>" * 300, "<" * 50, '"' * 7, "<c>(!", "<a>(X, =, ,)"]
+    for text in texts:
+        for encoding in (UTF16, UTF8):
+            document = Document("file:///t.sbt", text, encoding=encoding)
+            checked = check(text, DOOR.registry)
+            for problem in checked.problems:
+                document.range_of(problem.start, problem.end)
+                memory_form(text, problem.error)
+            outline = read(text)
+            close_open_nodes(text, outline)
+            format_edits(text, (0, 3))
+            navigation.symbols(document, outline)
+            navigation.folding_ranges(document, outline)
+            navigation.semantic_tokens(document, outline)
+            for offset in range(0, len(text) + 1, max(1, len(text) // 16)):
+                assist.complete(text, outline, offset, DOOR)
+                assist.hover(text, outline, offset, DOOR)
+                navigation.definition(outline, offset, DOOR)
+
+
+def test_ktbt_lsp_without_the_extra_says_in_one_line_how_to_get_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from typer.testing import CliRunner
+
+    from ktbt_proto.tools.cli import app, load_plugins
+    from ktbt_proto.tools.lsp.command import INSTALL
+
+    assert "lsp" in load_plugins()
+    monkeypatch.setitem(sys.modules, "ktbt_proto.tools.lsp.server", None)  # as if pygls were not
+    result = CliRunner().invoke(app, ["lsp"])
+    assert result.exit_code == 2
+    assert result.output.strip() == INSTALL

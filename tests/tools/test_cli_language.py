@@ -244,3 +244,27 @@ def test_tour_reads_the_examples_folder_it_is_given(tmp_path: Path) -> None:
     code, out, err = ktbt("tour", "--examples", str(tmp_path))
     assert (code, out) == (1, "")
     assert err == f"error: --examples: {tmp_path / 'sar_vocabulary.toml'} not found\n"
+
+
+def test_check_takes_the_vocabulary_the_project_names_as_the_language_server_does(
+    tmp_path: Path,
+) -> None:
+    """Without --vocabulary, a file is checked against its project's (``[tool.ktbt]`` in the
+    nearest pyproject.toml above it, spec/stringbt.md section 5.1); --vocabulary wins; a
+    project whose vocabulary cannot be read is one line naming its settings, exit 2."""
+    from ktbt_proto.files import packaged
+
+    (tmp_path / "robot.toml").write_bytes(packaged("examples", "sar_vocabulary.toml").read_bytes())
+    (tmp_path / "pyproject.toml").write_text('[tool.ktbt]\nvocabulary = "robot.toml"\n')
+    trees = tmp_path / "trees"
+    trees.mkdir()
+    (trees / "t.sbt").write_text("<sq><c>(TargetSeen, colour=2)<a>(Teleport)<e>\n")
+    code, out, _ = ktbt("check", str(trees), cwd=tmp_path.parent)
+    assert code == 1 and out == f"{trees / 't.sbt'}:1:30: SBT306 unknown action 'Teleport'\n"
+    (tmp_path / "other.toml").write_text('conditions = ["TargetSeen"]\nactions = ["Teleport"]\n')
+    code, out, _ = ktbt("check", "--vocabulary", str(tmp_path / "other.toml"), str(trees))
+    assert code == 0, out
+    (tmp_path / "pyproject.toml").write_text('[tool.ktbt]\nvocabulary = "missing.toml"\n')
+    code, out, err = ktbt("check", str(trees))
+    assert code == 2 and out == "" and len(err.splitlines()) == 1
+    assert err.startswith(f"error: {tmp_path / 'pyproject.toml'} [tool.ktbt]: vocabulary:")

@@ -22,9 +22,17 @@ from ktbt_proto.files import read_at_most, write_atomic
 from ktbt_proto.formatter import Style, format_tree
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.merge import merge
+from ktbt_proto.registry import Registry
 from ktbt_proto.render import Format, render
 from ktbt_proto.syntax import parse
-from ktbt_proto.tools.cli.options import STDIN, example, io_reason, say, sequence_or_exit
+from ktbt_proto.tools.cli.options import (
+    STDIN,
+    example,
+    io_reason,
+    refuse,
+    say,
+    sequence_or_exit,
+)
 from ktbt_proto.tree import Tree
 from ktbt_proto.validate import find_problems
 
@@ -189,15 +197,19 @@ def check_command(
     """Report every problem in stringBT files; exit 1 if there is any.
 
     Each is file:line:col: CODE message. Warnings (SBT5xx) are reported too, but do not
-    change the exit status."""
+    change the exit status. Without --vocabulary, a file is checked against the vocabulary its
+    project names (ktbt.toml, or [tool.ktbt] in pyproject.toml, found upward from the file),
+    as the language server checks it."""
     from ktbt_proto.items import find_warnings
     from ktbt_proto.tools.cli.options import vocabulary_or_exit
 
-    registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
+    given = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
+    projects = _ProjectVocabularies()
     problems = checked = 0
     for path in _expand(files):
         name = _location(path)
         checked += 1
+        registry = given if vocabulary is not None else projects.of(path)
         try:
             data = _read(path)
         except OSError as exc:
@@ -222,6 +234,29 @@ def check_command(
         raise typer.Exit(2)
     if problems:
         raise typer.Exit(1)
+
+
+class _ProjectVocabularies:
+    """The vocabulary each file's project names (spec/stringbt.md section 5.1), each project's
+    read once; one that cannot be read is one line naming its settings, exit 2."""
+
+    def __init__(self) -> None:
+        self._loaded: dict[Path, Registry | None] = {}
+
+    def of(self, path: str) -> Registry | None:
+        from ktbt_proto.tools.project import ProjectError, find_project
+
+        if path == STDIN:
+            return None
+        try:
+            project = find_project(path)
+            if project is None:
+                return None
+            if project.settings not in self._loaded:
+                self._loaded[project.settings] = project.load_vocabulary()
+            return self._loaded[project.settings]
+        except ProjectError as exc:
+            raise refuse(str(exc)) from None
 
 
 def merge_command(

@@ -184,6 +184,7 @@ class KtbtNode(LifecycleNode):
         declare("tick_rate", 100.0, f"{live}; Hz", **seconds(1000))
         declare("snapshot_period", 0.0, f"{live}; seconds, 0: only on change", **seconds(3600))
         self.add_on_set_parameters_callback(self._on_parameters)
+        self.add_post_set_parameters_callback(self._parameters_set)
         self._handler = _ToNodeLogger(self)
         library = logging.getLogger("ktbt")
         library.addHandler(self._handler)
@@ -204,8 +205,9 @@ class KtbtNode(LifecycleNode):
     # -- parameters -----------------------------------------------------------------------------
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Setup parameters change only while unconfigured; the live ones apply at once: the
-        sequences to meet, the tick rate and the snapshot period (timers made anew)."""
+        """Whether the new values may be set: setup parameters change only while unconfigured,
+        and every value must be one the node takes (:func:`problem`). Nothing changes here:
+        what a value does is done once it is set (:meth:`_parameters_set`), as rclpy asks."""
         for param in params:
             if param.name in (*SETUP, "tree_ids") and self.agent is not None:
                 why: str | None = f"{param.name} is read at configure: clean up first"
@@ -213,6 +215,11 @@ class KtbtNode(LifecycleNode):
                 why = problem(param.name, param.value)
             if why is not None:
                 return SetParametersResult(successful=False, reason=why)
+        return SetParametersResult(successful=True)
+
+    def _parameters_set(self, params: list[Parameter]) -> None:
+        """The live ones apply at once: the sequences to meet, the tick rate and the snapshot
+        period (timers made anew)."""
         for param in params:
             if param.name == "sequences" and self.member is not None:
                 # told what to meet: the catalogs are no longer read
@@ -225,7 +232,6 @@ class KtbtNode(LifecycleNode):
                 float(values.get("tick_rate", self._param("tick_rate"))),
                 float(values.get("snapshot_period", self._param("snapshot_period"))),
             )
-        return SetParametersResult(successful=True)
 
     def _param(self, name: str) -> Any:
         """A parameter's value; None when unset (``-p sequences:=[]`` leaves an array

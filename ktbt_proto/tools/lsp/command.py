@@ -28,6 +28,16 @@ def lsp_command(
             "from each file; without one, syntax and the language's rules alone).",
         ),
     ] = None,
+    fleet: Annotated[
+        str | None,
+        typer.Option(
+            "--fleet",
+            metavar="ENDPOINT",
+            help="Show what the fleet reached at ENDPOINT (tcp/127.0.0.1:7447) knows: which "
+            "robots know each item's sequence (hover), and a warning where an item differs from "
+            "what they teach. Read-only, in the background; off by default (no network).",
+        ),
+    ] = None,
     stdio: Annotated[
         bool,
         typer.Option("--stdio", hidden=True, help="Accepted, as some editors pass it."),
@@ -59,7 +69,15 @@ def lsp_command(
         )
         raise typer.Exit(2)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    build(vocabulary).start_io()
+    if fleet is not None:  # a bad endpoint is one line and exit 2, before any editor waits
+        from ktbt_proto.transport.zenoh import ZenohSettings
+
+        try:
+            ZenohSettings(connect=[fleet])
+        except ValueError as exc:
+            typer.echo(f"error: --fleet: {str(exc).removeprefix('connect: ')}", err=True)
+            raise typer.Exit(2) from None
+    build(vocabulary, fleet=fleet).start_io()
 
 
 def register(app: typer.Typer) -> None:

@@ -16,6 +16,11 @@ Three rules hold for every handler:
   and the newest text alone is checked next, so a burst of keystrokes costs at most two checks
   and the last one answers the text as it is.
 - **One vocabulary per document, loaded once** (:class:`.vocabulary.Vocabularies`).
+
+With ``--fleet ENDPOINT`` (off by default), :mod:`.fleet` reads the fleet's catalogs in a
+thread of its own; hover on an item says which robots know its sequence, and an item that
+differs from what the fleet teaches for that sequence gets a warning of source ``ktbt fleet``.
+Handlers only read the fleet's latest snapshot: none waits on the network.
 """
 
 from __future__ import annotations
@@ -24,9 +29,10 @@ import asyncio
 import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from functools import wraps
 from pathlib import Path
-from typing import ParamSpec, TypeVar
+from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
 from lsprotocol import types as lsp
 from pygls.lsp.server import LanguageServer
@@ -42,9 +48,14 @@ from ktbt_proto.tools.lsp.formatting import Edit, close_open_nodes, format_edits
 from ktbt_proto.tools.lsp.outline import Outline, read
 from ktbt_proto.tools.lsp.vocabulary import Known, Vocabularies
 
+if TYPE_CHECKING:
+    from ktbt_proto.tools.lsp.fleet import Fleet
+
 log = logging.getLogger("ktbt.lsp")
 
 SOURCE = "ktbt"
+FLEET_SOURCE = "ktbt fleet"
+"""The source of what the fleet says (no SBT code: the fleet's word, not the language's)."""
 DEBOUNCE = 0.0
 """Seconds a check waits after a change for more to come: none by default, since changes that
 come while a check runs are folded into the next one anyway (``ktbt lsp`` answers a keystroke
@@ -74,7 +85,9 @@ def guarded(handler: Callable[P, R]) -> Callable[P, R | None]:
 class KtbtServer(LanguageServer):
     """The server's state: open documents, their latest check and outline, the vocabularies."""
 
-    def __init__(self, vocabulary: str | None = None, debounce: float = DEBOUNCE) -> None:
+    def __init__(
+        self, vocabulary: str | None = None, debounce: float = DEBOUNCE, fleet: str | None = None
+    ) -> None:
         super().__init__(
             "ktbt", __version__, text_document_sync_kind=lsp.TextDocumentSyncKind.Incremental
         )
@@ -84,6 +97,9 @@ class KtbtServer(LanguageServer):
         self._checks: dict[str, asyncio.Task[None]] = {}
         self._outlines: dict[str, tuple[int, Outline]] = {}
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ktbt-check")
+        self.fleet_endpoint = fleet
+        self.fleet: Fleet | None = None
+        self._items: dict[str, tuple[int, list[FleetItem]]] = {}
 
     # -- documents --------------------------------------------------------------------------
 
@@ -112,6 +128,90 @@ class KtbtServer(LanguageServer):
     def known(self, uri: str) -> tuple[Known | None, str | None]:
         path = to_fs_path(uri)
         return self.vocabularies.for_path(Path(path) if path else None)
+
+    # -- the fleet (off without --fleet) ------------------------------------------------------
+
+    def start_fleet(self) -> None:
+        """Open the fleet's reader, once the event loop runs (it re-publishes through it)."""
+        if self.fleet_endpoint is None or self.fleet is not None:
+            return
+        from ktbt_proto.tools.lsp.fleet import Fleet
+
+        loop = asyncio.get_running_loop()
+
+        def changed() -> None:
+            loop.call_soon_threadsafe(self.refleet)
+
+        self.fleet = Fleet(self.fleet_endpoint, changed)
+        self.fleet.start()
+
+    def refleet(self) -> None:
+        """What the fleet says changed: check every open document again."""
+        for uri in list(self.documents):
+            self.schedule(uri, 0)
+
+    def fleet_items(self, document: Document) -> list[FleetItem]:
+        cached = self._items.get(document.uri)
+        if cached is not None and cached[0] == document.version:
+            return cached[1]
+        from ktbt_proto.tools.lsp.fleet import item_of
+
+        items = []
+        for node, _ in self.outline(document).walk():
+            if node.tag != "<k>":
+                continue
+            for child in node.children:
+                if not child.closed:
+                    continue
+                found = item_of(document.text[child.start : child.end])
+                if found is not None:
+                    items.append(
+                        FleetItem(found[0], found[1], child.start, child.head_end, child.end)
+                    )
+        self._items[document.uri] = (document.version, items)
+        if self.fleet is not None:
+            self.fleet.want(
+                i.key for uri in self.documents for i in self._items.get(uri, (0, []))[1]
+            )
+        return items
+
+    def fleet_diagnostics(self, document: Document) -> list[lsp.Diagnostic]:
+        if self.fleet is None:
+            return []
+        snapshot = self.fleet.snapshot()
+        out = []
+        for item in self.fleet_items(document):
+            taught = snapshot.answers.get(item.key, {})
+            differ = sorted(peer for peer, form in taught.items() if form != item.subtree)
+            if not differ:
+                continue
+            peer = differ[0]
+            out.append(
+                lsp.Diagnostic(
+                    range=document.range_of(item.start, item.head_end),
+                    message=f"the fleet teaches another subtree for this sequence: {peer} "
+                    f"teaches {_clip(taught[peer])}"
+                    + (f" (and {len(differ) - 1} more)" if len(differ) > 1 else ""),
+                    severity=lsp.DiagnosticSeverity.Warning,
+                    source=FLEET_SOURCE,
+                )
+            )
+        return out
+
+    def fleet_hover(self, document: Document, offset: int) -> tuple[str, int, int] | None:
+        """Which robots know the sequence of the item at ``offset``, from their catalogs."""
+        if self.fleet is None:
+            return None
+        item = next((i for i in self.fleet_items(document) if i.start <= offset < i.end), None)
+        if item is None:
+            return None
+        knowers = self.fleet.snapshot().knowers(item.key)
+        if not knowers:
+            return "Known in the fleet by: nobody", item.start, item.head_end
+        said = ", ".join(
+            f"{peer} (author {author})" if author else peer for peer, author in knowers
+        )
+        return f"Known in the fleet by: {said}", item.start, item.head_end
 
     # -- checking ---------------------------------------------------------------------------
 
@@ -150,6 +250,7 @@ class KtbtServer(LanguageServer):
     @guarded
     def publish(self, document: Document, checked: Checked, reason: str | None) -> None:
         diagnostics = [_diagnostic(document, p) for p in checked.problems]
+        diagnostics += self.fleet_diagnostics(document)
         if reason is not None:
             end = document.position_at(len(document.line_text(0)))
             diagnostics.insert(
@@ -167,6 +268,23 @@ class KtbtServer(LanguageServer):
                 uri=document.uri, diagnostics=diagnostics, version=document.version
             )
         )
+
+
+@dataclass(frozen=True)
+class FleetItem:
+    """An item of a document's placeholder: its sequence key, its subtree (canonical compact),
+    and where it is written (its ``<sq>``'s head, and its end)."""
+
+    key: str
+    subtree: str
+    start: int
+    head_end: int
+    end: int
+
+
+def _clip(text: str, most: int = 200) -> str:
+    """A peer's text as a message shows it: at most ``most`` characters."""
+    return text if len(text) <= most else text[: most - 1] + "…"
 
 
 def _diagnostic(document: Document, problem: Problem) -> lsp.Diagnostic:
@@ -196,9 +314,23 @@ _COMPLETION_KIND = {
 }
 
 
-def build(vocabulary: str | None = None, debounce: float = DEBOUNCE) -> KtbtServer:
-    """The server with every feature registered."""
-    server = KtbtServer(vocabulary, debounce)
+def build(
+    vocabulary: str | None = None, debounce: float = DEBOUNCE, fleet: str | None = None
+) -> KtbtServer:
+    """The server with every feature registered; with ``fleet``, an endpoint, the fleet's
+    view too (:mod:`.fleet`)."""
+    server = KtbtServer(vocabulary, debounce, fleet)
+
+    @server.feature(lsp.INITIALIZED)
+    @guarded
+    def initialized(ls: KtbtServer, params: lsp.InitializedParams) -> None:
+        ls.start_fleet()
+
+    @server.feature(lsp.SHUTDOWN)
+    @guarded
+    def shutdown(ls: KtbtServer, params: None) -> None:
+        if ls.fleet is not None:
+            ls.fleet.stop()
 
     @server.feature(lsp.TEXT_DOCUMENT_DID_OPEN)
     @guarded
@@ -229,6 +361,7 @@ def build(vocabulary: str | None = None, debounce: float = DEBOUNCE) -> KtbtServ
         uri = params.text_document.uri
         ls.documents.pop(uri, None)
         ls._outlines.pop(uri, None)
+        ls._items.pop(uri, None)
         ls.text_document_publish_diagnostics(lsp.PublishDiagnosticsParams(uri=uri, diagnostics=[]))
 
     @server.feature(lsp.TEXT_DOCUMENT_FORMATTING)
@@ -295,11 +428,18 @@ def build(vocabulary: str | None = None, debounce: float = DEBOUNCE) -> KtbtServ
         known, _ = ls.known(document.uri)
         offset = document.offset_at(params.position)
         found = assist.hover(document.text, ls.outline(document), offset, known)
+        fleet = ls.fleet_hover(document, offset)
         if found is None:
-            return None
+            if fleet is None:
+                return None
+            markdown, start, end = fleet
+        else:
+            markdown, start, end = found.markdown, found.start, found.end
+            if fleet is not None:
+                markdown = f"{markdown}\n\n{fleet[0]}"
         return lsp.Hover(
-            contents=lsp.MarkupContent(kind=lsp.MarkupKind.Markdown, value=found.markdown),
-            range=document.range_of(found.start, found.end),
+            contents=lsp.MarkupContent(kind=lsp.MarkupKind.Markdown, value=markdown),
+            range=document.range_of(start, end),
         )
 
     @server.feature(lsp.TEXT_DOCUMENT_DOCUMENT_SYMBOL)

@@ -82,6 +82,6 @@ def lsp_command(
 
 def register(app: typer.Typer) -> None:
     """Entry point of ``ktbt.commands``: add ``lsp`` to the ``ktbt`` app."""
-    app.command("lsp", epilog=example("ktbt lsp --vocabulary examples/sar_registry.toml"))(
+    app.command("lsp", epilog=example("ktbt lsp --vocabulary examples/sar_vocabulary.toml"))(
         lsp_command
     )

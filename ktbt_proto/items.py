@@ -56,17 +56,7 @@ def sequence_key(sequence: str | Iterable[Condition | str]) -> str:
     :func:`read_sequence`). Raises ``StringBTError`` for text that is not a condition."""
     if isinstance(sequence, str):
         return sequence
-    parts: list[str] = []
-    for element in sequence:
-        if isinstance(element, Condition):
-            parts.append(format_tree(element, "compact"))
-        elif isinstance(element, str):
-            parts.extend(format_tree(c, "compact") for c in read_sequence(element))
-        else:
-            raise ParseError(
-                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {element!r}"
-            )
-    return "".join(parts)
+    return "".join(format_tree(c, "compact") for c in read_sequence(sequence))
 
 
 def sequence_digest(key: str) -> str:
@@ -124,13 +114,28 @@ def shown(key: str) -> str:
         return repr(key)
 
 
-def read_sequence(text: str) -> tuple[Condition, ...]:
+def read_sequence(sequence: str | Iterable[Condition | str]) -> tuple[Condition, ...]:
     """Conditions from what a user types: ``TargetSeen(colour=2), !_inZoneF`` (what
-    :func:`show_sequence` prints), or the wire form ``<c>(TargetSeen,colour=2)<c>(!_inZoneF)``.
+    :func:`show_sequence` prints), the wire form ``<c>(TargetSeen,colour=2)<c>(!_inZoneF)``,
+    or an iterable of ``Condition`` nodes and such texts. The one reader of a sequence a person
+    or a program gives (a peer's key is read by :func:`parse_sequence`, under the receiving
+    limits, and in the wire form only).
 
-    Raises :class:`ParseError` (or another StringBTError) positioned in ``text`` itself, with
+    Raises :class:`ParseError` (or another StringBTError) positioned in the text itself, with
     a caret under the offending character, never in an internal rewrite of it."""
-    return _read_sequence(text)
+    if isinstance(sequence, str):
+        return _read_sequence(sequence)  # cached: robots meet the same few sequences
+    out: list[Condition] = []
+    for element in sequence:
+        if isinstance(element, Condition):
+            out.append(element)
+        elif isinstance(element, str):
+            out.extend(_read_sequence(element))
+        else:
+            raise ParseError(
+                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {element!r}"
+            )
+    return tuple(out)
 
 
 @lru_cache(maxsize=1024)

@@ -48,27 +48,9 @@ def building() -> Iterator[None]:
         ) from exc
 
 
-def conditions(spec: Iterable[Condition | str]) -> tuple[Condition, ...]:
-    """Condition nodes from what a user types: ``"_inZoneF"``, ``"!_inZoneF"``, or with
-    arguments ``"TargetSeen(colour=2)"``; the text is read by the stringBT parser."""
-    if isinstance(spec, str):
-        spec = [spec]  # one condition, not its characters
-    out: list[Condition] = []
-    for item in spec:
-        if not isinstance(item, Condition | str):
-            raise MergeError(
-                ErrorCode.UNEXPECTED_TOKEN, f"a condition is a Condition or a str, not {item!r}"
-            )
-        if isinstance(item, Condition):
-            out.append(item)
-            continue
-        out.extend(read_sequence(item))  # cached: robots meet the same few sequences
-    return tuple(out)
-
-
 def knowledge(when: Iterable[Condition | str], subtree: Tree | Node) -> Node:
     """The knowledge item ``Sequence(s_q, T_ka)``: the condition sequence, then the subtree."""
-    return SequenceNode((*conditions(when), as_node(subtree)))
+    return SequenceNode((*read_sequence(when), as_node(subtree)))
 
 
 def find_placeholder(tree: Tree | Node, slot: str) -> tuple[int, ...] | None:
@@ -214,7 +196,7 @@ def remove(control: Tree | Node, slot: str = "new", when: Iterable[Condition | s
     path = find_placeholder(control, slot)
     if path is None:
         raise MergeError(ErrorCode.UNKNOWN_SLOT, f"the tree has no placeholder <k>({slot})")
-    found = remove_at(control, conditions(when), path)
+    found = remove_at(control, read_sequence(when), path)
     if found is None:
         return control if isinstance(control, Tree) else Tree(control)
     return found[0]

@@ -18,13 +18,12 @@ from typing import Any, Protocol
 
 from ktbt_proto.blackboard import Blackboard
 from ktbt_proto.errors import ErrorCode, StringBTError
-from ktbt_proto.items import split_item
+from ktbt_proto.items import read_sequence, split_item
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
 from ktbt_proto.merge import (
     MergeError,
     building,
     check_item,
-    conditions,
     descend,
     find_placeholder,
     knowledge,
@@ -717,7 +716,7 @@ class LiveTree:
         compiled = self._slots.get(slot)
         if compiled is None:
             return None
-        index = _index_of(compiled.items, conditions(when))
+        index = _index_of(compiled.items, read_sequence(when))
         return None if index is None else compiled.used[index]
 
     def knows(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
@@ -730,14 +729,14 @@ class LiveTree:
                 if path is None:
                     return False
                 self._paths[slot] = path
-        return _index_of(list(descend(tree, path)[1].children), conditions(when)) is not None
+        return _index_of(list(descend(tree, path)[1].children), read_sequence(when)) is not None
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         """Remove the knowledge item answering the condition sequence ``when`` from placeholder
         ``slot``; True if the tree held one. It leaves the running tree at the first tick
         boundary at which it is not running: a running action is never cut short by forgetting
         (spec/stringbt.md section 4)."""
-        key = conditions(when)
+        key = read_sequence(when)
         with self._lock:
             path = self._paths.get(slot) or find_placeholder(self._tree, slot)
             if path is None:

@@ -41,9 +41,9 @@ from ktbt_proto.interop.pytrees import (
     from_py_trees_status,
     origin,
 )
-from ktbt_proto.items import show_sequence, split_item
+from ktbt_proto.items import read_sequence, show_sequence, split_item
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
-from ktbt_proto.merge import MergeError, admits, building, check_item, conditions, knowledge
+from ktbt_proto.merge import MergeError, admits, building, check_item, knowledge
 from ktbt_proto.registry import Registry
 from ktbt_proto.status import Status
 from ktbt_proto.syntax import NAME_RE, parse
@@ -317,7 +317,7 @@ class PyTreesControl:
             raise
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
-        key = conditions(when)
+        key = read_sequence(when)
         with self._lock:
             target = self._slot(slot)
             held = target.items.pop(key, None)
@@ -352,13 +352,13 @@ class PyTreesControl:
 
     def knows(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:
         target = self._slots.get(slot)
-        return target is not None and conditions(when) in target.items
+        return target is not None and read_sequence(when) in target.items
 
     def last_used(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> int | None:
         target = self._slots.get(slot)
         if target is None:
             return None
-        held = target.items.get(conditions(when))
+        held = target.items.get(read_sequence(when))
         if held is None or held.made.parent is None:  # not in force yet
             return None
         return held.made.used if isinstance(held.made, _Item) else -1

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 import ktbt_proto as kp
 from ktbt_proto.errors import ErrorCode
-from ktbt_proto.merge import conditions, find_placeholder
+from ktbt_proto.items import read_sequence
+from ktbt_proto.merge import find_placeholder
 from ktbt_proto.tree import Node, Placeholder, Selector, walk
 from tests.strategies import names, trees
 from tests.tools.test_cli import ktbt
@@ -79,14 +80,14 @@ def test_without_when_the_subtree_is_the_item() -> None:
 
 
 def test_conditions_from_text() -> None:
-    assert conditions('A, !B,C(x=1, s="a,b"), D( y = true )') == (
+    assert read_sequence('A, !B,C(x=1, s="a,b"), D( y = true )') == (
         kp.Condition("A"),
         kp.Condition("B", negated=True),
         kp.Condition("C", args=(("x", 1), ("s", "a,b"))),
         kp.Condition("D", args=(("y", True),)),
     )
     with pytest.raises(kp.StringBTError):
-        conditions(["A B"])
+        read_sequence(["A B"])
 
 
 @st.composite
@@ -162,5 +163,6 @@ def test_when_as_one_string_is_one_condition() -> None:
     assert slot(merged, "new").children[0].children[0] == kp.Condition(  # type: ignore[attr-defined]
         "TargetSeen", args=(("colour", 2),)
     )
-    with pytest.raises(kp.MergeError):
+    with pytest.raises(kp.StringBTError) as raised:
         kp.merge(CONTROL, SKILL, "new", when=[5])  # type: ignore[list-item]
+    assert raised.value.code is ErrorCode.UNEXPECTED_TOKEN

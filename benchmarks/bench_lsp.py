@@ -32,11 +32,11 @@ from typing import IO, Any
 from lsprotocol import types as lsp
 
 from ktbt_proto.items import find_warnings
-from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.lsp.diagnostics import check
 from ktbt_proto.tools.lsp.document import Document
 from ktbt_proto.tools.lsp.server import _diagnostic
+from ktbt_proto.tools.vocabulary import read_vocabulary
 from ktbt_proto.validate import find_problems
 
 from .bench_parse import big_pretty, reference_compact
@@ -173,7 +173,7 @@ def run(
         root = Path(folder)
         (root / "robot.toml").write_text(vocabulary(), encoding="utf-8")
         (root / "ktbt.toml").write_text('vocabulary = "robot.toml"\n', encoding="utf-8")
-        registry = Registry.load(root / "robot.toml")
+        registry = read_vocabulary(root / "robot.toml")
         document = Document((root / "tree.sbt").as_uri(), text)
         where = text.index("Act0a") + 4
         flip = {"a": "b", "b": "a"}

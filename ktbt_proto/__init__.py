@@ -50,7 +50,7 @@ if TYPE_CHECKING:
     from ktbt_proto.runtime import LiveTree
     from ktbt_proto.status import FAILURE, RUNNING, SUCCESS, Status
     from ktbt_proto.syntax import parse
-    from ktbt_proto.tools.robot import load_vocabulary
+    from ktbt_proto.tools.vocabulary import load_vocabulary
     from ktbt_proto.transport.memory import MemoryNetwork
     from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport
     from ktbt_proto.tree import Action, Condition, SequenceNode, Tree

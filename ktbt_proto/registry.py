@@ -4,31 +4,23 @@ The registry is also what the robot checks received knowledge against: a subtree
 behaviour it does not have, or passing arguments a behaviour does not take, is refused before it
 touches the running tree.
 
-A robot's vocabulary can also be a file (spec/stringbt.md, section 5.1): the conditions and
-actions with their arguments' names, types and ranges, what a Python registry learns from its
-behaviours' annotations. :meth:`Registry.load` reads one and :meth:`Registry.to_toml` writes
-one, so that a robot written in another language (a BehaviorTree.CPP program) is checked
-exactly as a Python one is; the tools also take a Python registry named ``module:callable``
-(:func:`ktbt_proto.tools.robot.load_vocabulary`, which imports the user's module).
-"""
+A registry learns its arguments' names, types and ranges from its behaviours' annotations, or
+from :meth:`Registry.declare` for a robot written in another language. Reading and writing the
+vocabulary file that declares them (spec/stringbt.md, section 5.1), and importing a Python
+registry named ``module:callable``, are the tools' work (:mod:`ktbt_proto.tools.vocabulary`):
+the language holds no file format and imports no user code."""
 
 from __future__ import annotations
 
 import inspect
 import logging
-import math
-import os
-import re
-import tomllib
-import typing
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache, partial
-from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, TypeVar, runtime_checkable
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, runtime_checkable
 
-from ktbt_proto.files import TooLarge, read_bounded
 from ktbt_proto.status import FAILURE, Status
-from ktbt_proto.syntax import NAME_RE
 from ktbt_proto.tree import Args
 
 if TYPE_CHECKING:
@@ -55,7 +47,10 @@ class StatefulAction(Protocol):
 
 
 @dataclass(frozen=True, slots=True)
-class _Entry:
+class Behaviour:
+    """One registered condition or action, as :meth:`Registry.behaviours` hands it out: what it
+    runs (``None`` when only declared), the arguments it takes, their annotations and its doc."""
+
     target: Any
     params: frozenset[str]
     required: frozenset[str]
@@ -162,20 +157,15 @@ def _behaviour(target: Any, is_class: bool) -> tuple[_Params, dict[str, Any], fr
     return (names, required, var_kw), types, frozenset({params[0].name} if named else ())
 
 
-_STATUS_NAMES = frozenset(("Status", "kp.Status", "ktbt_proto.Status", "ktbt_proto.status.Status"))
-
-
 def _returns_status(fn: Any) -> bool:
-    """Whether ``fn`` is annotated to return exactly ``Status`` (then its result is trusted)."""
+    """Whether ``fn`` is annotated to return exactly ``Status`` (then its result is trusted).
+    The annotation is resolved as Python resolves it (``from __future__ import annotations``
+    leaves a string); one that does not resolve to the class is not trusted, and the result is
+    checked at every tick."""
     try:
-        annotation = inspect.signature(fn).return_annotation
+        return _parameters(fn).return_annotation is Status
     except (TypeError, ValueError):
         return False
-    return annotation is Status or (isinstance(annotation, str) and annotation in _STATUS_NAMES)
-
-
-MAX_VOCABULARY_FILE = 1_000_000
-"""A vocabulary file larger than this is refused, not read (a path may be /dev/zero)."""
 
 
 class Registry:
@@ -189,8 +179,8 @@ class Registry:
     """
 
     def __init__(self) -> None:
-        self._conditions: dict[str, _Entry] = {}
-        self._actions: dict[str, _Entry] = {}
+        self._conditions: dict[str, Behaviour] = {}
+        self._actions: dict[str, Behaviour] = {}
         self._warned: set[tuple[str, str]] = set()
 
     # -- registering -----------------------------------------------------------------------
@@ -217,7 +207,7 @@ class Registry:
 
     def add_condition(self, name: str, fn: Callable[..., Any]) -> None:
         (params, required, var_kw), types, reserved = _behaviour(fn, False)
-        self._conditions[name] = _Entry(
+        self._conditions[name] = Behaviour(
             fn, params, required, var_kw, doc=fn.__doc__ or "", types=types, reserved=reserved
         )
 
@@ -229,7 +219,7 @@ class Registry:
             raise TypeError(f"action class {target.__name__} needs a tick() method")
         (params, required, var_kw), types, reserved = _behaviour(target, is_class)
         trusted = _returns_status(target.tick if is_class else target)
-        self._actions[name] = _Entry(
+        self._actions[name] = Behaviour(
             target,
             params,
             required,
@@ -245,7 +235,7 @@ class Registry:
     def flags(self, *names: str) -> None:
         """Register conditions that read blackboard flags of the same name (missing = false)."""
         for name in names:
-            self._conditions[name] = _Entry(None, frozenset(), frozenset(), False, flag=name)
+            self._conditions[name] = Behaviour(None, frozenset(), frozenset(), False, flag=name)
 
     def declare(
         self,
@@ -271,7 +261,7 @@ class Registry:
         )
         if required is not None:
             needed = frozenset(required) & names
-        entry = _Entry(None, names, needed, var_kw or more_arguments, doc=doc, types=types)
+        entry = Behaviour(None, names, needed, var_kw or more_arguments, doc=doc, types=types)
         (self._conditions if kind == "condition" else self._actions)[name] = entry
 
     def declare_from(
@@ -290,7 +280,7 @@ class Registry:
         if params is not None:
             names, required, var_kw, types = _describe(p for p in params if p.name not in skipped)
         made = factory.func if isinstance(factory, partial) else factory  # its own doc
-        entry = _Entry(None, names, required, var_kw, doc=made.__doc__ or "", types=types)
+        entry = Behaviour(None, names, required, var_kw, doc=made.__doc__ or "", types=types)
         (self._conditions if kind == "condition" else self._actions)[name] = entry
 
     def copy(self) -> Registry:
@@ -307,6 +297,11 @@ class Registry:
 
     def has_action(self, name: str) -> bool:
         return name in self._actions
+
+    def behaviours(self, kind: Kind) -> Mapping[str, Behaviour]:
+        """The registered conditions or actions by name, read-only: what a vocabulary file is
+        written from and what an editor goes to the definition of."""
+        return MappingProxyType(self._conditions if kind == "condition" else self._actions)
 
     @property
     def conditions(self) -> frozenset[str]:
@@ -395,255 +390,3 @@ class Registry:
                 "does not hold" if kind == "condition" else "fails",
             )
         return result
-
-    # -- the vocabulary file (spec/stringbt.md, section 5.1) ---------------------------------
-
-    def to_toml(self) -> str:
-        """This registry as a vocabulary file, which :meth:`load` reads back into a
-        registry that checks knowledge exactly as this one does. Raises ``ValueError`` (one
-        line) for an argument whose annotation has no form there (int, float, str, bool, a
-        ``Literal`` of one of them, with ``ge``/``gt``/``le``/``lt`` or length bounds)."""
-        lines = [
-            "# The conditions and actions a robot can execute, with their arguments",
-            "# (spec/stringbt.md, section 5.1).",
-        ]
-        for kind, table in (("conditions", self._conditions), ("actions", self._actions)):
-            for name in sorted(table):
-                entry = table[name]
-                lines += ["", f"[{kind}.{_toml_key(name)}]"]
-                if entry.doc:
-                    lines.append(f"doc = {_toml_value(inspect.cleandoc(entry.doc))}")
-                if entry.flag is not None:
-                    lines.append("flag = true")
-                if entry.var_kw:
-                    lines.append("more_arguments = true")
-                for arg in sorted(entry.params):
-                    try:
-                        spec = _spec_of(entry.types.get(arg, Any))
-                    except ValueError as exc:
-                        raise ValueError(f"{kind[:-1]} {name!r}, argument {arg!r}: {exc}") from None
-                    if arg not in entry.required:
-                        spec["required"] = False
-                    lines.append(f"arguments.{_toml_key(arg)} = {_toml_value(spec)}")
-        return "\n".join(lines) + "\n"
-
-    @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> Registry:
-        """The registry a vocabulary file declares (spec/stringbt.md, section 5.1), read
-        bounded (at most ``MAX_VOCABULARY_FILE`` bytes); raises ``ValueError`` with one line."""
-        try:
-            text = read_bounded(path, MAX_VOCABULARY_FILE).decode("utf-8")
-        except TooLarge:
-            raise ValueError(
-                f"cannot read registry {os.fspath(path)}: larger than {MAX_VOCABULARY_FILE} bytes"
-            ) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ValueError(f"cannot read registry {os.fspath(path)}: {exc}") from None
-        return cls.from_toml(text, os.fspath(path))
-
-    @classmethod
-    def from_toml(cls, text: str, source: str = "<vocabulary>") -> Registry:
-        """A registry from a vocabulary file's text; raises ``ValueError`` with a one-line
-        reason naming ``source`` and the key at fault."""
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"cannot read registry {source}: {exc}") from None
-        unknown = set(data) - {"conditions", "actions"}
-        if unknown:
-            raise ValueError(f"registry {source}: unknown keys {sorted(unknown)}")
-        reg = cls()
-        for key, kind in (("conditions", "condition"), ("actions", "action")):
-            value = data.get(key, [])
-            if isinstance(value, list):  # names only: any arguments
-                if not all(isinstance(v, str) for v in value):
-                    raise ValueError(f"registry {source}: '{key}' must be a list of names")
-                for name in value:
-                    _check_name(name, f"registry {source}: '{key}'")
-                    reg.declare(kind, name, more_arguments=True)  # type: ignore[arg-type]
-            elif isinstance(value, dict):
-                for name, entry in value.items():
-                    where = f"registry {source}: {key}.{name}"
-                    _check_name(name, where)
-                    _read_entry(reg, kind, name, entry, where)  # type: ignore[arg-type]
-            else:
-                raise ValueError(
-                    f"registry {source}: '{key}' must be a list of names or a table of declarations"
-                )
-        return reg
-
-
-# -- the vocabulary file -----------------------------------------------------------------------
-
-_PLAIN: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool}
-_BOUNDS = ("ge", "gt", "le", "lt")
-_LENGTHS = ("min_length", "max_length")
-_ENTRY_KEYS = frozenset(("doc", "flag", "more_arguments", "arguments"))
-_ARGUMENT_KEYS = frozenset(("type", "choices", "required", *_BOUNDS, *_LENGTHS))
-_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
-
-
-def _check_name(name: str, where: str) -> None:
-    if NAME_RE.fullmatch(name) is None or name in ("true", "false"):
-        raise ValueError(f"{where}: {name!r} is not a stringBT name")
-
-
-def _read_entry(reg: Registry, kind: Kind, name: str, entry: Any, where: str) -> None:
-    """Declare one ``[conditions.NAME]`` or ``[actions.NAME]`` table."""
-    if not isinstance(entry, dict):
-        raise ValueError(f"{where} must be a table")
-    unknown = set(entry) - _ENTRY_KEYS
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
-    for key, want in (("doc", str), ("flag", bool), ("more_arguments", bool)):
-        if key in entry and not isinstance(entry[key], want):
-            raise ValueError(f"{where}.{key} must be a {want.__name__}")
-    arguments = entry.get("arguments", {})
-    if not isinstance(arguments, dict):
-        raise ValueError(f"{where}.arguments must be a table of argument names")
-    if entry.get("flag", False):
-        if kind != "condition" or arguments or entry.get("more_arguments", False):
-            raise ValueError(f"{where}: a flag is a condition without arguments")
-        reg.flags(name)
-        return
-    annotations: dict[str, Any] = {}
-    required = []
-    for arg, spec in arguments.items():
-        _check_name(arg, f"{where}.arguments")
-        annotations[arg] = _annotation_of(spec, f"{where}.arguments.{arg}")
-        if spec.get("required", True):
-            required.append(arg)
-    reg.declare(
-        kind,
-        name,
-        annotations,
-        required=required,
-        more_arguments=entry.get("more_arguments", False),
-        doc=entry.get("doc", ""),
-    )
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _annotation_of(spec: Any, where: str) -> Any:
-    """The annotation an argument's declaration stands for: ``{type = "int", ge = 1, le = 4}``
-    is ``Annotated[int, Field(ge=1, le=4)]``, ``{type = "str", choices = ["l", "r"]}`` is
-    ``Literal["l", "r"]``, ``{}`` is ``Any``."""
-    from pydantic import Field
-
-    if not isinstance(spec, dict):
-        raise ValueError(f'{where} must be a table such as {{ type = "int", ge = 0 }}')
-    unknown = set(spec) - _ARGUMENT_KEYS
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
-    if not isinstance(spec.get("required", True), bool):
-        raise ValueError(f"{where}.required must be true or false")
-    name = spec.get("type")
-    if name is None:
-        if set(spec) - {"required"}:
-            raise ValueError(f"{where}: a range or choices needs a type (int, float, str, bool)")
-        return Any
-    base = _PLAIN.get(name) if isinstance(name, str) else None
-    if base is None:
-        raise ValueError(f"{where}.type is {name!r}, not one of int, float, str, bool")
-    annotation: Any = base
-    if "choices" in spec:
-        choices = spec["choices"]
-        if (
-            not isinstance(choices, list)
-            or not choices
-            or not all(type(c) is base and (base is not float or _number(c)) for c in choices)
-        ):
-            raise ValueError(f"{where}.choices must be a non-empty list of {name} values")
-        annotation = Literal[tuple(choices)]
-    constraints: dict[str, Any] = {}
-    for key in _BOUNDS:
-        if key in spec:
-            if base not in (int, float) or not _number(spec[key]):
-                raise ValueError(f"{where}.{key} must be a finite number, for an int or a float")
-            constraints[key] = spec[key]
-    for key in _LENGTHS:
-        if key in spec:
-            value = spec[key]
-            if base is not str or not isinstance(value, int) or isinstance(value, bool):
-                raise ValueError(f"{where}.{key} must be an integer, for a str")
-            constraints[key] = value
-    return Annotated[annotation, Field(**constraints)] if constraints else annotation
-
-
-def _spec_of(annotation: Any) -> dict[str, Any]:
-    """An argument's declaration in the vocabulary file (the inverse of :func:`_annotation_of`);
-    raises ``ValueError`` for an annotation that has no form there."""
-    import annotated_types as at
-    from pydantic.fields import FieldInfo
-
-    if annotation is Any:
-        return {}
-    base: Any = annotation
-    meta: tuple[Any, ...] = ()
-    if typing.get_origin(annotation) is Annotated:
-        base, *rest = typing.get_args(annotation)
-        meta = tuple(rest)
-    spec: dict[str, Any] = {}
-    names = {t: n for n, t in _PLAIN.items()}
-    if typing.get_origin(base) is Literal:
-        choices = list(typing.get_args(base))
-        kinds = {type(c) for c in choices}
-        kind = kinds.pop() if len(kinds) == 1 else None
-        if kind not in names:
-            raise ValueError(f"{_shown(annotation)}: choices must all be int, float, str or bool")
-        spec["type"], spec["choices"] = names[kind], choices
-    elif base in names:
-        spec["type"] = names[base]
-    else:
-        raise ValueError(
-            f"{_shown(annotation)} has no vocabulary form (int, float, str, bool, a Literal of "
-            "one of them, with ge/gt/le/lt or min_length/max_length)"
-        )
-    for item in meta:
-        bounds: Iterable[Any] = item.metadata if isinstance(item, FieldInfo) else (item,)
-        for bound in bounds:
-            if isinstance(bound, at.Interval):
-                spec.update(
-                    (k, getattr(bound, k)) for k in _BOUNDS if getattr(bound, k) is not None
-                )
-            elif isinstance(bound, at.Ge | at.Gt | at.Le | at.Lt):
-                key = type(bound).__name__.lower()
-                spec[key] = getattr(bound, key)
-            elif isinstance(bound, at.MinLen | at.MaxLen):
-                key = "min_length" if isinstance(bound, at.MinLen) else "max_length"
-                spec[key] = getattr(bound, key)
-            elif type(bound).__name__ != "Strict":  # values are checked strictly anyway
-                raise ValueError(f"{_shown(annotation)}: {bound!r} has no vocabulary form")
-    return spec
-
-
-def _shown(annotation: Any) -> str:
-    return getattr(annotation, "__name__", None) or repr(annotation).replace("typing.", "")
-
-
-def _toml_key(key: str) -> str:
-    return key if _BARE_KEY.fullmatch(key) else _toml_value(key)
-
-
-_ESCAPES = {'"': '\\"', "\\": "\\\\", "\n": "\\n", "\t": "\\t"}
-
-
-def _toml_value(value: Any) -> str:
-    """A TOML value: a string, a number, a bool, a list or an inline table of them."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        escaped = "".join(
-            _ESCAPES.get(c) or (f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c)
-            for c in value
-        )
-        return f'"{escaped}"'
-    if isinstance(value, list):
-        return "[" + ", ".join(map(_toml_value, value)) + "]"
-    items = ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items())
-    return "{ " + items + " }" if items else "{}"

@@ -11,12 +11,10 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 from typing import Protocol
 
 from ktbt_proto.errors import ErrorCode, LimitError, StringBTError, ValidationError
 from ktbt_proto.limits import DEFAULT_LIMITS, Limits
-from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import NAME_RE
 from ktbt_proto.tree import (
     Action,
@@ -50,8 +48,9 @@ class SupportsNames(Protocol):
 @dataclass(frozen=True, slots=True)
 class Vocabulary:
     """The condition and action names a robot knows, without their arguments: the two questions
-    validation asks of any registry. For a vocabulary file with its arguments' types and ranges
-    checked too, use :func:`~ktbt_proto.tools.robot.load_vocabulary`, which gives a ``Registry``.
+    validation asks of any registry. A vocabulary file, with its arguments' types and ranges
+    checked too, is read by :func:`~ktbt_proto.tools.vocabulary.load_vocabulary` into a
+    ``Registry``.
     """
 
     conditions: frozenset[str]
@@ -66,13 +65,6 @@ class Vocabulary:
     @classmethod
     def of(cls, conditions: Iterable[str] = (), actions: Iterable[str] = ()) -> Vocabulary:
         return cls(frozenset(conditions), frozenset(actions))
-
-    @classmethod
-    def load(cls, path: str | Path) -> Vocabulary:
-        """The names of a vocabulary file (spec/stringbt.md, section 5.1); raises
-        ``ValueError`` with a one-line reason."""
-        registry = Registry.load(path)
-        return cls(registry.conditions, registry.actions)
 
 
 def _problem(code: ErrorCode, message: str, node: Node) -> ValidationError:

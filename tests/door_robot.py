@@ -46,7 +46,7 @@ doc = "Push the door open."
 doc = "Turn the grasped handle, 30 degrees a tick."
 arguments.degrees = { type = "int", ge = 1, le = 90 }
 """
-"""What ``door_registry().to_toml()`` writes."""
+"""What ``write_vocabulary(door_registry())`` writes."""
 
 
 def door_registry(reg: kp.Registry | None = None) -> kp.Registry:

@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> None:
 
     # The one call: the tree learns and teaches over ROS 2 from now on.
     robot = kp.attach(
-        node, tree, kp.Registry.load(VOCABULARY), behaviours={"Dock": DockClient},
+        node, tree, kp.load_vocabulary(VOCABULARY), behaviours={"Dock": DockClient},
         sequences=args.sequence,
     )  # fmt: skip
 

@@ -27,7 +27,8 @@ from ktbt_proto.registry import Registry
 from ktbt_proto.render import render
 from ktbt_proto.status import RUNNING, SUCCESS, Status
 from ktbt_proto.syntax import parse
-from ktbt_proto.validate import Vocabulary, find_problems
+from ktbt_proto.tools.vocabulary import load_vocabulary
+from ktbt_proto.validate import find_problems
 
 Colour = Annotated[int, Field(ge=1, le=4)]
 """The demo's colours: 1 to 4. A received skill naming colour 7, -999 or "red" is refused."""
@@ -131,7 +132,7 @@ def run_demo(examples: Path) -> int:
 
     _section(f"ktbt check --vocabulary {registry.name}: knowledge a robot cannot run")
     typer.echo(_UNKNOWN)
-    vocabulary = Vocabulary.load(registry)
+    vocabulary = load_vocabulary(registry)
     for problem in find_problems(parse(_UNKNOWN), vocabulary):
         typer.echo(
             f"knowledge.sbt:{problem.line}:{problem.column}: {problem.code} {problem.message}"

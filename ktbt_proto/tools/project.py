@@ -7,7 +7,7 @@ with a ``[tool.ktbt]`` table, is the project's. Both say the same, with the same
     vocabulary = "mypkg.robot:registry" # a Python registry, module:callable
 
 A relative path is read from the settings' folder, and a Python registry is imported with that
-folder on the path (``tools.robot.load_vocabulary``), so the same setting means the same
+folder on the path (``tools.vocabulary.load_vocabulary``), so the same setting means the same
 vocabulary whichever folder an editor or a command was started in. ``ktbt lsp`` reads it for
 every document it checks; a setting that is wrong is one line naming the file and the key
 (:class:`ProjectError`), never a traceback.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ktbt_proto.files import TooLarge, read_bounded
 from ktbt_proto.registry import Registry
-from ktbt_proto.tools.robot import load_vocabulary
+from ktbt_proto.tools.vocabulary import load_vocabulary
 
 __all__ = ["Project", "ProjectError", "candidates", "find_project", "read_settings"]
 

@@ -6,21 +6,15 @@ runs only what it knows. ``ktbt peer run`` and ``ktbt fleet run`` build it from 
 the ROS 2 lifecycle node from its parameters; each names the setting at fault its own way
 (``--control`` on the command line, ``control`` for a parameter).
 
-Loading a vocabulary (:func:`load_vocabulary`) is here, not in the language: naming a Python
-registry as ``module:callable`` imports the user's module, with the current folder on the
-path, as ``python -m`` would; the language keeps the registry and its file format.
+The vocabulary is loaded by :func:`~ktbt_proto.tools.vocabulary.load_vocabulary`, the one
+loader of a vocabulary file or a Python registry named ``module:callable``.
 """
 
 from __future__ import annotations
 
-import importlib
-import os
-import re
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.knowledge import learning_slot
@@ -29,9 +23,10 @@ from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
+from ktbt_proto.tools.vocabulary import load_vocabulary
 from ktbt_proto.validate import find_problems
 
-__all__ = ["LEARNER_CONTROL", "Robot", "RobotError", "build_robot", "load_vocabulary"]
+__all__ = ["LEARNER_CONTROL", "Robot", "RobotError", "build_robot"]
 
 LEARNER_CONTROL = "<sl><k>(prior)<e><k>(new)<e><e>"
 """The control tree of a robot given a vocabulary but no control tree: it runs only what it
@@ -105,61 +100,3 @@ def build_robot(
             "ever run; add one where learned skills belong, e.g. <sl><k>(new)<e>...<e>"
         )
     return Robot(registry, text.decode("utf-8"), slot, vocabulary)
-
-
-def load_vocabulary(spec: str | os.PathLike[str]) -> Registry:
-    """The registry a robot's vocabulary names: a vocabulary file (``robot.toml``), or a Python
-    registry as ``module:callable`` (``mypkg.robot:make_registry``, called with no argument,
-    or a ``Registry`` object itself), imported with the current folder on the path. Raises
-    ``ValueError`` with one line: a file that cannot be read or declares something wrong, a
-    module that is missing or fails to import, a name it lacks, a callable that fails or
-    returns something other than a ``Registry``."""
-    text = os.fspath(spec)
-    path = Path(text)
-    if path.is_file() or text.endswith(".toml") or _MODULE.fullmatch(text) is None:
-        if not path.is_file() and not text.endswith(".toml"):
-            raise ValueError(
-                f"registry {text}: neither a vocabulary file (.toml) nor a Python registry "
-                "named module:callable"
-            )
-        return Registry.load(path)
-    module_name, _, attribute = text.partition(":")
-    if os.getcwd() not in sys.path and "" not in sys.path:
-        sys.path.insert(0, os.getcwd())  # as `python -m` would: the robot's own package
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and module_name.startswith(exc.name):
-            raise ValueError(f"registry {text}: no module named {exc.name!r}") from None
-        raise ValueError(
-            f"registry {text}: cannot import {module_name}: {_one_line(exc)}"
-        ) from None
-    except Exception as exc:
-        raise ValueError(
-            f"registry {text}: cannot import {module_name}: {_one_line(exc)}"
-        ) from None
-    target: Any = module
-    for part in attribute.split("."):
-        if not hasattr(target, part):
-            raise ValueError(f"registry {text}: {module_name} has no {attribute!r}")
-        target = getattr(target, part)
-    if not isinstance(target, Registry):
-        if not callable(target):
-            raise ValueError(f"registry {text}: {attribute} is neither a Registry nor callable")
-        try:
-            target = target()
-        except Exception as exc:
-            raise ValueError(f"registry {text}: {attribute}() failed: {_one_line(exc)}") from None
-        if not isinstance(target, Registry):
-            raise ValueError(
-                f"registry {text}: {attribute}() returned {type(target).__name__}, not a Registry"
-            )
-    return target
-
-
-_MODULE = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

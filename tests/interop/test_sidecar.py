@@ -12,7 +12,7 @@ from ktbt_proto.exchange.knowledge import Knowledge
 from ktbt_proto.interop import from_xml, to_xml
 from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.items import item_digest, split_item
-from ktbt_proto.tools.robot import load_vocabulary
+from ktbt_proto.tools.vocabulary import load_vocabulary
 from ktbt_proto.transport import MemoryNetwork
 from tests.door_robot import FLAT as DOOR_FLAT
 from tests.door_robot import SEQUENCE as DOOR_SEQUENCE

@@ -222,7 +222,7 @@ def test_every_example_checks_clean_without_warnings(path: Path) -> None:
     own = path.with_suffix(".toml")
     vocabulary = own if own.exists() else EXAMPLES / "sar_vocabulary.toml"
     tree = kp.parse(path.read_bytes())
-    assert kp.find_problems(tree, kp.Vocabulary.load(vocabulary)) == []
+    assert kp.find_problems(tree, kp.load_vocabulary(vocabulary)) == []
     assert stray_nodes(tree) == []
 
 

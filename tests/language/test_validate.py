@@ -147,56 +147,6 @@ def test_invalid_name_is_not_also_reported_as_unknown() -> None:
     assert problems(kp.Action("1bad"), VOCAB) == [("SBT303", 0, 0)]
 
 
-def test_vocabulary_load(tmp_path: Path) -> None:
-    path = tmp_path / "vocab.toml"
-    path.write_text('conditions = ["Seen", "a.b"]\nactions = ["Go"]\n', encoding="utf-8")
-    vocab = kp.Vocabulary.load(path)
-    assert vocab == kp.Vocabulary.of(["Seen", "a.b"], ["Go"])
-    assert vocab.has_condition("Seen") and not vocab.has_condition("Go")
-    assert vocab.has_action("Go") and not vocab.has_action("Seen")
-    assert kp.Vocabulary.load(str(path)) == vocab
-    assert codes_of("<sq><c>(Seen)<a>(Go)<a>(Stop)<e>", vocab) == [("SBT306", 1, 21)]
-
-
-def test_vocabulary_load_missing_keys_default_to_empty(tmp_path: Path) -> None:
-    path = tmp_path / "vocab.toml"
-    path.write_text('actions = ["Go"]\n', encoding="utf-8")
-    assert kp.Vocabulary.load(path) == kp.Vocabulary.of([], ["Go"])
-
-
-def test_example_registry_accepts_example_tree() -> None:
-    vocab = kp.Vocabulary.load(EXAMPLES / "sar_vocabulary.toml")
-    tree = kp.parse((EXAMPLES / "sar_control.sbt").read_text(encoding="utf-8"))
-    assert kp.find_problems(tree, vocab) == []
-
-
-@pytest.mark.parametrize(
-    ("content", "reason"),
-    [
-        (None, "cannot read registry"),
-        ("conditions = [", "cannot read registry"),
-        (b"actions = ['\xff']\n", "cannot read registry"),
-        ('conditions = "Seen"\n', "'conditions' must be a list of names"),
-        ("actions = [1, 2]\n", "'actions' must be a list of names"),
-        ('actions = ["Go", 3]\n', "'actions' must be a list of names"),
-        ('conditions = []\nactions = []\nbehaviours = ["x"]\n', "unknown keys ['behaviours']"),
-    ],
-    ids=["missing", "bad-toml", "bad-utf8", "not-a-list", "ints", "mixed", "unknown-key"],
-)
-def test_vocabulary_load_rejects_bad_file(
-    tmp_path: Path, content: str | bytes | None, reason: str
-) -> None:
-    path = tmp_path / "vocab.toml"
-    if isinstance(content, str):
-        path.write_text(content, encoding="utf-8")
-    elif isinstance(content, bytes):
-        path.write_bytes(content)
-    with pytest.raises(ValueError, match="registry") as info:
-        kp.Vocabulary.load(path)
-    assert reason in str(info.value)
-    assert "\n" not in str(info.value)
-
-
 # SBT307: tick counts and durations.
 
 

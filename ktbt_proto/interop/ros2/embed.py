@@ -99,7 +99,7 @@ def attach(
         raise TypeError(f"attach takes the user's rclpy Node, not a {type(node).__name__}")
     if not isinstance(registry, Registry):
         raise TypeError(
-            f"registry: a ktbt_proto Registry (Registry.load('robot.toml')), not a "
+            f"registry: a ktbt_proto Registry (kp.load_vocabulary('robot.toml')), not a "
             f"{type(registry).__name__}"
         )
     if name is not None and not isinstance(name, str):

@@ -2,7 +2,7 @@
 their types and ranges, its doc, and where it is defined.
 
 The description is the vocabulary file's (spec/stringbt.md section 5.1): a registry writes it
-(``Registry.to_toml``), and this module reads it back, so an argument is shown to the writer of
+(``write_vocabulary``), and this module reads it back, so an argument is shown to the writer of
 a tree exactly as the file declares it (``degrees: int, 1 <= degrees <= 90``) whether the robot's
 vocabulary is a file or a Python registry. A Python registry whose annotations have no form in
 the file (a class of the application's own) is still known by its names.
@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 from ktbt_proto.registry import Registry
 from ktbt_proto.tools.project import Project, ProjectError, candidates, read_settings
-from ktbt_proto.tools.robot import load_vocabulary
+from ktbt_proto.tools.vocabulary import load_vocabulary, write_vocabulary
 
 Kind = Literal["condition", "action"]
 
@@ -114,7 +114,7 @@ class Known:
         self.file = file
         self.entries: dict[tuple[Kind, str], Entry] = {}
         try:
-            described = tomllib.loads(registry.to_toml())
+            described = tomllib.loads(write_vocabulary(registry))
         except (ValueError, tomllib.TOMLDecodeError):  # an annotation with no file form
             described = {}
         kinds: tuple[tuple[Kind, frozenset[str], Any], ...] = (
@@ -183,13 +183,10 @@ def _in_file(path: Path, kind: Kind, name: str) -> tuple[Path, int] | None:
 def _in_python(registry: Registry, kind: Kind, name: str) -> tuple[Path, int] | None:
     """The source line of the function or class a Python registry runs for ``name``.
 
-    ``Registry`` has no public way to hand out the behaviour behind a name (only to bind it,
-    which would build an action class's instance), so its table is read here, guarded: a
-    registry without one, or a behaviour without Python source (a builtin, a declared name, a
-    blackboard flag), has no definition to go to."""
-    table = getattr(registry, "_conditions" if kind == "condition" else "_actions", None)
-    entry = table.get(name) if isinstance(table, dict) else None
-    target = getattr(entry, "target", None)
+    A behaviour without Python source (a builtin, a declared name, a blackboard flag) has no
+    definition to go to."""
+    entry = registry.behaviours(kind).get(name)
+    target = None if entry is None else entry.target
     if target is None:
         return None
     with contextlib.suppress(TypeError, OSError):

@@ -104,11 +104,11 @@ ERRORS = """
 import py_trees, rclpy
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.interop.ros2.embed import attach
-from ktbt_proto.registry import Registry
+from ktbt_proto.tools.vocabulary import load_vocabulary
 
 rclpy.init()
 node = rclpy.create_node("user")
-vocabulary = Registry.load(r"{vocabulary}")
+vocabulary = load_vocabulary(r"{vocabulary}")
 bare = py_trees.trees.BehaviourTree(py_trees.behaviours.Running("Patrol"))
 learner = py_trees.trees.BehaviourTree(py_trees.composites.Selector(
     "Root", memory=False, children=[py_trees.composites.Selector("k:new", memory=False)]))

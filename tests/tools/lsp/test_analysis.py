@@ -16,7 +16,6 @@ import pytest
 from lsprotocol import types as lsp
 
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.registry import Registry
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools import fuzz
 from ktbt_proto.tools.lsp import assist, navigation
@@ -26,10 +25,11 @@ from ktbt_proto.tools.lsp.formatting import apply, close_open_nodes, format_edit
 from ktbt_proto.tools.lsp.outline import read
 from ktbt_proto.tools.lsp.vocabulary import Known, Vocabularies
 from ktbt_proto.tools.project import ProjectError, find_project
+from ktbt_proto.tools.vocabulary import parse_vocabulary, read_vocabulary
 from tests.door_robot import FLAT, MEMORY, VOCABULARY, door_registry
 
 ROOT = Path(__file__).resolve().parents[3]
-DOOR = Known(Registry.from_toml(VOCABULARY), "door.toml")
+DOOR = Known(parse_vocabulary(VOCABULARY), "door.toml")
 
 
 def test_positions_count_utf16_units_where_stringbt_counts_code_points() -> None:
@@ -224,7 +224,7 @@ def test_outline_folds_and_tokens_follow_a_text_being_typed() -> None:
 def test_definitions_lead_to_the_vocabulary_file_or_the_python_code(tmp_path: Path) -> None:
     vocabulary = tmp_path / "door.toml"
     vocabulary.write_text(VOCABULARY, encoding="utf-8")
-    from_file = Known(Registry.load(vocabulary), "door.toml", vocabulary)
+    from_file = Known(read_vocabulary(vocabulary), "door.toml", vocabulary)
     assert from_file.definition("action", "TurnHandle") == (vocabulary, 16)
     assert VOCABULARY.splitlines()[16] == "[actions.TurnHandle]"
     path, line = Known(door_registry(), "door").definition("action", "TurnHandle") or (None, 0)

@@ -8,7 +8,12 @@ every name in it is still a test of that module.
 
 from __future__ import annotations
 
+import platform
+import sys
+
 import pytest
+
+from ktbt_proto.tools.ros2 import interfaces
 
 SIMULATOR_TIERS: dict[str, dict[str, tuple[str, ...]]] = {
     "test_sim_experiment.py": {
@@ -54,3 +59,18 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         function = getattr(item, "originalname", item.name)
         for name in SIMULATOR_TIERS.get(item.path.name, {}).get(function, ()):
             item.add_marker(name)
+
+
+@pytest.fixture(scope="session")
+def ros2_built() -> None:
+    """rclpy and ktbt_interfaces importable in this environment (built if need be)."""
+    if not interfaces.has_wheels() and interfaces.system_ros() is None:
+        pytest.skip(
+            f"no ROS 2 wheels for {platform.machine()} {sys.platform} CPython "
+            f"{platform.python_version()} (only {interfaces.WHEEL_PLATFORMS}) and no sourced ROS 2"
+        )
+    if interfaces.system_ros() is None:
+        try:
+            interfaces.build(lambda line: print(line, file=sys.stderr))
+        except interfaces.Ros2Unavailable as exc:
+            pytest.fail(f"ROS 2 on {platform.machine()} {sys.platform}: {exc}")

@@ -1,33 +1,15 @@
-"""ROS 2 tests: the interfaces are built once per environment (cached, ``ktbt ros2 build``),
-and each test's processes run in a network namespace of their own (``rosns``). Where ROS 2
-Jazzy has no wheels, the tests skip with one line naming the platform; on x86_64 Linux they
-never skip: a missing ROS install or a failed build fails them."""
+"""ROS 2 tests: the interfaces are built once per environment (``ros2_built``, in the root
+``tests/conftest.py``, as the hosts' contract test uses it too), and each test's processes run
+in a network namespace of their own (``rosns``). Where ROS 2 Jazzy has no wheels, the tests
+skip with one line naming the platform; on x86_64 Linux they never skip: a missing ROS install
+or a failed build fails them."""
 
 from __future__ import annotations
 
-import platform
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-from ktbt_proto.tools.ros2 import interfaces
-
-
-@pytest.fixture(scope="session")
-def ros2_built() -> None:
-    """rclpy and ktbt_interfaces importable in this environment (built if need be)."""
-    if not interfaces.has_wheels() and interfaces.system_ros() is None:
-        pytest.skip(
-            f"no ROS 2 wheels for {platform.machine()} {sys.platform} CPython "
-            f"{platform.python_version()} (only {interfaces.WHEEL_PLATFORMS}) and no sourced ROS 2"
-        )
-    if interfaces.system_ros() is None:
-        try:
-            interfaces.build(lambda line: print(line, file=sys.stderr))
-        except interfaces.Ros2Unavailable as exc:
-            pytest.fail(f"ROS 2 on {platform.machine()} {sys.platform}: {exc}")
 
 
 @pytest.fixture

@@ -1,11 +1,12 @@
 """The live runtime: compile a tree into closures once, tick it fast, merge knowledge while it runs.
 
 Each node compiles to a pair of closures, ``tick() -> Status`` and ``halt()``, whose state
-(running child, counters, memory) lives in closure cells: no attribute lookups, no visitors, no
-per-tick allocation. Every ``halt`` is a no-op unless its node is running, so a parent may call it
-freely. Knowledge merged into a placeholder is validated and compiled outside the tick, then
-appended to that placeholder's child list at the next tick boundary, so a tick never sees a
-half-merged tree and every node outside the placeholder keeps its state, running actions included.
+(running child, counters, memory) lives in closure cells: no attribute lookups, no dispatch, no
+per-tick allocation (the compile dispatches on the kinds once, through the tree's visitor).
+Every ``halt`` is a no-op unless its node is running, so a parent may call it freely.
+Knowledge merged into a placeholder is validated and compiled outside the tick, then appended
+to that placeholder's child list at the next tick boundary, so a tick never sees a half-merged
+tree and every node outside the placeholder keeps its state, running actions included.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from ktbt_proto.tree import (
     Selector,
     SequenceNode,
     Tree,
+    Visitor,
     Wait,
     WaitTimer,
     as_node,
@@ -443,6 +445,72 @@ def _wait(node: Wait, clock: Clock, now: TickClock) -> Compiled:
 # -- compiling a tree ---------------------------------------------------------------------------
 
 
+class _Leaves(Visitor[Compiled | None]):
+    """The first pass of :func:`compile_node`, in pre-order: a leaf is bound to its behaviour
+    as it is listed (so constructors run in document order); a container waits for its
+    children (``None``)."""
+
+    def __init__(self, registry: Registry, blackboard: Any, clock: Clock, ticks: TickClock):
+        self.registry, self.blackboard, self.clock, self.ticks = registry, blackboard, clock, ticks
+
+    def condition(self, node: Condition) -> Compiled:
+        return _condition(node, self.registry, self.blackboard)
+
+    def action(self, node: Action) -> Compiled:
+        return _action(node, self.registry, self.blackboard)
+
+    def wait(self, node: Wait) -> Compiled:
+        return _wait(node, self.clock, self.ticks)
+
+    def _container(self, node: Container) -> None:
+        return None
+
+    sequence = selector = parallel = inverter = wait_timer = run_timer = placeholder = _container
+
+
+class _Containers(Visitor[tuple[Compiled, Calls, list[Halt]]]):
+    """The second pass of :func:`compile_node`, in reverse pre-order: a container is compiled
+    over its children's closures (``kids``) and wires, which the pass sets before each visit."""
+
+    def __init__(self, ticks: TickClock) -> None:
+        self.ticks = ticks
+        self.slots: dict[str, _Slot] = {}
+        self.kids: list[Compiled] = []
+        self.wires: list[Wire] = []
+
+    def sequence(self, node: SequenceNode) -> tuple[Compiled, Calls, list[Halt]]:
+        return (_memory if node.memory else _reactive)(self.kids, SUCCESS)
+
+    def selector(self, node: Selector) -> tuple[Compiled, Calls, list[Halt]]:
+        return (_memory if node.memory else _reactive)(self.kids, FAILURE)
+
+    def parallel(self, node: Parallel) -> tuple[Compiled, Calls, list[Halt]]:
+        return _parallel(self.kids, node.threshold)
+
+    def inverter(self, node: Inverter) -> tuple[Compiled, Calls, list[Halt]]:
+        return _inverter(self.kids[0])
+
+    def wait_timer(self, node: WaitTimer) -> tuple[Compiled, Calls, list[Halt]]:
+        return _wait_timer(self.kids[0], node.ticks, self.ticks)
+
+    def run_timer(self, node: RunTimer) -> tuple[Compiled, Calls, list[Halt]]:
+        return _run_timer(self.kids[0], node.ticks, self.ticks)
+
+    def placeholder(self, node: Placeholder) -> tuple[Compiled, Calls, list[Halt]]:
+        kids = self.kids
+        slot = _Slot(
+            node.name,
+            [k[0] for k in kids],
+            [k[1] for k in kids],
+            items=[*node.children],
+            used=[-1] * len(kids),
+            now=self.ticks,
+            wires=self.wires,
+        )
+        self.slots[node.name] = slot
+        return slot.compiled(), ((slot.ticks, False),), slot.halts
+
+
 def compile_node(
     root: Node,
     registry: Registry,
@@ -454,26 +522,25 @@ def compile_node(
     placeholders by name, the number of nodes and the root's wire.
 
     Nodes are listed in pre-order and compiled in reverse, so every child is compiled before
-    its parent and a parent finds its children, first child on top, on the result stack."""
-    slots: dict[str, _Slot] = {}
+    its parent and a parent finds its children, first child on top, on the result stack. What
+    each kind of node compiles to is said once a kind, by the two passes' visitors
+    (:class:`~ktbt_proto.tree.Visitor`, looked up by the node's class)."""
+    leaf_of = _Leaves(registry, blackboard, clock, ticks).methods()
+    containers = _Containers(ticks)
+    container_of = containers.methods()
     order: list[Node] = []
     leaves: list[Compiled | None] = []  # bound in document order: constructors run in order
     pending: list[Node] = [root]
     while pending:
         node = pending.pop()
-        order.append(node)
-        kind = type(node)
-        if kind is Condition:
-            leaves.append(_condition(node, registry, blackboard))  # type: ignore[arg-type]
-        elif kind is Action:
-            leaves.append(_action(node, registry, blackboard))  # type: ignore[arg-type]
-        elif kind is Wait:
-            leaves.append(_wait(node, clock, ticks))  # type: ignore[arg-type]
-        elif isinstance(node, Container):
-            leaves.append(None)
-            pending.extend(reversed(node.children))
-        else:
+        visit = leaf_of.get(type(node))
+        if visit is None:
             raise TypeError(f"not a stringBT node: {node!r}")
+        order.append(node)
+        leaf = visit(node)
+        leaves.append(leaf)
+        if leaf is None:
+            pending.extend(reversed(node.children))  # type: ignore[attr-defined]
     done: list[Compiled] = []
     wires: list[Wire] = []
     for i in range(len(order) - 1, -1, -1):
@@ -483,50 +550,14 @@ def compile_node(
             done.append(leaf)
             wires.append(Wire(node, *leaf, getattr(leaf[0], "holds", None)))
             continue
-        if not isinstance(node, Container):
-            raise TypeError(f"not a stringBT node: {node!r}")
-        n = len(node.children)
-        kids = done[: -n - 1 : -1] if n else []
-        kid_wires = wires[: -n - 1 : -1] if n else []
+        n = len(node.children)  # type: ignore[attr-defined]
+        containers.kids = done[: -n - 1 : -1] if n else []
+        containers.wires = kid_wires = wires[: -n - 1 : -1] if n else []
         del done[len(done) - n :], wires[len(wires) - n :]
-        compiled, calls, halts = _compile_container(node, kids, kid_wires, slots, ticks)
+        compiled, calls, halts = container_of[type(node)](node)
         done.append(compiled)
         wires.append(Wire(node, *compiled, None, kid_wires, calls, halts))
-    return done[0], slots, len(order), wires[0]
-
-
-def _compile_container(
-    node: Container,
-    kids: list[Compiled],
-    wires: list[Wire],
-    slots: dict[str, _Slot],
-    ticks: TickClock,
-) -> tuple[Compiled, Calls, list[Halt]]:
-    if isinstance(node, SequenceNode):
-        return (_memory if node.memory else _reactive)(kids, SUCCESS)
-    if isinstance(node, Selector):
-        return (_memory if node.memory else _reactive)(kids, FAILURE)
-    if isinstance(node, Parallel):
-        return _parallel(kids, node.threshold)
-    if isinstance(node, Inverter):
-        return _inverter(kids[0])
-    if isinstance(node, WaitTimer):
-        return _wait_timer(kids[0], node.ticks, ticks)
-    if isinstance(node, RunTimer):
-        return _run_timer(kids[0], node.ticks, ticks)
-    if isinstance(node, Placeholder):
-        slot = _Slot(
-            node.name,
-            [k[0] for k in kids],
-            [k[1] for k in kids],
-            items=[*node.children],
-            used=[-1] * len(kids),
-            now=ticks,
-            wires=wires,
-        )
-        slots[node.name] = slot
-        return slot.compiled(), ((slot.ticks, False),), slot.halts
-    raise TypeError(f"not a stringBT node: {node!r}")
+    return done[0], containers.slots, len(order), wires[0]
 
 
 # -- the live tree ------------------------------------------------------------------------------

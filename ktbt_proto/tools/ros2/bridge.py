@@ -518,6 +518,8 @@ class Bridge:
         except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
             self._refuse(f"an event on {topic[:80]}: not a FleetEvent ({type(exc).__name__})")
             return
+        if msg.peer in self.proven or not msg.sig:
+            return  # nothing left to prove, or no proof: not checked further
         try:
             event = decode_event(event_json(msg))
         except MessageRefused as exc:
@@ -680,14 +682,23 @@ class Bridge:
 
     def _screened(self, answer: Response, relayed: Relayed | None, where: str) -> bool:
         """Whether ``answer`` may be relayed to the query it answers: one the bridge relayed,
-        one of its sequences, and signatures that verify where present (never a forgery)."""
+        one of its sequences, and signatures that verify where present (never a forgery),
+        a name the trust store binds signed by its key. Under ``trusted``, an answer from ROS
+        must be signed, by the key that proved its sender's name: a topic does not say who
+        published it, and a proven name is not lent to whoever answers in it."""
         if relayed is None:
             self._refuse(f"an answer {where} from {answer.sender} to no query relayed")
             return False
         if answer.sequence not in relayed.sequences:
             self._refuse(f"an answer {where} from {answer.sender} answers another question")
             return False
-        why = refusal(answer, Policy.ANY)
+        why = refusal(answer, Policy.ANY, self.trust)
+        proof = self.proven.get(answer.sender)
+        if why is None and self.policy is Policy.TRUSTED and where == "on ROS":
+            if proof is None:
+                why = "its name is not proven"
+            elif answer.key != proof or refusal(answer, Policy.SIGNED, self.trust) is not None:
+                why = "the reply is not signed by the key that proved its name"
         if why is not None:
             self._refuse(f"an answer {where} from {answer.sender}: {why}")
             return False

@@ -372,7 +372,7 @@ def test_the_bridge_reads_its_own_fleet_and_logs_to_rosout(fleets: Fleets) -> No
 
 INVENTOR = """
 import sys, rclpy
-from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, Query
+from ktbt_interfaces.msg import Answer, Catalog, CatalogEntry, FleetEvent, Query
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.signing import Identity
@@ -383,7 +383,16 @@ node = rclpy.create_node("inventor")
 latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 reliable = QoSProfile(depth=64, reliability=ReliabilityPolicy.RELIABLE)
-node.create_subscription(Query, "/ktbt/queries", lambda m: None, reliable)  # one of the fleet
+answers = node.create_publisher(Answer, "/ktbt/answers", reliable)
+
+
+def answer(query):  # every real asker answered in the claimed name, unsigned
+    if not query.sender.startswith("asker"):
+        answers.publish(Answer(v=1, id=query.id, sender=sys.argv[1], sequence=query.sequence,
+                               subtree="<sq><a>(PickTreasure)<e>", to=query.sender))
+
+
+node.create_subscription(Query, "/ktbt/queries", answer, reliable)  # one of the fleet
 green = [CatalogEntry(sequence="<c>(TargetSeen,colour=2)")]
 for i in range(64):  # 64 invented robots, each with a catalog
     pub = node.create_publisher(Catalog, f"/fake{i}/catalog", latched)
@@ -411,7 +420,8 @@ rclpy.spin(node)  # until the namespace ends it
 
 def inventor(ns: RosNamespace, tmp: Path, claims: str) -> None:
     """A hostile rclpy process: 64 invented robots' catalogs, queries in 64 invented names,
-    and events claiming ``claims`` signed by a key of its own, or not signed right."""
+    events claiming ``claims`` signed by a key of its own, or not signed right, and an
+    unsigned answer in the name ``claims`` to every query of a real asker."""
     script = tmp / "inventor.py"
     script.write_text(INVENTOR)
     ns.start([sys.executable, str(script), claims], "inventor")
@@ -468,9 +478,9 @@ def test_under_trusted_only_proven_names_cross(rosns: RosNamespace, tmp_path: Pa
     """A bridge on ``trusted`` mirrors a ROS robot once an event or answer of it is signed by
     the key its trust store gives the name: a ROS teacher teaches a zenoh learner, and a ROS
     learner that knows nothing (proven by the events of its queries) learns from a zenoh
-    teacher; a process inventing 64 robots, and an event claiming the teacher's name with
-    another key, get nothing across. At ``--log-level warn`` the bridge's INFO lines are not
-    logged, its refusals are."""
+    teacher; a process inventing 64 robots, an event claiming the teacher's name with another
+    key, and answers in the teacher's name not signed by its key, get nothing across. At
+    ``--log-level warn`` the bridge's INFO lines are not logged, its refusals are."""
     ns, tmp = rosns, tmp_path
     keys = tmp / "keys"
     made = ns.run("peer", "keys", str(keys), "zt", "rt", "rl")
@@ -506,5 +516,6 @@ def test_under_trusted_only_proven_names_cross(rosns: RosNamespace, tmp_path: Pa
     assert "Traceback" not in log
     assert "a ROS robot named fake" in log and "its name is not proven" in log
     assert "an event on /fake0/events: " in log  # the one not signed right
+    assert "an answer on ROS from rt: the reply is not signed by the key" in log
     assert "is on zenoh" not in log and "proved its name" not in log  # INFO: below warn
     assert "policy any" not in log

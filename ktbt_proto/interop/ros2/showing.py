@@ -54,6 +54,7 @@ __all__ = [
     "event_msg",
     "events_qos",
     "latched",
+    "participants",
 ]
 
 EVENT_TEXT = (
@@ -73,6 +74,17 @@ MAX_CATALOG_BYTES = 1 << 20
 
 Entries = Callable[[], list[str | dict[str, Any]]]
 """What a robot's catalog lists now (``ktbt_proto.exchange.answers.catalog``)."""
+
+
+def participants(node: Node, topic: str) -> frozenset[str]:
+    """Who publishes ``topic``: the DDS participants (one a process's ROS context) of its
+    publishers, each the first 12 bytes of a publisher's GID, its DDS GUID prefix, in hex.
+    A received message does not say who published it (Jazzy's ``MessageInfo`` holds its
+    timestamps and sequence numbers only), so a source is read from the graph, by topic
+    (section 11, "Bridge": a bound per source)."""
+    return frozenset(
+        bytes(info.endpoint_gid[:12]).hex() for info in node.get_publishers_info_by_topic(topic)
+    )
 
 
 def latched() -> QoSProfile:
@@ -281,9 +293,15 @@ class FleetCatalogs:
         limit: int = MAX_CATALOGS,
         heard: Callable[[str, str, list[dict[str, str]]], None] | None = None,
         fleet: Callable[[], set[str]] | None = None,
+        per_source: int | None = None,
     ) -> None:
         self.node, self.own, self.limit, self.heard = node, own, limit, heard
         self.fleet = fleet
+        self.per_source = per_source
+        """Given, at most this many topics are followed of one publishing participant
+        (:func:`participants`), so one process inventing topics cannot take every place."""
+        self._sources: dict[str, frozenset[str]] = {}
+        """Topic followed -> the participants publishing it when it was found."""
         """The nodes of this robot's fleet (``Ros2Transport.peers``: those reading its query
         topic); given, a catalog is followed only if one of them publishes it, so that a fleet
         on other topics of the same graph is not read (section 11)."""
@@ -307,16 +325,37 @@ class FleetCatalogs:
                 continue
             if topic in self._ignored or self.skip(topic) or not self._ours(topic):
                 continue
-            if len(self._subscriptions) >= self.limit:
+            full = self._full(topic)
+            if full is not None:
                 if len(self._ignored) < 4 * self.limit:
                     self._ignored.add(topic)
-                    self._refuse(f"catalog topic {topic[:80]}: {self.limit} already followed")
+                    self._refuse(f"catalog topic {topic[:80]}: {full}")
                 continue
             self._subscriptions[topic] = self.node.create_subscription(
                 Catalog, topic, partial(self._on_catalog, topic), latched(), raw=True,
                 event_callbacks=watched(self.node, topic),
             )  # fmt: skip
         return len(self._subscriptions)
+
+    def _full(self, topic: str) -> str | None:
+        """Why ``topic`` cannot be followed now (the places are taken), or None; a topic
+        followed is charged to the participants publishing it."""
+        if len(self._subscriptions) >= self.limit:
+            return f"{self.limit} already followed"
+        if self.per_source is None:
+            return None
+        sources = participants(self.node, topic)
+        for source in sorted(sources):
+            taken = sum(source in s for s in self._sources.values())
+            if taken >= self.per_source:
+                return f"participant {source} publishes {taken} followed already"
+        self._sources[topic] = sources
+        return None
+
+    def sources(self, topic: str) -> frozenset[str]:
+        """The participants publishing ``topic`` (as found when it was followed)."""
+        found = self._sources.get(topic)
+        return found if found is not None else participants(self.node, topic)
 
     def _ours(self, topic: str) -> bool:
         """Whether ``topic`` has a publisher (of this fleet, when ``fleet`` is given)."""
@@ -334,6 +373,7 @@ class FleetCatalogs:
         ended = [t for t in self._subscriptions if not self.node.count_publishers(t)]
         for topic in ended:
             self.node.destroy_subscription(self._subscriptions.pop(topic))
+            self._sources.pop(topic, None)
             with self._lock:
                 if self._found.pop(topic, None) is not None:
                     self.version += 1

@@ -33,15 +33,31 @@ answers. An answer the bridge published on ROS, heard back, names a zenoh peer a
 Names are one side's each: a ROS robot named as a zenoh peer already present is refused, and
 the other way round.
 
+**Whose names cross.** A ROS topic does not say who published a message, so a ROS robot's name
+is its own word. Under the ``any`` policy the bridge mirrors every name a catalog or a query
+gives (the one WARNING of section 7 says so at start), at most :data:`MAX_PER_SOURCE` names of
+one source: the DDS participant publishing the catalog topic (:func:`participants`), and for
+names known only by their queries the query topic as one source; so a process inventing names
+takes at most its share of :data:`MAX_ROBOTS`. Under ``trusted`` a name crosses only once it is
+*proven*: a fleet event (section 10) naming it as its ``peer``, or an answer naming it as its
+``sender``, is signed (the event's ``sig``, the answer's ``hop``) by a key of the bridge's trust
+store, the key the store binds to that name if it binds one, else a key it binds to no name.
+The bridge follows the events of its fleet's robots for this, and every :data:`PROVE_PERIOD`
+s asks, in its own name, for what the catalogs of unproven robots list, so that an idle teacher
+answers and says so in a signed event. A query from a name not proven yet waits up to
+:data:`HOLD` s for its proof; a name not proven is refused, and nothing of it is relayed.
+
 **Hostile input.** What the transports refuse (too large, not a message, a replay, a reply on
 a wrong key) they count and log at WARNING; the bridge adds its own refusals, counted and
 logged the same way: an answer whose signatures are present but do not verify (the ``any``
 policy of section 7: the bridge never carries a forgery), an answer to a question it did not
-relay or to another sequence, a robot beyond :data:`MAX_ROBOTS`, a catalog that is not one
+relay or to another sequence, a robot beyond :data:`MAX_ROBOTS` or its source's share, a
+name not proven under ``trusted``, an event that is not one, a catalog that is not one
 (larger than 1 MiB serialized or not a ``Catalog``: :class:`FleetCatalogs`' bounds, of which
 the first 1,024 entries are read; naming no robot; an entry without a sequence; or larger, as
 JSON, than the 65,536 bytes a zenoh peer reads of a catalog, section 3). Nothing a peer sends
-ends the bridge.
+ends the bridge. Everything is logged through the bridge node's logger, so it reaches
+``/rosout`` at the node's level (``--ros-args --log-level``).
 """
 
 from __future__ import annotations
@@ -55,18 +71,35 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any, TypeVar
 
 import zenoh
-from ktbt_interfaces.msg import Catalog, CatalogEntry
+from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent
 from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 
-from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, Query, Response
-from ktbt_proto.exchange.refusals import Throttle, internal_error
-from ktbt_proto.exchange.trust import Policy, refusal
-from ktbt_proto.interop.ros2.showing import ENTRY_FIELDS, FleetCatalogs, latched
-from ktbt_proto.transport.ros2 import NAME, Ros2Transport, Topics, exchange_qos, to_msg
+from ktbt_proto.exchange.events import MAX_EVENT_BYTES, decode_event
+from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, MessageRefused, Query, Response
+from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
+from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
+from ktbt_proto.interop.ros2.showing import (
+    ENTRY_FIELDS,
+    FleetCatalogs,
+    event_json,
+    events_qos,
+    latched,
+    participants,
+)
+from ktbt_proto.transport.ros2 import (
+    CDR_SLACK,
+    NAME,
+    Ros2Transport,
+    Topics,
+    exchange_qos,
+    to_msg,
+)
 from ktbt_proto.transport.zenoh import (
     PREFIX,
     ZenohSettings,
@@ -75,7 +108,6 @@ from ktbt_proto.transport.zenoh import (
     open_session,
 )
 
-log = logging.getLogger("ktbt.bridge")
 _A = TypeVar("_A")
 _B = TypeVar("_B")
 
@@ -89,6 +121,42 @@ MIRROR_IDLE = 60.0
 """Seconds a ROS robot known only by its queries stays mirrored after its last query."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the zenoh fleet's catalogs."""
+MAX_PER_SOURCE = 16
+"""Names one source (a DDS participant; the query topic for names known only by their
+queries) has mirrored at most, and catalog and event topics of one participant followed."""
+PROVE_PERIOD = 5.0
+"""Seconds between two of the bridge's own queries asking unproven robots to show their keys."""
+HOLD = 2.0
+"""Seconds a query from a name not proven yet waits for its proof (under ``trusted``)."""
+MAX_SEQUENCE = 4096
+"""A sequence longer than a query may name (section 1) is not asked for."""
+MAX_HELD = 64
+"""Queries waiting for their sender's proof at most; one beyond is refused."""
+QUERIED = "the query topic"
+"""The source of a name known only by its queries (a message does not say who sent it)."""
+EVENT_TYPE = "ktbt_interfaces/msg/FleetEvent"
+"""The type by which a robot's events topic is found on the graph."""
+
+
+class NodeLog(logging.Handler):
+    """The library's log records (``ktbt.*``: the mirrors' refusals) through a node's logger,
+    so that they reach ``/rosout`` with the bridge's own lines, at the node's level
+    (``--ros-args --log-level``; rclpy's severities are Python's numbers)."""
+
+    def __init__(self, node: Node) -> None:
+        self.logger = node.get_logger()
+        super().__init__(int(self.logger.get_effective_level()))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        if record.levelno >= logging.ERROR:
+            self.logger.error(text)
+        elif record.levelno >= logging.WARNING:
+            self.logger.warning(text)
+        elif record.levelno >= logging.INFO:
+            self.logger.info(text)
+        else:
+            self.logger.debug(text)
 
 
 def ros_name(name: str, taken: set[str]) -> str:
@@ -154,14 +222,21 @@ class Bridge:
         *,
         query_timeout: float = 2.0,
         max_robots: int = MAX_ROBOTS,
+        policy: Policy = Policy.ANY,
+        trust: TrustStore | None = None,
+        max_per_source: int = MAX_PER_SOURCE,
     ) -> None:
+        if policy is Policy.SIGNED or (policy is Policy.TRUSTED and trust is None):
+            raise ValueError("a bridge's policy is any, or trusted with a trust store")
         self.node, self.settings = node, settings
+        self.logger = node.get_logger()
         self._mirror_settings = mirror_settings(settings)
         self.topics = topics or Topics()
         self.query_timeout, self.max_robots = query_timeout, max_robots
+        self.policy, self.trust, self.max_per_source = policy, trust, max_per_source
         self.counts = Counts()
         self._lock = threading.Lock()
-        self._warn = Throttle(log.warning)
+        self._warn = Throttle(self.logger.warning)
         self.name = f"bridge.{node.get_name()}"[:64]
         self.ros = Ros2Transport(
             node,
@@ -184,7 +259,20 @@ class Bridge:
             skip=lambda topic: topic.startswith(self.proxy_space + "/"),  # the proxies'
             limit=2 * max_robots,
             heard=self._on_catalog,
+            fleet=self.ros.peers,  # the nodes reading the fleet's query topic: not another's
+            per_source=max_per_source,
         )
+        self._sources: dict[str, frozenset[str]] = {}
+        """A mirrored ROS robot -> the sources that named it (charged for it)."""
+        self.proven: dict[str, str] = {}
+        """Under ``trusted``: a ROS robot's name -> the trusted key that proved it."""
+        self._events: dict[str, Any] = {}
+        """Events topic followed -> its subscription (under ``trusted``)."""
+        self._event_sources: dict[str, frozenset[str]] = {}
+        self._events_ignored: set[str] = set()
+        self._held: list[tuple[Query, float]] = []
+        """Queries from names not proven yet, each until when it waits."""
+        self._next_proof = 0.0
         self._topic_robot: dict[str, str] = {}
         """Catalog topic -> the robot it named."""
         self.proxies: dict[str, tuple[Node, Any, Any]] = {}
@@ -213,6 +301,12 @@ class Bridge:
             raise
         self._reader = threading.Thread(target=self._read_catalogs, daemon=True)
         self._reader.start()
+        if policy is Policy.ANY:  # section 7: the risk, said once
+            self.logger.warning(
+                f"{self.name}: policy any: every participant of ROS domain "
+                f"{node.context.get_domain_id()} can put a robot's name on zenoh through this "
+                "bridge; give the fleet keys (ktbt peer keys) and --policy trusted --trust FILE"
+            )
 
     # -- counting -------------------------------------------------------------------------------
 
@@ -300,20 +394,33 @@ class Bridge:
         if size > MAX_MESSAGE_BYTES:
             self._refuse(f"the catalog of {name} on {topic[:80]}: {size} bytes as JSON")
             return
-        if self._mirror(name) is None:
-            return
         self._topic_robot[topic] = name
         self._catalogs[name] = entries
+        self._mirror(name, self._catalog_reader.sources(topic))
 
-    def _mirror(self, name: str) -> ZenohTransport | None:
-        """The mirror of the ROS robot ``name``, made if need be; None (refused) if the name
-        is a zenoh peer's, or too many robots are mirrored."""
+    def _mirror(self, name: str, sources: frozenset[str]) -> ZenohTransport | None:
+        """The mirror of the ROS robot ``name``, named by ``sources``, made if need be; None
+        (refused) if the name is a zenoh peer's, is not proven under ``trusted``, if one of
+        its sources named its share of robots already, or too many robots are mirrored."""
         mirror = self.mirrors.get(name)
         if mirror is not None:
             return mirror
         if name in self.zenoh_peers() or name in self.proxies:
             self._refuse(f"a ROS robot named {name}: that name is a zenoh peer's")
             return None
+        if self.policy is Policy.TRUSTED and name not in self.proven:
+            self._refuse(
+                f"a ROS robot named {name}: its name is not proven (no event or answer of "
+                "it signed by a key of the trust store)"
+            )
+            return None
+        if name not in self.proven:  # a name nobody proved: a share per source
+            for source in sorted(sources):
+                taken = sum(source in s for s in self._sources.values())
+                if taken >= self.max_per_source:
+                    who = source if source == QUERIED else f"participant {source}"
+                    self._refuse(f"a ROS robot named {name}: {who} named {taken} robots already")
+                    return None
         if len(self.mirrors) >= self.max_robots:
             self._refuse(f"a ROS robot named {name}: {self.max_robots} robots already bridged")
             return None
@@ -325,15 +432,118 @@ class Bridge:
             answer_window=self.query_timeout,
         )
         self.mirrors[name] = mirror
-        log.info("%s: ROS robot %s is on zenoh", self.name, name)
+        self._sources[name] = sources
+        self.logger.info(f"{self.name}: ROS robot {name} is on zenoh")
         return mirror
 
     def _end_mirror(self, name: str) -> None:
         mirror = self.mirrors.pop(name, None)
+        self._sources.pop(name, None)
         if mirror is not None:
             self._ended_refused += mirror.refused
             mirror.close()
-            log.info("%s: ROS robot %s left", self.name, name)
+            self.logger.info(f"{self.name}: ROS robot {name} left")
+
+    # -- proof of a ROS robot's name (under ``trusted``) ----------------------------------------
+
+    def _prove(self, name: str, key: str, how: str) -> None:
+        """``key`` signed something of ``name``'s (verified by the caller): the name is proven
+        if the trust store binds it to ``key``, or binds it to no key and ``key`` to no name;
+        then the robot is mirrored if a catalog names it."""
+        if self.trust is None or name in self.proven or re.fullmatch(NAME, name) is None:
+            return
+        bound = self.trust.names.get(name)
+        if bound is None:
+            trusted = key in self.trust.keys and key not in self.trust.names.values()
+        else:
+            trusted = key == bound
+        if not trusted or len(self.proven) >= 4 * self.max_robots:
+            return
+        self.proven[name] = key
+        self.logger.info(f"{self.name}: ROS robot {name} proved its name ({how})")
+        topics = [t for t, robot in self._topic_robot.items() if robot == name]
+        if topics:
+            self._mirror(name, self._catalog_reader.sources(topics[0]))
+
+    def _prove_by_answer(self, answer: Response) -> None:
+        """An answer signed by its sender (both signatures valid, the store's binding kept)
+        proves the sender's name if the key is trusted for it."""
+        if (
+            self.policy is Policy.TRUSTED
+            and answer.sender not in self.proven
+            and answer.key is not None
+            and refusal(answer, Policy.SIGNED, self.trust) is None
+        ):
+            self._prove(answer.sender, answer.key, "a signed answer")
+
+    def _follow_events(self) -> None:
+        """Follow the events topic of every robot of the fleet (a node reading its query
+        topic), as catalogs are followed: at most twice :data:`MAX_ROBOTS` topics, and
+        :data:`MAX_PER_SOURCE` of one participant; the topics of robots gone are let go."""
+        for topic in [t for t in self._events if not self.node.count_publishers(t)]:
+            self.node.destroy_subscription(self._events.pop(topic))
+            self._event_sources.pop(topic, None)
+        fleet = self.ros.peers()
+        for topic, types in self.node.get_topic_names_and_types():
+            if EVENT_TYPE not in types or topic in self._events or topic in self._events_ignored:
+                continue
+            infos = self.node.get_publishers_info_by_topic(topic)
+            if topic.startswith(self.proxy_space + "/") or not any(
+                f"{i.node_namespace.rstrip('/')}/{i.node_name}" in fleet for i in infos
+            ):
+                continue
+            sources = participants(self.node, topic)
+            taken = max((sum(s in t for t in self._event_sources.values()) for s in sources),
+                        default=0)  # fmt: skip
+            if len(self._events) >= 2 * self.max_robots or taken >= self.max_per_source:
+                if len(self._events_ignored) < 8 * self.max_robots:
+                    self._events_ignored.add(topic)
+                    self._refuse(f"events topic {topic[:80]}: no place left to follow it")
+                continue
+            self._event_sources[topic] = sources
+            self._events[topic] = self.node.create_subscription(
+                FleetEvent, topic, partial(self._on_event, topic), events_qos(), raw=True
+            )
+
+    @guarded("an event")
+    def _on_event(self, topic: str, data: bytes) -> None:
+        """A robot's event: one signed by a trusted key proves the name it gives (``peer``);
+        one that is not an event (too large, not a ``FleetEvent``, a forged signature) is
+        refused; an unsigned one proves nothing."""
+        if len(data) > MAX_EVENT_BYTES + CDR_SLACK:
+            self._refuse(f"an event on {topic[:80]}: {len(data)} bytes")
+            return
+        try:
+            msg = deserialize_message(data, FleetEvent)
+        except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
+            self._refuse(f"an event on {topic[:80]}: not a FleetEvent ({type(exc).__name__})")
+            return
+        if msg.peer in self.proven or not msg.sig:
+            return  # nothing left to prove, or no proof: not checked further
+        try:
+            event = decode_event(event_json(msg))
+        except MessageRefused as exc:
+            self._refuse(f"an event on {topic[:80]}: {exc}")
+            return
+        if event.key is not None:
+            self._prove(event.peer, event.key, f"a signed event on {topic[:80]}")
+
+    def _ask_for_proof(self, now: float) -> None:
+        """Every :data:`PROVE_PERIOD` s while a catalog names a robot not proven, one query
+        of the bridge's own for the first sequence of each such catalog (at most 64): every
+        robot records it in a signed event, and those that know one answer, signed."""
+        if now < self._next_proof:
+            return
+        self._next_proof = now + PROVE_PERIOD
+        named = set(self._topic_robot.values())
+        wanted = [
+            entries[0]["sequence"]
+            for name, entries in self._catalogs.items()
+            if name not in self.proven and name in named and entries
+        ]
+        wanted = [w for w in dict.fromkeys(wanted) if len(w) <= MAX_SEQUENCE][:64]
+        if wanted:
+            self.ros.broadcast(Query.asking(self.name, wanted))
 
     # -- proxies: zenoh peers on ROS ------------------------------------------------------------
 
@@ -374,7 +584,7 @@ class Bridge:
             )
             pub = proxy.create_publisher(Catalog, "~/catalog", latched())
             self.proxies[name] = (proxy, sub, pub)
-            log.info("%s: zenoh peer %s is on ROS", self.name, name)
+            self.logger.info(f"{self.name}: zenoh peer {name} is on ROS")
         for name, (_, _, pub) in self.proxies.items():
             entries = catalogs.get(name, [])
             if entries != self._proxy_shown.get(name):
@@ -393,9 +603,23 @@ class Bridge:
             self._next_graph = now + GRAPH_PERIOD
             self._read_graph()
             self._tend_proxies()
-        for message in self.ros.receive():  # queries: answers come through `relay`
+            if self.policy is Policy.TRUSTED:
+                self._follow_events()
+        if self.policy is Policy.TRUSTED:
+            self._ask_for_proof(now)
+            held, self._held = self._held, []
+            for query, until in held:  # waiting for their sender's proof
+                if query.sender in self.proven or until < now:
+                    self._relay(self._query_from_ros, query, now)
+                else:
+                    self._held.append((query, until))
+        for message in self.ros.receive():  # answers to others come through `relay`
             if isinstance(message, Query):
+                if self._waits(message, now):
+                    continue
                 self._relay(self._query_from_ros, message, now)
+            elif isinstance(message, Response):  # to the bridge's own query: a proof
+                self._prove_by_answer(message)
         for mirror in list(self.mirrors.values()):
             for message in mirror.receive():
                 if isinstance(message, Query):
@@ -411,6 +635,18 @@ class Bridge:
             relay(first, second)
         except Exception as exc:
             self._refuse(f"relaying a message: {internal_error(exc)}")
+
+    def _waits(self, query: Query, now: float) -> bool:
+        """Whether ``query``, from a name not proven yet under ``trusted``, is held a while
+        for its proof (a learner's first query comes with the event that proves it)."""
+        if self.policy is not Policy.TRUSTED or query.sender in self.proven:
+            return False
+        if query.sender in self.proxies or (query.sender, query.id) in self._from_zenoh:
+            return False  # the bridge's own, heard back
+        if len(self._held) >= MAX_HELD:
+            return False  # refused as not proven, at once
+        self._held.append((query, now + HOLD))
+        return True
 
     def _remember(self, table: OrderedDict[tuple[str, str], Relayed], query: Query) -> bool:
         """Note ``query`` as relayed; False if it already was (relay once per asker and id)."""
@@ -436,7 +672,7 @@ class Bridge:
         """A ROS robot's query: to zenoh through its mirror, once."""
         if (query.sender, query.id) in self._from_zenoh or query.sender in self.proxies:
             return  # published by the bridge itself: heard back
-        mirror = self._mirror(query.sender)
+        mirror = self._mirror(query.sender, frozenset({QUERIED}))
         if mirror is not None:
             self._asking[query.sender] = now
         if mirror is None or not self._remember(self._from_ros, query):
@@ -446,14 +682,23 @@ class Bridge:
 
     def _screened(self, answer: Response, relayed: Relayed | None, where: str) -> bool:
         """Whether ``answer`` may be relayed to the query it answers: one the bridge relayed,
-        one of its sequences, and signatures that verify where present (never a forgery)."""
+        one of its sequences, and signatures that verify where present (never a forgery),
+        a name the trust store binds signed by its key. Under ``trusted``, an answer from ROS
+        must be signed, by the key that proved its sender's name: a topic does not say who
+        published it, and a proven name is not lent to whoever answers in it."""
         if relayed is None:
             self._refuse(f"an answer {where} from {answer.sender} to no query relayed")
             return False
         if answer.sequence not in relayed.sequences:
             self._refuse(f"an answer {where} from {answer.sender} answers another question")
             return False
-        why = refusal(answer, Policy.ANY)
+        why = refusal(answer, Policy.ANY, self.trust)
+        proof = self.proven.get(answer.sender)
+        if why is None and self.policy is Policy.TRUSTED and where == "on ROS":
+            if proof is None:
+                why = "its name is not proven"
+            elif answer.key != proof or refusal(answer, Policy.SIGNED, self.trust) is not None:
+                why = "the reply is not signed by the key that proved its name"
         if why is not None:
             self._refuse(f"an answer {where} from {answer.sender}: {why}")
             return False
@@ -466,12 +711,13 @@ class Bridge:
         question of its own, and never takes the other's answers."""
         if answer.sender in self.proxies or answer.sender in self.zenoh_peers():
             return  # the bridge's own answer to a ROS robot, heard back
+        self._prove_by_answer(answer)
         relayed = self._from_zenoh.get((to, answer.id))
         if relayed is None:
             return  # an answer between ROS robots: not the bridge's
         if not self._screened(answer, relayed, "on ROS"):
             return
-        mirror = self._mirror(answer.sender)
+        mirror = self._mirror(answer.sender, frozenset({QUERIED}))
         if mirror is None:
             return
         mirror.send(to, answer)
@@ -508,6 +754,9 @@ class Bridge:
             proxy.destroy_node()
         self.proxies.clear()
         self._catalog_reader.close()
+        for subscription in self._events.values():
+            self.node.destroy_subscription(subscription)
+        self._events.clear()
         self.node.destroy_publisher(self._queries)
         self.ros.close()
         self._presence.undeclare()  # type: ignore[no-untyped-call]

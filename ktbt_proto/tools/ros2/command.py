@@ -26,11 +26,13 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.tools.cli.options import (
     Connect,
     JoinMode,
     Listen,
     Timeout,
+    TrustFile,
     ZenohConfig,
     example,
     refuse,
@@ -395,6 +397,22 @@ def bridge_command(
         int,
         typer.Option("--max-robots", metavar="N", help="Robots bridged each way at most, 1-1024."),
     ] = 64,
+    max_per_source: Annotated[
+        int,
+        typer.Option(
+            "--max-per-source",
+            metavar="N",
+            help="ROS names one process may have mirrored (unproven), 1-1024.",
+        ),
+    ] = 16,
+    policy: Annotated[
+        Policy,
+        typer.Option(
+            "--policy",
+            help="Whose names cross to zenoh: any, or trusted (proven by a key in --trust).",
+        ),
+    ] = Policy.ANY,
+    trust: TrustFile = None,
 ) -> None:
     """Relay knowledge between a zenoh fleet and a ROS 2 fleet.
 
@@ -416,22 +434,36 @@ def bridge_command(
         raise refuse(f"--query-timeout: {query_timeout:g}: use (0, 60] seconds")
     if not 1 <= max_robots <= 1024:
         raise refuse(f"--max-robots: {max_robots}: use 1 to 1024")
+    if not 1 <= max_per_source <= 1024:
+        raise refuse(f"--max-per-source: {max_per_source}: use 1 to 1024")
+    if policy is Policy.SIGNED:
+        raise refuse("--policy: signed: a bridge takes any, or trusted with --trust FILE")
+    if policy is Policy.TRUSTED and trust is None:
+        raise refuse("--policy: trusted needs --trust FILE")
+    from ktbt_proto.exchange.signing import KeyFileError
+    from ktbt_proto.exchange.trust import TrustStore
+
+    try:
+        store = TrustStore.load(trust) if trust is not None else None
+    except (KeyFileError, OSError) as exc:
+        raise refuse(f"--trust: {exc}") from None
     import re
 
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,54}", node_name):
         raise refuse(f"--node-name: {node_name!r}: use letters, digits and '_' (a ROS node name)")
     _ready()
+    import logging
+
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
-    from ktbt_proto.tools.peer import configure_logging, until_signalled
-    from ktbt_proto.tools.ros2.bridge import Bridge
+    from ktbt_proto.tools.peer import until_signalled
+    from ktbt_proto.tools.ros2.bridge import Bridge, NodeLog
     from ktbt_proto.transport.ros2 import Topics
     from ktbt_proto.transport.zenoh import SessionError
 
-    configure_logging()
     try:
         rclpy.init(args=[sys.argv[0], *extra], signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # rclpy's own error for bad ROS arguments
@@ -439,9 +471,15 @@ def bridge_command(
     code = 0
     node: Any = None
     bridge: Any = None
+    library = logging.getLogger("ktbt")
+    handler: Any = None
     try:
         with until_signalled() as stop:
             node = rclpy.create_node(node_name)
+            # The library's records (the mirrors' refusals) through the node's logger too.
+            handler = NodeLog(node)
+            library.addHandler(handler)
+            library.setLevel(handler.level)
             try:
                 bridge = Bridge(
                     node,
@@ -449,6 +487,9 @@ def bridge_command(
                     Topics(*topics_given),
                     query_timeout=query_timeout,
                     max_robots=max_robots,
+                    policy=policy,
+                    trust=store,
+                    max_per_source=max_per_source,
                 )
             except SessionError as exc:
                 raise refuse(str(exc)) from None
@@ -470,6 +511,8 @@ def bridge_command(
         if bridge is not None:
             _say(bridge.summary())
             bridge.close()
+        if handler is not None:
+            library.removeHandler(handler)
         if node is not None:
             node.destroy_node()
         try_shutdown()

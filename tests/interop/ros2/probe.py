@@ -2,7 +2,8 @@
 JSON request a line on stdin, one JSON answer a line on stdout. Everything waited on has the
 request's deadline (``timeout``) and is polled on observable conditions, never slept for.
 
-Requests (``op``): ``ping``; ``sub`` (topic, type, latched); ``wait`` (topic, match): the first
+Requests (``op``): ``ping``; ``sub`` (topic, type: ``Query`` or ``rcl_interfaces/msg/Log``,
+latched); ``wait`` (topic, match): the first
 message received on the topic (past the first ``skip``) whose fields match (and hold none of
 ``absent``); ``messages`` (topic); ``publishers`` and ``subscribers`` (topic, count): wait
 until the topic has that many (``named``: and each one's node is known), with the publishers'
@@ -19,6 +20,7 @@ each), for the tutorial's captured output: the ``ros2`` command line has no whee
 
 from __future__ import annotations
 
+import importlib
 import json
 import sys
 import threading
@@ -67,6 +69,15 @@ def echo(messages: list[dict[str, Any]]) -> str:
     )  # fmt: skip
 
 
+def message_type(name: str) -> Any:
+    """A ``ktbt_interfaces`` message type by its name (``Query``), or any other by its full
+    name (``rcl_interfaces/msg/Log``, what ``/rosout`` carries)."""
+    if "/" not in name:
+        return getattr(ktbt_msg, name)
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
+
+
 def matches(message: dict[str, Any], match: dict[str, Any]) -> bool:
     for key, want in match.items():
         got = message.get(key)
@@ -108,7 +119,7 @@ class ProbeNode:
                     self.received[topic].append(plain(message))
 
             self.subs[topic] = self.node.create_subscription(
-                getattr(ktbt_msg, req["type"]), topic, keep, self.qos(bool(req.get("latched")))
+                message_type(req["type"]), topic, keep, self.qos(bool(req.get("latched")))
             )
             return {"ok": True}
         if op in ("wait", "messages"):

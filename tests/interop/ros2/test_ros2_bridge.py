@@ -123,6 +123,14 @@ def learned(fleets: Fleets) -> str:
          "error: --max-robots: 0: use 1 to 1024"),
         (["--connect", "tcp/127.0.0.1:7447", "--node-name", "a/b"],
          "error: --node-name: 'a/b': use letters, digits and '_' (a ROS node name)"),
+        (["--connect", "tcp/127.0.0.1:7447", "--max-per-source", "0"],
+         "error: --max-per-source: 0: use 1 to 1024"),
+        (["--connect", "tcp/127.0.0.1:7447", "--policy", "trusted"],
+         "error: --policy: trusted needs --trust FILE"),
+        (["--connect", "tcp/127.0.0.1:7447", "--policy", "signed"],
+         "error: --policy: signed: a bridge takes any, or trusted with --trust FILE"),
+        (["--connect", "tcp/127.0.0.1:7447", "--policy", "trusted", "--trust", "/no/such.txt"],
+         "error: --trust: cannot read trust store /no/such.txt: No such file or directory"),
         (["--connect", "tcp/127.0.0.1:7447", "--bogus"], "error: --bogus: no such option"),
         (["--connect", "tcp/127.0.0.1:7447", "extra"],
          "error: 'extra': unexpected; ROS arguments come after --ros-args"),
@@ -284,6 +292,7 @@ def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -
     garbage = "00010000" + "ff" * 60  # a CDR header, then a string claiming 4 GB
     probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "raw": garbage,
                  "subscribers": 3})  # fmt: skip
+    probe.subscribe("/ktbt/queries", "Query")  # one of the fleet: its catalogs are read
     v2 = {"v": 2, "id": "h1", "sender": "probe", "sequence": GREEN_KEY}
     probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 3,
                  "fields": v2})  # fmt: skip
@@ -317,3 +326,196 @@ def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -
     to_ros, to_zenoh, refused = map(int, counted.groups())
     assert refused >= 6, summary  # 2 from ROS's topics, 2 catalogs, 2 from zenoh (and others')
     assert to_ros >= 1 and to_zenoh >= 1, summary  # what the learners learned, at least
+
+
+OUTSIDER = """
+import pathlib, sys, rclpy
+from ktbt_interfaces.msg import Catalog, Query
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+rclpy.init()
+node = rclpy.create_node("outsider")
+latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+node.create_publisher(Catalog, "/outsider/catalog", latched).publish(Catalog(peer="outsider"))
+node.create_subscription(Query, "/other/queries", lambda m: None, 10)  # another fleet's
+go = pathlib.Path(sys.argv[1])
+while not go.exists():  # until the test lets it join the bridge's fleet
+    rclpy.spin_once(node, timeout_sec=0.05)
+node.create_subscription(Query, "/ktbt/queries", lambda m: None, 10)
+print("joined", flush=True)
+while True:
+    rclpy.spin_once(node, timeout_sec=0.5)
+"""
+
+
+@processes
+def test_the_bridge_reads_its_own_fleet_and_logs_to_rosout(fleets: Fleets) -> None:
+    """A catalog published by a node of another fleet (one reading other topics) is not
+    mirrored; once that node reads the bridge's query topic, it is. The bridge says so through
+    its node's logger: the lines reach /rosout."""
+    ns, probe = fleets.ns, fleets.probe
+    learned(fleets)  # everything is up
+    probe.subscribe("/rosout", "rcl_interfaces/msg/Log")
+    probe.subscribe("/ktbt/queries", "Query")  # the probe is one of the bridge's fleet
+    script, go = fleets.tmp / "outsider.py", fleets.tmp / "outsider.go"
+    script.write_text(OUTSIDER)
+    ns.start([sys.executable, str(script), str(go)], "outsider")
+    probe.until({"op": "publishers", "topic": "/outsider/catalog", "count": 1, "named": True})
+    probe.until({"op": "publish", "topic": "/mate/catalog", "type": "Catalog",
+                 "fields": {"peer": "mate"}, "subscribers": 1, "latched": True})  # fmt: skip
+    line = probe.wait("/rosout", name="ktbt_bridge", msg="ROS robot mate is on zenoh", timeout=60)
+    assert line["level"] == 20  # INFO, from the bridge's node
+    assert "outsider" not in ns.log("bridge")
+    go.touch()
+    probe.wait("/rosout", name="ktbt_bridge", msg="ROS robot outsider is on zenoh", timeout=60)
+
+
+INVENTOR = """
+import sys, rclpy
+from ktbt_interfaces.msg import Answer, Catalog, CatalogEntry, FleetEvent, Query
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from ktbt_proto.exchange.events import EventPublisher
+from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.interop.ros2.showing import event_msg
+
+rclpy.init()
+node = rclpy.create_node("inventor")
+latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+reliable = QoSProfile(depth=64, reliability=ReliabilityPolicy.RELIABLE)
+answers = node.create_publisher(Answer, "/ktbt/answers", reliable)
+
+
+def answer(query):  # every real asker answered in the claimed name, unsigned
+    if not query.sender.startswith("asker"):
+        answers.publish(Answer(v=1, id=query.id, sender=sys.argv[1], sequence=query.sequence,
+                               subtree="<sq><a>(PickTreasure)<e>", to=query.sender))
+
+
+node.create_subscription(Query, "/ktbt/queries", answer, reliable)  # one of the fleet
+green = [CatalogEntry(sequence="<c>(TargetSeen,colour=2)")]
+for i in range(64):  # 64 invented robots, each with a catalog
+    pub = node.create_publisher(Catalog, f"/fake{i}/catalog", latched)
+    pub.publish(Catalog(peer=f"fake{i}", items=green))
+queries = node.create_publisher(Query, "/ktbt/queries", reliable)
+events = node.create_publisher(FleetEvent, "/fake0/events", reliable)
+signed = []  # an event signed by a key of no trust store, claiming a trusted robot's name
+EventPublisher(sys.argv[1], signed.append, Identity.generate())(
+    {"t": "2026-12-06T21:00:00.000+00:00", "event": "session-up"})
+n = 0
+
+def flood():  # 100 queries a second, in 64 invented names, and two events
+    global n
+    n += 1
+    queries.publish(Query(v=1, id=f"q{n}", sender=f"asker{n % 64}",
+                          sequence="<c>(TargetSeen,colour=2)"))
+    events.publish(event_msg(signed[0]))
+    events.publish(FleetEvent(v=1, peer="fake0", event="session-up", t="x", key="k", sig="s"))
+
+node.create_timer(0.01, flood)
+print("up", flush=True)
+rclpy.spin(node)  # until the namespace ends it
+"""
+
+
+def inventor(ns: RosNamespace, tmp: Path, claims: str) -> None:
+    """A hostile rclpy process: 64 invented robots' catalogs, queries in 64 invented names,
+    events claiming ``claims`` signed by a key of its own, or not signed right, and an
+    unsigned answer in the name ``claims`` to every query of a real asker."""
+    script = tmp / "inventor.py"
+    script.write_text(INVENTOR)
+    ns.start([sys.executable, str(script), claims], "inventor")
+    wait_until(lambda: "up" in ns.log("inventor").splitlines(), 60)
+    assert "up" in ns.log("inventor").splitlines(), ns.log("inventor")
+
+
+def present(ns: RosNamespace, port: int, *names: str) -> str:
+    """Who is present on the zenoh fleet at ``port`` (``ktbt peer list``), asked again until
+    ``names`` are there (zenoh's gossip links the lister to each mirror in its time)."""
+    shown = ""
+
+    def listed() -> bool:
+        nonlocal shown
+        done = ns.run("peer", "list", "--connect", endpoint(port), "--timeout", "3", timeout=60)
+        assert done.returncode == 0, done.stderr
+        shown = done.stdout
+        return set(names) <= set(re.findall(r"^(\S+):", shown, re.MULTILINE))
+
+    assert wait_until(listed, 90), shown
+    return shown
+
+
+@processes
+def test_one_source_inventing_names_leaves_room_for_an_honest_robot(
+    rosns: RosNamespace, tmp_path: Path
+) -> None:
+    """Under ``any``, one process inventing 64 robots (catalogs, and queries in 64 names) takes
+    its share of the bridge's places and no more: an honest robot that comes later is
+    mirrored, and zenoh sees it."""
+    ns, port = rosns, free_port()
+    inventor(ns, tmp_path, "nobody")
+    bridge = ns.ktbt("ros2", "bridge", "--listen", endpoint(port), "--max-robots", "6",
+                     "--max-per-source", "2", name="bridge")  # fmt: skip
+    assert wait_until(lambda: "the query topic named 2 robots already" in ns.log("bridge"), 90)
+    # of its 64 catalogs, 2 are read
+    assert wait_until(lambda: "publishes 2 followed already" in ns.log("bridge"), 60)
+    ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/honest",
+            "-p", f"knowledge:={knowledge(tmp_path / 'yellow.sbt', 3)}",
+            "-p", f"sequences:=[{YELLOW}]", name="honest")  # fmt: skip
+    assert wait_until(lambda: "ROS robot honest is on zenoh" in ns.log("bridge"), 120), ns.log(
+        "bridge"
+    )
+    shown = present(ns, port, "honest")
+    assert sum(f"fake{i}:" in shown for i in range(64)) <= 2, shown
+    bridge.send_signal(signal.SIGTERM)
+    assert bridge.wait(timeout=30) == 0
+    assert "Traceback" not in ns.log("bridge")
+    assert "policy any: every participant of ROS domain" in ns.log("bridge")
+
+
+@processes
+def test_under_trusted_only_proven_names_cross(rosns: RosNamespace, tmp_path: Path) -> None:
+    """A bridge on ``trusted`` mirrors a ROS robot once an event or answer of it is signed by
+    the key its trust store gives the name: a ROS teacher teaches a zenoh learner, and a ROS
+    learner that knows nothing (proven by the events of its queries) learns from a zenoh
+    teacher; a process inventing 64 robots, an event claiming the teacher's name with another
+    key, and answers in the teacher's name not signed by its key, get nothing across. At
+    ``--log-level warn`` the bridge's INFO lines are not logged, its refusals are."""
+    ns, tmp = rosns, tmp_path
+    keys = tmp / "keys"
+    made = ns.run("peer", "keys", str(keys), "zt", "rt", "rl")
+    assert made.returncode == 0, made.stderr
+    trust = keys / "trust.txt"
+    pt, pl = free_port(), free_port()
+    inventor(ns, tmp, "rt")
+    ns.ktbt("peer", "run", "--id", "zt", "--listen", endpoint(pt), "--key", str(keys / "zt.key"),
+            "--knowledge", str(knowledge(tmp / "green.sbt", 2)), "--sequence", GREEN,
+            "--duration", "250", name="zt")  # fmt: skip
+    ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rt",
+            "-p", f"knowledge:={knowledge(tmp / 'yellow.sbt', 3)}",
+            "-p", f"key:={keys / 'rt.key'}", "-p", f"sequences:=[{YELLOW}]",
+            name="rt")  # fmt: skip
+    ns.ktbt("ros2", "run", "--autostart", "--ros-args", "-r", "__ns:=/rl",
+            "-p", f"sequences:=[{GREEN}]", "-p", "policy:=trusted", "-p", f"trust:={trust}",
+            "-p", f"key:={keys / 'rl.key'}", name="rl")  # fmt: skip
+    bridge = ns.ktbt("ros2", "bridge", "--connect", endpoint(pt), "--policy", "trusted",
+                     "--trust", str(trust), "--max-robots", "4", "--max-per-source", "2",
+                     "--ros-args", "--log-level", "warn", name="bridge")  # fmt: skip
+    zl = ns.ktbt("peer", "run", "--id", "zl", "--listen", endpoint(pl), "--connect",
+                 endpoint(pt), "--sequence", YELLOW, "--policy", "trusted", "--trust",
+                 str(trust), "--exit-when-done", "--duration", "200", name="zl")  # fmt: skip
+    assert zl.wait(timeout=220) == 0, ns.log("zl") + ns.log("bridge")
+    assert f"zl: learned {YELLOW} from rt" in ns.log("zl")
+    done = ns.run("ros2", "list", "/rl/ktbt", "--until", GREEN, "--timeout", "150", timeout=200)
+    assert done.returncode == 0, done.stderr + ns.log("bridge")
+    shown = present(ns, pt, "rt", "rl")
+    assert not any(f"fake{i}" in shown or f"asker{i}" in shown for i in range(64)), shown
+    bridge.send_signal(signal.SIGTERM)
+    assert bridge.wait(timeout=30) == 0
+    log = ns.log("bridge")
+    assert "Traceback" not in log
+    assert "a ROS robot named fake" in log and "its name is not proven" in log
+    assert "an event on /fake0/events: " in log  # the one not signed right
+    assert "an answer on ROS from rt: the reply is not signed by the key" in log
+    assert "is on zenoh" not in log and "proved its name" not in log  # INFO: below warn
+    assert "policy any" not in log

@@ -258,6 +258,7 @@ def test_the_bridge_refuses_what_it_cannot_read_from_either_side_and_relays_afte
     evil, evil2, honest = free_port(), free_port(), free_port()
     probe = Probe(ns)
     probe.subscribe("/rl/ktbt/events", "FleetEvent")
+    probe.subscribe("/ktbt/queries", "Query")  # one of the fleet: the bridge reads its catalog
     script = tmp_path / "evil_peers.py"
     script.write_text(EVIL_PEERS)
     peers = [["evil", endpoint(evil), UNREADABLE], ["evil2", endpoint(evil2), FAULTY]]

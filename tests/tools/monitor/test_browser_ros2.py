@@ -20,7 +20,6 @@ import pytest
 from ktbt_proto.files import packaged
 from ktbt_proto.items import sequence_digest
 from tests.browser import chromium, unavailable
-from tests.interop.ros2.conftest import ros2_built  # noqa: F401 - a fixture
 from tests.interop.ros2.rosns import SEQUENCE, Probe, RosNamespace
 from tests.tools.monitor.test_browser import Page, _up
 from tests.zenoh_helpers import wait_until

@@ -81,7 +81,7 @@ def lifecycle(ns: RosNamespace, transition: str) -> None:
 
 
 def test_a_ros2_robot_learning_shows_in_the_page(
-    ros2_built: None,  # noqa: F811
+    ros2_built: None,
     tmp_path: Path,
 ) -> None:
     ns = RosNamespace(tmp_path)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ktbt_proto.exchange.transferlog import Event
+from ktbt_proto.tools.fleet.plan import distances, neighbours
 
 Outcome = Literal["pass", "fail", "skipped"]
 RSS_GROWTH = 0.20
@@ -510,6 +511,78 @@ def stage_times(lines: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
     return out
 
 
+def _learned_at(life: dict[str, Any], changes: list[dict[str, Any]], sequence: str) -> float | None:
+    """When a peer's ``life`` (its last) came to know ``sequence`` for good: its up if it
+    started knowing it, else its merge after which it was not forgotten; None if it did not."""
+    if life["up"] is None:
+        return None
+    when: float | None = life["up"] if sequence in life.get("known", []) else None
+    for e in sorted(changes, key=lambda e: e["t"]):
+        if e.get("sequence") != sequence:
+            continue
+        if e["kind"] == Event.FORGOTTEN:
+            when = None
+        elif when is None:
+            when = max(e["t"], life["up"])
+    return when
+
+
+def hops(h: History) -> list[dict[str, Any]]:
+    """Hop by hop, per item: who taught whom (``tree``: each peer's teacher of the item, from
+    its last life's merge), the tree's ``depth`` (the most hops from a teacher along it; a hop
+    whose teacher's own learning the record lacks ends the count there), the graph's
+    ``eccentricity`` (the longest shortest path from the teachers, plan.distances), the time
+    after the reference at which the last peer that far knew the item
+    (``last_at_eccentricity_s``) and that time over the distance (``per_hop_s``: what one hop
+    took on the longest shortest path). ``detours`` counts the peers that learned along a
+    longer path than their shortest, ``off_graph`` the hops between peers not linked (a
+    transport that routes through peers)."""
+    dist = distances(h.plan)
+    near = neighbours(h.plan)
+    teachers = {n["name"] for n in h.plan["nodes"] if n["role"] == "teacher"}
+    merges = sorted(
+        (e for e in h.of(Event.MERGED) if e.get("teacher") is not None), key=lambda e: e["t"]
+    )
+    ref = reference_time(h)
+    ecc = max(dist.values(), default=0)
+    lives, changes = h.last_lives(), h.changes()
+    last = {peer: life["life"] for peer, life in lives.items()}
+    out = []
+    for sequence in h.items:
+        tree: dict[str, str] = {}
+        depths: dict[str, int | None] = {}
+        # Each peer's hops from a teacher at its latest merge of the item so far (merges in
+        # time order: a teacher's own merge comes before what it teaches).
+        latest: dict[str, int | None] = {}
+        for e in (e for e in merges if e["sequence"] == sequence):
+            teacher = e["teacher"]
+            up = 0 if teacher in teachers else latest.get(teacher)
+            latest[e["peer"]] = None if up is None else up + 1
+            if last.get(e["peer"]) == e["life"]:
+                tree[e["peer"]] = teacher
+                depths[e["peer"]] = latest[e["peer"]]
+        known = [d for d in depths.values() if d is not None]
+        farthest = [
+            _learned_at(lives[p], changes.get((p, last[p]), []), sequence) if p in lives else None
+            for p, d in dist.items()
+            if d == ecc and ecc
+        ]
+        at = None
+        if farthest and None not in farthest:
+            at = round(max(0.0, max(t for t in farthest if t is not None) - ref), 3)
+        out.append({
+            "item": sequence,
+            "tree": tree,
+            "depth": max(known, default=None),
+            "eccentricity": ecc,
+            "last_at_eccentricity_s": at,
+            "per_hop_s": None if at is None or not ecc else round(at / ecc, 4),
+            "detours": sum(1 for p, d in depths.items() if d is not None and d > dist.get(p, d)),
+            "off_graph": sum(1 for p, t in tree.items() if t not in near.get(p, ())),
+        })  # fmt: skip
+    return out
+
+
 def _partition(h: History, starts: dict[str, Any], ends: dict[str, Any]) -> Verdict:
     name = f"partition-{h.config['partition_kind']}"
     start, end = starts.get(name), ends.get(name)
@@ -674,7 +747,14 @@ def metrics(h: History) -> dict[str, Any]:
     rounds = round_times(h)
     lines = timelines(h)
     after = [line for line in lines if line["merge"] >= ref]
+    per_item = hops(h)
+    per_hop = [i["per_hop_s"] for i in per_item]
+    depths = [i["depth"] for i in per_item if i["depth"] is not None]
     return {
+        "hops": per_item,
+        "eccentricity": max((i["eccentricity"] for i in per_item), default=None),
+        "tree_depth": max(depths, default=None),
+        "per_hop_s": None if not per_hop or None in per_hop else max(per_hop),
         "stages": stage_times(lines),
         "stages_after_reference": stage_times(after),
         "convergence_s": None if done is None else round(max(0.0, done - ref), 3),

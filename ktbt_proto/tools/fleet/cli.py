@@ -6,10 +6,11 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
+from ktbt_proto.items import show_sequence
 from ktbt_proto.tools.cli.options import (
     ControlOption,
     DemoOption,
@@ -39,6 +40,23 @@ def _show(summary: dict[str, object]) -> None:
         f"query round trip {_ms(floor)} direct, {_ms(linked)} through a link, "
         f"{summary.get('honest_answers_refused')} honest answers refused"
     )
+    for item in summary.get("hops") or ():  # type: ignore[attr-defined]
+        typer.echo(f"  hop by hop, {show_sequence(item['item'])}: {hop_line(item)}")
+
+
+def hop_line(item: dict[str, Any]) -> str:
+    """One item's hops as the report prints them (check.hops)."""
+    at, per = item["last_at_eccentricity_s"], item["per_hop_s"]
+    far = (
+        "not every peer that far learned it"
+        if at is None
+        else f"the last peer that far knew it {at:.2f} s after the reference, {per:.3f} s a hop"
+    )
+    depth = "-" if item["depth"] is None else item["depth"]
+    return (
+        f"tree depth {depth}, longest shortest path {item['eccentricity']} hops; {far}"
+        f" ({item['detours']} learned on a longer path, {item['off_graph']} off the graph)"
+    )
 
 
 def _absolute(vocabulary: str | None) -> str:
@@ -67,6 +85,24 @@ def run_command(
     routers: Annotated[
         int, typer.Option("--routers", metavar="N", help="Routers (0: one per 20 peers).")
     ] = 0,
+    radius: Annotated[
+        float,
+        typer.Option(
+            "--radius",
+            metavar="R",
+            help="With --topology geometric: peers placed at random (by --seed) in a square of "
+            "side 1 are linked within this range, e.g. 0.2.",
+        ),
+    ] = 0.0,
+    edges: Annotated[
+        Path | None,
+        typer.Option(
+            "--edges",
+            metavar="FILE",
+            help="With --topology edges: a networkx edge list of peer indices (0 1 a line).",
+            readable=False,
+        ),
+    ] = None,
     loss: Annotated[
         float,
         typer.Option("--loss", metavar="FRACTION", help="Packets dropped on every link, 0 to 1."),
@@ -148,8 +184,10 @@ def run_command(
     """Run a fleet scenario, check it and draw it.
 
     Exit 1 if a property failed. Every link goes through a fault layer. Partitions need
-    --topology mesh or line; times are like 200ms or 30s (0: none). Every peer is the robot
-    --vocabulary and --control describe (as in peer run), or the demo robot."""
+    peer links (not --topology router); times are like 200ms or 30s (0: none). Every peer is
+    the robot --vocabulary and --control describe (as in peer run), or the demo robot. The
+    geometric, grid and edges topologies need the fleet extra (networkx); one that is not
+    connected is refused."""
     from ktbt_proto.tools.fleet.plan import FleetConfig, PlanError, seconds
     from ktbt_proto.tools.fleet.runner import run
     from ktbt_proto.tools.fleet.watch import MonitorFailed
@@ -171,7 +209,8 @@ def run_command(
         knowledge_or_exit(knowledge or EXAMPLE_KNOWLEDGE, robot.registry)
     try:
         config = FleetConfig(
-            peers=peers, teachers=teachers, topology=topology, routers=routers,
+            peers=peers, teachers=teachers, topology=topology, routers=routers, radius=radius,
+            edges=str(edges.resolve()) if edges else "",
             loss=loss, delay=seconds(delay), partition=seconds(partition),
             partition_kind=partition_kind, churn=churn, churn_rounds=churn_rounds,
             seed=seed, bound=bound, teacher=teacher, settle=settle,
@@ -259,6 +298,7 @@ fleet.command(
     epilog=example(
         "ktbt fleet run --peers 6 --loss 0.05 --out run1",
         "ktbt fleet run --peers 4 --knowledge door.sbt --vocabulary door.toml",
+        "ktbt fleet run --peers 40 --topology geometric --radius 0.2 --seed 7",
     ),
 )(run_command)
 fleet.command("check", epilog=example("ktbt fleet check run1"))(check_command)

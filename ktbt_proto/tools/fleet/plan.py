@@ -11,6 +11,11 @@ again within its neighbours' retry period). With ``dial="both"`` both ends of a 
 dial each other, each through a proxy of its own: twice the links and proxies, and at 40
 peers a storm of links opened, closed and dialled again that holds the fleet for tens of
 seconds (docs/results/fleet.md, size-40-both).
+
+Besides a mesh, a line and routers, a fleet can be shaped like a real one (networkx, the
+``fleet`` extra): a random geometric graph (robots linked when within a radio range of each
+other, as the simulator's communication range links them, spec/simulator.md), a grid, or an
+edge list from a file. Such a graph that is not connected is refused, never run.
 """
 
 from __future__ import annotations
@@ -18,11 +23,19 @@ from __future__ import annotations
 import math
 import random
 import re
+from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
-Topology = Literal["mesh", "line", "router"]
-TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router")
+from ktbt_proto.files import TooLarge, read_bounded
+
+Topology = Literal["mesh", "line", "router", "geometric", "grid", "edges"]
+TOPOLOGIES: tuple[Topology, ...] = ("mesh", "line", "router", "geometric", "grid", "edges")
+GRAPHS = ("geometric", "grid", "edges")
+"""The topologies built with networkx."""
+INSTALL = "--topology geometric, grid and edges need networkx: pip install 'ktbt[fleet]'"
+MAX_EDGES_FILE = 1 << 20
+"""The largest edge-list file read, in bytes."""
 Dial = Literal["one", "both"]
 """Who dials a peer link: the newer (higher) peer only, or both ends."""
 PartitionKind = Literal["silent", "reset", "none"]
@@ -94,6 +107,12 @@ class FleetConfig:
     watch: str = ""
     """The folder of the monitor's unix sockets (``--monitor``): every peer also listens there
     and publishes its fleet events; empty: no monitor."""
+    radius: float = 0.0
+    """The radio range of ``--topology geometric``: peers placed uniformly at random (seeded)
+    in a square of side 1 are linked when within it of each other."""
+    edges: str = ""
+    """The edge-list file of ``--topology edges`` (networkx's format: a pair of peer indices
+    a line, ``#`` comments, anything after the pair ignored)."""
 
     def __post_init__(self) -> None:
         if self.peers < 2 or self.peers > 200:
@@ -110,7 +129,7 @@ class FleetConfig:
         if not all(math.isfinite(d) and d >= 0 for d in durations):
             raise PlanError("durations are not negative, and finite")
         if self.partition and self.topology == "router":
-            raise PlanError("--partition needs --topology mesh or line (halves of peer links)")
+            raise PlanError("--partition needs peer links to cut: not --topology router")
         if self.teacher not in ("run", "serve"):
             raise PlanError("--teacher must be run or serve")
         if self.dial not in ("one", "both"):
@@ -121,6 +140,14 @@ class FleetConfig:
             raise PlanError("--lease is from 500 ms to 600 s")
         if self.partition_kind not in ("silent", "reset", "none"):
             raise PlanError("--partition-kind must be silent, reset or none")
+        if (self.topology == "geometric") != bool(self.radius):
+            raise PlanError("--topology geometric needs --radius R, and --radius needs it")
+        if not (math.isfinite(self.radius) and self.radius >= 0):
+            raise PlanError("--radius is a distance in a square of side 1, above 0")
+        if (self.topology == "edges") != bool(self.edges):
+            raise PlanError("--topology edges needs --edges FILE, and --edges needs it")
+        if self.topology in GRAPHS:
+            peer_pairs(self)  # a graph that is not connected, or a bad file, is refused here
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -183,6 +210,8 @@ class Plan:
     """0 or 1 for every peer (teachers in half 0); empty without a partition."""
     victims: list[list[str]] = field(default_factory=list)
     """The learners killed in each churn round."""
+    positions: dict[str, list[float]] = field(default_factory=dict)
+    """Where each peer is in ``--topology geometric`` (x, y in the unit square)."""
 
     @property
     def peers(self) -> list[Host]:
@@ -213,6 +242,7 @@ class Plan:
             "links": [asdict(link) for link in self.links],
             "half": self.half,
             "victims": self.victims,
+            "positions": self.positions,
         }
 
 
@@ -223,6 +253,143 @@ def _address(prefix: int, k: int) -> str:
 def stream(seed: int, decision: str) -> random.Random:
     """The seeded random stream of one decision of a run."""
     return random.Random(f"{seed}/{decision}")
+
+
+def positions(config: FleetConfig) -> dict[int, tuple[float, float]]:
+    """Each peer's place in the unit square for ``--topology geometric``, drawn from the seed's
+    own stream (the same seed, the same places, whatever networkx draws)."""
+    rng = stream(config.seed, "positions")
+    return {k: (rng.random(), rng.random()) for k in range(config.peers)}
+
+
+def _networkx() -> Any:
+    try:
+        import networkx
+    except ImportError:
+        raise PlanError(INSTALL) from None
+    return networkx
+
+
+def read_edges(path: str, peers: int) -> list[tuple[int, int]]:
+    """The links of an edge-list file (networkx's format, read line by line so that an error
+    names its line): pairs of peer indices, each from 0 to ``peers - 1``."""
+    nx = _networkx()
+    try:
+        text = read_bounded(path, MAX_EDGES_FILE).decode("utf-8")
+    except TooLarge:
+        raise PlanError(f"--edges {path}: larger than {MAX_EDGES_FILE} bytes") from None
+    except OSError as exc:
+        raise PlanError(f"--edges {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise PlanError(f"--edges {path}: not UTF-8 text") from None
+    out: list[tuple[int, int]] = []
+    for number, line in enumerate(text.splitlines(), 1):
+        where = f"--edges {path}:{number}"
+        if len(line.split("#", 1)[0].split()) == 1:
+            raise PlanError(f"{where}: one peer, not a pair: {line.strip()!r}")
+        try:
+            pairs = list(nx.parse_edgelist([line], nodetype=int, data=False).edges)
+        except TypeError:
+            raise PlanError(f"{where}: not a pair of peer indices: {line.strip()!r}") from None
+        for a, b in pairs:
+            for k in (a, b):
+                if not 0 <= k < peers:
+                    raise PlanError(
+                        f"{where}: peer {k} is not one of the {peers} peers (0 to {peers - 1}):"
+                        " change the file or --peers"
+                    )
+            if a == b:
+                raise PlanError(f"{where}: peer {a} linked to itself")
+            out.append((a, b))
+    return out
+
+
+def peer_pairs(config: FleetConfig) -> list[tuple[int, int]]:
+    """The peer links of ``config`` as (newer, older) index pairs, in a fixed order: every pair
+    in a mesh, neighbours in a line, and the edges of a geometric graph, a grid (as square as
+    the peers allow, filled row by row) or an edge-list file, built with networkx; none for
+    routers. A graph that is not connected is refused (PlanError)."""
+    n = config.peers
+    if config.topology == "mesh":
+        return [(i, j) for i in range(n) for j in range(i)]
+    if config.topology == "line":
+        return [(i, i - 1) for i in range(1, n)]
+    if config.topology not in GRAPHS:
+        return []
+    nx = _networkx()
+    graph = nx.Graph()
+    graph.add_nodes_from(range(n))
+    if config.topology == "geometric":
+        placed = nx.random_geometric_graph(n, config.radius, pos=positions(config))
+        graph.add_edges_from(placed.edges)
+        what = (
+            f"the geometric graph of {n} peers within radius {config.radius:g} (seed {config.seed})"
+        )
+        fix = "raise --radius or change --seed"
+    elif config.topology == "grid":
+        cols = math.ceil(math.sqrt(n))
+        grid = nx.grid_2d_graph(math.ceil(n / cols), cols)
+        graph.add_edges_from(
+            (r * cols + c, s * cols + d) for (r, c), (s, d) in grid.edges
+            if r * cols + c < n and s * cols + d < n
+        )  # fmt: skip
+        what, fix = f"the grid of {n} peers", "change --peers"  # never: a grid is connected
+    else:
+        graph.add_edges_from(read_edges(config.edges, n))
+        what = f"the graph of --edges {config.edges}"
+        fix = f"link every peer, 0 to {n - 1}, or change --peers"
+    if not nx.is_connected(graph):
+        parts = sorted(nx.connected_components(graph), key=len, reverse=True)
+        alone = sorted(parts[1], key=int)[:5]
+        raise PlanError(
+            f"{what} is not connected ({len(parts)} parts; peers {', '.join(map(str, alone))}"
+            f" cannot reach peer {min(parts[0])}): {fix}"
+        )
+    return sorted((max(a, b), min(a, b)) for a, b in graph.edges)
+
+
+def neighbours(plan: dict[str, Any]) -> dict[str, set[str]]:
+    """Each peer's neighbours in a plan (its JSON form, as a record holds it): the peers it is
+    linked to directly or through routers only. A router relays and learns nothing, so a hop
+    of knowledge is from one peer to the next."""
+    roles = {n["name"]: n["role"] for n in plan["nodes"]}
+    near: dict[str, set[str]] = defaultdict(set)
+    for link in plan["links"]:
+        near[link["dialer"]].add(link["listener"])
+        near[link["listener"]].add(link["dialer"])
+    out: dict[str, set[str]] = {}
+    for peer in (name for name, role in roles.items() if role != "router"):
+        found: set[str] = set()
+        seen: set[str] = set()
+        stack = [peer]
+        while stack:
+            for other in near[stack.pop()]:
+                if roles.get(other) == "router":
+                    if other not in seen:
+                        seen.add(other)
+                        stack.append(other)
+                elif other != peer:
+                    found.add(other)
+        out[peer] = found
+    return out
+
+
+def distances(plan: dict[str, Any]) -> dict[str, int]:
+    """Each peer's hops from the nearest teacher (breadth first over :func:`neighbours`): the
+    graph's shortest paths, along which knowledge spreads at best. A peer no teacher reaches
+    is left out."""
+    near = neighbours(plan)
+    hops = {n["name"]: 0 for n in plan["nodes"] if n["role"] == "teacher"}
+    frontier = list(hops)
+    while frontier:
+        following = []
+        for peer in frontier:
+            for other in sorted(near.get(peer, ())):
+                if other not in hops:
+                    hops[other] = hops[peer] + 1
+                    following.append(other)
+        frontier = following
+    return hops
 
 
 def make_plan(config: FleetConfig, port: int) -> Plan:
@@ -246,24 +413,21 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
                  dialer.address)
         )  # fmt: skip
 
-    both = config.dial == "both"
-    if config.topology == "mesh":
-        for i, a in enumerate(peers):
-            for b in peers[:i]:
-                link(a, b)
-                if both:
-                    link(b, a)
-    elif config.topology == "line":
-        for i in range(1, len(peers)):
-            link(peers[i], peers[i - 1])
-            if both:
-                link(peers[i - 1], peers[i])
-    else:
+    if config.topology == "router":
         routers = plan.routers
         for r in range(1, len(routers)):
             link(routers[r], routers[r - 1])
         for i, p in enumerate(peers):
             link(p, routers[i % len(routers)])
+    else:
+        for newer, older in peer_pairs(config):  # the newer (higher) peer dials
+            link(peers[newer], peers[older])
+            if config.dial == "both":
+                link(peers[older], peers[newer])
+    if config.topology == "geometric":
+        plan.positions = {
+            peers[k].name: [round(x, 4), round(y, 4)] for k, (x, y) in positions(config).items()
+        }
     if config.partition:
         learners = [p.name for p in peers if p.role == "learner"]
         size_a = (len(peers) + 1) // 2 - config.teachers

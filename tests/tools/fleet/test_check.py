@@ -14,6 +14,7 @@ from ktbt_proto.tools.fleet.check import (
     History,
     check,
     convergence_time,
+    hops,
     metrics,
     timelines,
 )
@@ -428,3 +429,50 @@ def test_every_learned_item_has_its_timeline_and_the_figure_draws_it(tmp_path: A
         "".join(json.dumps(e) + "\n" for e in with_marks())
     )
     assert figure.plot_run(tmp_path / "run").stat().st_size > 0
+
+
+def line_of_three(merges: list[tuple[float, str, str, str]]) -> list[dict[str, Any]]:
+    """p0 - p1 - t2 in a line, up at 1.0 (the reference); ``merges`` (t, learner, item,
+    teacher) as the learners' logs give them."""
+    events = base(topology="line")
+    events = [e for e in events if e["kind"] not in ("merged", "query-sent", "answer-received")]
+    end = events.pop()
+    for t, peer, seq, teacher in merges:
+        events.append(
+            {"t": t, "kind": "merged", "peer": peer, "life": 1, "sequence": seq,
+             "teacher": teacher}
+        )  # fmt: skip
+    return sorted([*events, end], key=lambda e: e["t"])
+
+
+def test_hops_give_each_items_tree_its_depth_and_the_time_a_hop() -> None:
+    events = line_of_three(
+        [(1.2, "p1", "A", "t2"), (1.5, "p0", "A", "p1"), (1.3, "p1", "B", "t2"),
+         (1.9, "p0", "B", "p1")]
+    )  # fmt: skip
+    assert "fail" not in verdicts(events).values()
+    found = {i["item"]: i for i in hops(History(events))}
+    a = found["A"]
+    assert a["tree"] == {"p1": "t2", "p0": "p1"}
+    assert (a["depth"], a["eccentricity"]) == (2, 2)
+    assert a["last_at_eccentricity_s"] == pytest.approx(0.5)  # p0, 2 hops away, at 1.5
+    assert a["per_hop_s"] == pytest.approx(0.25)
+    assert (a["detours"], a["off_graph"]) == (0, 0)
+    summary = metrics(History(events))
+    assert summary["per_hop_s"] == pytest.approx(0.45)  # the slowest item: B, 0.9 s / 2
+    assert (summary["eccentricity"], summary["tree_depth"]) == (2, 2)
+
+
+def test_hops_show_a_hop_off_the_graph_a_detour_and_a_peer_that_never_learned() -> None:
+    off = line_of_three(
+        [(1.2, "p0", "A", "t2"), (1.5, "p1", "A", "p0"), (1.3, "p1", "B", "t2")]
+    )  # fmt: skip
+    found = {i["item"]: i for i in hops(History(off))}
+    # p0 is two hops from t2 but was taught by it: a transport that routed through p1
+    assert found["A"]["off_graph"] == 1 and found["A"]["depth"] == 2
+    assert found["A"]["detours"] == 1  # p1, one hop away, learned two hops down the tree
+    assert found["B"]["last_at_eccentricity_s"] is None and found["B"]["per_hop_s"] is None
+    assert metrics(History(off))["per_hop_s"] is None
+    # a teacher whose own merge the record lacks ends the count: no depth
+    lost = line_of_three([(1.5, "p0", "A", "p1"), (1.2, "p1", "B", "t2")])
+    assert {i["item"]: i["depth"] for i in hops(History(lost))} == {"A": None, "B": 1}

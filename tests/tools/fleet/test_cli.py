@@ -69,3 +69,24 @@ def test_a_bad_or_taken_monitor_address_is_refused_before_any_peer_starts(tmp_pa
     assert "ktbt monitor did not start" in done.stderr and "cannot serve" in done.stderr
     assert "Traceback" not in done.stderr
     assert not (out / "events.jsonl").exists()  # no peer was launched
+
+
+def test_a_graph_that_is_not_connected_or_a_bad_edge_list_is_refused_before_any_peer(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "run"
+    done = _ktbt("fleet", "run", "--peers", "40", "--topology", "geometric", "--radius", "0.1",
+                 "--out", str(out))  # fmt: skip
+    assert done.returncode == 2, done.stdout + done.stderr
+    error = done.stderr.strip().splitlines()[-1]  # after the note on the demo robot
+    assert error.startswith("error: the geometric graph of 40 peers within radius 0.1")
+    assert "not connected" in done.stderr and "raise --radius" in done.stderr
+    edges = tmp_path / "edges.txt"
+    edges.write_text("0 1\n1 two\n")
+    done = _ktbt("fleet", "run", "--peers", "3", "--topology", "edges", "--edges", str(edges),
+                 "--out", str(out))  # fmt: skip
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"--edges {edges}:2: not a pair of peer indices" in done.stderr
+    assert sum(line.startswith("error:") for line in done.stderr.splitlines()) == 1
+    assert "Traceback" not in done.stderr
+    assert not (out / "events.jsonl").exists()

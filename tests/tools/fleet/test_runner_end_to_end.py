@@ -54,6 +54,37 @@ def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: P
         pytest.skip(f"packet loss skipped: {verdicts['fault: loss']['detail']}")
 
 
+def test_a_fleet_shaped_as_an_edge_list_is_measured_hop_by_hop(tmp_path: Path) -> None:
+    """Six peers in a line read from an edge-list file, the teacher (peer 5) at one end: every
+    item reaches peer 0 along the line, five hops, and the report says so item by item."""
+    edges, out = tmp_path / "line.txt", tmp_path / "run"
+    edges.write_text("# a line\n0 1\n1 2\n2 3\n3 4\n4 5\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--topology",
+         "edges", "--edges", str(edges), "--teacher", "serve", "--bound", "60", "--settle",
+         "0.5", "--no-live", "--out", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        output, _ = proc.communicate(timeout=150)
+    finally:
+        _, left, ours = sweep(proc, out / "events.jsonl")
+    assert not left and not ours, (left, ours)
+    assert proc.returncode == 0, output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["passed"] and summary["eccentricity"] == 5, output
+    assert len(summary["hops"]) == 4  # the four colour skills
+    line = {f"p{k}": f"p{k + 1}" for k in range(4)} | {"p4": "t5"}
+    for item in summary["hops"]:
+        assert item["tree"] == line, item  # each learned from its neighbour towards the teacher
+        assert (item["depth"], item["eccentricity"], item["off_graph"]) == (5, 5, 0)
+        assert item["per_hop_s"] == pytest.approx(item["last_at_eccentricity_s"] / 5, abs=1e-3)
+    assert summary["per_hop_s"] == max(item["per_hop_s"] for item in summary["hops"])
+    shown = [row for row in output.splitlines() if row.startswith("  hop by hop, ")]
+    assert len(shown) == 4 and all("tree depth 5, longest shortest path 5 hops" in row
+                                   for row in shown), output  # fmt: skip
+
+
 def _watch_folder(out: Path) -> Path | None:
     found = re.search(r"unix socket (\S+)/http.sock", (out / "monitor.out").read_text())
     return Path(found.group(1)) if found else None

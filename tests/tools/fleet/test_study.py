@@ -12,6 +12,7 @@ import pytest
 
 from ktbt_proto.tools.cli.options import zenoh_settings
 from ktbt_proto.tools.fleet.check import History, metrics
+from ktbt_proto.tools.fleet.plan import FleetConfig
 from ktbt_proto.tools.fleet.study import lease_lines, table
 from tests.tools.fleet.test_check import base
 from tests.zenoh_helpers import ROOT
@@ -118,3 +119,39 @@ def test_an_unknown_scenario_is_refused_in_one_line() -> None:
     done = _ktbt("fleet", "study", "--only", "size-5,size-7")
     assert done.returncode == 2, done.stdout + done.stderr
     assert done.stderr.strip() == "error: --only: no such scenario: size-7"
+
+
+def test_geometric_40_is_a_scenario_met_by_its_time_a_hop_and_the_hops_have_a_table() -> None:
+    from ktbt_proto.tools.fleet.study import SCENARIOS
+
+    params = {name: p for name, p, _ in SCENARIOS}["geometric-40"]
+    FleetConfig(name="geometric-40", seed=7, **params)  # connected at the study's seed
+    item = {"item": "A", "depth": 5, "eccentricity": 4, "last_at_eccentricity_s": 0.32,
+            "per_hop_s": 0.08, "detours": 1, "off_graph": 0, "tree": {}}  # fmt: skip
+    slow = {**item, "item": "B", "last_at_eccentricity_s": 0.6, "per_hop_s": 0.15}
+    geometric = _summary(
+        "geometric-40",
+        convergence_s=0.7,
+        hops=[item, slow],
+        per_hop_s=0.15,
+        eccentricity=4,
+        tree_depth=5,
+    )
+    geometric["config"]["topology"] = "geometric"
+    lines = table([geometric, _summary("size-5", convergence_s=0.1)])
+    assert _met(lines) == "no"  # 0.15 s a hop, against at most 0.1
+    assert any(
+        line.startswith("- geometric-40") and "missed by 0.050 s a hop" in line for line in lines
+    )
+    hop_rows = [line for line in lines if line.startswith("| geometric-40 | geometric |")]
+    assert hop_rows == [
+        "| geometric-40 | geometric | 4 | 5 | 0.32 (0.080) / 0.60 (0.150) | 2 | 1.5 |"
+    ]
+    assert not any(line.startswith("| size-5 | mesh |") for line in lines)  # no hops recorded
+    assert _met(table([{**geometric, "per_hop_s": 0.08}])) == "yes"
+
+
+def _met(lines: list[str]) -> str:
+    """The "met" cell of geometric-40's row in the scenario table."""
+    row = next(line for line in lines if line.startswith("| geometric-40 | 10 | geometric |"))
+    return row.strip("|").split("|")[5].strip()

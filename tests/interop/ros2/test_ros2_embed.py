@@ -104,6 +104,7 @@ ERRORS = """
 import py_trees, rclpy
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.interop.ros2.embed import attach
+from ktbt_proto.registry import Registry
 from ktbt_proto.tools.vocabulary import load_vocabulary
 
 rclpy.init()

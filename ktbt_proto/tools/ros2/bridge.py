@@ -58,14 +58,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 import zenoh
-from ktbt_interfaces.msg import Catalog, CatalogEntry
+from ktbt_interfaces.msg import Catalog
 from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
 
 from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, Query, Response
 from ktbt_proto.exchange.refusals import Throttle, internal_error
 from ktbt_proto.exchange.trust import Policy, refusal
-from ktbt_proto.interop.ros2.showing import ENTRY_FIELDS, FleetCatalogs, latched
+from ktbt_proto.interop.ros2.showing import FleetCatalogs, catalog_entries, latched
 from ktbt_proto.transport.ros2 import NAME, Ros2Transport, Topics, exchange_qos, to_msg
 from ktbt_proto.transport.zenoh import (
     PREFIX,
@@ -378,8 +378,7 @@ class Bridge:
         for name, (_, _, pub) in self.proxies.items():
             entries = catalogs.get(name, [])
             if entries != self._proxy_shown.get(name):
-                items = [CatalogEntry(**{k: e.get(k, "") for k in ENTRY_FIELDS}) for e in entries]
-                pub.publish(Catalog(peer=name, items=items))
+                pub.publish(Catalog(peer=name, items=catalog_entries(entries)))
                 self._proxy_shown[name] = entries
 
     # -- relaying -------------------------------------------------------------------------------

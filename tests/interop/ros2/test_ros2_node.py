@@ -113,13 +113,15 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     shown = len(probe.messages("/learner/ktbt/tree"))
     forgot = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
                           "request": {"sequence": "TargetSeen(colour=2)"}})["response"]  # fmt: skip
-    assert forgot == {"forgotten": True, "message": ""}
+    assert forgot == {"success": True, "code": 0, "message": ""}  # Forget.Response.FORGOTTEN
     after = probe.wait("/learner/ktbt/tree", 30, absent={"tree": SKILL}, skip=shown, changed=True)
-    assert after["version"] > snapshot["version"]
+    assert after["number"] > snapshot["number"]
     probe.wait("/learner/ktbt/events", 10, event="forgotten", sequence=WANTED, reason="asked")
     again = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
                          "request": {"sequence": "TargetSeen(colour=2)"}})["response"]  # fmt: skip
-    assert again == {"forgotten": False, "message": "TargetSeen(colour=2) is not known"}
+    assert again == {  # Forget.Response.NOT_KNOWN
+        "success": False, "code": 1, "message": "TargetSeen(colour=2) is not known"
+    }  # fmt: skip
 
     # Reconfigured while it runs: what it meets and its rate apply at once; what is read at
     # configure, and a bad value, are refused with their reason.

@@ -58,6 +58,8 @@ __all__ = [
     "event_msg",
     "events_qos",
     "latched",
+    "received_text",
+    "received_time",
 ]
 
 EVENT_TEXT = {
@@ -127,7 +129,7 @@ def event_json(msg: FleetEvent) -> bytes:
     return json.dumps(fields, ensure_ascii=False).encode("utf-8")
 
 
-def stamp(text: object) -> Time:
+def received_time(text: object) -> Time:
     """``received_at`` as ``builtin_interfaces/Time``, from section 3's ISO 8601 text (UTC;
     a time without an offset is taken as UTC); zero (unknown) for anything else, and for a
     time ``Time`` cannot hold (its seconds are an ``int32``: 1901 to 2038)."""
@@ -135,17 +137,17 @@ def stamp(text: object) -> Time:
         return Time()
     try:
         when = datetime.fromisoformat(text)
-    except ValueError:
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=UTC)
+        seconds = math.floor(when.timestamp())
+    except (ValueError, OverflowError):  # a peer's text: no time, or none a computer holds
         return Time()
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
-    seconds = math.floor(when.timestamp())
     if not -(2**31) <= seconds < 2**31:
         return Time()
     return Time(sec=seconds, nanosec=when.microsecond * 1000)
 
 
-def iso(time: Time) -> str:
+def received_text(time: Time) -> str:
     """Section 3's ``received_at`` text of a ``Time`` (UTC, to the second); "" for zero."""
     if time.sec == 0 and time.nanosec == 0:
         return ""
@@ -170,7 +172,7 @@ def catalog_entries(
         }
         if not text["sequence"]:
             continue
-        out.append(CatalogEntry(**text, received_at=stamp(fields.get("received_at"))))
+        out.append(CatalogEntry(**text, received_at=received_time(fields.get("received_at"))))
         if len(out) == limit:
             break
     return out
@@ -182,7 +184,7 @@ def entry_fields(entry: CatalogEntry) -> dict[str, str] | None:
     fields = {k: getattr(entry, k) for k in ENTRY_BOUNDS}
     if not fields["sequence"] or any(len(v) > ENTRY_BOUNDS[k] for k, v in fields.items()):
         return None
-    fields["received_at"] = iso(entry.received_at)
+    fields["received_at"] = received_text(entry.received_at)
     return {k: v for k, v in fields.items() if v}
 
 

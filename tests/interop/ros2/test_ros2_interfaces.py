@@ -152,9 +152,10 @@ def test_a_catalog_entry_carries_its_time_and_keeps_to_its_bounds() -> None:
         {"sequence": 5},
         {"sequence": "<c>(A)", "teacher": "t" * 65, "author": 7, "received_at": "yesterday"},
         {"sequence": "<c>(B)", "received_at": "2100-01-01T00:00:00+00:00"},
+        {"sequence": "<c>(C)", "received_at": "0001-01-01T00:00:00+01:00"},
     ]
     assert [entry_fields(e) for e in catalog_entries(junk)] == [
-        {"sequence": "<c>(A)"}, {"sequence": "<c>(B)"}
+        {"sequence": "<c>(A)"}, {"sequence": "<c>(B)"}, {"sequence": "<c>(C)"}
     ]  # fmt: skip
     # At most Catalog.MAX_ITEMS (rclpy refuses to publish more); a service's answer, all.
     many = [f"<c>(A{i})" for i in range(Catalog.MAX_ITEMS + 5)]

@@ -193,15 +193,27 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer", "subscribers": 2,
                  "fields": {"v": 1, "id": "h2", "sender": "not a name!", "to": "teacher",
                             "sequence": WANTED, "subtree": "<a>(RandomWalk)"}})  # fmt: skip
+    # A field beyond its type's bound (string<=4096 sequence): rclpy publishes it unchecked,
+    # the robot refuses it as it reads the bytes, and still answers its sender.
+    long = {"v": 1, "id": "h3", "sender": "bounder", "sequence": "x" * 4097}
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 2,
+                 "fields": long})  # fmt: skip
     refusals = []
-    for reason in ("not a Query", "query.v: Input should be 1", "response.sender: String"):
+    for reason in (
+        "not a Query",
+        "query.v: Input should be 1",
+        "response.sender: String",
+        "(sequence: 4097 characters, more than its bound (4096))",
+    ):
         refusals.append(
             probe.wait(
                 "/teacher/ktbt/events", 30, event="refused", where="transport", reason=reason
             )
         )
-    assert len({r["n"] for r in refusals}) == 3
+    assert len({r["n"] for r in refusals}) == 4
     error = probe.wait("/ktbt/errors", 30, to="probe", sender="teacher", code="refused")
+    assert error["id"] == "0" and error["message"] == "malformed query"
+    error = probe.wait("/ktbt/errors", 30, to="bounder", sender="teacher", code="refused")
     assert error["id"] == "0" and error["message"] == "malformed query"
     log = ns.log("teacher")
     assert log.count("[WARN]") >= 3 and "teacher refused: on /ktbt/queries" in log

@@ -310,7 +310,8 @@ class Services:
         try:
             key = sequence_key(read_sequence(request.sequence))
         except StringBTError as err:
-            return refuse(Forget.Response.INVALID, f"sequence: {err}")
+            line = str(err).splitlines()[0]  # its column, code and reason (no excerpt)
+            return refuse(Forget.Response.INVALID, f"sequence: {line}")
         except Exception as exc:  # a caller's bytes the reader failed on (section 2.1)
             refuse(Forget.Response.INVALID, f"sequence: {internal_error(exc)}")
             logger.warning(f"{agent.name} refused a forget request: {response.message}")

@@ -122,6 +122,14 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     assert again == {  # Forget.Response.NOT_KNOWN
         "success": False, "code": 1, "message": "TargetSeen(colour=2) is not known"
     }  # fmt: skip
+    for typed, why in (
+        ("TargetSeen(colour=", "sequence: 1:19: SBT104 missing ) to close the arguments"),
+        ("x" * 4097, "sequence: 4097 characters, more than its bound (4096)"),
+    ):
+        invalid = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
+                               "request": {"sequence": typed}})["response"]  # fmt: skip
+        assert (invalid["success"], invalid["code"]) == (False, 3), invalid  # INVALID
+        assert invalid["message"] == why, invalid  # one line
 
     # Reconfigured while it runs: what it meets and its rate apply at once; what is read at
     # configure, and a bad value, are refused with their reason.

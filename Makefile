@@ -113,9 +113,10 @@ soak: $(VENV)/.installed-dev
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .mypy_cache .ruff_cache .hypothesis fuzz-failures
 
-# KT-BT on ROS 2 (docs/tutorials/ros2.md): ros2/ktbt_interfaces built from the ROS 2 Jazzy wheels
-# (`make test` installs them unless a ROS 2 is sourced, on x86_64 Linux) into .venv, skipped while up to date: about 20 s
-# the first time on an idle 2-core machine, under a second after. `make pytest` builds it first
+# KT-BT on ROS 2 (docs/tutorials/ros2.md): ros2/ktbt_interfaces and ros2/ktbt_example_interfaces
+# built from the ROS 2 Jazzy wheels (`make test` installs them unless a ROS 2 is sourced, on
+# x86_64 Linux) into .venv, each skipped while up to date: about 40 s of CPU the first time,
+# under a second after. `make pytest` builds it first
 # the same way (and where there are no wheels says the ROS tests will skip).
 ros2: $(VENV)/.installed-dev
 	$(BIN)/ktbt ros2 build

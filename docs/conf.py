@@ -42,7 +42,13 @@ autodoc_typehints = "description"
 autodoc_default_options = {"members": True, "show-inheritance": True}
 # ROS 2 (the ros2 extra) and the interfaces `ktbt ros2 build` makes: not needed to document
 # ktbt_proto.interop.ros2, so the site builds where they are not installed or not built yet.
-autodoc_mock_imports = ["rclpy", "rcl_interfaces", "lifecycle_msgs", "ktbt_interfaces"]
+autodoc_mock_imports = [
+    "rclpy",
+    "rcl_interfaces",
+    "lifecycle_msgs",
+    "ktbt_interfaces",
+    "builtin_interfaces",
+]
 # Where a docstring's type names a class by a name autodoc cannot resolve, it stays text.
 nitpicky = False
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import py_trees
 import rclpy
-from ktbt_interfaces.action import Dock
+from ktbt_example_interfaces.action import Dock
 from rclpy.action.client import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions

@@ -1,4 +1,4 @@
-"""A docking station: a real ROS 2 action server for ``ktbt_interfaces/action/Dock`` on
+"""A docking station: a real ROS 2 action server for ``ktbt_example_interfaces/action/Dock`` on
 ``/dock``, in a process of its own (docs/tutorials/ros2.md, "Embedding in your own node").
 
     python examples/ros2/dock_server.py   # until Ctrl-C
@@ -15,7 +15,7 @@ import threading
 from typing import Any
 
 import rclpy
-from ktbt_interfaces.action import Dock
+from ktbt_example_interfaces.action import Dock
 from rclpy.action.server import ActionServer
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions

@@ -535,13 +535,14 @@ class Ros2Transport:
         no one helps no one), and an oversized query is never deserialized to find out."""
         if len(data) > self.max_bytes + CDR_SLACK:
             return
-        try:
-            sender = cdr.read(data, cdr.QUERY)["sender"]
+        try:  # its first two fields alone: a later one beyond its bound leaves these readable
+            sender = cdr.read(data, cdr.QUERY[:2])["sender"]
         except Exception:  # nothing of it could be read (cdr.CdrError), or the reader failed
             return
         if re.fullmatch(NAME, sender) is None:
             return
-        error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
+        unread, refused = ErrorMsg.UNREAD_ID, ErrorMsg.REFUSED
+        error = ErrorReply(id=unread, sender=self.name, code=refused, message="malformed query")
         self._errors.publish(serialized(error, sender))
 
     def _answer_at_once(self, query: Query, lookup: Lookup) -> None:

@@ -21,10 +21,12 @@ import json
 import math
 import re
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from datetime import UTC, datetime
 from functools import partial
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent, TreeSnapshot
 from ktbt_interfaces.srv import Forget, ListKnowledge
 from rclpy.node import Node
@@ -40,31 +42,40 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.items import read_sequence, sequence_key, shown
+from ktbt_proto.transport.cdr import BOUNDS
 from ktbt_proto.transport.ros2 import NAME, quiet, watched
 from ktbt_proto.tree import Tree
 
 __all__ = [
     "CATALOG_TYPE",
-    "ENTRY_FIELDS",
     "EVENT_TEXT",
     "FleetCatalogs",
     "Services",
     "ShownTopics",
+    "catalog_entries",
+    "entry_fields",
     "event_json",
     "event_msg",
     "events_qos",
     "latched",
     "participants",
+    "received_text",
+    "received_time",
 ]
 
-EVENT_TEXT = (
-    "peer", "t", "event", "item", "sequence", "id", "sender", "to", "teacher", "author",
-    "reason", "where", "on", "key", "sig",
-)  # fmt: skip
+EVENT_TEXT = {
+    "peer": "peer", "t": "t", "event": "event", "item": "item", "sequence": "sequence",
+    "id": "id", "sender": "sender", "to": "to", "teacher": "teacher", "author": "author",
+    "reason": "reason", "where": "where", "on": "refused_on", "key": "key", "sig": "sig",
+}  # fmt: skip
+"""An event's text fields (section 10's JSON names) and their ``msg/FleetEvent`` names: the
+same but ``on``, ``refused_on`` there (``on`` is a boolean in YAML 1.1, as ``ros2 topic pub``
+reads a message)."""
 CATALOG_TYPE = "ktbt_interfaces/msg/Catalog"
 """The type by which a robot's catalog topic is found on the graph, whatever its name."""
-ENTRY_FIELDS = ("sequence", "author", "teacher", "received_at")
-"""A catalog entry's fields (section 3's catalog entry, ``msg/CatalogEntry``)."""
+ENTRY_BOUNDS = {"sequence": BOUNDS["sequence"], "author": BOUNDS["author"], "teacher": BOUNDS["to"]}
+"""A catalog entry's text fields (section 3's, ``msg/CatalogEntry``; its ``received_at`` is a
+``builtin_interfaces/Time``) and their bounds, in characters."""
 MAX_CATALOGS = 64
 """Catalog topics a robot follows at most (the first found)."""
 MAX_ENTRIES = 1024
@@ -114,8 +125,8 @@ def event_msg(data: bytes) -> FleetEvent:
     absent tick -1, so the JSON, and its signature, come back from the fields alone."""
     fields = json.loads(data)
     msg = FleetEvent(v=fields["v"], n=fields["n"], dropped=fields.get("dropped", 0))
-    for name in EVENT_TEXT:
-        setattr(msg, name, fields.get(name) or "")
+    for name, field in EVENT_TEXT.items():
+        setattr(msg, field, fields.get(name) or "")
     msg.tick = fields.get("tick", -1)
     return msg
 
@@ -124,20 +135,69 @@ def event_json(msg: FleetEvent) -> bytes:
     """Section 10's JSON of a received event, from its fields alone (what ``sig`` signs, with
     ``sig`` added): :func:`ktbt_proto.exchange.events.decode_event` checks it."""
     fields: dict[str, Any] = {"v": msg.v, "type": "event", "n": msg.n, "dropped": msg.dropped}
-    fields.update({name: getattr(msg, name) for name in EVENT_TEXT if getattr(msg, name)})
+    fields.update({name: getattr(msg, f) for name, f in EVENT_TEXT.items() if getattr(msg, f)})
     if msg.tick >= 0:
         fields["tick"] = msg.tick
     return json.dumps(fields, ensure_ascii=False).encode("utf-8")
 
 
-def catalog_entries(known: list[str | dict[str, Any]]) -> list[CatalogEntry]:
-    """A catalog's entries (section 3) as ``CatalogEntry`` messages."""
-    return [
-        CatalogEntry(**{k: str(e.get(k, "")) for k in ENTRY_FIELDS})
-        if isinstance(e, dict)
-        else CatalogEntry(sequence=e)
-        for e in known
-    ]
+def received_time(text: object) -> Time:
+    """``received_at`` as ``builtin_interfaces/Time``, from section 3's ISO 8601 text (UTC;
+    a time without an offset is taken as UTC); zero (unknown) for anything else, and for a
+    time ``Time`` cannot hold (its seconds are an ``int32``: 1901 to 2038)."""
+    if not isinstance(text, str) or not text:
+        return Time()
+    try:
+        when = datetime.fromisoformat(text)
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=UTC)
+        seconds = math.floor(when.timestamp())
+    except (ValueError, OverflowError):  # a peer's text: no time, or none a computer holds
+        return Time()
+    if not -(2**31) <= seconds < 2**31:
+        return Time()
+    return Time(sec=seconds, nanosec=when.microsecond * 1000)
+
+
+def received_text(time: Time) -> str:
+    """Section 3's ``received_at`` text of a ``Time`` (UTC, to the second); "" for zero."""
+    if time.sec == 0 and time.nanosec == 0:
+        return ""
+    return datetime.fromtimestamp(time.sec, UTC).isoformat(timespec="seconds")
+
+
+def catalog_entries(
+    known: Sequence[str | Mapping[str, Any]], limit: int | None = Catalog.MAX_ITEMS
+) -> list[CatalogEntry]:
+    """A catalog's entries (section 3) as ``CatalogEntry`` messages, within the message's
+    bounds: the first ``limit`` (a catalog's ``Catalog.MAX_ITEMS``; None: all, as
+    ``~/list_knowledge`` answers); an entry whose sequence is no string or beyond
+    its bound left out (it names nothing a robot could ask for), an author or teacher beyond
+    its bound left empty (a zenoh peer's catalog, relayed by the bridge, is the peer's word)."""
+    out: list[CatalogEntry] = []
+    for entry in known:
+        fields = entry if isinstance(entry, Mapping) else {"sequence": entry}
+        text = {
+            k: v if isinstance(v, str) and len(v) <= bound else ""
+            for k, bound in ENTRY_BOUNDS.items()
+            for v in (fields.get(k),)
+        }
+        if not text["sequence"]:
+            continue
+        out.append(CatalogEntry(**text, received_at=received_time(fields.get("received_at"))))
+        if len(out) == limit:
+            break
+    return out
+
+
+def entry_fields(entry: CatalogEntry) -> dict[str, str] | None:
+    """A received ``CatalogEntry`` as section 3's catalog entry (``sequence``, and ``author``,
+    ``teacher``, ``received_at`` when known); None for one with a field beyond its bound."""
+    fields = {k: getattr(entry, k) for k in ENTRY_BOUNDS}
+    if not fields["sequence"] or any(len(v) > ENTRY_BOUNDS[k] for k, v in fields.items()):
+        return None
+    fields["received_at"] = received_text(entry.received_at)
+    return {k: v for k, v in fields.items() if v}
 
 
 class ShownTopics:
@@ -170,8 +230,8 @@ class ShownTopics:
         self._publishers = [events, self._tree, self._catalog]
         self._events = EventPublisher(name, lambda data: events.publish(event_msg(data)), identity)
         log.add_sink(self._events)
-        self.version = 0
-        """Snapshots published so far."""
+        self.snapshots = 0
+        """Snapshots published so far (the last one's ``number``)."""
         self._shown_tree: str | None = None
         self._shown_object: Tree | None = None
         self._shown_catalog: list[str | dict[str, Any]] | None = None
@@ -188,13 +248,13 @@ class ShownTopics:
             self._shown_object = tree
         changed = text != self._shown_tree
         if text is not None and (changed or periodic):
-            self.version += 1
+            self.snapshots += 1
             self._tree.publish(
                 TreeSnapshot(
                     stamp=self.node.get_clock().now().to_msg(),
                     peer=self.name,
                     changed=changed,
-                    version=self.version,
+                    number=self.snapshots,
                     tree=text,
                 )
             )
@@ -206,7 +266,7 @@ class ShownTopics:
 
     def entries(self) -> list[CatalogEntry]:
         """What the robot knows, as catalog entries (``~/list_knowledge`` answers with them)."""
-        return catalog_entries(self._entries())
+        return catalog_entries(self._entries(), None)
 
     def close(self) -> None:
         """Stop publishing (the node stays)."""
@@ -243,28 +303,43 @@ class Services:
         return response
 
     def _on_forget(self, request: Any, response: Any) -> Any:
+        """``success`` and ``code`` (``Forget.Response``'s constants), and ``message`` saying
+        why not, within its bound."""
         agent, logger = self.member.agent, self.node.get_logger()
+
+        def refuse(code: int, message: str) -> Any:
+            response.success, response.code = False, code
+            bound = BOUNDS["message"]  # Forget.srv's message: string<=1024, as an error's
+            response.message = message if len(message) <= bound else message[: bound - 3] + "..."
+            return response
+
+        bound = BOUNDS["sequence"]  # Forget.srv: string<=4096 sequence
+        if len(request.sequence) > bound:
+            return refuse(
+                Forget.Response.INVALID,
+                f"sequence: {len(request.sequence)} characters, more than its bound ({bound})",
+            )
         try:
             key = sequence_key(read_sequence(request.sequence))
         except StringBTError as err:
-            response.forgotten, response.message = False, f"sequence: {err}"
-            return response
+            line = str(err).splitlines()[0]  # its column, code and reason (no excerpt)
+            return refuse(Forget.Response.INVALID, f"sequence: {line}")
         except Exception as exc:  # a caller's bytes the reader failed on (section 2.1)
-            response.forgotten, response.message = False, f"sequence: {internal_error(exc)}"
+            refuse(Forget.Response.INVALID, f"sequence: {internal_error(exc)}")
             logger.warning(f"{agent.name} refused a forget request: {response.message}")
             return response
         item = agent.knowledge.lookup(key)
-        response.forgotten = agent.forget(key)
-        if not response.forgotten:
-            response.message = (
-                f"{shown(key)} is not known"
-                if item is None
-                else f"{shown(key)} is innate: only learned items are forgotten"
+        if not agent.forget(key):
+            if item is None:
+                return refuse(Forget.Response.NOT_KNOWN, f"{shown(key)} is not known")
+            return refuse(
+                Forget.Response.INNATE,
+                f"{shown(key)} is innate: only learned items are forgotten",
             )
-        else:
-            logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
-            self.member.forgot(key)
-            self.changed()
+        response.success, response.code = True, Forget.Response.FORGOTTEN
+        logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
+        self.member.forgot(key)
+        self.changed()
         return response
 
     def close(self) -> None:
@@ -389,10 +464,8 @@ class FleetCatalogs:
         except Exception as exc:  # a hostile publisher's bytes: rclpy raises its own types
             self._refuse(f"catalog on {topic}: not a Catalog ({type(exc).__name__})")
             return
-        entries = [
-            {"sequence": e.sequence} | {k: getattr(e, k) for k in ENTRY_FIELDS[1:] if getattr(e, k)}
-            for e in msg.items[:MAX_ENTRIES]
-        ]
+        read = (entry_fields(e) for e in msg.items[:MAX_ENTRIES])
+        entries = [e for e in read if e is not None]
         peer = msg.peer if re.fullmatch(NAME, msg.peer) else topic
         with self._lock:
             self._found[topic] = (peer, entries)

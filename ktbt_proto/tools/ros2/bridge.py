@@ -75,7 +75,7 @@ from functools import partial
 from typing import Any, TypeVar
 
 import zenoh
-from ktbt_interfaces.msg import Catalog, CatalogEntry, FleetEvent
+from ktbt_interfaces.msg import Catalog, FleetEvent
 from ktbt_interfaces.msg import Query as QueryMsg
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -85,8 +85,8 @@ from ktbt_proto.exchange.messages import MAX_MESSAGE_BYTES, MessageRefused, Quer
 from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.trust import Policy, TrustStore, refusal
 from ktbt_proto.interop.ros2.showing import (
-    ENTRY_FIELDS,
     FleetCatalogs,
+    catalog_entries,
     event_json,
     events_qos,
     latched,
@@ -588,8 +588,7 @@ class Bridge:
         for name, (_, _, pub) in self.proxies.items():
             entries = catalogs.get(name, [])
             if entries != self._proxy_shown.get(name):
-                items = [CatalogEntry(**{k: e.get(k, "") for k in ENTRY_FIELDS}) for e in entries]
-                pub.publish(Catalog(peer=name, items=items))
+                pub.publish(Catalog(peer=name, items=catalog_entries(entries)))
                 self._proxy_shown[name] = entries
 
     # -- relaying -------------------------------------------------------------------------------

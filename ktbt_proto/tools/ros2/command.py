@@ -77,7 +77,8 @@ def build_command(
 ) -> None:
     """Build the interfaces into this environment (cached).
 
-    ros2/ktbt_interfaces, from the ROS 2 wheels; skipped while up to date."""
+    ros2/ktbt_interfaces and ros2/ktbt_example_interfaces, from the ROS 2 wheels; each skipped
+    while up to date."""
     from ktbt_proto.tools.ros2 import interfaces
 
     try:
@@ -86,7 +87,7 @@ def build_command(
         _say(f"error: {exc}")
         raise typer.Exit(1) from None
     if not built:
-        _say(f"{interfaces.PACKAGE} is up to date")
+        _say(f"{', '.join(interfaces.PACKAGES)}: up to date")
 
 
 def _ros_args(ctx: typer.Context) -> list[str]:
@@ -348,7 +349,7 @@ def forget_command(
         except _NoAnswer as exc:
             _say(f"error: {exc}")
             raise typer.Exit(1) from None
-    if not done.forgotten:
+    if not done.success:
         _say(f"error: {node}: {done.message}")
         raise typer.Exit(1)
     typer.echo(f"{node}: forgot {_shown(key)}")

@@ -1,13 +1,15 @@
-"""Finding ROS 2 and building ``ktbt_interfaces`` into this Python environment (spec/protocol.md
-section 11; docs/tutorials/ros2.md).
+"""Finding ROS 2 and building the interface packages (``ktbt_interfaces``, the protocol's, and
+``ktbt_example_interfaces``, the example robots') into this Python environment
+(spec/protocol.md section 11; docs/tutorials/ros2.md).
 
 ROS 2 comes one of two ways. With the ``ros2`` extra, Jazzy's wheels make the virtual
 environment itself a ROS install prefix (``$VENV/lib``, ``share``): :func:`build` then builds
-the interface package (``ros2/ktbt_interfaces``, a standard ament_cmake package) with cmake into
-that prefix, where rclpy finds it with no environment variable, and skips the build while the
-sources, the interpreter and the prefix are those of the last build (a stamp records them).
-With a sourced ROS 2 (``/opt/ros/jazzy``), the package is built in the user's colcon workspace
-like any other, and :func:`build` says so instead of installing ROS a second time.
+each interface package (``ros2/ktbt_interfaces``, ``ros2/ktbt_example_interfaces``, standard
+ament_cmake packages) with cmake into that prefix, where rclpy finds them with no environment
+variable, and skips a package while its sources, the interpreter and the prefix are those of
+its last build (a stamp records them). With a sourced ROS 2 (``/opt/ros/jazzy``), the packages
+are built in the user's colcon workspace like any other, and :func:`build` says so instead of
+installing ROS a second time.
 
 Two faults of the wheels are repaired here, as the build needs: their exported CMake files name
 the wheel builder's Python and numpy include folders (``/opt/python/cp311-cp311/...``), which
@@ -30,6 +32,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 PACKAGE = "ktbt_interfaces"
+"""The protocol's interfaces (section 11)."""
+PACKAGES = (PACKAGE, "ktbt_example_interfaces")
+"""What :func:`build` builds: the protocol's interfaces, and the example robots' (the docking
+action of the tutorial's ``dock_robot.py``)."""
 WHEEL_PLATFORMS = "x86_64 Linux, CPython 3.10-3.13"
 """Where ROS 2 Jazzy's wheels exist (the ``ros2`` extra's environment markers)."""
 STAMP = "ktbt-build.json"
@@ -83,14 +89,14 @@ def not_here() -> str:
     )
 
 
-def source() -> Path:
-    """The interface package's sources: inside the installed package (a wheel), or at the
+def source(package: str = PACKAGE) -> Path:
+    """An interface package's sources: inside the installed package (a wheel), or at the
     top of a source checkout."""
     here = Path(__file__).resolve().parent
-    for candidate in (here / PACKAGE, here.parents[2] / "ros2" / PACKAGE):
+    for candidate in (here / package, here.parents[2] / "ros2" / package):
         if (candidate / "package.xml").is_file():
             return candidate
-    raise Ros2Unavailable(f"the {PACKAGE} sources are missing from this installation")
+    raise Ros2Unavailable(f"the {package} sources are missing from this installation")
 
 
 def digest(folder: Path) -> str:
@@ -104,21 +110,21 @@ def digest(folder: Path) -> str:
     return h.hexdigest()
 
 
-def stamp_path() -> Path:
-    return prefix() / "share" / PACKAGE / STAMP
+def stamp_path(package: str = PACKAGE) -> Path:
+    return prefix() / "share" / package / STAMP
 
 
-def up_to_date() -> bool:
-    """Whether the installed interfaces were built from these sources for this interpreter."""
+def up_to_date(package: str = PACKAGE) -> bool:
+    """Whether the installed ``package`` was built from these sources for this interpreter."""
     try:
-        recorded = json.loads(stamp_path().read_text())
+        recorded = json.loads(stamp_path(package).read_text())
     except (OSError, ValueError):
         return False
     site = Path(sysconfig.get_paths()["purelib"])
     return (
         isinstance(recorded, dict)
-        and recorded.get("digest") == digest(source())
-        and (site / PACKAGE / "msg" / "__init__.py").is_file()
+        and recorded.get("digest") == digest(source(package))
+        and (site / package / "__init__.py").is_file()
     )
 
 
@@ -182,32 +188,43 @@ def cache_dir() -> Path:
 
 
 def build(say: Callable[[str], None], *, force: bool = False, jobs: int = 2) -> bool:
-    """Build and install ``ktbt_interfaces`` into this environment unless it is up to date
-    (``force``: always). True if it built. Raises :class:`Ros2Unavailable` with one line when
-    it cannot (no ROS wheels, a sourced system ROS, no cmake or compiler, a failed step)."""
+    """Build and install each of :data:`PACKAGES` into this environment unless it is up to
+    date (``force``: always). True if one was built. Raises :class:`Ros2Unavailable` with one
+    line when it cannot (no ROS wheels, a sourced system ROS, no cmake or compiler, a failed
+    step)."""
     distro = system_ros()
     if distro is not None:
+        names = " ".join(PACKAGES)
         raise Ros2Unavailable(
             f"a sourced ROS 2 ({distro}) is in use: build ros2/{PACKAGE} in your colcon "
-            f"workspace (colcon build --packages-select {PACKAGE}) and source its install"
+            f"workspace (colcon build --packages-select {names}) and source its install"
         )
     if not wheels_installed():
         raise Ros2Unavailable(not_here())
     restore_lark(say)
-    if not force and up_to_date():
+    stale = [package for package in PACKAGES if force or not up_to_date(package)]
+    if not stale:
         return False
     missing = [tool for tool in ("cmake", "c++") if shutil.which(tool) is None]
     if missing:
         raise Ros2Unavailable(
-            f"building {PACKAGE} needs {' and '.join(missing)}: apt-get install cmake g++"
+            f"building {stale[0]} needs {' and '.join(missing)}: apt-get install cmake g++"
         )
-    src = source()
+    repair_exports(prefix() / "share")
+    for package in stale:
+        _build_one(package, say, jobs)
+    restore_lark(say)
+    return True
+
+
+def _build_one(package: str, say: Callable[[str], None], jobs: int) -> None:
+    """Configure, build and install one interface package with cmake into this prefix."""
+    src = source(package)
     key = digest(src)
-    work = cache_dir() / f"build-{key[:16]}"
+    work = cache_dir() / f"build-{package}-{key[:16]}"
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     log = work / "build.log"
-    repair_exports(prefix() / "share")
     env = {
         **os.environ,
         "CMAKE_PREFIX_PATH": str(prefix()),
@@ -228,18 +245,30 @@ def build(say: Callable[[str], None], *, force: bool = False, jobs: int = 2) -> 
         ["cmake", "--build", str(work), "-j", str(jobs)],
         ["cmake", "--install", str(work)],
     ]
-    say(f"building {PACKAGE} into {prefix()} (log: {log})")
+    say(f"building {package} into {prefix()} (log: {log})")
     with log.open("w") as out:
         for step in steps:
+            if step[1] == "--install":
+                _uninstall(package)
             done = subprocess.run(step, stdout=out, stderr=subprocess.STDOUT, env=env, check=False)
             if done.returncode != 0:
                 raise Ros2Unavailable(
-                    f"{' '.join(step[:2])} failed ({_last_error(log)}); see {log}"
+                    f"{package}: {' '.join(step[:2])} failed ({_last_error(log)}); see {log}"
                 )
-    stamp_path().write_text(json.dumps({"digest": key, "python": sys.version.split()[0]}) + "\n")
-    restore_lark(say)
-    say(f"{PACKAGE} built and installed")
-    return True
+    stamp = {"digest": key, "python": sys.version.split()[0]}
+    stamp_path(package).write_text(json.dumps(stamp) + "\n")
+    say(f"{package} built and installed")
+
+
+def _uninstall(package: str) -> None:
+    """Remove what an earlier build of ``package`` installed (its Python package, headers,
+    share folder and libraries), so that a type removed from its sources is gone from the
+    environment too, not left importable from the last build."""
+    site = Path(sysconfig.get_paths()["purelib"])
+    for folder in (site / package, prefix() / "include" / package, prefix() / "share" / package):
+        shutil.rmtree(folder, ignore_errors=True)
+    for library in (prefix() / "lib").glob(f"lib{package}__*.so"):
+        library.unlink(missing_ok=True)
 
 
 def _last_error(log: Path) -> str:
@@ -261,11 +290,11 @@ def main(args: list[str]) -> int:
         return 0
     if not has_wheels() or system_ros() is not None:
         why = not_here() if not has_wheels() else "a ROS 2 is sourced (build it with colcon)"
-        say(f"not building {PACKAGE} here: {why}")
+        say(f"not building {', '.join(PACKAGES)} here: {why}")
         return 0
     try:
         if not build(say):
-            say(f"{PACKAGE} is up to date")
+            say(f"{', '.join(PACKAGES)}: up to date")
     except Ros2Unavailable as exc:
         say(f"error: {exc}")
         return 1

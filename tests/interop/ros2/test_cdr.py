@@ -130,3 +130,50 @@ def test_big_endian_data_is_read() -> None:
     assert cdr.read(written, cdr.QUERY) == {
         "v": 1, "id": "q1", "sender": "r1", "sequence": "<c>(A)", "more": []
     }  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(_LAYOUTS))
+def test_a_field_beyond_its_bound_is_refused_though_rclpy_reads_it(name: str) -> None:
+    """A bound (``string<=64 id``) does not change the bytes, and rclpy does not check it when
+    it reads: this does, in characters, for every string field; at the bound, of characters
+    that take two bytes each, it reads the field."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    kind, layout = _ros_type(name), _LAYOUTS[name]
+    base: dict[str, Any] = {"v": 1, **{f: [] if f == cdr.SEQUENCE else "" for f in layout}}
+    for field in layout:
+        bound = cdr.BOUNDS[field]
+        for text, refused in (("é" * bound, False), ("x" * (bound + 1), True)):
+            value = [text] if field == cdr.SEQUENCE else text
+            data = serialize_message(kind(**{**base, field: value}))
+            assert getattr(deserialize_message(data, kind), field) == value  # rclpy reads it
+            if refused:
+                with pytest.raises(cdr.CdrError, match=rf"^{field}: {bound + 1} characters, "):
+                    cdr.read(data, layout)
+                with pytest.raises(cdr.CdrError, match="bound"):
+                    cdr.write({**base, field: value}, layout)
+            else:
+                assert cdr.read(data, layout)[field] == value
+                written = cdr.write({**base, field: value}, layout)  # padding zeroed
+                assert deserialize_message(written, kind) == kind(**{**base, field: value})
+                assert len(written) == len(data)
+
+
+def test_more_beyond_its_bound_is_refused() -> None:
+    """``more`` is ``string<=4096[<=63]``: 63 strings are read, 64 refused (rclpy reads them,
+    though it refuses to write them)."""
+    from rclpy.serialization import deserialize_message
+
+    def query(count: int) -> bytes:
+        fields = {"v": 1, "id": "q1", "sender": "r1", "sequence": "<c>(A)", "more": []}
+        head = cdr.write(fields, cdr.QUERY)[:-4]  # all but the empty sequence's count
+        more = b"".join(
+            (len(t) + 1).to_bytes(4, "little") + t + b"\x00" * (1 + -(len(t) + 1) % 4)
+            for t in (b"<c>(B%02d)" % i for i in range(count))
+        )
+        return head + count.to_bytes(4, "little") + more
+
+    assert len(cdr.read(query(cdr.MAX_MORE), cdr.QUERY)["more"]) == cdr.MAX_MORE
+    assert len(deserialize_message(query(64), _ros_type("Query")).more) == 64
+    with pytest.raises(cdr.CdrError, match=r"^more: 64 strings, more than its bound \(63\)"):
+        cdr.read(query(64), cdr.QUERY)

@@ -299,7 +299,7 @@ def test_hostile_input_from_either_side_is_refused_and_counted(fleets: Fleets) -
     probe.until({"op": "publish", "topic": "/evil/catalog", "type": "Catalog",
                  "fields": {"peer": "not a name!"}, "subscribers": 1,
                  "latched": True})  # fmt: skip
-    big = Catalog(peer="big", items=[CatalogEntry(sequence="<c>(A)" + " " * 1024)] * 1100)
+    big = Catalog(peer="big", items=[CatalogEntry(sequence="<c>(A)" + " " * 1100)] * 1024)
     probe.until({"op": "publish", "topic": "/big/catalog", "type": "Catalog", "subscribers": 1,
                  "latched": True, "raw": serialize_message(big).hex()})  # fmt: skip
     assert wait_until(lambda: "catalog on /big/catalog" in ns.log("bridge"), 30)

@@ -91,10 +91,76 @@ def test_a_signed_fleet_event_survives_its_ros_message() -> None:
                "teacher": "teacher", "tick": 0})  # fmt: skip
     publisher({"t": "2026-12-01T21:00:01.000+00:00", "event": "refused", "reason": "junk",
                "where": "transport"})  # fmt: skip
+    publisher({"t": "2026-12-01T21:00:02.000+00:00", "event": "refused", "reason": "junk",
+               "where": "transport", "key": "/ktbt/answers"})  # fmt: skip
     for data in sent:
         msg = through_dds(event_msg(data))
         assert decode_event(event_json(msg)) == decode_event(data)  # the signature verified
     assert through_dds(event_msg(sent[1])).tick == -1
+    # section 10's `on` is `refused_on` in the message: `on` is a YAML 1.1 boolean
+    assert through_dds(event_msg(sent[2])).refused_on == "/ktbt/answers"
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_the_constants_of_the_interfaces_are_the_protocols_words() -> None:
+    from ktbt_interfaces.msg import Catalog, FleetEvent
+    from ktbt_interfaces.msg import ErrorReply as ErrorMsg
+    from ktbt_interfaces.msg import Query as QueryMsg
+    from ktbt_interfaces.srv import Forget
+
+    from ktbt_proto.exchange.events import MAX_SEQUENCE
+    from ktbt_proto.exchange.messages import MAX_MORE
+    from ktbt_proto.exchange.transferlog import Event
+    from ktbt_proto.interop.ros2.showing import MAX_ENTRIES
+    from ktbt_proto.transport import cdr
+
+    for kind in Event:  # every kind of section 8, under its name
+        assert getattr(FleetEvent, kind.name) == kind.value
+    assert FleetEvent.WHERE_TRANSPORT == "transport"
+    assert (ErrorMsg.REFUSED, ErrorMsg.UNREAD_ID) == ("refused", "0")
+    assert QueryMsg.MAX_MORE == cdr.MAX_MORE == MAX_MORE
+    assert Catalog.MAX_ITEMS == MAX_ENTRIES
+    fields = FleetEvent.get_fields_and_field_types()
+    assert "on" not in fields and fields["sequence"] == f"string<{MAX_SEQUENCE}>"
+    for layout, kind in ((cdr.QUERY, QueryMsg), (cdr.ERROR, ErrorMsg)):
+        declared = kind.get_fields_and_field_types()
+        for name in layout:  # cdr's bounds are the .msg files'
+            assert f"string<{cdr.BOUNDS[name]}>" in declared[name], (name, declared[name])
+    codes = (Forget.Response.FORGOTTEN, Forget.Response.NOT_KNOWN, Forget.Response.INNATE,
+             Forget.Response.INVALID)  # fmt: skip
+    assert len(set(codes)) == 4
+
+
+@pytest.mark.usefixtures("ros2_built")
+@pytest.mark.slow
+def test_a_catalog_entry_carries_its_time_and_keeps_to_its_bounds() -> None:
+    from ktbt_interfaces.msg import Catalog
+
+    from ktbt_proto.interop.ros2.showing import catalog_entries, entry_fields
+
+    learned = {"sequence": SEQUENCE, "author": "a" * 43, "teacher": "teacher",
+               "received_at": "2026-12-01T17:28:54+00:00"}  # fmt: skip
+    entries = catalog_entries([learned, "<c>(Innate)"])
+    assert entries[0].received_at.sec == 1796146134 and entries[0].received_at.nanosec == 0
+    msg = through_dds(Catalog(peer="r1", items=entries))
+    assert [entry_fields(e) for e in msg.items] == [learned, {"sequence": "<c>(Innate)"}]
+    # A zenoh peer's junk, relayed by the bridge: a field beyond its bound, or no text, is left
+    # out; a time that is no ISO 8601, or beyond what Time holds (2038), is unknown.
+    junk: list[str | dict[str, Any]] = [
+        {"sequence": "x" * 4097},
+        {"sequence": 5},
+        {"sequence": "<c>(A)", "teacher": "t" * 65, "author": 7, "received_at": "yesterday"},
+        {"sequence": "<c>(B)", "received_at": "2100-01-01T00:00:00+00:00"},
+        {"sequence": "<c>(C)", "received_at": "0001-01-01T00:00:00+01:00"},
+    ]
+    assert [entry_fields(e) for e in catalog_entries(junk)] == [
+        {"sequence": "<c>(A)"}, {"sequence": "<c>(B)"}, {"sequence": "<c>(C)"}
+    ]  # fmt: skip
+    # At most Catalog.MAX_ITEMS (rclpy refuses to publish more); a service's answer, all.
+    many = [f"<c>(A{i})" for i in range(Catalog.MAX_ITEMS + 5)]
+    assert len(catalog_entries(many)) == Catalog.MAX_ITEMS
+    assert len(catalog_entries(many, None)) == Catalog.MAX_ITEMS + 5
 
 
 @pytest.mark.usefixtures("ros2_built")
@@ -113,6 +179,11 @@ def test_the_build_is_cached_and_lark_is_1x_after_the_ros_install() -> None:
     if interfaces.system_ros() is None:
         assert interfaces.build(said.append) is False  # built by the fixture: up to date
         assert not any("building" in line for line in said)
+        site = Path(sysconfig.get_paths()["purelib"])
+        # Both packages built; the docking action is the example's, not the protocol's (and a
+        # build removes what an earlier one installed: no action left behind).
+        assert (site / "ktbt_example_interfaces" / "action" / "__init__.py").is_file()
+        assert not (site / "ktbt_interfaces" / "action").exists()
     major = interfaces.lark_version().split(".")[0]
     assert major.isdigit() and int(major) >= 1, interfaces.lark_version()
     site = Path(sysconfig.get_paths()["purelib"])

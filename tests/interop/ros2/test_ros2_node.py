@@ -113,13 +113,23 @@ def test_a_robot_learns_a_skill_from_another_and_forgets_it_on_request(
     shown = len(probe.messages("/learner/ktbt/tree"))
     forgot = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
                           "request": {"sequence": "TargetSeen(colour=2)"}})["response"]  # fmt: skip
-    assert forgot == {"forgotten": True, "message": ""}
+    assert forgot == {"success": True, "code": 0, "message": ""}  # Forget.Response.FORGOTTEN
     after = probe.wait("/learner/ktbt/tree", 30, absent={"tree": SKILL}, skip=shown, changed=True)
-    assert after["version"] > snapshot["version"]
+    assert after["number"] > snapshot["number"]
     probe.wait("/learner/ktbt/events", 10, event="forgotten", sequence=WANTED, reason="asked")
     again = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
                          "request": {"sequence": "TargetSeen(colour=2)"}})["response"]  # fmt: skip
-    assert again == {"forgotten": False, "message": "TargetSeen(colour=2) is not known"}
+    assert again == {  # Forget.Response.NOT_KNOWN
+        "success": False, "code": 1, "message": "TargetSeen(colour=2) is not known"
+    }  # fmt: skip
+    for typed, why in (
+        ("TargetSeen(colour=", "sequence: 1:19: SBT104 missing ) to close the arguments"),
+        ("x" * 4097, "sequence: 4097 characters, more than its bound (4096)"),
+    ):
+        invalid = probe.until({"op": "call", "service": "/learner/ktbt/forget", "type": "Forget",
+                               "request": {"sequence": typed}})["response"]  # fmt: skip
+        assert (invalid["success"], invalid["code"]) == (False, 3), invalid  # INVALID
+        assert invalid["message"] == why, invalid  # one line
 
     # Reconfigured while it runs: what it meets and its rate apply at once; what is read at
     # configure, and a bad value, are refused with their reason.
@@ -191,15 +201,27 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
     probe.until({"op": "publish", "topic": "/ktbt/answers", "type": "Answer", "subscribers": 2,
                  "fields": {"v": 1, "id": "h2", "sender": "not a name!", "to": "teacher",
                             "sequence": WANTED, "subtree": "<a>(RandomWalk)"}})  # fmt: skip
+    # A field beyond its type's bound (string<=4096 sequence): rclpy publishes it unchecked,
+    # the robot refuses it as it reads the bytes, and still answers its sender.
+    long = {"v": 1, "id": "h3", "sender": "bounder", "sequence": "x" * 4097}
+    probe.until({"op": "publish", "topic": "/ktbt/queries", "type": "Query", "subscribers": 2,
+                 "fields": long})  # fmt: skip
     refusals = []
-    for reason in ("not a Query", "query.v: Input should be 1", "response.sender: String"):
+    for reason in (
+        "not a Query",
+        "query.v: Input should be 1",
+        "response.sender: String",
+        "(sequence: 4097 characters, more than its bound (4096))",
+    ):
         refusals.append(
             probe.wait(
                 "/teacher/ktbt/events", 30, event="refused", where="transport", reason=reason
             )
         )
-    assert len({r["n"] for r in refusals}) == 3
+    assert len({r["n"] for r in refusals}) == 4
     error = probe.wait("/ktbt/errors", 30, to="probe", sender="teacher", code="refused")
+    assert error["id"] == "0" and error["message"] == "malformed query"
+    error = probe.wait("/ktbt/errors", 30, to="bounder", sender="teacher", code="refused")
     assert error["id"] == "0" and error["message"] == "malformed query"
     log = ns.log("teacher")
     assert log.count("[WARN]") >= 3 and "teacher refused: on /ktbt/queries" in log

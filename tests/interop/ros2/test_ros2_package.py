@@ -1,11 +1,12 @@
 """The ROS package ``ktbt_ros`` (``ros2/ktbt_ros``, ament_python) as a ROS team adopts it
-(spec/protocol.md section 11, "ROS 2 binding"): built with ``ktbt_interfaces`` in a colcon
-workspace by the colcon of the package registry (the ``ros2`` extra), over the ROS 2 wheels as
-the underlay; then, with ``install/setup.bash`` sourced, its installed executable
-(``lib/ktbt_ros/ktbt_node``, what ``ros2 run ktbt_ros ktbt_node`` starts) runs a teacher and two
-learners configured by the package's installed parameter files, and the learners learn.
+(spec/protocol.md section 11, "ROS 2 binding"): built with ``ktbt_interfaces`` (and the example
+robot's ``ktbt_example_interfaces``) in a colcon workspace by the colcon of the package registry
+(the ``ros2`` extra), over the ROS 2 wheels as the underlay; then, with ``install/setup.bash``
+sourced, its installed executable (``lib/ktbt_ros/ktbt_node``, what ``ros2 run ktbt_ros
+ktbt_node`` starts) runs a teacher and two learners configured by the package's installed
+parameter files, and the learners learn.
 
-The workspace is a copy of the two packages in the test's tmp folder, so that colcon builds
+The workspace is a copy of the three packages in the test's tmp folder, so that colcon builds
 nothing else of the repository and writes nothing into it (its ``build/``, ``install/`` and
 ``log/`` stay in the tmp folder). The robots run in the test's network namespace (``rosns``),
 each one bash process that sources the workspace and then becomes the node (``exec``), so that
@@ -33,7 +34,7 @@ from tests.zenoh_helpers import wait_until
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
 REPO = Path(__file__).resolve().parents[3]
-PACKAGES = ("ktbt_interfaces", "ktbt_ros")
+PACKAGES = ("ktbt_interfaces", "ktbt_example_interfaces", "ktbt_ros")
 VENV = Path(sys.prefix)
 BUILD_SECONDS = 180
 """The colcon build's deadline: about 20-45 s on a busy two-core machine, mostly
@@ -41,14 +42,17 @@ ktbt_interfaces' generated C and C++."""
 
 
 WHERE = """\
+import sys
 from ament_index_python.packages import get_package_prefix
 import ktbt_interfaces
+from ktbt_example_interfaces.action import Dock
 print(get_package_prefix("ktbt_ros"))
 print(get_package_prefix("ktbt_interfaces"))
 print(ktbt_interfaces.__file__)
+print(sys.modules["ktbt_example_interfaces"].__file__)
 """
-"""Where a sourced workspace's Python finds the two packages: as ``ros2 run`` does (the ament
-index), and as an import does."""
+"""Where a sourced workspace's Python finds the packages: as ``ros2 run`` does (the ament
+index), and as an import does (the example robot's ``Dock`` action too)."""
 
 
 def underlay() -> dict[str, str]:
@@ -78,7 +82,7 @@ def colcon() -> str:
 
 
 def build_workspace(ws: Path) -> float:
-    """Copy the two packages into ``ws/src`` and ``colcon build`` them; the build's seconds.
+    """Copy the packages into ``ws/src`` and ``colcon build`` them; the build's seconds.
     The build's output goes to ``ws/colcon-build.log``, whose end a failure shows."""
     for package in PACKAGES:
         shutil.copytree(
@@ -145,6 +149,7 @@ def test_the_workspace_builds_and_its_installed_node_runs_robots_that_learn(
     prefixes = [Path(line) for line in where.stdout.splitlines()]
     assert prefixes[:2] == [install / "ktbt_ros", install / "ktbt_interfaces"], where.stdout
     assert prefixes[2].is_relative_to(install / "ktbt_interfaces"), where.stdout
+    assert prefixes[3].is_relative_to(install / "ktbt_example_interfaces"), where.stdout
     # The bridge's executable runs `ktbt ros2 bridge`: without a fleet to bridge, one line.
     refused = subprocess.run(
         [*ns.enter, "--", *sourced(ws, str(bridge))],

@@ -356,7 +356,7 @@ def test_the_monitor_counts_what_it_cannot_read_and_shows_an_honest_robot(
                      "raw": catalog_raw("hostile", LISTED), "latched": True,
                      "subscribers": 1}, 60)  # fmt: skip
         probe.until({"op": "publish", "topic": "/hostile/ktbt/tree", "type": "TreeSnapshot",
-                     "fields": {"peer": "hostile", "changed": True, "version": 1,
+                     "fields": {"peer": "hostile", "changed": True, "number": 1,
                                 "tree": UNREADABLE}, "latched": True,
                      "subscribers": 1}, 60)  # fmt: skip
         assert wait_until(lambda: dropped(INJECTED, "catalog of hostile: "), 60), malformed()

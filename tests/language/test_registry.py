@@ -45,6 +45,7 @@ def test_a_result_annotated_status_is_trusted_however_the_annotation_is_spelled(
     ``from __future__ import annotations``): any spelling of the class is trusted, so a wrong
     result is the tree's TypeError; a name that does not resolve is not, and the result is
     checked (``True`` counts as SUCCESS)."""
+
     def spelled(bb: kp.Blackboard) -> kp.Status:
         return True  # type: ignore[return-value]
 

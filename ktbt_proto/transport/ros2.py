@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -90,6 +89,9 @@ LOOK_FOR = 1.0
 """Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
 (the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
+Clock = Callable[[], float]
+"""A host's clock: seconds, read at every use."""
+
 _M = TypeVar("_M", Query, Response, ErrorReply)
 
 
@@ -102,6 +104,16 @@ def robot_name(node: Node, given: str | None = None, what: str = "name") -> str:
     if re.fullmatch(NAME, name) is None:
         raise ValueError(f"{what} {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
     return name
+
+
+def node_clock(node: Node) -> Clock:
+    """The seconds of ``node``'s clock (section 11): ROS time, which is the simulation's
+    (``/clock``) when the node's ``use_sim_time`` is true, so that every period and timeout of
+    a ROS robot follows its host. Under ``use_sim_time`` with no ``/clock`` published yet, ROS
+    time stands at 0: the node's timers do not fire, so it neither ticks nor asks, and what
+    waits on time (an open query, the answer window) waits until the clock moves."""
+    clock = node.get_clock()
+    return lambda: clock.now().nanoseconds / 1e9
 
 
 def open_to_strangers(node: Node, name: str, policy: str) -> str | None:
@@ -234,7 +246,9 @@ class Ros2Transport:
     With ``lookup``, a query is answered inside the subscription's callback from what the
     robot knows now (as a zenoh fleet member is, section 4.5); without, it is handed to the
     agent, whose teach tree answers through :meth:`send`. ``query_timeout``: how long one of
-    this robot's queries stays open (its answers counted once per sender), in seconds.
+    this robot's queries stays open (its answers counted once per sender), in seconds of
+    ``clock`` (default: the node's, :func:`node_clock`), as are the answer window and the look
+    for newcomers; a clock that goes back (a simulation reset) ends what was open.
     """
 
     def __init__(
@@ -257,8 +271,11 @@ class Ros2Transport:
         active: bool = True,
         answer_at_once: bool = True,
         relay: Callable[[str, Response], None] | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.node, self.name = node, name
+        self.clock = clock or node_clock(node)
+        """The host's seconds (:func:`node_clock`): every period and timeout here is on it."""
         self.topics = topics or Topics()
         self.lookup = lookup
         self.query_timeout, self.answer_window = query_timeout, answer_window
@@ -291,22 +308,25 @@ class Ros2Transport:
         robot's own among them."""
         self._matched = 0
         self._present: set[str] = set()
-        self._look_until = 0.0
-        """Until when :meth:`appeared` reads the graph (a new match not seen there yet)."""
+        self._look_from: float | None = None
+        """Since when :meth:`appeared` reads the graph (a new match not seen there yet), for
+        :data:`LOOK_FOR` seconds."""
         self._announced: set[str] = set()
         """Query ids published again since the last :meth:`receive` (:meth:`send`). This,
-        ``_present`` and ``_look_until`` belong to the agent's tick, the one caller of
+        ``_present`` and ``_look_from`` belong to the agent's tick, the one caller of
         :meth:`receive`, :meth:`appeared` and :meth:`send`; the network's callbacks never
         touch them."""
         self.closed = False
         self._lock = threading.Lock()
         self._warn = Throttle(node.get_logger().warning)
         self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
-        self._given = AnswersGiven(name, answer_window, max_pending, node.get_logger().warning)
+        self._given = AnswersGiven(
+            name, answer_window, max_pending, node.get_logger().warning, self.clock
+        )
         self._open: dict[str, tuple[tuple[str, ...], float, set[tuple[str, str]]]] = {}
-        """This robot's open queries: id -> (sequences, deadline, (sender, sequence) heard)."""
+        """This robot's open queries: id -> (sequences, opened at, (sender, sequence) heard)."""
         self._seen: dict[tuple[str, str], float] = {}
-        """Queries from others still in their answer window: (sender, id) -> deadline."""
+        """Queries from others still in their answer window: (sender, id) -> seen at."""
 
         # A profile and options of its own for each entity: rclpy writes the overridden
         # values into the profile it is given.
@@ -343,7 +363,7 @@ class Ros2Transport:
         """Publish a query on the fleet's query topic; answers arrive in the inbox."""
         if self.closed or not self.active or not isinstance(message, Query):
             return
-        now = time.monotonic()
+        now = self.clock()
         with self._lock:
             self._expire(now)
             again = self._open.get(message.id)  # the same query, repeated while it waits
@@ -352,7 +372,7 @@ class Ros2Transport:
                 sequences, heard = (
                     (again[0], again[2]) if again is not None else (message.sequences, set())
                 )
-                self._open[message.id] = (sequences, now + self.query_timeout, heard)
+                self._open[message.id] = (sequences, now, heard)
         if not full and again is None:
             self._inbox.asked(message.id)
         if full:
@@ -383,12 +403,12 @@ class Ros2Transport:
         # A new match of the query publisher: a robot that can hear this one's queries now.
         # Read at every call (one call into DDS): rclpy's events executor never runs a
         # publisher's matched-event handler.
-        matched, now = self._queries.get_subscription_count(), time.monotonic()
+        matched, now = self._queries.get_subscription_count(), self.clock()
         with self._lock:
             if matched > self._matched:
                 self.joined += matched - self._matched
             if matched != self._matched:  # one came, or one went (and may come back)
-                self._look_until = now + LOOK_FOR
+                self._look_from = now
             self._matched = matched
             self._expire(now)
         self._announced.clear()
@@ -399,13 +419,14 @@ class Ros2Transport:
         read from the graph when :meth:`receive` found a new match of the query publisher, and
         again at every call for up to :data:`LOOK_FOR` seconds while the graph does not show
         the newcomer yet."""
-        if self.closed or time.monotonic() > self._look_until:
+        since = self._look_from
+        if self.closed or since is None or not 0 <= self.clock() - since <= LOOK_FOR:
             return []
         present = self.peers()
         new = sorted(present - self._present)
         self._present = present
         if len(present) + 1 >= self._matched:  # every match named (its own among them)
-            self._look_until = 0.0
+            self._look_from = None
         return new
 
     def close(self) -> None:
@@ -514,14 +535,14 @@ class Ros2Transport:
         if self.lookup is not None:
             self._answer_at_once(query, self.lookup)
             return
-        now = time.monotonic()
+        now = self.clock()
         key = (query.sender, query.id)
         with self._lock:
             self._expire(now)
             replay = key in self._seen
             full = not replay and len(self._seen) >= self.max_pending
             if not replay and not full:
-                self._seen[key] = now + self.answer_window
+                self._seen[key] = now
         if replay:  # heard again: an open query announced to a newcomer reaches every robot
             self.node.get_logger().debug(f"query {query.id} from {query.sender} heard again")
         elif full:  # left unanswered, as a teacher in cool-down would, but counted
@@ -613,8 +634,10 @@ class Ros2Transport:
             )
 
     def _expire(self, now: float) -> None:
-        """Forget open queries and seen queries whose time is over (under the lock)."""
-        for qid in [q for q, (_, deadline, _) in self._open.items() if deadline < now]:
+        """Forget open queries and seen queries whose time is over, or that the clock went back
+        past (under the lock)."""
+        timeout, window = self.query_timeout, self.answer_window
+        for qid in [q for q, (_, t, _) in self._open.items() if not 0 <= now - t <= timeout]:
             del self._open[qid]
-        for key in [k for k, deadline in self._seen.items() if deadline < now]:
+        for key in [k for k, t in self._seen.items() if not 0 <= now - t <= window]:
             del self._seen[key]

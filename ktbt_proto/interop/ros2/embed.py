@@ -33,7 +33,6 @@ vocabulary cannot execute (``StringBTError``, with its code).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -273,7 +272,7 @@ class Embedded:
         """One run of the agent's timer: a step of the fleet member (section 4.5) on the
         user's tick count, then what changed is shown."""
         self.agent.now = self.tree.count
-        self.member.step(time.monotonic())
+        self.member.step(self.transport.clock())
         self._show()
 
     def _show(self) -> None:

@@ -21,7 +21,6 @@ and ``~/forget``. It logs through the node's logger, the library's own log recor
 from __future__ import annotations
 
 import logging
-import time
 from typing import Any
 
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, SetParametersResult
@@ -455,11 +454,11 @@ class KtbtNode(LifecycleNode):
 
     def _tick(self) -> None:
         """One step of the fleet member (section 4.5), then what changed is shown."""
-        member = self.member
-        if member is None:
+        member, transport = self.member, self.transport
+        if member is None or transport is None:
             return
         member.agent.now += 1
-        member.step(time.monotonic())
+        member.step(transport.clock())  # the node's clock: sim time under use_sim_time
         self._show()
 
     def _show(self, periodic: bool = False) -> None:

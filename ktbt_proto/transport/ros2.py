@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -89,6 +90,12 @@ LOOK_FOR = 1.0
 """Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
 (the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
+SETTLE = 0.5
+"""Seconds the ROS graph must stay unchanged before a robot starting takes its name as free
+(:meth:`Ros2Transport.claim`): discovery is under way when a node starts."""
+SETTLE_MOST = 3.0
+"""Seconds a robot starting waits at most for the graph to settle."""
+
 Clock = Callable[[], float]
 """A host's clock: seconds, read at every use."""
 
@@ -104,6 +111,29 @@ def robot_name(node: Node, given: str | None = None, what: str = "name") -> str:
     if re.fullmatch(NAME, name) is None:
         raise ValueError(f"{what} {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
     return name
+
+
+def robot_topic(queries: str, name: str) -> str:
+    """The topic on which a robot announces its name to its fleet (section 11):
+    ``<queries topic>/robots/<name>``, every character of the name but a letter (or, after the
+    first, a digit) written ``_`` and its two hex digits (``r-1`` is ``r_2d1``), so that every
+    name of section 1 is a ROS name, and two names two topics."""
+    token = "".join(
+        c if c.isascii() and (c.isalpha() or (i and c.isdigit())) else f"_{ord(c):02x}"
+        for i, c in enumerate(name)
+    )
+    return f"{queries}/robots/{token}"
+
+
+def announced(node: Node, queries: str) -> set[str]:
+    """The names the robots of the fleet on ``queries`` announce (:func:`robot_topic`), read
+    from the ROS graph."""
+    prefix = f"{queries}/robots/"
+    return {
+        re.sub(r"_([0-9a-f]{2})", lambda m: chr(int(m.group(1), 16)), topic[len(prefix) :])
+        for topic, _ in node.get_topic_names_and_types()
+        if topic.startswith(prefix)
+    }
 
 
 def node_clock(node: Node) -> Clock:
@@ -346,6 +376,12 @@ class Ros2Transport:
         self._errors = node.create_publisher(
             ErrorMsg, topics.errors, event_callbacks=quiet(), **qos()
         )
+        self._name_topic = robot_topic(topics.queries, name)
+        self._announce = node.create_publisher(
+            QueryMsg, self._name_topic, exchange_qos(), event_callbacks=quiet()
+        )  # never published on: its topic is the announcement
+        self._namesakes: set[str] = set()
+        """Other nodes found announcing this robot's name (each warned of once)."""
         self._subscriptions = [
             node.create_subscription(
                 kind, topic, callback, raw=True, event_callbacks=watched(node, topic), **qos()
@@ -425,6 +461,13 @@ class Ros2Transport:
         present = self.peers()
         new = sorted(present - self._present)
         self._present = present
+        for other in set(self.namesakes()) - self._namesakes:
+            if "_NODE_NAME_UNKNOWN_" not in other:
+                self._namesakes.add(other)
+                self._warn(
+                    f"{self.name}: {other} announces this robot's name too (this node: "
+                    f"{self.node.get_fully_qualified_name()}): answers to one reach both"
+                )
         if len(present) + 1 >= self._matched:  # every match named (its own among them)
             self._look_from = None
         return new
@@ -436,7 +479,7 @@ class Ros2Transport:
         self.closed = True
         for sub in self._subscriptions:
             self.node.destroy_subscription(sub)
-        for pub in (self._queries, self._answers, self._errors):
+        for pub in (self._queries, self._answers, self._errors, self._announce):
             self.node.destroy_publisher(pub)
 
     def attach(self, agent: AgentCore) -> None:
@@ -455,6 +498,52 @@ class Ros2Transport:
             self.lookup = live_answers(lambda: agent.knowledge, self.identity)
 
     # -- presence -------------------------------------------------------------------------------
+
+    def namesakes(self) -> list[str]:
+        """The other nodes that announce this robot's name (:func:`robot_topic`), by full name
+        (``_NODE_NAME_UNKNOWN_`` while discovery has not named one yet)."""
+        me = self.node.get_fully_qualified_name()
+        found = {
+            f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            for info in self.node.get_publishers_info_by_topic(self._name_topic)
+        }
+        return sorted(found - {me})
+
+    def claim(self, what: str = "name") -> None:
+        """Refuse to start under a name another node of the fleet announces (section 11):
+        ``ValueError``, one line naming both nodes and the setting (``what``). The graph is
+        read until it has stayed unchanged :data:`SETTLE` seconds (at most
+        :data:`SETTLE_MOST`; wall-clock seconds, as discovery runs in real time): a node that
+        has just started is still discovering the others. Two robots that start together
+        under one name may both miss the other; each warns when it finds the other later
+        (:meth:`appeared`)."""
+        began = settled = time.monotonic()
+        graph: object = None
+        while True:
+            others = self.namesakes()
+            if others and "_NODE_NAME_UNKNOWN_" not in others[0]:
+                break
+            now = time.monotonic()
+            seen = (
+                frozenset(self.node.get_node_names_and_namespaces()),
+                frozenset(t for t, _ in self.node.get_topic_names_and_types()),
+            )
+            if seen != graph:
+                graph, settled = seen, now
+            elif now - settled >= SETTLE or now - began >= SETTLE_MOST:
+                break
+            time.sleep(0.02)
+        if others:
+            self._namesakes.update(others)
+            raise ValueError(
+                f"{what} {self.name!r} is taken: {others[0]} announces it "
+                f"(this node: {self.node.get_fully_qualified_name()})"
+            )
+
+    def first_named(self) -> bool:
+        """Whether this robot's name comes first among the names its fleet announces: the one
+        robot that replies to a malformed query (section 11)."""
+        return self.name <= min(announced(self.node, self.topics.queries), default=self.name)
 
     def peers(self) -> set[str]:
         """The other nodes reading the query topic, by full name (``/robot1/ktbt``): who is
@@ -553,14 +642,16 @@ class Ros2Transport:
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when
         that much of it could be read and is a name; else none is sent (a reply addressed to
-        no one helps no one), and an oversized query is never deserialized to find out."""
+        no one helps no one), and an oversized query is never deserialized to find out. Of the
+        fleet, only the robot whose name comes first replies (:meth:`first_named`): one reply
+        per query, not one per robot."""
         if len(data) > self.max_bytes + CDR_SLACK:
             return
         try:
             sender = cdr.read(data, cdr.QUERY)["sender"]
         except Exception:  # nothing of it could be read (cdr.CdrError), or the reader failed
             return
-        if re.fullmatch(NAME, sender) is None:
+        if re.fullmatch(NAME, sender) is None or not self.first_named():
             return
         error = ErrorReply(id="0", sender=self.name, code="refused", message="malformed query")
         self._errors.publish(serialized(error, sender))

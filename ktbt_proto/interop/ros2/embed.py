@@ -27,7 +27,8 @@ none runs while the user's timer (in that group too) ticks the tree.
 What the user can get wrong is refused, leaving the node and the tree as they were (what was
 added before the refusal is taken off, behaviours set up are shut down), each with one line:
 a tree that is not a ``BehaviourTree`` or has no placeholder (``TypeError``, ``ValueError``),
-a robot name or topic that is not one (``ValueError``), a sequence or a knowledge item its
+a robot name or topic that is not one, or a name another robot of the fleet already announces
+(``ValueError``, naming both nodes), a sequence or a knowledge item its
 vocabulary cannot execute (``StringBTError``, with its code).
 """
 
@@ -170,6 +171,7 @@ class Embedded:
             overhear=overhear != "off",
         )
         try:
+            self.transport.claim("name")  # a name the fleet already has: one line, refused
             self.agent = ApplicationTimedAgent(
                 name,
                 factory,

@@ -304,6 +304,7 @@ class KtbtNode(LifecycleNode):
             overhear=overhear != "off",
             active=False,
         )
+        self.transport.claim("agent_name")  # a name the fleet already has: one line, refused
         save = str(self._param("save"))
         try:
             self.agent = ApplicationTimedAgent(

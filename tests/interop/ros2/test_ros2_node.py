@@ -199,7 +199,8 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
             )
         )
     assert len({r["n"] for r in refusals}) == 3
-    error = probe.wait("/ktbt/errors", 30, to="probe", sender="teacher", code="refused")
+    # One reply, from the robot whose name comes first (section 11), not one per robot.
+    error = probe.wait("/ktbt/errors", 30, to="probe", sender="learner", code="refused")
     assert error["id"] == "0" and error["message"] == "malformed query"
     log = ns.log("teacher")
     assert log.count("[WARN]") >= 3 and "teacher refused: on /ktbt/queries" in log

@@ -90,11 +90,14 @@ LOOK_FOR = 1.0
 """Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
 (the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
-SETTLE = 0.5
-"""Seconds the ROS graph must stay unchanged before a robot starting takes its name as free
-(:meth:`Ros2Transport.claim`): discovery is under way when a node starts."""
-SETTLE_MOST = 3.0
-"""Seconds a robot starting waits at most for the graph to settle."""
+SETTLE = 1.0
+"""Seconds the ROS graph must stay unchanged, once it shows another node, before a robot
+starting takes its name as free (:meth:`Ros2Transport.claim`): discovery is under way when a
+node starts."""
+SETTLE_MOST = 4.0
+"""Seconds a robot starting waits at most for the graph: a robot alone waits this long (DDS
+discovery may take up to a participant's announcement period, 3 s with Fast DDS's defaults,
+measured here up to 2.6 s on a loaded machine)."""
 
 Clock = Callable[[], float]
 """A host's clock: seconds, read at every use."""
@@ -512,11 +515,12 @@ class Ros2Transport:
     def claim(self, what: str = "name") -> None:
         """Refuse to start under a name another node of the fleet announces (section 11):
         ``ValueError``, one line naming both nodes and the setting (``what``). The graph is
-        read until it has stayed unchanged :data:`SETTLE` seconds (at most
-        :data:`SETTLE_MOST`; wall-clock seconds, as discovery runs in real time): a node that
-        has just started is still discovering the others. Two robots that start together
-        under one name may both miss the other; each warns when it finds the other later
-        (:meth:`appeared`)."""
+        read until it shows another node and has then stayed unchanged :data:`SETTLE`
+        seconds, at most :data:`SETTLE_MOST` (wall-clock seconds, as discovery runs in real
+        time): a node that has just started is still discovering the others. Two robots that
+        start together under one name may both miss the other; each warns when it finds the
+        other later (:meth:`appeared`)."""
+        me = self.node.get_fully_qualified_name()
         began = settled = time.monotonic()
         graph: object = None
         while True:
@@ -524,13 +528,13 @@ class Ros2Transport:
             if others and "_NODE_NAME_UNKNOWN_" not in others[0]:
                 break
             now = time.monotonic()
-            seen = (
-                frozenset(self.node.get_node_names_and_namespaces()),
-                frozenset(t for t, _ in self.node.get_topic_names_and_types()),
+            nodes = frozenset(
+                f"{ns.rstrip('/')}/{n}" for n, ns in self.node.get_node_names_and_namespaces()
             )
+            seen = (nodes, frozenset(t for t, _ in self.node.get_topic_names_and_types()))
             if seen != graph:
                 graph, settled = seen, now
-            elif now - settled >= SETTLE or now - began >= SETTLE_MOST:
+            elif (nodes - {me} and now - settled >= SETTLE) or now - began >= SETTLE_MOST:
                 break
             time.sleep(0.02)
         if others:

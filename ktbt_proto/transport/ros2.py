@@ -128,12 +128,17 @@ def robot_topic(queries: str, name: str) -> str:
     return f"{queries}/robots/{token}"
 
 
+def announced_name(token: str) -> str:
+    """The robot name a :func:`robot_topic`'s last token announces."""
+    return re.sub(r"_([0-9a-f]{2})", lambda m: chr(int(m.group(1), 16)), token)
+
+
 def announced(node: Node, queries: str) -> set[str]:
     """The names the robots of the fleet on ``queries`` announce (:func:`robot_topic`), read
     from the ROS graph."""
     prefix = f"{queries}/robots/"
     return {
-        re.sub(r"_([0-9a-f]{2})", lambda m: chr(int(m.group(1), 16)), topic[len(prefix) :])
+        announced_name(topic[len(prefix) :])
         for topic, _ in node.get_topic_names_and_types()
         if topic.startswith(prefix)
     }

@@ -8,7 +8,12 @@ Three fleet-wide topics carry the protocol's messages as ``ktbt_interfaces`` typ
 - the answer topic (``/ktbt/answers``): every answer, addressed to its asker by ``to``; a robot
   reads all of them, takes those addressed to it, and overhears the others (section 4.3) when
   it is asked to, so overhearing needs no topic of its own;
-- the error topic (``/ktbt/errors``): the error reply to a malformed query.
+- the error topic (``/ktbt/errors``): the error reply to a malformed query, from one robot of
+  the fleet (:meth:`Ros2Transport.first_named`).
+
+Each robot also announces its name on the graph, a publisher never published on, on
+``<query topic>/robots/<name>`` (:func:`robot_topic`): a robot starting refuses a name another
+has (:meth:`Ros2Transport.claim`), and the robots agree on who replies to a malformed query.
 
 The names are absolute, so robots in namespaces of their own (``/robot1/ktbt``) share them, and
 configurable, so two fleets on one ROS domain can be kept apart. The QoS of all three

@@ -18,6 +18,7 @@ changed), implemented by the zenoh and ROS 2 transports alike.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -229,6 +230,7 @@ class FleetMember:
         )
         self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
         self._reported = set(self.agent.metrics.learned)
+        self._last = -math.inf
         if self.export is not None:  # what a resumed save file holds already
             self.export.sync(self.agent.knowledge)
 
@@ -261,9 +263,16 @@ class FleetMember:
         self.todo, self.listed = list(keys), None
 
     def step(self, now: float) -> list[str]:
-        """Section 4.5's loop, once; ``now`` in seconds (any clock the host keeps, the same
-        at every step). Returns the keys learned in this step."""
+        """Section 4.5's loop, once; ``now`` in seconds of the host's clock (monotonic for
+        ``ktbt peer run``, the node's for a ROS robot: sim time under ``use_sim_time``), the
+        same at every step: every wait, cool-down, backoff and catalog period is on it. A
+        clock that goes back (a simulation reset) ends the hold: it may ask at once, and an
+        open query stays open a whole wait from then. Returns the keys learned in this step."""
         agent = self.agent
+        if now < self._last:
+            self.learner.backoff.reset(now)
+            self.learner.opened = now
+        self._last = now
         agent.receive()
         learned = [k for k in agent.metrics.learned if k not in self._reported]
         for key in learned:

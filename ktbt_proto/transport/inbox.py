@@ -109,10 +109,19 @@ class AnswersGiven:
     the same query (sender and id) within ``window`` seconds is not answered again: an asker
     sends its open query to a peer that appears, which may have had the broadcast already
     (section 4.5). The latest ``limit`` queries are remembered; ``warn`` is told of an item too
-    large for any peer to accept."""
+    large for any peer to accept. ``clock``: the host's seconds (the ROS node's clock, sim time
+    included, section 11); a clock gone back starts the window again."""
 
-    def __init__(self, name: str, window: float, limit: int, warn: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        name: str,
+        window: float,
+        limit: int,
+        warn: Callable[[str], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.name, self.window, self.limit, self.warn = name, window, limit, warn
+        self.clock = clock
         self._lock = threading.Lock()
         self._given: dict[tuple[str, str], tuple[float, set[str]]] = {}
 
@@ -131,10 +140,10 @@ class AnswersGiven:
                 sequence=query.sequence,
                 **more,
             )
-        now, key = time.monotonic(), (query.sender, query.id)
+        now, key = self.clock(), (query.sender, query.id)
         with self._lock:
             when, given = self._given.pop(key, (now, set()))
-            if now - when > self.window:
+            if not 0 <= now - when <= self.window:
                 when, given = now, set()
             self._given[key] = (when, given)
             if len(self._given) > self.limit:

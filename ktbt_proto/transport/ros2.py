@@ -8,7 +8,12 @@ Three fleet-wide topics carry the protocol's messages as ``ktbt_interfaces`` typ
 - the answer topic (``/ktbt/answers``): every answer, addressed to its asker by ``to``; a robot
   reads all of them, takes those addressed to it, and overhears the others (section 4.3) when
   it is asked to, so overhearing needs no topic of its own;
-- the error topic (``/ktbt/errors``): the error reply to a malformed query.
+- the error topic (``/ktbt/errors``): the error reply to a malformed query, from one robot of
+  the fleet (:meth:`Ros2Transport.first_named`).
+
+Each robot also announces its name on the graph, a publisher never published on, on
+``<query topic>/robots/<name>`` (:func:`robot_topic`): a robot starting refuses a name another
+has (:meth:`Ros2Transport.claim`), and the robots agree on who replies to a malformed query.
 
 The names are absolute, so robots in namespaces of their own (``/robot1/ktbt``) share them, and
 configurable, so two fleets on one ROS domain can be kept apart. The QoS of all three
@@ -90,6 +95,18 @@ LOOK_FOR = 1.0
 """Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
 (the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
+SETTLE = 1.0
+"""Seconds the ROS graph must stay unchanged, once it shows another node, before a robot
+starting takes its name as free (:meth:`Ros2Transport.claim`): discovery is under way when a
+node starts."""
+SETTLE_MOST = 4.0
+"""Seconds a robot starting waits at most for the graph: a robot alone waits this long (DDS
+discovery may take up to a participant's announcement period, 3 s with Fast DDS's defaults,
+measured here up to 2.6 s on a loaded machine)."""
+
+Clock = Callable[[], float]
+"""A host's clock: seconds, read at every use."""
+
 _M = TypeVar("_M", Query, Response, ErrorReply)
 
 
@@ -102,6 +119,44 @@ def robot_name(node: Node, given: str | None = None, what: str = "name") -> str:
     if re.fullmatch(NAME, name) is None:
         raise ValueError(f"{what} {name!r}: use 1 to 64 letters, digits, '_', '.', '-'")
     return name
+
+
+def robot_topic(queries: str, name: str) -> str:
+    """The topic on which a robot announces its name to its fleet (section 11):
+    ``<queries topic>/robots/<name>``, every character of the name but a letter (or, after the
+    first, a digit) written ``_`` and its two hex digits (``r-1`` is ``r_2d1``), so that every
+    name of section 1 is a ROS name, and two names two topics."""
+    token = "".join(
+        c if c.isascii() and (c.isalpha() or (i and c.isdigit())) else f"_{ord(c):02x}"
+        for i, c in enumerate(name)
+    )
+    return f"{queries}/robots/{token}"
+
+
+def announced_name(token: str) -> str:
+    """The robot name a :func:`robot_topic`'s last token announces."""
+    return re.sub(r"_([0-9a-f]{2})", lambda m: chr(int(m.group(1), 16)), token)
+
+
+def announced(node: Node, queries: str) -> set[str]:
+    """The names the robots of the fleet on ``queries`` announce (:func:`robot_topic`), read
+    from the ROS graph."""
+    prefix = f"{queries}/robots/"
+    return {
+        announced_name(topic[len(prefix) :])
+        for topic, _ in node.get_topic_names_and_types()
+        if topic.startswith(prefix)
+    }
+
+
+def node_clock(node: Node) -> Clock:
+    """The seconds of ``node``'s clock (section 11): ROS time, which is the simulation's
+    (``/clock``) when the node's ``use_sim_time`` is true, so that every period and timeout of
+    a ROS robot follows its host. Under ``use_sim_time`` with no ``/clock`` published yet, ROS
+    time stands at 0: the node's timers do not fire, so it neither ticks nor asks, and what
+    waits on time (an open query, the answer window) waits until the clock moves."""
+    clock = node.get_clock()
+    return lambda: clock.now().nanoseconds / 1e9
 
 
 def open_to_strangers(node: Node, name: str, policy: str) -> str | None:
@@ -234,7 +289,9 @@ class Ros2Transport:
     With ``lookup``, a query is answered inside the subscription's callback from what the
     robot knows now (as a zenoh fleet member is, section 4.5); without, it is handed to the
     agent, whose teach tree answers through :meth:`send`. ``query_timeout``: how long one of
-    this robot's queries stays open (its answers counted once per sender), in seconds.
+    this robot's queries stays open (its answers counted once per sender), in seconds of
+    ``clock`` (default: the node's, :func:`node_clock`), as are the answer window and the look
+    for newcomers; a clock that goes back (a simulation reset) ends what was open.
     """
 
     def __init__(
@@ -257,8 +314,11 @@ class Ros2Transport:
         active: bool = True,
         answer_at_once: bool = True,
         relay: Callable[[str, Response], None] | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.node, self.name = node, name
+        self.clock = clock or node_clock(node)
+        """The host's seconds (:func:`node_clock`): every period and timeout here is on it."""
         self.topics = topics or Topics()
         self.lookup = lookup
         self.query_timeout, self.answer_window = query_timeout, answer_window
@@ -291,22 +351,25 @@ class Ros2Transport:
         robot's own among them."""
         self._matched = 0
         self._present: set[str] = set()
-        self._look_until = 0.0
-        """Until when :meth:`appeared` reads the graph (a new match not seen there yet)."""
+        self._look_from: float | None = None
+        """Since when :meth:`appeared` reads the graph (a new match not seen there yet), for
+        :data:`LOOK_FOR` seconds."""
         self._announced: set[str] = set()
         """Query ids published again since the last :meth:`receive` (:meth:`send`). This,
-        ``_present`` and ``_look_until`` belong to the agent's tick, the one caller of
+        ``_present`` and ``_look_from`` belong to the agent's tick, the one caller of
         :meth:`receive`, :meth:`appeared` and :meth:`send`; the network's callbacks never
         touch them."""
         self.closed = False
         self._lock = threading.Lock()
         self._warn = Throttle(node.get_logger().warning)
         self._inbox = Inbox(self._refuse, inbox_limit, overheard_limit)
-        self._given = AnswersGiven(name, answer_window, max_pending, node.get_logger().warning)
+        self._given = AnswersGiven(
+            name, answer_window, max_pending, node.get_logger().warning, self.clock
+        )
         self._open: dict[str, tuple[tuple[str, ...], float, set[tuple[str, str]]]] = {}
-        """This robot's open queries: id -> (sequences, deadline, (sender, sequence) heard)."""
+        """This robot's open queries: id -> (sequences, opened at, (sender, sequence) heard)."""
         self._seen: dict[tuple[str, str], float] = {}
-        """Queries from others still in their answer window: (sender, id) -> deadline."""
+        """Queries from others still in their answer window: (sender, id) -> seen at."""
 
         # A profile and options of its own for each entity: rclpy writes the overridden
         # values into the profile it is given.
@@ -326,6 +389,12 @@ class Ros2Transport:
         self._errors = node.create_publisher(
             ErrorMsg, topics.errors, event_callbacks=quiet(), **qos()
         )
+        self._name_topic = robot_topic(topics.queries, name)
+        self._announce = node.create_publisher(
+            QueryMsg, self._name_topic, exchange_qos(), event_callbacks=quiet()
+        )  # never published on: its topic is the announcement
+        self._namesakes: set[str] = set()
+        """Other nodes found announcing this robot's name (each warned of once)."""
         self._subscriptions = [
             node.create_subscription(
                 kind, topic, callback, raw=True, event_callbacks=watched(node, topic), **qos()
@@ -343,7 +412,7 @@ class Ros2Transport:
         """Publish a query on the fleet's query topic; answers arrive in the inbox."""
         if self.closed or not self.active or not isinstance(message, Query):
             return
-        now = time.monotonic()
+        now = self.clock()
         with self._lock:
             self._expire(now)
             again = self._open.get(message.id)  # the same query, repeated while it waits
@@ -352,7 +421,7 @@ class Ros2Transport:
                 sequences, heard = (
                     (again[0], again[2]) if again is not None else (message.sequences, set())
                 )
-                self._open[message.id] = (sequences, now + self.query_timeout, heard)
+                self._open[message.id] = (sequences, now, heard)
         if not full and again is None:
             self._inbox.asked(message.id)
         if full:
@@ -383,12 +452,12 @@ class Ros2Transport:
         # A new match of the query publisher: a robot that can hear this one's queries now.
         # Read at every call (one call into DDS): rclpy's events executor never runs a
         # publisher's matched-event handler.
-        matched, now = self._queries.get_subscription_count(), time.monotonic()
+        matched, now = self._queries.get_subscription_count(), self.clock()
         with self._lock:
             if matched > self._matched:
                 self.joined += matched - self._matched
             if matched != self._matched:  # one came, or one went (and may come back)
-                self._look_until = now + LOOK_FOR
+                self._look_from = now
             self._matched = matched
             self._expire(now)
         self._announced.clear()
@@ -399,13 +468,21 @@ class Ros2Transport:
         read from the graph when :meth:`receive` found a new match of the query publisher, and
         again at every call for up to :data:`LOOK_FOR` seconds while the graph does not show
         the newcomer yet."""
-        if self.closed or time.monotonic() > self._look_until:
+        since = self._look_from
+        if self.closed or since is None or not 0 <= self.clock() - since <= LOOK_FOR:
             return []
         present = self.peers()
         new = sorted(present - self._present)
         self._present = present
+        for other in set(self.namesakes()) - self._namesakes:
+            if "_NODE_NAME_UNKNOWN_" not in other:
+                self._namesakes.add(other)
+                self._warn(
+                    f"{self.name}: {other} announces this robot's name too (this node: "
+                    f"{self.node.get_fully_qualified_name()}): answers to one reach both"
+                )
         if len(present) + 1 >= self._matched:  # every match named (its own among them)
-            self._look_until = 0.0
+            self._look_from = None
         return new
 
     def close(self) -> None:
@@ -415,7 +492,7 @@ class Ros2Transport:
         self.closed = True
         for sub in self._subscriptions:
             self.node.destroy_subscription(sub)
-        for pub in (self._queries, self._answers, self._errors):
+        for pub in (self._queries, self._answers, self._errors, self._announce):
             self.node.destroy_publisher(pub)
 
     def attach(self, agent: AgentCore) -> None:
@@ -434,6 +511,53 @@ class Ros2Transport:
             self.lookup = live_answers(lambda: agent.knowledge, self.identity)
 
     # -- presence -------------------------------------------------------------------------------
+
+    def namesakes(self) -> list[str]:
+        """The other nodes that announce this robot's name (:func:`robot_topic`), by full name
+        (``_NODE_NAME_UNKNOWN_`` while discovery has not named one yet)."""
+        me = self.node.get_fully_qualified_name()
+        found = {
+            f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            for info in self.node.get_publishers_info_by_topic(self._name_topic)
+        }
+        return sorted(found - {me})
+
+    def claim(self, what: str = "name") -> None:
+        """Refuse to start under a name another node of the fleet announces (section 11):
+        ``ValueError``, one line naming both nodes and the setting (``what``). The graph is
+        read until it shows another node and has then stayed unchanged :data:`SETTLE`
+        seconds, at most :data:`SETTLE_MOST` (wall-clock seconds, as discovery runs in real
+        time): a node that has just started is still discovering the others. Two robots that
+        start together under one name may both miss the other; each warns when it finds the
+        other later (:meth:`appeared`)."""
+        me = self.node.get_fully_qualified_name()
+        began = settled = time.monotonic()
+        graph: object = None
+        while True:
+            others = self.namesakes()
+            if others and "_NODE_NAME_UNKNOWN_" not in others[0]:
+                break
+            now = time.monotonic()
+            nodes = frozenset(
+                f"{ns.rstrip('/')}/{n}" for n, ns in self.node.get_node_names_and_namespaces()
+            )
+            seen = (nodes, frozenset(t for t, _ in self.node.get_topic_names_and_types()))
+            if seen != graph:
+                graph, settled = seen, now
+            elif (nodes - {me} and now - settled >= SETTLE) or now - began >= SETTLE_MOST:
+                break
+            time.sleep(0.02)
+        if others:
+            self._namesakes.update(others)
+            raise ValueError(
+                f"{what} {self.name!r} is taken: {others[0]} announces it "
+                f"(this node: {self.node.get_fully_qualified_name()})"
+            )
+
+    def first_named(self) -> bool:
+        """Whether this robot's name comes first among the names its fleet announces: the one
+        robot that replies to a malformed query (section 11)."""
+        return self.name <= min(announced(self.node, self.topics.queries), default=self.name)
 
     def peers(self) -> set[str]:
         """The other nodes reading the query topic, by full name (``/robot1/ktbt``): who is
@@ -514,14 +638,14 @@ class Ros2Transport:
         if self.lookup is not None:
             self._answer_at_once(query, self.lookup)
             return
-        now = time.monotonic()
+        now = self.clock()
         key = (query.sender, query.id)
         with self._lock:
             self._expire(now)
             replay = key in self._seen
             full = not replay and len(self._seen) >= self.max_pending
             if not replay and not full:
-                self._seen[key] = now + self.answer_window
+                self._seen[key] = now
         if replay:  # heard again: an open query announced to a newcomer reaches every robot
             self.node.get_logger().debug(f"query {query.id} from {query.sender} heard again")
         elif full:  # left unanswered, as a teacher in cool-down would, but counted
@@ -532,14 +656,16 @@ class Ros2Transport:
     def _error_reply(self, data: bytes) -> None:
         """The error reply to a query that could not be read, addressed to its sender when
         that much of it could be read and is a name; else none is sent (a reply addressed to
-        no one helps no one), and an oversized query is never deserialized to find out."""
+        no one helps no one), and an oversized query is never deserialized to find out. Of the
+        fleet, only the robot whose name comes first replies (:meth:`first_named`): one reply
+        per query, not one per robot."""
         if len(data) > self.max_bytes + CDR_SLACK:
             return
         try:  # its first two fields alone: a later one beyond its bound leaves these readable
             sender = cdr.read(data, cdr.QUERY[:2])["sender"]
         except Exception:  # nothing of it could be read (cdr.CdrError), or the reader failed
             return
-        if re.fullmatch(NAME, sender) is None:
+        if re.fullmatch(NAME, sender) is None or not self.first_named():
             return
         unread, refused = ErrorMsg.UNREAD_ID, ErrorMsg.REFUSED
         error = ErrorReply(id=unread, sender=self.name, code=refused, message="malformed query")
@@ -614,8 +740,10 @@ class Ros2Transport:
             )
 
     def _expire(self, now: float) -> None:
-        """Forget open queries and seen queries whose time is over (under the lock)."""
-        for qid in [q for q, (_, deadline, _) in self._open.items() if deadline < now]:
+        """Forget open queries and seen queries whose time is over, or that the clock went back
+        past (under the lock)."""
+        timeout, window = self.query_timeout, self.answer_window
+        for qid in [q for q, (_, t, _) in self._open.items() if not 0 <= now - t <= timeout]:
             del self._open[qid]
-        for key in [k for k, deadline in self._seen.items() if deadline < now]:
+        for key in [k for k, t in self._seen.items() if not 0 <= now - t <= window]:
             del self._seen[key]

@@ -27,13 +27,13 @@ none runs while the user's timer (in that group too) ticks the tree.
 What the user can get wrong is refused, leaving the node and the tree as they were (what was
 added before the refusal is taken off, behaviours set up are shut down), each with one line:
 a tree that is not a ``BehaviourTree`` or has no placeholder (``TypeError``, ``ValueError``),
-a robot name or topic that is not one (``ValueError``), a sequence or a knowledge item its
+a robot name or topic that is not one, or a name another robot of the fleet already announces
+(``ValueError``, naming both nodes), a sequence or a knowledge item its
 vocabulary cannot execute (``StringBTError``, with its code).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -54,6 +54,7 @@ from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.interop.knowledge_file import load_knowledge
 from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
+from ktbt_proto.interop.ros2.logs import hear, speaking, unhear
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, ShownTopics
 from ktbt_proto.items import read_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
@@ -159,6 +160,40 @@ class Embedded:
         period: float,
     ) -> None:
         self.node, self.tree, self.name = node, tree, name
+        self.logger = node.get_logger()
+        hear(self, self.logger)  # the library's records of this robot through its node's logger
+        try:
+            with speaking(self.logger):
+                self._build(registry, factory, knowledge, todo, topics, security, overhear, wait)
+        except BaseException:
+            unhear(self)
+            raise
+        self.closed = False
+        warning = open_to_strangers(node, name, security.policy)
+        if warning is not None:
+            self.logger.warning(warning)
+        self._timer = node.create_timer(period, self._run)
+        self.shown.show(self._control.tree)
+        self.logger.info(
+            f"{name}: KT-BT attached, knows {len(self.agent.knowledge)}, learns into "
+            f"k:{self.agent.slot}, will meet "
+            f"{'what the fleet lists' if todo is None else f'{len(todo)} sequences'}"
+        )
+
+    def _build(
+        self,
+        registry: Registry,
+        factory: ControlFactory,
+        knowledge: KnowledgeBase | None,
+        todo: list[str] | None,
+        topics: Topics | None,
+        security: Security,
+        overhear: Overhear,
+        wait: float,
+    ) -> None:
+        """The transport, the agent, what it shows and offers, and the fleet member; what was
+        made before a refusal is taken off again."""
+        node, name = self.node, self.name
         self._own_log = security.log is None
         log = security.log if security.log is not None else TransferLog(None)
         self.transport = Ros2Transport(
@@ -171,6 +206,7 @@ class Embedded:
             overhear=overhear != "off",
         )
         try:
+            self.transport.claim("name")  # a name the fleet already has: one line, refused
             self.agent = ApplicationTimedAgent(
                 name,
                 factory,
@@ -205,20 +241,10 @@ class Embedded:
             todo,
             wait=wait,
             cooldown=0.0,
-            say=node.get_logger().info,
+            say=self.logger.info,
             ticks_control=False,  # the user ticks the tree
         )
         self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
-        self.closed = False
-        warning = open_to_strangers(node, name, security.policy)
-        if warning is not None:
-            node.get_logger().warning(warning)
-        self._timer = node.create_timer(period, self._run)
-        self.shown.show(self._control.tree)
-        node.get_logger().info(
-            f"{name}: KT-BT attached, knows {len(agent.knowledge)}, learns into k:{slot}, "
-            f"will meet {'what the fleet lists' if todo is None else f'{len(todo)} sequences'}"
-        )
 
     def _start_with(self, knowledge: KnowledgeBase, slot: str) -> None:
         """The items it starts knowing, in the placeholders they name (else ``prior``, else its
@@ -273,8 +299,9 @@ class Embedded:
         """One run of the agent's timer: a step of the fleet member (section 4.5) on the
         user's tick count, then what changed is shown."""
         self.agent.now = self.tree.count
-        self.member.step(time.monotonic())
-        self._show()
+        with speaking(self.logger):  # the library's records of this robot: its node's
+            self.member.step(self.transport.clock())
+            self._show()
 
     def _show(self) -> None:
         self.shown.show(self._control.tree)
@@ -290,6 +317,7 @@ class Embedded:
         if self.closed:
             return
         self.closed = True
+        unhear(self)
         self.node.destroy_timer(self._timer)
         self._offered.close()
         if self._catalogs is not None:

@@ -479,9 +479,10 @@ class FleetCatalogs:
 
     def changed(self, now: float, appeared: bool) -> dict[str, list[dict[str, str]]] | None:
         """For a fleet member (:class:`~ktbt_proto.exchange.member.Catalogs`): the catalog
-        topics that appeared followed (when a robot appeared, and every ``CATALOG_PERIOD``),
-        and what the catalogs list when one changed since the last call; else None."""
-        if appeared or now - self._refreshed >= CATALOG_PERIOD:
+        topics that appeared followed (when a robot appeared, and every ``CATALOG_PERIOD``
+        seconds of the host's clock, or when that clock went back), and what the catalogs list
+        when one changed since the last call; else None."""
+        if appeared or not 0 <= now - self._refreshed < CATALOG_PERIOD:
             self._refreshed = now
             self.refresh()
         if self.version == self._taken:

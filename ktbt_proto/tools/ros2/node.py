@@ -15,13 +15,13 @@ managed node it does so only while active:
 What it shows: its fleet events (section 10) on ``~/events``; its control tree, latched
 (TRANSIENT_LOCAL, depth 1), on ``~/tree`` with a ``changed`` flag, when it activates and after
 each merge or forget; its catalog, latched, on ``~/catalog``. Services: ``~/list_knowledge``
-and ``~/forget``. It logs through the node's logger, the library's own log records included.
+and ``~/forget``. It logs through the node's logger, the library's own log records of its
+work included (:mod:`ktbt_proto.interop.ros2.logs`): once each, however many nodes a process
+runs, at the node's level.
 """
 
 from __future__ import annotations
 
-import logging
-import time
 from typing import Any
 
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, SetParametersResult
@@ -41,6 +41,7 @@ from ktbt_proto.exchange.signing import Identity, KeyFileError
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.exchange.trust import Policy, TrustStore
 from ktbt_proto.interop.knowledge_file import load_knowledge
+from ktbt_proto.interop.ros2.logs import hear, speaking, unhear
 from ktbt_proto.interop.ros2.showing import (
     FleetCatalogs,
     Services,
@@ -109,27 +110,6 @@ def problem(name: str, value: Any) -> str | None:
     return None
 
 
-class _ToNodeLogger(logging.Handler):
-    """The library's log records (``ktbt.*``) through the node's logger, at the node's own
-    level (``--ros-args --log-level``): rclpy's severities are Python's numbers (DEBUG 10 to
-    FATAL 50), so the level is passed as it is."""
-
-    def __init__(self, node: LifecycleNode) -> None:
-        self.logger = node.get_logger()
-        super().__init__(int(self.logger.get_effective_level()))
-
-    def emit(self, record: logging.LogRecord) -> None:
-        text = record.getMessage()
-        if record.levelno >= logging.ERROR:
-            self.logger.error(text)
-        elif record.levelno >= logging.WARNING:
-            self.logger.warning(text)
-        elif record.levelno >= logging.INFO:
-            self.logger.info(text)
-        else:
-            self.logger.debug(text)
-
-
 class KtbtNode(LifecycleNode):
     """One robot's agent as a managed node (see the module's docstring)."""
 
@@ -185,11 +165,7 @@ class KtbtNode(LifecycleNode):
         declare("snapshot_period", 0.0, f"{live}; seconds, 0: only on change", **seconds(3600))
         self.add_on_set_parameters_callback(self._on_parameters)
         self.add_post_set_parameters_callback(self._parameters_set)
-        self._handler = _ToNodeLogger(self)
-        library = logging.getLogger("ktbt")
-        library.addHandler(self._handler)
-        if library.level == logging.NOTSET or library.level > self._handler.level:
-            library.setLevel(self._handler.level)
+        hear(self, self.logger)  # the library's records, this node's own through its logger
         self.finalized = False
         """Shut down (the lifecycle's finalized state): the process running it may end."""
         self.agent: ApplicationTimedAgent | None = None
@@ -247,7 +223,8 @@ class KtbtNode(LifecycleNode):
         """Build the robot from its parameters; anything wrong fails the transition with one
         line in the log, and the node stays unconfigured."""
         try:
-            self._configure()
+            with speaking(self.logger):
+                self._configure()
         except Exception as exc:  # a bad file or value: one line, never a traceback
             if isinstance(exc, OSError) and exc.filename is not None:
                 reason = f"{exc.filename}: {exc.strerror}"
@@ -256,7 +233,8 @@ class KtbtNode(LifecycleNode):
             else:
                 reason = f"{type(exc).__name__}: {exc}"
             self.logger.error(f"configure failed: {' '.join(reason.split())[:300]}")
-            self._cleanup()
+            with speaking(self.logger):
+                self._cleanup()
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
@@ -305,6 +283,7 @@ class KtbtNode(LifecycleNode):
             overhear=overhear != "off",
             active=False,
         )
+        self.transport.claim("agent_name")  # a name the fleet already has: one line, refused
         save = str(self._param("save"))
         try:
             self.agent = ApplicationTimedAgent(
@@ -370,14 +349,16 @@ class KtbtNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._cleanup()
+        with speaking(self.logger):
+            self._cleanup()
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Finalized: ``ktbt ros2 run`` ends once the transition is answered; on Ctrl-C or
         SIGTERM it takes this transition itself before it ends."""
         self.logger.info(f"shutting down from {state.label}")
-        self._cleanup()
+        with speaking(self.logger):
+            self._cleanup()
         self.finalized = True
         return TransitionCallbackReturn.SUCCESS
 
@@ -447,20 +428,22 @@ class KtbtNode(LifecycleNode):
         self._shown = self._catalogs = self._offered = None
 
     def destroy_node(self) -> None:
-        self._cleanup()
-        logging.getLogger("ktbt").removeHandler(self._handler)
+        with speaking(self.logger):
+            self._cleanup()
+        unhear(self)
         super().destroy_node()  # type: ignore[no-untyped-call]
 
     # -- running --------------------------------------------------------------------------------
 
     def _tick(self) -> None:
         """One step of the fleet member (section 4.5), then what changed is shown."""
-        member = self.member
-        if member is None:
+        member, transport = self.member, self.transport
+        if member is None or transport is None:
             return
         member.agent.now += 1
-        member.step(time.monotonic())
-        self._show()
+        with speaking(self.logger):  # the library's records of this robot: its node's
+            member.step(transport.clock())  # the node's clock: sim time under use_sim_time
+            self._show()
 
     def _show(self, periodic: bool = False) -> None:
         """Publish the tree snapshot and the catalog when they changed (the snapshot on the

@@ -10,9 +10,13 @@ until the topic has that many (``named``: and each one's node is known), with th
 nodes, types, reliability and durability; ``graph`` (topics, services: names; ``absent``: true
 to wait until none is there): the graph API's topic and service names with their types, once
 all of them are there; ``publish`` (topic, type, fields or ``raw`` hex bytes,
-subscribers: wait for that many first; ``latched``: its publisher latched); ``call`` (service,
+subscribers: wait for that many first; ``latched``: its publisher latched; answered with the
+simulated time, ``sim``); ``call`` (service,
 type, request); ``params`` (node, names): a node's parameter values; ``set_params`` (node,
-values): set them, each one's result.
+values): set them, each one's result; ``clock`` (start, speed): publish ``/clock`` from
+``start`` seconds at ``speed`` times real time (a step of 0.1 simulated seconds at a time),
+from then on; ``matched`` (topic, count): wait until the probe's publisher on the topic has
+that many subscriptions, and the simulated time then (``sim``).
 
 :func:`echo` renders received messages as ``ros2 topic echo`` prints them (YAML, ``---`` after
 each), for the tutorial's captured output: the ``ros2`` command line has no wheel.
@@ -96,6 +100,8 @@ class ProbeNode:
         self.received: dict[str, list[dict[str, Any]]] = {}
         self.subs: dict[str, Any] = {}
         self.pubs: dict[str, Any] = {}
+        self.sim = 0.0
+        """The simulated time last published on ``/clock`` (op ``clock``)."""
 
     def qos(self, latched: bool) -> QoSProfile:
         return QoSProfile(
@@ -170,6 +176,18 @@ class ProbeNode:
                     return {"ok": False, "error": "timeout"}
                 time.sleep(0.02)
             return {"ok": True}
+        if op == "clock":
+            threading.Thread(
+                target=self.clock, args=(float(req["start"]), float(req["speed"])), daemon=True
+            ).start()
+            return {"ok": True}
+        if op == "matched":
+            pub = self.pubs[req["topic"]]
+            while pub.get_subscription_count() < req["count"]:
+                if time.monotonic() > deadline:
+                    return {"ok": False, "error": "timeout"}
+                time.sleep(0.005)
+            return {"ok": True, "sim": self.sim}
         if op == "publish":
             topic = req["topic"]
             msg_type = getattr(ktbt_msg, req["type"])
@@ -185,8 +203,11 @@ class ProbeNode:
             if "raw" in req:
                 pub.publish(bytes.fromhex(req["raw"]))
             else:
-                pub.publish(msg_type(**req["fields"]))
-            return {"ok": True}
+                fields = dict(req["fields"])
+                if req["type"] == "Catalog":  # its entries as messages
+                    fields["items"] = [ktbt_msg.CatalogEntry(**e) for e in fields.get("items", [])]
+                pub.publish(msg_type(**fields))
+            return {"ok": True, "sim": self.sim}
         if op == "call":
             srv_type = SERVICES[req["type"]]
             client = self.node.create_client(srv_type, req["service"])
@@ -241,6 +262,22 @@ class ProbeNode:
                 values[name] = value[field] if field else None
             return {"ok": True, "values": values}
         return {"ok": False, "error": f"unknown op {op!r}"}
+
+    def clock(self, start: float, speed: float, step: float = 0.1) -> None:
+        """``/clock`` from ``start``, ``step`` simulated seconds every ``step / speed`` real
+        ones (each step taken against the real clock, so a late one does not slow it)."""
+        from rosgraph_msgs.msg import Clock
+
+        pub = self.node.create_publisher(Clock, "/clock", 10)
+        began, n = time.monotonic(), 0
+        while True:
+            self.sim = start + n * step
+            whole = int(self.sim)
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = whole, round((self.sim - whole) * 1e9)
+            pub.publish(msg)
+            n += 1
+            time.sleep(max(0.0, began + n * step / speed - time.monotonic()))
 
 
 def main() -> None:

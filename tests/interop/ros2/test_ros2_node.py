@@ -219,9 +219,10 @@ def test_an_inactive_robot_does_not_answer_and_hostile_messages_are_refused(
             )
         )
     assert len({r["n"] for r in refusals}) == 4
-    error = probe.wait("/ktbt/errors", 30, to="probe", sender="teacher", code="refused")
+    # One reply, from the robot whose name comes first (section 11), not one per robot.
+    error = probe.wait("/ktbt/errors", 30, to="probe", sender="learner", code="refused")
     assert error["id"] == "0" and error["message"] == "malformed query"
-    error = probe.wait("/ktbt/errors", 30, to="bounder", sender="teacher", code="refused")
+    error = probe.wait("/ktbt/errors", 30, to="bounder", sender="learner", code="refused")
     assert error["id"] == "0" and error["message"] == "malformed query"
     log = ns.log("teacher")
     assert log.count("[WARN]") >= 3 and "teacher refused: on /ktbt/queries" in log

@@ -8,7 +8,8 @@ whose work runs now with :func:`speaking` around its own callbacks (a tick, conf
 handler on ``ktbt``, installed while any host is there (:func:`hear`), hands each record to
 that host's rclpy logger, which filters it by its own level (``--ros-args --log-level``) and
 names the node: each line once, under the node that made it. A record made outside any host's
-callback (a user's tree ticked by their own timer) goes to rclpy's ``ktbt`` logger.
+callback (a user's tree ticked by their own timer, a zenoh callback of the bridge) goes to the
+one host's logger where the process has one, else to rclpy's ``ktbt`` logger.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ class _ToRosLoggers(logging.Handler):
     rclpy's severities are Python's numbers (DEBUG 10 to FATAL 50)."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        logger = _speaker.get() or get_logger("ktbt")
+        logger = _speaker.get() or _alone() or get_logger("ktbt")
         text = record.getMessage()
         if record.levelno >= logging.ERROR:
             logger.error(text)
@@ -47,8 +48,8 @@ class _ToRosLoggers(logging.Handler):
 
 _HANDLER = _ToRosLoggers()
 _lock = threading.Lock()
-_hosts: dict[int, int] = {}
-"""Each host (by ``id``) heard, with its logger's level."""
+_hosts: dict[int, Any] = {}
+"""Each host (by ``id``) heard, with its rclpy logger."""
 _before: list[int] = []
 """The ``ktbt`` logger's level before the first host came (put back when the last goes)."""
 
@@ -61,8 +62,8 @@ def hear(host: object, logger: Any) -> None:
         if not _hosts:
             _before[:] = [library.level]
             library.addHandler(_HANDLER)
-        _hosts[id(host)] = int(logger.get_effective_level())
-        library.setLevel(min(_hosts.values()))
+        _hosts[id(host)] = logger
+        library.setLevel(_lowest())
 
 
 def unhear(host: object) -> None:
@@ -72,10 +73,20 @@ def unhear(host: object) -> None:
         if _hosts.pop(id(host), None) is None:
             return
         if _hosts:
-            library.setLevel(min(_hosts.values()))
+            library.setLevel(_lowest())
         else:
             library.removeHandler(_HANDLER)
             library.setLevel(_before[0] if _before else logging.NOTSET)
+
+
+def _lowest() -> int:
+    return min(int(logger.get_effective_level()) for logger in _hosts.values())
+
+
+def _alone() -> Any:
+    """The logger of the process's one host, or None with none or several."""
+    loggers = list(_hosts.values())
+    return loggers[0] if len(loggers) == 1 else None
 
 
 @contextmanager

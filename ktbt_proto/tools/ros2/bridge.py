@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import logging
 import re
 import threading
 import time
@@ -136,27 +135,6 @@ QUERIED = "the query topic"
 """The source of a name known only by its queries (a message does not say who sent it)."""
 EVENT_TYPE = "ktbt_interfaces/msg/FleetEvent"
 """The type by which a robot's events topic is found on the graph."""
-
-
-class NodeLog(logging.Handler):
-    """The library's log records (``ktbt.*``: the mirrors' refusals) through a node's logger,
-    so that they reach ``/rosout`` with the bridge's own lines, at the node's level
-    (``--ros-args --log-level``; rclpy's severities are Python's numbers)."""
-
-    def __init__(self, node: Node) -> None:
-        self.logger = node.get_logger()
-        super().__init__(int(self.logger.get_effective_level()))
-
-    def emit(self, record: logging.LogRecord) -> None:
-        text = record.getMessage()
-        if record.levelno >= logging.ERROR:
-            self.logger.error(text)
-        elif record.levelno >= logging.WARNING:
-            self.logger.warning(text)
-        elif record.levelno >= logging.INFO:
-            self.logger.info(text)
-        else:
-            self.logger.debug(text)
 
 
 def ros_name(name: str, taken: set[str]) -> str:

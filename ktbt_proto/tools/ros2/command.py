@@ -453,15 +453,15 @@ def bridge_command(
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,54}", node_name):
         raise refuse(f"--node-name: {node_name!r}: use letters, digits and '_' (a ROS node name)")
     _ready()
-    import logging
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
+    from ktbt_proto.interop.ros2 import logs
     from ktbt_proto.tools.peer import until_signalled
-    from ktbt_proto.tools.ros2.bridge import Bridge, NodeLog
+    from ktbt_proto.tools.ros2.bridge import Bridge
     from ktbt_proto.transport.ros2 import Topics
     from ktbt_proto.transport.zenoh import SessionError
 
@@ -472,15 +472,11 @@ def bridge_command(
     code = 0
     node: Any = None
     bridge: Any = None
-    library = logging.getLogger("ktbt")
-    handler: Any = None
     try:
         with until_signalled() as stop:
             node = rclpy.create_node(node_name)
             # The library's records (the mirrors' refusals) through the node's logger too.
-            handler = NodeLog(node)
-            library.addHandler(handler)
-            library.setLevel(handler.level)
+            logs.hear(node, node.get_logger())
             try:
                 bridge = Bridge(
                     node,
@@ -512,9 +508,8 @@ def bridge_command(
         if bridge is not None:
             _say(bridge.summary())
             bridge.close()
-        if handler is not None:
-            library.removeHandler(handler)
         if node is not None:
+            logs.unhear(node)
             node.destroy_node()
         try_shutdown()
     raise typer.Exit(code)

@@ -65,19 +65,59 @@ class Document:
         self.text = text
         self.version = version
         self.encoding = encoding
+        self._base = len(text)
+        self._same = (len(text), len(text))
+
+    def take_edits(self) -> tuple[int, int]:
+        """How many code points at the start and at the end of the text the changes applied
+        since the last call (or since the document was opened) left as they were; the text as
+        it is now is the next call's reference. What lets a check reuse the one before
+        (:func:`.diagnostics.check`)."""
+        prefix, suffix = self._same
+        prefix = min(prefix, self._base, len(self.text))
+        suffix = min(suffix, self._base - prefix, len(self.text) - prefix)
+        self._base = len(self.text)
+        self._same = (self._base, self._base)
+        return prefix, suffix
 
     # -- changes ----------------------------------------------------------------------------
 
     def apply(self, changes: Sequence[lsp.TextDocumentContentChangeEvent], version: int) -> None:
         """Apply a ``didChange``'s changes in order (incremental ranges, or the whole text)."""
         for change in changes:
+            prefix, suffix = self._same
             if isinstance(change, lsp.TextDocumentContentChangePartial):
                 start = self.offset_at(change.range.start)
                 end = max(start, self.offset_at(change.range.end))
-                self._set(self.text[:start] + change.text + self.text[end:])
+                self._same = (min(prefix, start), min(suffix, len(self.text) - end))
+                self._replace(start, end, change.text)
             else:
+                self._same = (0, 0)
                 self._set(change.text)
         self.version = version
+
+    def _replace(self, start: int, end: int, new: str) -> None:
+        """Replace ``text[start:end]`` by ``new``. The line starts are moved rather than found
+        again when no line break is removed, added, split (CR|LF) or joined (CR, LF): what a
+        keystroke inside a line costs is then that of the lines after it, not of the text."""
+        text = self.text
+        starts = self.__dict__.get("_lsp_starts")
+        self._set(text[:start] + new + text[end:])
+        removed = text[start:end]
+        if (
+            starts is None
+            or "\n" in new
+            or "\r" in new
+            or "\n" in removed
+            or "\r" in removed
+            or (text[start - 1 : start] == "\r" and text[end : end + 1] == "\n")
+        ):
+            return
+        delta = len(new) - len(removed)
+        if delta:
+            after = bisect_right(starts, start)
+            starts[after:] = [at + delta for at in starts[after:]]
+        self.__dict__["_lsp_starts"] = starts
 
     def _set(self, text: str) -> None:
         self.text = text

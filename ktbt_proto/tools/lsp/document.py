@@ -74,10 +74,11 @@ class Document:
         it is now is the next call's reference. What lets a check reuse the one before
         (:func:`.diagnostics.check`)."""
         prefix, suffix = self._same
-        prefix = min(prefix, self._base, len(self.text))
-        suffix = min(suffix, self._base - prefix, len(self.text) - prefix)
-        self._base = len(self.text)
-        self._same = (self._base, self._base)
+        base, size = self._base, len(self.text)
+        prefix = min(prefix, base, size)
+        suffix = min(suffix, base - prefix, size - prefix)
+        self._base = size
+        self._same = (size, size)
         return prefix, suffix
 
     # -- changes ----------------------------------------------------------------------------
@@ -102,7 +103,10 @@ class Document:
         keystroke inside a line costs is then that of the lines after it, not of the text."""
         text = self.text
         starts = self.__dict__.get("_lsp_starts")
+        was_ascii = self.__dict__.get("_ascii")
         self._set(text[:start] + new + text[end:])
+        if was_ascii and new.isascii():
+            self.__dict__["_ascii"] = True
         removed = text[start:end]
         if (
             starts is None
@@ -121,10 +125,14 @@ class Document:
 
     def _set(self, text: str) -> None:
         self.text = text
-        for cached in ("_lsp_starts", "_sbt_starts"):
+        for cached in ("_lsp_starts", "_sbt_starts", "_ascii"):
             self.__dict__.pop(cached, None)
 
     # -- lines ------------------------------------------------------------------------------
+
+    @cached_property
+    def _ascii(self) -> bool:
+        return self.text.isascii()
 
     @cached_property
     def _lsp_starts(self) -> list[int]:
@@ -170,8 +178,10 @@ class Document:
         if position.line >= len(starts):
             return len(self.text)
         start = starts[max(position.line, 0)]
-        segment = self.text[start : self._line_end(position.line)]
-        return start + _chars(segment, position.character, self.encoding)
+        end = self._line_end(position.line)
+        if self._ascii:  # a code unit is a code point: no need to read the line
+            return start + min(max(position.character, 0), end - start)
+        return start + _chars(self.text[start:end], position.character, self.encoding)
 
     def position_at(self, offset: int) -> lsp.Position:
         """The LSP position of an offset."""
@@ -179,6 +189,8 @@ class Document:
         line = bisect_right(self._lsp_starts, offset) - 1
         start = self._lsp_starts[line]
         offset = min(offset, max(self._line_end(line), start))
+        if self._ascii:
+            return lsp.Position(line=line, character=offset - start)
         return lsp.Position(line=line, character=units(self.text[start:offset], self.encoding))
 
     def range_of(self, start: int, end: int) -> lsp.Range:

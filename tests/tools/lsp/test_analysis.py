@@ -277,7 +277,7 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
     seeds = [FLAT, MEMORY, "<sq>\r\n  <a>(Push) # go\r\n  <c>(!DoorClosed)\r<a>(P)\n<e>\n"]
     seeds += [t for t in corpus.texts + corpus.pieces if len(t) < 3_000]
     seeds += [format_tree(parse(FLAT)), "<k>(door)\n    " + MEMORY + "\n    <a>(Push)\n<e>\n"]
-    typed = 'abzAZ_09.!<>(),="# \n\r'
+    typed = 'abzAZ_09.!<>(),="# \n\ré😀'
     reused = 0
     for seed, start, end, new in (
         ("<sq><a>(trux)<e>", 11, 12, "e"),  # a word that is no name: SBT103
@@ -321,6 +321,10 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 assert [fresh.line_text(i) for i in range(fresh.line_count)] == [
                     document.line_text(i) for i in range(document.line_count)
                 ]
+                for offset in range(0, len(document.text) + 1, 7):
+                    position = document.position_at(offset)
+                    assert position == fresh.position_at(offset)
+                    assert document.offset_at(position) == fresh.offset_at(position)
                 checked = check(document.text, registry, previous, document.take_edits())
                 whole = check(document.text, registry)
                 assert _seen(checked) == _seen(whole), (seed, document.text)

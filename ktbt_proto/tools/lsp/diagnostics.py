@@ -8,23 +8,25 @@ of the input), a leaf's or container's head (``<a>(TurnHandle, degrees=600)``), 
 problem is about (an unknown action's name). ``SBT5xx`` are warnings, every other code an
 error. Only the problem's own head is read to place it, never the whole text again.
 
-**After an edit inside one leaf's name** (typing ``MoveTo`` letter by letter), the server does
-not read the whole text again: given the previous check and how much of the text's start and
-end the edit left alone, :func:`check` renames that one leaf in the previous tree and validates
-it alone. This gives the same tree and the same problems as checking the whole text, for
-these reasons, each tested for (``tests/tools/lsp/test_analysis.py`` holds the two ways of
-checking to the same result on edited texts):
+**After an edit inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or
+``degrees=60`` into ``degrees=600``), the server does not read the whole text again: given the
+previous check and how much of the text's start and end the edit left alone, :func:`check`
+reads that one leaf's token again, puts the leaf in the previous tree in place of the old one
+and validates it alone. This gives the same tree and the same problems as checking the whole
+text, for these reasons, each tested for (``tests/tools/lsp/test_analysis.py`` holds the two
+ways of checking to the same result on chained random edits):
 
-- the text before the leaf's token and after its name is unchanged, and the new name is a
-  whole stringBT name (spec/stringbt.md section 2) followed by what followed the old one, so
-  the parser reads the same tokens, the leaf with its new name among them;
-- no line break is added or removed, and when the name's length changes no other node starts
-  on the edited line, so every other node keeps its position;
+- the text before the leaf's token and after its ``)`` is unchanged, the old token (found by
+  its own reading, strings whole) reads alone as the very leaf the tree holds there, and the new
+  one reads alone as one leaf of the same kind, without a comment in it: the parser reads the
+  same tokens around it, and this leaf among them (spec/stringbt.md section 2);
+- no line break is added or removed, and when the length changes no other node starts after
+  the edit on its line, so every other node keeps its position;
 - what ``find_problems`` says of a leaf depends on that leaf alone (its name, arguments and the
   vocabulary), once no limit was reached (a limit is a whole-tree matter: no reuse then);
 - warnings (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no placeholder
-  and a root that is no item has none, whatever its leaves are called; otherwise they are
-  looked for again in the new tree.
+  and a root that is no item has none, whatever its leaves hold; otherwise they are looked for
+  again in the new tree.
 
 Any other edit, a text that did not parse, or another vocabulary, and the whole text is
 checked, exactly as ``ktbt check`` does.
@@ -32,16 +34,25 @@ checked, exactly as ``ktbt check`` does.
 
 from __future__ import annotations
 
-from bisect import bisect_right
+from bisect import bisect_left
 from dataclasses import dataclass, field
 from typing import cast
 
 from ktbt_proto.errors import ErrorCode, LimitError, StringBTError
 from ktbt_proto.items import find_warnings, split_item
 from ktbt_proto.limits import DEFAULT_LIMITS
-from ktbt_proto.syntax import NAME_RE, parse
-from ktbt_proto.tools.lsp.outline import head_at, token_at
-from ktbt_proto.tree import Action, Condition, Container, Node, Placeholder, Tree, with_children
+from ktbt_proto.syntax import parse
+from ktbt_proto.tools.lsp.outline import head_at, leaf_end, token_at
+from ktbt_proto.tree import (
+    Action,
+    Condition,
+    Container,
+    Node,
+    Placeholder,
+    Tree,
+    Wait,
+    with_children,
+)
 from ktbt_proto.validate import SupportsNames, find_problems
 
 MAX_PROBLEMS = 1_000
@@ -50,9 +61,9 @@ helps no one, and would cost the editor more than the text itself."""
 _ON_NAME = frozenset(
     (ErrorCode.UNKNOWN_CONDITION, ErrorCode.UNKNOWN_ACTION, ErrorCode.INVALID_NAME)
 )
-_NAME_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.")
-_AFTER_NAME = frozenset(" \t\r\n#,)")
-"""What may follow a leaf's name in its token: a blank, a comment, its arguments or its end."""
+_LEAF_HEADS = ("<a>(", "<c>(", "<w>(", "<wt>(")
+"""How a leaf's token starts when its parentheses follow its tag at once (the usual way)."""
+_LEAVES = (Action, Condition, Wait)
 
 
 @dataclass(frozen=True)
@@ -162,7 +173,7 @@ def _recheck(
     previous: Checked, text: str, registry: SupportsNames | None, prefix: int, suffix: int
 ) -> Checked | None:
     """The check of ``text`` from ``previous``'s, when the edit between them lies inside one
-    leaf's name (see the module's docstring); None when it does not."""
+    leaf's parentheses (see the module's docstring); None when it does not."""
     old, tree = previous.text, previous.tree
     if tree is None or previous.registry is not registry or len(text) > DEFAULT_LIMITS.max_size:
         return None
@@ -174,62 +185,52 @@ def _recheck(
         return None  # not the text previous checked, edited as said: read it all
     if prefix == len(old) == len(text):
         return previous  # the same text
+    start, old_end, new_end = prefix, len(old) - suffix, len(text) - suffix
+    removed, added = old[start:old_end], text[start:new_end]
+    if "\n" in removed or "\n" in added or "#" in removed or "#" in added:
+        return None  # a line or a comment comes or goes: read it all
+    tag = old.rfind("<", 0, start)
+    head = next((h for h in _LEAF_HEADS if old.startswith(h, tag)), None) if tag >= 0 else None
+    if head is None or start < tag + len(head):
+        return None  # not inside a leaf's parentheses (a tag, a blank...): read it all
     if old.startswith("\ufeff") or any(isinstance(p, LimitError) for p in previous.found):
         return None
-    start, old_end = prefix, len(old) - suffix
-    word = start
-    while word and old[word - 1] in _NAME_CHARS and start - word <= DEFAULT_LIMITS.max_literal:
-        word -= 1
-    if old[word - 1 : word] not in ("(", "!"):
-        return None  # not in a leaf's name (a tag, a blank, an argument): read it all
+    close = leaf_end(old, tag + len(head))
+    if close is None or old_end >= close:
+        return None
     nodes = previous.nodes()
     if nodes is None:
         return None
-    line_start = old.rfind("\n", 0, start) + 1
+    line_start = old.rfind("\n", 0, tag) + 1
     line = old.count("\n", 0, line_start) + 1
-    at = bisect_right(nodes.positions, (line, start - line_start + 1)) - 1
-    if at < 0 or nodes.positions[at][0] != line:
+    pos = (line, tag - line_start + 1)
+    at = bisect_left(nodes.positions, pos)
+    if at == len(nodes.positions) or nodes.positions[at] != pos:
         return None
     path = nodes.paths[at]
     leaf = tree.root
     for i in path:
         leaf = leaf.children[i]  # type: ignore[attr-defined]
     kind = type(leaf)
-    if kind is not Condition and kind is not Action:
-        return None
-    name: str = leaf.name  # type: ignore[attr-defined]
-    pos = nodes.positions[at]
-    head = ("<c>(!" if leaf.negated else "<c>(") if kind is Condition else "<a>("  # type: ignore[attr-defined]
-    name_start = line_start + pos[1] - 1 + len(head)
-    name_end = name_start + len(name)
-    if not (
-        name_start <= start
-        and old_end <= name_end
-        and old.startswith(head, name_start - len(head))
-        and old.startswith(name, name_start)
-        and old[name_end : name_end + 1] in _AFTER_NAME
+    delta = new_end - old_end
+    edited_line = line + old.count("\n", tag, start)
+    if kind not in _LEAVES or (
+        delta and at + 1 < len(nodes.positions) and nodes.positions[at + 1][0] == edited_line
     ):
+        return None  # not a leaf, or the nodes after it on the edited line would move
+    try:
+        was, now = parse(old[tag:close]).root, parse(text[tag : close + delta]).root
+    except StringBTError:
+        return None  # the leaf is no longer one leaf: read it all
+    if was != leaf or type(now) is not kind or now.comments is not None:
         return None
-    delta = len(text) - len(old)
-    renamed = text[name_start : name_end + delta]
-    if (
-        NAME_RE.fullmatch(renamed) is None
-        or renamed in ("true", "false")
-        or len(renamed) > DEFAULT_LIMITS.max_literal
-    ):
-        return None
-    if delta and at + 1 < len(nodes.positions) and nodes.positions[at + 1][0] == line:
-        return None  # the nodes after it on this line would move
-    new: Node = object.__new__(kind)
-    new.__dict__.update(leaf.__dict__)
-    new.__dict__["name"] = renamed
-    root = _replaced(tree.root, path, new)
-    renamed_tree = Tree(root, footer=tree.footer)
+    now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
+    renamed = Tree(_replaced(tree.root, path, now), footer=tree.footer)
     found = [p for p in previous.found if (p.line, p.column) != pos]
-    found.extend(find_problems(new, registry))
+    found.extend(find_problems(now, registry))
     found.sort(key=lambda p: (p.line, p.column))
-    warnings = find_warnings(renamed_tree) if nodes.warns else []
-    return _checked(text, registry, renamed_tree, found, warnings, nodes)
+    warnings = find_warnings(renamed) if nodes.warns else []
+    return _checked(text, registry, renamed, found, warnings, nodes)
 
 
 def _replaced(node: Node, path: tuple[int, ...], new: Node) -> Node:

@@ -15,8 +15,8 @@ Three rules hold for every handler:
   queued: when it ends on an older version than the document now has, its result is dropped
   and the newest text alone is checked next, so a burst of keystrokes costs at most two checks
   and the last one answers the text as it is. Each check starts from the one before it: an
-  edit inside a leaf's name renames that leaf and validates it alone instead of reading the
-  whole text again (:mod:`.diagnostics`, with the same result).
+  edit inside a leaf's parentheses reads that leaf again and validates it alone instead of
+  reading the whole text again (:mod:`.diagnostics`, with the same result).
 - **One vocabulary per document, loaded once** (:class:`.vocabulary.Vocabularies`).
 
 With ``--fleet ENDPOINT`` (off by default), :mod:`.fleet` reads the fleet's catalogs in a
@@ -61,7 +61,7 @@ FLEET_SOURCE = "ktbt fleet"
 DEBOUNCE = 0.0
 """Seconds a check waits after a change for more to come: none by default, since changes that
 come while a check runs are folded into the next one anyway (``ktbt lsp`` answers a keystroke
-in a name in a fifth of a ``ktbt check``, any other in about one: benchmarks/README.md)."""
+inside a leaf in a fraction of a ``ktbt check``, any other in about one: benchmarks/README.md)."""
 CONFIGURATION = "ktbt-settings"
 """The code of the diagnostic saying a vocabulary could not be loaded."""
 

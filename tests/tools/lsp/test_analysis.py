@@ -279,13 +279,24 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
     seeds += [format_tree(parse(FLAT)), "<k>(door)\n    " + MEMORY + "\n    <a>(Push)\n<e>\n"]
     typed = 'abzAZ_09.!<>(),="# \n\ré😀'
     reused = 0
-    for seed, start, end, new in (
+    for seed, start, end, new in (  # edits inside a leaf and beside it
         ("<sq><a>(trux)<e>", 11, 12, "e"),  # a word that is no name: SBT103
         ("<sq><a>(Push)<e>", 12, 12, "."),
         ("<sq><a>(Push)<e>", 8, 8, "9"),
         ("<sq><c>(!Door)<a>(Push)<e>", 13, 13, "s"),  # the next node moves
         ("<sq>\r<a>(Push)\n<e>", 14, 14, "x"),
         ("<sq><a>(Push)<e>", 8, 12, ""),
+        (FLAT, FLAT.index("60"), FLAT.index("60") + 1, "9"),  # an argument's value
+        (FLAT, FLAT.index("60") + 2, FLAT.index("60") + 2, "0"),  # out of range: SBT310
+        (FLAT, FLAT.index("left") + 4, FLAT.index("left") + 4, ")<a>(X"),  # in a string
+        (FLAT, FLAT.index("side"), FLAT.index("side") + 1, ""),  # an argument's name
+        (FLAT, FLAT.index("(DoorClosed)") + 1, FLAT.index("(DoorClosed)") + 1, "!"),
+        ("<sq><c>(!Door, on=true)<e>", 8, 9, ""),
+        ("<sq><c>(!Door, on=true)<e>", 21, 22, ""),  # "tru" is no value: SBT103
+        ("<sq><w>(5)<a>(Push)<e>", 9, 9, "0"),
+        ("<sq><a>(Push, x=1)<e>", 17, 17, ", y=2"),
+        ("<sq><a>(Push, x=1)<e>", 17, 17, ") <a>(Y"),  # two leaves now
+        ("<sq>\n<a>(Push\n)<e>", 13, 13, "#c"),  # a comment in it: it moves to the next node
     ):
         document = Document("file:///t.sbt", seed)
         previous = check(seed, DOOR.registry, None, document.take_edits())

@@ -81,32 +81,44 @@ class Problem:
 
 @dataclass(frozen=True)
 class Nodes:
-    """Where a tree's nodes are: their positions in document order, the path (child indices
-    from the root) to each, and whether the tree can hold a warning at all (it has a
-    placeholder, or its root is a knowledge item)."""
+    """Where a tree's nodes are: their positions in document order, each one's parent (its
+    index here, -1 for the root) and place among the parent's children, and whether the tree
+    can hold a warning at all (it has a placeholder, or its root is a knowledge item)."""
 
     positions: list[tuple[int, int]]
-    paths: list[tuple[int, ...]]
+    parents: list[int]
+    places: list[int]
     warns: bool
 
     @classmethod
     def of(cls, tree: Tree) -> Nodes | None:
         """None when a node has no position (a tree that was not parsed)."""
         positions: list[tuple[int, int]] = []
-        paths: list[tuple[int, ...]] = []
+        parents: list[int] = []
+        places: list[int] = []
         warns = split_item(tree.root) is not None
-        stack: list[tuple[Node, tuple[int, ...]]] = [(tree.root, ())]
+        stack: list[tuple[Node, int, int]] = [(tree.root, -1, 0)]
         while stack:
-            node, path = stack.pop()
+            node, parent, place = stack.pop()
             if node.pos is None:
                 return None
+            here = len(positions)
             positions.append(node.pos)
-            paths.append(path)
+            parents.append(parent)
+            places.append(place)
             if isinstance(node, Container):
                 warns = warns or isinstance(node, Placeholder)
                 children = node.children
-                stack.extend((children[i], (*path, i)) for i in range(len(children) - 1, -1, -1))
-        return cls(positions, paths, warns)
+                stack.extend((children[i], here, i) for i in range(len(children) - 1, -1, -1))
+        return cls(positions, parents, places, warns)
+
+    def path(self, at: int) -> tuple[int, ...]:
+        """The child indices from the root to node ``at``."""
+        path = []
+        while self.parents[at] >= 0:
+            path.append(self.places[at])
+            at = self.parents[at]
+        return tuple(reversed(path))
 
 
 @dataclass
@@ -207,7 +219,7 @@ def _recheck(
     at = bisect_left(nodes.positions, pos)
     if at == len(nodes.positions) or nodes.positions[at] != pos:
         return None
-    path = nodes.paths[at]
+    path = nodes.path(at)
     leaf = tree.root
     for i in path:
         leaf = leaf.children[i]  # type: ignore[attr-defined]

@@ -98,6 +98,7 @@ class KtbtServer(LanguageServer):
         self.debounce = debounce
         self._checks: dict[str, asyncio.Task[None]] = {}
         self._checked: dict[str, tuple[Document, Checked]] = {}
+        self._paths: dict[str, Path | None] = {}
         self._outlines: dict[str, tuple[int, Outline]] = {}
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ktbt-check")
         self.fleet_endpoint = fleet
@@ -129,8 +130,10 @@ class KtbtServer(LanguageServer):
         return outline
 
     def known(self, uri: str) -> tuple[Known | None, str | None]:
-        path = to_fs_path(uri)
-        return self.vocabularies.for_path(Path(path) if path else None)
+        if uri not in self._paths:  # a document's path, read from its URI once
+            path = to_fs_path(uri)
+            self._paths[uri] = Path(path) if path else None
+        return self.vocabularies.for_path(self._paths[uri])
 
     # -- the fleet (off without --fleet) ------------------------------------------------------
 
@@ -369,6 +372,7 @@ def build(
         uri = params.text_document.uri
         ls.documents.pop(uri, None)
         ls._checked.pop(uri, None)
+        ls._paths.pop(uri, None)
         ls._outlines.pop(uri, None)
         ls._items.pop(uri, None)
         ls.text_document_publish_diagnostics(lsp.PublishDiagnosticsParams(uri=uri, diagnostics=[]))

@@ -8,6 +8,7 @@ The same features over a real client are tests/tools/lsp/test_server.py's."""
 from __future__ import annotations
 
 import json
+import os
 import random
 import sys
 from pathlib import Path
@@ -252,6 +253,31 @@ def test_project_settings_are_found_upward_and_refused_in_one_line(tmp_path: Pat
     (py / "pyproject.toml").write_text("[tool.ktbt]\nvocabulary = 1\ncontrol = 2\n", "utf-8")
     with pytest.raises(ProjectError, match=r"unknown keys \['control'\]"):
         find_project(py)
+
+
+def test_one_servers_vocabularies_follow_the_files_as_they_change(tmp_path: Path) -> None:
+    # What a running server sees: the folders above a document are found once, but every
+    # check looks at the files again, so a settings file written nearer, settings changed and a
+    # vocabulary changed are all seen at the next keystroke.
+    (tmp_path / "door.toml").write_text(VOCABULARY, encoding="utf-8")
+    (tmp_path / "ktbt.toml").write_text('vocabulary = "door.toml"\n', encoding="utf-8")
+    deep = tmp_path / "trees"
+    deep.mkdir()
+    vocabularies = Vocabularies()
+    first, _ = vocabularies.for_path(deep / "a.sbt")
+    assert first is not None and first.entry("action", "Push") is not None
+    assert vocabularies.for_path(deep / "a.sbt")[0] is first  # nothing changed: not read again
+    (deep / "small.toml").write_text('actions = ["Fly"]\n', encoding="utf-8")
+    (deep / "ktbt.toml").write_text('vocabulary = "small.toml"\n', encoding="utf-8")
+    nearer, _ = vocabularies.for_path(deep / "a.sbt")
+    assert nearer is not None and nearer.entry("action", "Fly") is not None
+    assert nearer.entry("action", "Push") is None
+    (deep / "small.toml").write_text('actions = ["Hop"]\n', encoding="utf-8")
+    os.utime(deep / "small.toml", ns=(1, 1))  # another modification time, however fast
+    changed, _ = vocabularies.for_path(deep / "a.sbt")
+    assert changed is not None and changed.entry("action", "Hop") is not None
+    (deep / "ktbt.toml").unlink()
+    assert vocabularies.for_path(deep / "a.sbt")[0] is first  # back to the project's own
 
 
 def _seen(checked: Checked) -> tuple[object, ...]:

@@ -8,9 +8,11 @@ against the vocabulary, look for warnings, on the document's text as it is at th
 Against it, on the 51-node reference tree:
 
 - **server, in process**: what the server does for a ``didChange``, the same calls in the same
-  order: apply the incremental edit, take how much of the text it left alone, check the text
-  from the previous check (``diagnostics.check``: one leaf renamed and validated when the edit
-  is inside its name, the whole text otherwise), and turn each problem into an LSP diagnostic;
+  order: apply the incremental edit, take how much of the text it left alone, find the
+  document's vocabulary (``KtbtServer.known``: a ``stat`` of each settings file and of the
+  vocabulary, never a read while they are unchanged), check the text from the previous check
+  (``diagnostics.check``: the one leaf read again and validated when the edit is inside its
+  parentheses, the whole text otherwise), and turn each problem into an LSP diagnostic;
 - **server, over stdio**: a real server process, from writing the ``didChange`` to reading its
   ``publishDiagnostics``, JSON and pipes included.
 
@@ -50,8 +52,7 @@ from ktbt_proto.items import find_warnings
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.lsp.diagnostics import check
 from ktbt_proto.tools.lsp.document import Document
-from ktbt_proto.tools.lsp.server import _diagnostic
-from ktbt_proto.tools.vocabulary import read_vocabulary
+from ktbt_proto.tools.lsp.server import KtbtServer, _diagnostic
 from ktbt_proto.validate import SupportsNames, find_problems
 
 from .bench_parse import big_pretty, reference_compact
@@ -187,11 +188,15 @@ class Keystrokes:
     """One open document that a letter at ``where`` is changed in, back and forth, as the
     server does it (the same calls as ``KtbtServer._check`` and ``publish``)."""
 
-    def __init__(self, text: str, registry: SupportsNames, where: int, letters: str) -> None:
-        self.registry = registry
-        self.document = Document("file:///bench.sbt", text)
+    def __init__(self, path: Path, text: str, where: int, letters: str) -> None:
+        self.ls = KtbtServer()
+        self.document = Document(path.as_uri(), text)
+        known, _ = self.ls.known(self.document.uri)
+        if known is None:
+            raise RuntimeError(f"no vocabulary for {path}")
+        self.registry: SupportsNames = known.registry
         self.where, self.letters = where, letters
-        self.checked = check(text, registry, None, self.document.take_edits())
+        self.checked = check(text, self.registry, None, self.document.take_edits())
         self.typed = False
         self.stages: dict[str, list[int]] = {}
 
@@ -210,10 +215,16 @@ class Keystrokes:
             new = self.letters[self.typed]
         return lsp.TextDocumentContentChangePartial(range=lsp.Range(start=at, end=end), text=new)
 
+    def registry_now(self) -> SupportsNames | None:
+        """The vocabulary as the server finds it for each check (a ``stat`` or two)."""
+        known, _ = self.ls.known(self.document.uri)
+        return known.registry if known is not None else None
+
     def server(self, change: lsp.TextDocumentContentChangePartial) -> list[lsp.Diagnostic]:
         document = self.document
         document.apply([change], document.version + 1)
-        self.checked = check(document.text, self.registry, self.checked, document.take_edits())
+        same = document.take_edits()
+        self.checked = check(document.text, self.registry_now(), self.checked, same)
         return [_diagnostic(document, p) for p in self.checked.problems]
 
     def staged(self) -> None:
@@ -227,11 +238,14 @@ class Keystrokes:
         document.apply([change], document.version + 1)
         same = document.take_edits()
         t2 = clock()
-        self.checked = check(document.text, self.registry, self.checked, same)
+        registry = self.registry_now()
         t3 = clock()
-        [_diagnostic(document, p) for p in self.checked.problems]
+        self.checked = check(document.text, registry, self.checked, same)
         t4 = clock()
-        for stage, took in zip(STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True):
+        [_diagnostic(document, p) for p in self.checked.problems]
+        t5 = clock()
+        stages = (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)
+        for stage, took in zip(STAGES, stages, strict=True):
             self.stages.setdefault(stage, []).append(took)
 
     def ktbt_check(self) -> object:
@@ -256,6 +270,7 @@ def _cases(
 STAGES = (
     "the change built (pygls's reading of the JSON)",
     "the edit applied, the unchanged start and end taken",
+    "the vocabulary found (a stat of the settings and of the vocabulary)",
     "the check, from the previous one",
     "the problems as LSP diagnostics",
 )
@@ -281,13 +296,13 @@ def run(
         root = Path(folder)
         (root / "robot.toml").write_text(vocabulary(), encoding="utf-8")
         (root / "ktbt.toml").write_text('vocabulary = "robot.toml"\n', encoding="utf-8")
-        registry = read_vocabulary(root / "robot.toml")
+        tree = root / "tree.sbt"  # the vocabulary as ktbt lsp finds it: ktbt.toml names it
 
         def keystrokes() -> dict[str, Keystrokes]:
             return {
-                KEYSTROKES[0]: Keystrokes(text, registry, text.index("Act0a") + 4, "ab"),
-                KEYSTROKES[1]: Keystrokes(pretty, registry, pretty.index("Act0a") + 5, "x"),
-                KEYSTROKES[2]: Keystrokes(text, registry, text.index("<sq>", 4) + 2, "ql"),
+                KEYSTROKES[0]: Keystrokes(tree, text, text.index("Act0a") + 4, "ab"),
+                KEYSTROKES[1]: Keystrokes(tree, pretty, pretty.index("Act0a") + 5, "x"),
+                KEYSTROKES[2]: Keystrokes(tree, text, text.index("<sq>", 4) + 2, "ql"),
             }
 
         keys, staged = keystrokes(), keystrokes()

@@ -61,7 +61,7 @@ FLEET_SOURCE = "ktbt fleet"
 DEBOUNCE = 0.0
 """Seconds a check waits after a change for more to come: none by default, since changes that
 come while a check runs are folded into the next one anyway (``ktbt lsp`` answers a keystroke
-inside a leaf in a fraction of a ``ktbt check``, any other in about one: benchmarks/README.md)."""
+inside a leaf in two fifths of a ``ktbt check``, any other in 1.2: benchmarks/README.md)."""
 CONFIGURATION = "ktbt-settings"
 """The code of the diagnostic saying a vocabulary could not be loaded."""
 

@@ -4,16 +4,31 @@ Run with ``python -m benchmarks.bench_lsp`` (or ``python -m benchmarks`` for eve
 Prints Markdown tables and writes the numbers to ``benchmarks/results/lsp.json``.
 
 The anchor is what ``ktbt check --vocabulary`` does for one file in process: parse, validate
-against the vocabulary, look for warnings. Against it, on the 51-node reference tree after a
-one-character edit:
+against the vocabulary, look for warnings, on the document's text as it is at that moment.
+Against it, on the 51-node reference tree:
 
-- **server, in process**: what the server does for a ``didChange``: apply the incremental edit,
-  check the text (the same three calls), and place each problem as an LSP range;
+- **server, in process**: what the server does for a ``didChange``, the same calls in the same
+  order: apply the incremental edit, take how much of the text it left alone, find the
+  document's vocabulary (``KtbtServer.known``: a ``stat`` of each settings file and of the
+  vocabulary, never a read while they are unchanged), check the text from the previous check
+  (``diagnostics.check``: the one leaf read again and validated when the edit is inside its
+  parentheses, the whole text otherwise), and turn each problem into an LSP diagnostic;
 - **server, over stdio**: a real server process, from writing the ``didChange`` to reading its
   ``publishDiagnostics``, JSON and pipes included.
 
-And a 1 MB file (the parse benchmark's): a one-character edit to its diagnostics over stdio,
-which must stay under a second; the vocabulary is loaded once, never per keystroke.
+Three keystrokes, each against ``ktbt check`` of the very text the server checks:
+
+- **a letter changed in a name** (``Act0a`` to ``Act0b`` and back, compact form): the target's
+  measure (issue 34: at most one ``ktbt check``);
+- **a letter typed into a name, then deleted** (``Act0a`` to ``Act0ax`` and back, pretty form):
+  a name's length changes, the nodes on other lines keep their positions;
+- **a letter changed in a tag** (``<sq>`` to ``<sl>`` and back): not inside a name, so the
+  whole text is checked again, what any edit of the structure costs.
+
+The in-process cases are measured ``--runs`` times (interleaved rounds each); the figures are
+the medians of the runs' medians, with each run's ratio. And a 1 MB file (the parse
+benchmark's): a one-character edit to its diagnostics over stdio, which must stay under a
+second; the vocabulary is loaded once, never per keystroke.
 """
 
 from __future__ import annotations
@@ -21,29 +36,32 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
 from lsprotocol import types as lsp
 
+from ktbt_proto.formatter import format_tree
 from ktbt_proto.items import find_warnings
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.lsp.diagnostics import check
 from ktbt_proto.tools.lsp.document import Document
-from ktbt_proto.tools.lsp.server import _diagnostic
-from ktbt_proto.tools.vocabulary import read_vocabulary
-from ktbt_proto.validate import find_problems
+from ktbt_proto.tools.lsp.server import KtbtServer, _diagnostic
+from ktbt_proto.validate import SupportsNames, find_problems
 
 from .bench_parse import big_pretty, reference_compact
 from .timing import interleaved, machine, markdown_table, write_json
 
 ROUNDS = 2000
-"""Interleaved rounds of the in-process cases."""
+"""Interleaved rounds of the in-process cases, per run."""
+RUNS = 5
+"""Runs of the in-process cases."""
 STDIO_ROUNDS = 300
 """Edits timed over stdio on the reference tree."""
 BIG_EDITS = 5
@@ -136,24 +154,25 @@ def _edit(uri: str, version: int, line: int, character: int, old: int, new: str)
     }
 
 
-def stdio_edits(server: Stdio, path: Path, text: str, edits: int, word: str) -> list[int]:
-    """Nanoseconds from each one-character edit (the last letter of ``word``'s first
-    occurrence, to "b" and back) to its diagnostics."""
+def stdio_edits(
+    server: Stdio, path: Path, text: str, edits: int, where: int, letter: str
+) -> list[int]:
+    """Nanoseconds from each one-character edit (the character at ``where`` changed to
+    ``letter`` and back) to its diagnostics."""
     uri = path.as_uri()
     server.notify(
         "textDocument/didOpen",
         {"textDocument": {"uri": uri, "languageId": "stringbt", "version": 1, "text": text}},
     )
     server.diagnostics(uri, 1)
-    where = text.index(word) + len(word) - 1
     line = text.count("\n", 0, where)
     character = where - (text.rfind("\n", 0, where) + 1)
     samples = []
     for k in range(edits):
         version = k + 2
-        letter = "b" if k % 2 == 0 else text[where]  # Act0b is known too: still valid
+        new = letter if k % 2 == 0 else text[where]
         start = time.perf_counter_ns()
-        server.notify("textDocument/didChange", _edit(uri, version, line, character, 1, letter))
+        server.notify("textDocument/didChange", _edit(uri, version, line, character, 1, new))
         server.diagnostics(uri, version)
         samples.append(time.perf_counter_ns() - start)
     server.notify("textDocument/didClose", {"textDocument": {"uri": uri}})
@@ -165,79 +184,220 @@ def _median(samples: list[int]) -> float:
     return ordered[len(ordered) // 2] / 1_000
 
 
+class Keystrokes:
+    """One open document that a letter at ``where`` is changed in, back and forth, as the
+    server does it (the same calls as ``KtbtServer._check`` and ``publish``)."""
+
+    def __init__(self, path: Path, text: str, where: int, letters: str) -> None:
+        self.ls = KtbtServer()
+        self.document = Document(path.as_uri(), text)
+        known, _ = self.ls.known(self.document.uri)
+        if known is None:
+            raise RuntimeError(f"no vocabulary for {path}")
+        self.registry: SupportsNames = known.registry
+        self.where, self.letters = where, letters
+        self.checked = check(text, self.registry, None, self.document.take_edits())
+        self.typed = False
+        self.stages: dict[str, list[int]] = {}
+
+    def change(self) -> lsp.TextDocumentContentChangePartial:
+        """The next keystroke: ``letters`` is two letters, one replaced by the other; or one
+        letter, typed at ``where`` then deleted."""
+        self.typed = not self.typed
+        line = self.document.text.count("\n", 0, self.where)
+        character = self.where - (self.document.text.rfind("\n", 0, self.where) + 1)
+        at = lsp.Position(line, character)
+        if len(self.letters) == 1:
+            end = at if self.typed else lsp.Position(line, character + 1)
+            new = self.letters if self.typed else ""
+        else:
+            end = lsp.Position(line, character + 1)
+            new = self.letters[self.typed]
+        return lsp.TextDocumentContentChangePartial(range=lsp.Range(start=at, end=end), text=new)
+
+    def registry_now(self) -> SupportsNames | None:
+        """The vocabulary as the server finds it for each check (a ``stat`` or two)."""
+        known, _ = self.ls.known(self.document.uri)
+        return known.registry if known is not None else None
+
+    def server(self, change: lsp.TextDocumentContentChangePartial) -> list[lsp.Diagnostic]:
+        document = self.document
+        document.apply([change], document.version + 1)
+        same = document.take_edits()
+        self.checked = check(document.text, self.registry_now(), self.checked, same)
+        return [_diagnostic(document, p) for p in self.checked.problems]
+
+    def staged(self) -> None:
+        """:meth:`server` for :meth:`change`, each stage timed on its own: where the time of a
+        keystroke goes."""
+        clock = time.perf_counter_ns
+        t0 = clock()
+        change = self.change()
+        t1 = clock()
+        document = self.document
+        document.apply([change], document.version + 1)
+        same = document.take_edits()
+        t2 = clock()
+        registry = self.registry_now()
+        t3 = clock()
+        self.checked = check(document.text, registry, self.checked, same)
+        t4 = clock()
+        [_diagnostic(document, p) for p in self.checked.problems]
+        t5 = clock()
+        stages = (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)
+        for stage, took in zip(STAGES, stages, strict=True):
+            self.stages.setdefault(stage, []).append(took)
+
+    def ktbt_check(self) -> object:
+        tree = parse(self.document.text)
+        return find_problems(tree, self.registry), find_warnings(tree)
+
+
+def _cases(
+    keys: dict[str, Keystrokes], staged: dict[str, Keystrokes]
+) -> dict[str, Callable[[], object]]:
+    """For each keystroke, ``ktbt check`` of the document's text and the server's answer to
+    the keystroke, the change included (building it stands for pygls reading the JSON); and
+    the same answer on a document of its own, stage by stage."""
+    cases: dict[str, Callable[[], object]] = {}
+    for name, key in keys.items():
+        cases[f"{name}: ktbt check"] = key.ktbt_check
+        cases[f"{name}: server"] = lambda key=key: key.server(key.change())  # type: ignore[misc]
+        cases[f"{name}: stages"] = staged[name].staged
+    return cases
+
+
+STAGES = (
+    "the change built (pygls's reading of the JSON)",
+    "the edit applied, the unchanged start and end taken",
+    "the vocabulary found (a stat of the settings and of the vocabulary)",
+    "the check, from the previous one",
+    "the problems as LSP diagnostics",
+)
+
+
+KEYSTROKES = (
+    "a letter changed in a name",
+    "a letter typed into a name",
+    "a letter changed in a tag",
+)
+
+
 def run(
-    rounds: int = ROUNDS, stdio_rounds: int = STDIO_ROUNDS, big_edits: int = BIG_EDITS
+    rounds: int = ROUNDS,
+    stdio_rounds: int = STDIO_ROUNDS,
+    big_edits: int = BIG_EDITS,
+    runs: int = RUNS,
 ) -> dict[str, Any]:
     text = reference_compact()
+    pretty = format_tree(parse(text), "pretty")
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="ktbt-bench-lsp-") as folder:
         root = Path(folder)
         (root / "robot.toml").write_text(vocabulary(), encoding="utf-8")
         (root / "ktbt.toml").write_text('vocabulary = "robot.toml"\n', encoding="utf-8")
-        registry = read_vocabulary(root / "robot.toml")
-        document = Document((root / "tree.sbt").as_uri(), text)
-        where = text.index("Act0a") + 4
-        flip = {"a": "b", "b": "a"}
+        tree = root / "tree.sbt"  # the vocabulary as ktbt lsp finds it: ktbt.toml names it
 
-        def ktbt_check() -> object:
-            tree = parse(document.text)
-            return find_problems(tree, registry), find_warnings(tree)
+        def keystrokes() -> dict[str, Keystrokes]:
+            return {
+                KEYSTROKES[0]: Keystrokes(tree, text, text.index("Act0a") + 4, "ab"),
+                KEYSTROKES[1]: Keystrokes(tree, pretty, pretty.index("Act0a") + 5, "x"),
+                KEYSTROKES[2]: Keystrokes(tree, text, text.index("<sq>", 4) + 2, "ql"),
+            }
 
-        def server_in_process() -> object:
-            letter = flip[document.text[where]]
-            change = lsp.TextDocumentContentChangePartial(
-                range=lsp.Range(start=lsp.Position(0, where), end=lsp.Position(0, where + 1)),
-                text=letter,
-            )
-            document.apply([change], document.version + 1)
-            checked = check(document.text, registry)
-            return [_diagnostic(document, p) for p in checked.problems]
-
-        stats = interleaved(
-            {"ktbt check (in process)": ktbt_check, "server (in process)": server_in_process},
-            rounds=rounds,
-        )
+        keys, staged = keystrokes(), keystrokes()
+        measured = [interleaved(_cases(keys, staged), rounds=rounds) for _ in range(runs)]
         server = Stdio(root)
         try:
-            over_stdio = stdio_edits(server, root / "tree.sbt", text, stdio_rounds, "Act0a")
+            in_act = text.index("Act0a") + 4  # Act0b is known too: still valid
+            over_stdio = stdio_edits(server, root / "tree.sbt", text, stdio_rounds, in_act, "b")
             big = big_pretty()  # its names are not the reference tree's: checked without them
             bare = Path(tempfile.mkdtemp(prefix="ktbt-bench-lsp-bare-"))
             try:
-                big_samples = stdio_edits(server, bare / "big.sbt", big, big_edits, "MoveTo")
+                in_name = big.index("MoveTo") + 5
+                big_name = stdio_edits(server, bare / "big.sbt", big, big_edits, in_name, "b")
+                in_tag = big.index("<sq>") + 2
+                big_tag = stdio_edits(server, bare / "big.sbt", big, big_edits, in_tag, "l")
             finally:
                 bare.rmdir()
         finally:
             server.close()
+    figures: dict[str, Any] = {}
+    for name in KEYSTROKES:
+        checks = [m[f"{name}: ktbt check"].median_us for m in measured]
+        servers = [m[f"{name}: server"].median_us for m in measured]
+        figures[name] = {
+            "check_us": statistics.median(checks),
+            "server_us": statistics.median(servers),
+            "ratios": [round(s / c, 3) for s, c in zip(servers, checks, strict=True)],
+            "ratio": statistics.median(s / c for s, c in zip(servers, checks, strict=True)),
+            "stages_us": {
+                stage: _median(samples) for stage, samples in staged[name].stages.items()
+            },
+        }
     return {
         "machine": machine(),
+        "load_average": [round(x, 2) for x in (*load_before, *os.getloadavg())],
         "reference_tree": {
             "characters": len(text),
-            "check_us": stats["ktbt check (in process)"].median_us,
-            "server_in_process_us": stats["server (in process)"].median_us,
+            "keystrokes": figures,
             "server_stdio_us": _median(over_stdio),
             "rounds": rounds,
+            "runs": runs,
             "stdio_rounds": stdio_rounds,
         },
-        "big_file": {"characters": len(big), "stdio_ms": _median(big_samples) / 1_000},
+        "big_file": {
+            "characters": len(big),
+            "name_stdio_ms": _median(big_name) / 1_000,
+            "tag_stdio_ms": _median(big_tag) / 1_000,
+            "edits": big_edits,
+        },
     }
 
 
 def report(result: dict[str, Any]) -> str:
     ref, big = result["reference_tree"], result["big_file"]
-    rows = [
-        ["`ktbt check` (parse, validate, warnings), in process", f"{ref['check_us']:.1f}"],
-        ["server: apply the edit, check, place the ranges", f"{ref['server_in_process_us']:.1f}"],
-        ["server over stdio: didChange to publishDiagnostics", f"{ref['server_stdio_us']:.1f}"],
-    ]
+    rows = []
+    for name, key in ref["keystrokes"].items():
+        ratios = ", ".join(f"{r:.2f}" for r in key["ratios"])
+        rows.append(
+            [
+                name,
+                f"{key['check_us']:.1f}",
+                f"{key['server_us']:.1f}",
+                f"**{key['ratio']:.2f}x** ({ratios})",
+            ]
+        )
+    load = result["load_average"]
     return "\n".join(
         [
             f"## ktbt lsp: one keystroke ({result['machine']})",
             "",
-            f"The 51-node reference tree ({ref['characters']} characters), median microseconds:",
+            f"The 51-node reference tree ({ref['characters']} characters), medians of "
+            f"{ref['runs']} runs of {ref['rounds']} interleaved rounds, microseconds (load "
+            f"average {load[0]:.1f} before, {load[3]:.1f} after):",
             "",
-            markdown_table(["case", "µs"], rows),
+            markdown_table(
+                ["keystroke", "`ktbt check`, same text", "server", "server / check (each run)"],
+                rows,
+            ),
+            "",
+            "Where the server's time goes (median µs of each stage, timed on its own):",
+            "",
+            markdown_table(
+                ["stage", *KEYSTROKES],
+                [
+                    [stage, *(f"{k['stages_us'][stage]:.1f}" for k in ref["keystrokes"].values())]
+                    for stage in STAGES
+                ],
+            ),
+            "",
+            f"Over stdio (didChange to publishDiagnostics, a letter changed in a name): "
+            f"{ref['server_stdio_us']:.0f} µs (median of {ref['stdio_rounds']}).",
             "",
             f"A {big['characters']:,}-character file, one keystroke to its diagnostics over "
-            f"stdio: {big['stdio_ms']:.0f} ms (median of {BIG_EDITS}).",
+            f"stdio (median of {big['edits']}): {big['name_stdio_ms']:.1f} ms for a letter in a "
+            f"name, {big['tag_stdio_ms']:.0f} ms for a letter in a tag (the whole text checked).",
         ]
     )
 
@@ -247,9 +407,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=ROUNDS, help="in-process rounds")
     parser.add_argument("--stdio-rounds", type=int, default=STDIO_ROUNDS, help="edits over stdio")
     parser.add_argument("--big-edits", type=int, default=BIG_EDITS, help="edits of the 1 MB file")
+    parser.add_argument("--runs", type=int, default=RUNS, help="runs of the in-process cases")
     parser.add_argument("--no-json", action="store_true", help="do not write results/lsp.json")
     args = parser.parse_args(argv)
-    result = run(args.rounds, args.stdio_rounds, args.big_edits)
+    result = run(args.rounds, args.stdio_rounds, args.big_edits, args.runs)
     print(report(result))
     if not args.no_json:
         path = write_json("lsp", result)

@@ -65,26 +65,74 @@ class Document:
         self.text = text
         self.version = version
         self.encoding = encoding
+        self._base = len(text)
+        self._same = (len(text), len(text))
+
+    def take_edits(self) -> tuple[int, int]:
+        """How many code points at the start and at the end of the text the changes applied
+        since the last call (or since the document was opened) left as they were; the text as
+        it is now is the next call's reference. What lets a check reuse the one before
+        (:func:`.diagnostics.check`)."""
+        prefix, suffix = self._same
+        base, size = self._base, len(self.text)
+        prefix = min(prefix, base, size)
+        suffix = min(suffix, base - prefix, size - prefix)
+        self._base = size
+        self._same = (size, size)
+        return prefix, suffix
 
     # -- changes ----------------------------------------------------------------------------
 
     def apply(self, changes: Sequence[lsp.TextDocumentContentChangeEvent], version: int) -> None:
         """Apply a ``didChange``'s changes in order (incremental ranges, or the whole text)."""
         for change in changes:
+            prefix, suffix = self._same
             if isinstance(change, lsp.TextDocumentContentChangePartial):
                 start = self.offset_at(change.range.start)
                 end = max(start, self.offset_at(change.range.end))
-                self._set(self.text[:start] + change.text + self.text[end:])
+                self._same = (min(prefix, start), min(suffix, len(self.text) - end))
+                self._replace(start, end, change.text)
             else:
+                self._same = (0, 0)
                 self._set(change.text)
         self.version = version
 
+    def _replace(self, start: int, end: int, new: str) -> None:
+        """Replace ``text[start:end]`` by ``new``. The line starts are moved rather than found
+        again when no line break is removed, added, split (CR|LF) or joined (CR, LF): what a
+        keystroke inside a line costs is then that of the lines after it, not of the text."""
+        text = self.text
+        starts = self.__dict__.get("_lsp_starts")
+        was_ascii = self.__dict__.get("_ascii")
+        self._set(text[:start] + new + text[end:])
+        if was_ascii and new.isascii():
+            self.__dict__["_ascii"] = True
+        removed = text[start:end]
+        if (
+            starts is None
+            or "\n" in new
+            or "\r" in new
+            or "\n" in removed
+            or "\r" in removed
+            or (text[start - 1 : start] == "\r" and text[end : end + 1] == "\n")
+        ):
+            return
+        delta = len(new) - len(removed)
+        if delta:
+            after = bisect_right(starts, start)
+            starts[after:] = [at + delta for at in starts[after:]]
+        self.__dict__["_lsp_starts"] = starts
+
     def _set(self, text: str) -> None:
         self.text = text
-        for cached in ("_lsp_starts", "_sbt_starts"):
+        for cached in ("_lsp_starts", "_sbt_starts", "_ascii"):
             self.__dict__.pop(cached, None)
 
     # -- lines ------------------------------------------------------------------------------
+
+    @cached_property
+    def _ascii(self) -> bool:
+        return self.text.isascii()
 
     @cached_property
     def _lsp_starts(self) -> list[int]:
@@ -130,8 +178,10 @@ class Document:
         if position.line >= len(starts):
             return len(self.text)
         start = starts[max(position.line, 0)]
-        segment = self.text[start : self._line_end(position.line)]
-        return start + _chars(segment, position.character, self.encoding)
+        end = self._line_end(position.line)
+        if self._ascii:  # a code unit is a code point: no need to read the line
+            return start + min(max(position.character, 0), end - start)
+        return start + _chars(self.text[start:end], position.character, self.encoding)
 
     def position_at(self, offset: int) -> lsp.Position:
         """The LSP position of an offset."""
@@ -139,6 +189,8 @@ class Document:
         line = bisect_right(self._lsp_starts, offset) - 1
         start = self._lsp_starts[line]
         offset = min(offset, max(self._line_end(line), start))
+        if self._ascii:
+            return lsp.Position(line=line, character=offset - start)
         return lsp.Position(line=line, character=units(self.text[start:offset], self.encoding))
 
     def range_of(self, start: int, end: int) -> lsp.Range:

@@ -236,6 +236,19 @@ def head_at(text: str, offset: int) -> Node | None:
     return node
 
 
+def leaf_end(text: str, at: int) -> int | None:
+    """The offset just past the ``)`` that closes the leaf whose ``(`` ends at ``at``, strings
+    read whole (a ``)`` in one is not it); None if a tag, a comment or a stray character comes
+    first."""
+    for match in _TOKEN.finditer(text, at):
+        kind = match.lastgroup
+        if kind == "punct" and match.group() == ")":
+            return match.end()
+        if kind in ("tag", "comment", "error"):
+            return None
+    return None
+
+
 def token_at(text: str, offset: int) -> Token | None:
     """The token that starts at ``offset`` (None at the end of the text)."""
     match = _TOKEN.match(text, offset)

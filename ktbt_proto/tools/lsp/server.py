@@ -14,7 +14,9 @@ Three rules hold for every handler:
   time, started at once when none is running. Changes that come while one runs are not
   queued: when it ends on an older version than the document now has, its result is dropped
   and the newest text alone is checked next, so a burst of keystrokes costs at most two checks
-  and the last one answers the text as it is.
+  and the last one answers the text as it is. Each check starts from the one before it: an
+  edit inside a leaf's parentheses reads that leaf again and validates it alone instead of
+  reading the whole text again (:mod:`.diagnostics`, with the same result).
 - **One vocabulary per document, loaded once** (:class:`.vocabulary.Vocabularies`).
 
 With ``--fleet ENDPOINT`` (off by default), :mod:`.fleet` reads the fleet's catalogs in a
@@ -59,7 +61,7 @@ FLEET_SOURCE = "ktbt fleet"
 DEBOUNCE = 0.0
 """Seconds a check waits after a change for more to come: none by default, since changes that
 come while a check runs are folded into the next one anyway (``ktbt lsp`` answers a keystroke
-in the time of one check)."""
+inside a leaf in two fifths of a ``ktbt check``, any other in 1.2: benchmarks/README.md)."""
 CONFIGURATION = "ktbt-settings"
 """The code of the diagnostic saying a vocabulary could not be loaded."""
 
@@ -95,6 +97,8 @@ class KtbtServer(LanguageServer):
         self.vocabularies = Vocabularies(vocabulary)
         self.debounce = debounce
         self._checks: dict[str, asyncio.Task[None]] = {}
+        self._checked: dict[str, tuple[Document, Checked]] = {}
+        self._paths: dict[str, Path | None] = {}
         self._outlines: dict[str, tuple[int, Outline]] = {}
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ktbt-check")
         self.fleet_endpoint = fleet
@@ -126,8 +130,10 @@ class KtbtServer(LanguageServer):
         return outline
 
     def known(self, uri: str) -> tuple[Known | None, str | None]:
-        path = to_fs_path(uri)
-        return self.vocabularies.for_path(Path(path) if path else None)
+        if uri not in self._paths:  # a document's path, read from its URI once
+            path = to_fs_path(uri)
+            self._paths[uri] = Path(path) if path else None
+        return self.vocabularies.for_path(self._paths[uri])
 
     # -- the fleet (off without --fleet) ------------------------------------------------------
 
@@ -231,17 +237,22 @@ class KtbtServer(LanguageServer):
             document = self.documents.get(uri)
             if document is None:
                 return
-            version, text = document.version, document.text
+            version, text, same = document.version, document.text, document.take_edits()
+            last = self._checked.pop(uri, None)
+            previous = last[1] if last is not None and last[0] is document else None
             try:
                 known, reason = self.known(uri)
                 registry = known.registry if known is not None else None
-                checked = await loop.run_in_executor(self._worker, check, text, registry)
+                checked = await loop.run_in_executor(
+                    self._worker, check, text, registry, previous, same
+                )
             except Exception:
                 log.exception("ktbt lsp: checking %s failed; no diagnostics", uri)
                 return
             current = self.documents.get(uri)
-            if current is None:
-                return
+            if current is not document:
+                return  # closed (or closed and opened again) meanwhile
+            self._checked[uri] = (document, checked)
             if current.version != version:
                 continue  # the text changed meanwhile: check the newest instead
             self.publish(current, checked, reason)
@@ -360,6 +371,8 @@ def build(
     def did_close(ls: KtbtServer, params: lsp.DidCloseTextDocumentParams) -> None:
         uri = params.text_document.uri
         ls.documents.pop(uri, None)
+        ls._checked.pop(uri, None)
+        ls._paths.pop(uri, None)
         ls._outlines.pop(uri, None)
         ls._items.pop(uri, None)
         ls.text_document_publish_diagnostics(lsp.PublishDiagnosticsParams(uri=uri, diagnostics=[]))
@@ -489,7 +502,12 @@ def build(
         if document is None:
             return None
         known, _ = ls.known(document.uri)
-        checked = check(document.text, known.registry if known is not None else None)
+        latest = ls._checked.get(document.uri)  # the latest check, when it is of this text
+        previous = latest[1] if latest is not None and latest[0] is document else None
+        everything = (len(document.text), len(document.text))
+        checked = check(
+            document.text, known.registry if known is not None else None, previous, everything
+        )
         first = document.offset_at(params.range.start)
         last = document.offset_at(params.range.end)
         actions = []

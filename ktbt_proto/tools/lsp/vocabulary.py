@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import os
 import re
+import stat
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 from ktbt_proto.registry import Registry
-from ktbt_proto.tools.project import Project, ProjectError, candidates, read_settings
+from ktbt_proto.tools.project import PYPROJECT, SETTINGS, Project, ProjectError, read_settings
 from ktbt_proto.tools.vocabulary import load_vocabulary, write_vocabulary
 
 Kind = Literal["condition", "action"]
@@ -217,6 +219,8 @@ class Vocabularies:
         self.override = override
         self._settings: dict[Path, tuple[int, Project | None, str | None]] = {}
         self._loaded: dict[tuple[str, str], tuple[int, Known | None, str | None]] = {}
+        self._places: dict[Path, list[tuple[str, Path]]] = {}
+        self._named: dict[int, tuple[Project, tuple[str, str], Path | None]] = {}
 
     def for_path(self, path: Path | None) -> tuple[Known | None, str | None]:
         """``(vocabulary, None)``, ``(None, None)`` with no vocabulary, or ``(None, reason)``."""
@@ -232,16 +236,14 @@ class Vocabularies:
             return None, str(exc)
         if found is None or found.vocabulary is None:
             return None, None
-        return self._load(
-            (str(found.settings), found.vocabulary),
-            found.vocabulary_file(),
-            found.load_vocabulary,
-            where=found.where,
-        )
+        named = self._named.get(id(found))
+        if named is None or named[0] is not found:  # once per settings read
+            named = (found, (str(found.settings), found.vocabulary), found.vocabulary_file())
+            self._named[id(found)] = named
+        return self._load(named[1], named[2], found.load_vocabulary, where=found.where)
 
     def _project(self, path: Path) -> Project | None:
-        for settings in candidates(path):
-            stamp = _stamp(settings)
+        for settings, stamp in self._candidates(path):
             cached = self._settings.get(settings)
             if cached is None or cached[0] != stamp:
                 try:
@@ -255,6 +257,29 @@ class Vocabularies:
             if project is not None:
                 return project
         return None
+
+    def _candidates(self, path: Path) -> Iterator[tuple[Path, int]]:
+        """``tools.project.candidates``, each with its modification time: the settings files
+        that exist from the document's folder upward, nearest first. The folders above a
+        document are found once per document (a path resolved once), the files looked at again
+        on every check (one ``stat`` each)."""
+        places = self._places.get(path)
+        if places is None:
+            here = path.resolve()
+            folder = here if here.is_dir() else here.parent
+            places = [
+                (str(folder / name), folder / name)
+                for folder in (folder, *folder.parents)
+                for name in (SETTINGS, PYPROJECT)
+            ]
+            self._places[path] = places
+        for name, settings in places:
+            try:
+                found = os.stat(name)
+            except OSError:
+                continue
+            if stat.S_ISREG(found.st_mode):
+                yield settings, found.st_mtime_ns
 
     def _load(
         self,
@@ -286,6 +311,6 @@ def _looks_like_file(spec: str) -> bool:
 
 def _stamp(path: Path) -> int:
     try:
-        return path.stat().st_mtime_ns
+        return os.stat(path).st_mtime_ns
     except OSError:
         return -1

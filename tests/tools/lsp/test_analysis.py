@@ -8,6 +8,7 @@ The same features over a real client are tests/tools/lsp/test_server.py's."""
 from __future__ import annotations
 
 import json
+import os
 import random
 import sys
 from pathlib import Path
@@ -15,11 +16,12 @@ from pathlib import Path
 import pytest
 from lsprotocol import types as lsp
 
+from ktbt_proto.errors import StringBTError
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools import fuzz
 from ktbt_proto.tools.lsp import assist, navigation
-from ktbt_proto.tools.lsp.diagnostics import MAX_PROBLEMS, check
+from ktbt_proto.tools.lsp.diagnostics import MAX_PROBLEMS, Checked, check
 from ktbt_proto.tools.lsp.document import UTF8, UTF16, UTF32, Document
 from ktbt_proto.tools.lsp.formatting import apply, close_open_nodes, format_edits, memory_form
 from ktbt_proto.tools.lsp.outline import read
@@ -251,6 +253,124 @@ def test_project_settings_are_found_upward_and_refused_in_one_line(tmp_path: Pat
     (py / "pyproject.toml").write_text("[tool.ktbt]\nvocabulary = 1\ncontrol = 2\n", "utf-8")
     with pytest.raises(ProjectError, match=r"unknown keys \['control'\]"):
         find_project(py)
+
+
+def test_one_servers_vocabularies_follow_the_files_as_they_change(tmp_path: Path) -> None:
+    # What a running server sees: the folders above a document are found once, but every
+    # check looks at the files again, so a settings file written nearer, settings changed and a
+    # vocabulary changed are all seen at the next keystroke.
+    (tmp_path / "door.toml").write_text(VOCABULARY, encoding="utf-8")
+    (tmp_path / "ktbt.toml").write_text('vocabulary = "door.toml"\n', encoding="utf-8")
+    deep = tmp_path / "trees"
+    deep.mkdir()
+    vocabularies = Vocabularies()
+    first, _ = vocabularies.for_path(deep / "a.sbt")
+    assert first is not None and first.entry("action", "Push") is not None
+    assert vocabularies.for_path(deep / "a.sbt")[0] is first  # nothing changed: not read again
+    (deep / "small.toml").write_text('actions = ["Fly"]\n', encoding="utf-8")
+    (deep / "ktbt.toml").write_text('vocabulary = "small.toml"\n', encoding="utf-8")
+    nearer, _ = vocabularies.for_path(deep / "a.sbt")
+    assert nearer is not None and nearer.entry("action", "Fly") is not None
+    assert nearer.entry("action", "Push") is None
+    (deep / "small.toml").write_text('actions = ["Hop"]\n', encoding="utf-8")
+    os.utime(deep / "small.toml", ns=(1, 1))  # another modification time, however fast
+    changed, _ = vocabularies.for_path(deep / "a.sbt")
+    assert changed is not None and changed.entry("action", "Hop") is not None
+    (deep / "ktbt.toml").unlink()
+    assert vocabularies.for_path(deep / "a.sbt")[0] is first  # back to the project's own
+
+
+def _seen(checked: Checked) -> tuple[object, ...]:
+    """All a check says, positions and comments included (which nodes' equality leaves out)."""
+    tree = checked.tree
+    nodes = [] if tree is None else [(n, n.pos, n.comments) for n, _ in tree.walk()]
+    footer = None if tree is None else tree.footer
+    problems = [(_said(p.error), p.start, p.end) for p in checked.problems]
+    return nodes, footer, problems, [*map(_said, checked.found)], [*map(_said, checked.warnings)]
+
+
+def _said(error: StringBTError) -> tuple[object, ...]:
+    return type(error), error.code, error.message, error.line, error.column
+
+
+def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
+    # Edits typed into names (where the previous check is reused), around them and anywhere,
+    # one or several per change, chained as an editor sends them: each check from the one
+    # before gives the tree, positions, comments and problems that checking the whole new text
+    # gives, and the document's lines are those of its new text.
+    corpus = fuzz.load_corpus()
+    rng = random.Random(1)
+    seeds = [FLAT, MEMORY, "<sq>\r\n  <a>(Push) # go\r\n  <c>(!DoorClosed)\r<a>(P)\n<e>\n"]
+    seeds += [t for t in corpus.texts + corpus.pieces if len(t) < 3_000]
+    seeds += [format_tree(parse(FLAT)), "<k>(door)\n    " + MEMORY + "\n    <a>(Push)\n<e>\n"]
+    typed = 'abzAZ_09.!<>(),="# \n\ré😀'
+    reused = 0
+    for seed, start, end, new in (  # edits inside a leaf and beside it
+        ("<sq><a>(trux)<e>", 11, 12, "e"),  # a word that is no name: SBT103
+        ("<sq><a>(Push)<e>", 12, 12, "."),
+        ("<sq><a>(Push)<e>", 8, 8, "9"),
+        ("<sq><c>(!Door)<a>(Push)<e>", 13, 13, "s"),  # the next node moves
+        ("<sq>\r<a>(Push)\n<e>", 14, 14, "x"),
+        ("<sq><a>(Push)<e>", 8, 12, ""),
+        (FLAT, FLAT.index("60"), FLAT.index("60") + 1, "9"),  # an argument's value
+        (FLAT, FLAT.index("60") + 2, FLAT.index("60") + 2, "0"),  # out of range: SBT310
+        (FLAT, FLAT.index("left") + 4, FLAT.index("left") + 4, ")<a>(X"),  # in a string
+        (FLAT, FLAT.index("side"), FLAT.index("side") + 1, ""),  # an argument's name
+        (FLAT, FLAT.index("(DoorClosed)") + 1, FLAT.index("(DoorClosed)") + 1, "!"),
+        ("<sq><c>(!Door, on=true)<e>", 8, 9, ""),
+        ("<sq><c>(!Door, on=true)<e>", 21, 22, ""),  # "tru" is no value: SBT103
+        ("<sq><w>(5)<a>(Push)<e>", 9, 9, "0"),
+        ("<sq><a>(Push, x=1)<e>", 17, 17, ", y=2"),
+        ("<sq><a>(Push, x=1)<e>", 17, 17, ") <a>(Y"),  # two leaves now
+        ("<sq>\n<a>(Push\n)<e>", 13, 13, "#c"),  # a comment in it: it moves to the next node
+    ):
+        document = Document("file:///t.sbt", seed)
+        previous = check(seed, DOOR.registry, None, document.take_edits())
+        where = lsp.Range(start=document.position_at(start), end=document.position_at(end))
+        document.apply([lsp.TextDocumentContentChangePartial(range=where, text=new)], 1)
+        checked = check(document.text, DOOR.registry, previous, document.take_edits())
+        assert _seen(checked) == _seen(check(document.text, DOOR.registry)), document.text
+    for seed in seeds:
+        for registry in (DOOR.registry, None):
+            document = Document("file:///t.sbt", seed)
+            previous = check(seed, registry, None, document.take_edits())
+            for _ in range(12):
+                changes = []
+                for _ in range(rng.choice((1, 1, 1, 2))):
+                    text = document.text
+                    names = [i for i, ch in enumerate(text) if ch.isalnum() or ch == "_"]
+                    if names and rng.random() < 0.7:  # a letter typed, changed or deleted
+                        start = rng.choice(names) + rng.choice((0, 1))
+                        end = start + rng.choice((0, 1)) if start < len(text) else start
+                        new = rng.choice(typed[:9]) if start == end or rng.random() < 0.7 else ""
+                    else:  # anything anywhere
+                        start = rng.randrange(len(text) + 1)
+                        end = min(len(text), start + rng.choice((0, 1, 2)))
+                        new = "".join(rng.choice(typed) for _ in range(rng.choice((0, 1, 2))))
+                    first, last = document.position_at(start), document.position_at(end)
+                    changes.append(
+                        lsp.TextDocumentContentChangePartial(
+                            range=lsp.Range(start=first, end=last), text=new
+                        )
+                    )
+                    document.apply(changes[-1:], document.version + 1)
+                fresh = Document("file:///t.sbt", document.text)
+                assert [fresh.line_text(i) for i in range(fresh.line_count)] == [
+                    document.line_text(i) for i in range(document.line_count)
+                ]
+                for offset in range(0, len(document.text) + 1, 7):
+                    position = document.position_at(offset)
+                    assert position == fresh.position_at(offset)
+                    assert document.offset_at(position) == fresh.offset_at(position)
+                checked = check(document.text, registry, previous, document.take_edits())
+                whole = check(document.text, registry)
+                assert _seen(checked) == _seen(whole), (seed, document.text)
+                reused += checked.nodes() is previous.nodes() is not None
+                previous = checked
+                if checked.tree is None:  # start again from the seed, which parses
+                    document = Document("file:///t.sbt", seed)
+                    previous = check(seed, registry, None, document.take_edits())
+    assert reused > 1_000  # the edits in names did reuse the check before them
 
 
 def test_the_fuzzers_corpus_goes_through_every_feature_without_an_exception() -> None:

@@ -239,6 +239,33 @@ async def test_diagnostics_follow_incremental_edits_and_only_the_newest_is_publi
     doc.close()
 
 
+async def test_edits_inside_a_leaf_give_the_problems_of_the_whole_text(
+    client: LanguageClient, projects: Path
+) -> None:
+    # The server reads only the edited leaf again (diagnostics.check): what it publishes is
+    # what checking the whole text gives, keystroke after keystroke.
+    doc = Doc(client, projects / "file" / "leaf.sbt", f"{MEMORY}\n")
+    assert await doc.diagnostics() == []
+    turn = doc.at("degrees=60", 10)
+    doc.change((turn.line, turn.character), (turn.line, turn.character), "0")  # 600: too far
+    (far,) = await doc.diagnostics()
+    head = doc.at("<a>(TurnHandle")
+    assert ranged(far) == (
+        "SBT310",
+        0,
+        head.character,
+        0,
+        head.character + len("<a>(TurnHandle, degrees=600)"),
+    )
+    doc.change((turn.line, turn.character), (turn.line, turn.character + 1), "")
+    assert await doc.diagnostics() == []
+    push = doc.at("Push", 4)
+    doc.change((push.line, push.character), (push.line, push.character), "y")
+    (unknown,) = await doc.diagnostics()
+    assert ranged(unknown) == ("SBT306", 0, push.character - 4, 0, push.character + 1)
+    doc.close()
+
+
 async def test_syntax_alone_without_a_vocabulary_and_one_line_when_it_will_not_load(
     client: LanguageClient, projects: Path
 ) -> None:

@@ -20,7 +20,7 @@ from typing import Literal
 
 from ktbt_proto.formatter import format_value
 from ktbt_proto.tools.lsp.outline import Node, Outline
-from ktbt_proto.tools.lsp.vocabulary import Entry, Known
+from ktbt_proto.tools.lsp.vocabularies import Entry, Known
 
 TAG_MEANING: dict[str, str] = {
     "<sq>": "Sequence, reactive: ticks its children left to right while they succeed; every "

@@ -22,7 +22,7 @@ from lsprotocol import types as lsp
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.tools.lsp.document import Document, units
 from ktbt_proto.tools.lsp.outline import Node, Outline, tokens
-from ktbt_proto.tools.lsp.vocabulary import Known
+from ktbt_proto.tools.lsp.vocabularies import Known
 
 MAX_SYMBOLS = 20_000
 """Nodes shown in an outline at most (past them, a huge document's outline stops)."""

@@ -48,7 +48,7 @@ from ktbt_proto.tools.lsp.diagnostics import Checked, Problem, check
 from ktbt_proto.tools.lsp.document import UTF16, Document
 from ktbt_proto.tools.lsp.formatting import Edit, close_open_nodes, format_edits, memory_form
 from ktbt_proto.tools.lsp.outline import Outline, read
-from ktbt_proto.tools.lsp.vocabulary import Known, Vocabularies
+from ktbt_proto.tools.lsp.vocabularies import Known, Vocabularies
 
 if TYPE_CHECKING:
     from ktbt_proto.tools.lsp.fleet import Fleet

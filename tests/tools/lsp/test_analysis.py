@@ -25,7 +25,7 @@ from ktbt_proto.tools.lsp.diagnostics import MAX_PROBLEMS, Checked, check
 from ktbt_proto.tools.lsp.document import UTF8, UTF16, UTF32, Document
 from ktbt_proto.tools.lsp.formatting import apply, close_open_nodes, format_edits, memory_form
 from ktbt_proto.tools.lsp.outline import read
-from ktbt_proto.tools.lsp.vocabulary import Known, Vocabularies
+from ktbt_proto.tools.lsp.vocabularies import Known, Vocabularies
 from ktbt_proto.tools.project import ProjectError, find_project
 from ktbt_proto.tools.vocabulary import parse_vocabulary, read_vocabulary
 from tests.door_robot import FLAT, MEMORY, VOCABULARY, door_registry

@@ -32,6 +32,7 @@ namespace) it says so in one line and measures nothing.
 from __future__ import annotations
 
 import argparse
+import bisect
 import importlib.metadata
 import importlib.util
 import json
@@ -173,6 +174,7 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
         connect_s = time.monotonic() - began
         ours: list[int] = []
         phases: list[dict[str, int]] = []
+        idle_ticks: list[int] = []
         hand: dict[str, list[dict[str, int]]] = {"raw": [], "floor": []}
         refused = 0
         for block in range(TRANSFER_BLOCKS):
@@ -182,6 +184,7 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
                 if who == "learner-ours":
                     ours += got["ours"]
                     phases += got["phases"]
+                    idle_ticks += got["idle_ticks"]
                     refused = got["refused"]
                 else:
                     hand["raw"] += got["raw"]
@@ -193,26 +196,55 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=30)
-    teacher_ours = _teacher_phases(json.loads(marks.read_text()) if marks.exists() else [])
+    teacher_ours = _teacher_calls(json.loads(marks.read_text()) if marks.exists() else [])
     last = (ns.log(names["teacher-hand"]).strip().splitlines() or ["{}"])[-1]
     teacher_hand = json.loads(last) if last.startswith("{") else {}
     return summarize(kind, ours, phases, hand, teacher_ours, teacher_hand, {
         "connect_s": round(connect_s, 2), "learner_refused": refused,
         "load_average": [round(load, 2), round(os.getloadavg()[0], 2)],
+        "idle_tick": _stats(idle_ticks),
     })  # fmt: skip
 
 
-def _teacher_phases(marks: list[list[Any]]) -> dict[str, list[int]]:
-    """The teacher's query callbacks (ns), each with its reading and serialising inside."""
-    calls = [m for m in marks if m[0] == "on_query"]
-    inside: dict[str, list[int]] = {"callback": [], "read": [], "serialize": []}
-    for _, start, end in calls:
-        inside["callback"].append(end - start)
-        for name in ("read", "serialize"):
-            inside[name].append(
-                sum(m[2] - m[1] for m in marks if m[0] == name and start <= m[1] and m[2] <= end)
-            )
-    return inside
+def _teacher_calls(marks: list[list[Any]]) -> list[list[int]]:
+    """Our teacher's query callbacks that answered: [entry, the answer's ``publish`` entered
+    and returned, exit, ns reading the query, ns serialising the answer], from its marks."""
+    calls = []
+    for _, start, end in (m for m in marks if m[0] == "on_query"):
+        inner = [m for m in marks if m[0] != "on_query" and start <= m[1] and m[2] <= end]
+        serialize = [m for m in inner if m[0] == "serialize"]
+        if not serialize:
+            continue  # answered nothing (its own query, a sequence it does not know)
+        publish = next(m for m in inner if m[0] == "publish" and m[1] >= serialize[0][2])
+        read = sum(m[2] - m[1] for m in inner if m[0] == "read")
+        calls.append([start, publish[1], publish[2], end, read, serialize[0][2] - serialize[0][1]])
+    return calls
+
+
+def legs(rounds: list[dict[str, int]], calls: list[list[int]]) -> list[dict[str, int]]:
+    """Each round's network time (the learner's ``publish`` returned -> its answer callback
+    entered) cut at the teacher's callback that answered it (both processes read one monotonic
+    clock): the way out (DDS, the teacher's wake and take), the teacher's callback up to its
+    ``publish`` and the way back (``publish``, DDS, the learner's wake and take). A round whose
+    teacher callback is not found keeps its network time whole."""
+    calls = sorted(calls)
+    entries = [c[0] for c in calls]
+    cut = []
+    for r in rounds:
+        published, answer = r.pop("at_published"), r.pop("at_answer")
+        i = bisect.bisect_left(entries, published)
+        if i < len(calls) and calls[i][1] <= answer:
+            call = calls[i]
+            r |= {
+                "out_leg": call[0] - published,
+                "teacher_to_publish": call[1] - call[0],
+                "back_leg": answer - call[1],
+                "teacher_publish_call": call[2] - call[1],
+            }
+            if len(call) > 4:
+                r |= {"teacher_read": call[4], "teacher_serialize": call[5]}
+        cut.append(r)
+    return cut
 
 
 def _median_us(samples: Sequence[float]) -> float:
@@ -234,38 +266,28 @@ def summarize(
     ours: list[int],
     phases: list[dict[str, int]],
     hand: dict[str, list[dict[str, int]]],
-    teacher_ours: dict[str, list[int]],
-    teacher_hand: dict[str, list[int]],
+    teacher_ours: list[list[int]],
+    teacher_hand: dict[str, list[list[int]]],
     extra: dict[str, Any],
 ) -> dict[str, Any]:
-    """One run's figures: each contender's times (µs), ours' phases (median µs of each, the
-    teacher's callback taken out of the network's share), the ratios to the raw pair."""
-    raw = [r["total"] for r in hand["raw"]]
-    floor = [r["total"] for r in hand["floor"]]
-    ours_phases = {name: _median_us([p[name] for p in phases]) for name in phases[0]}
-    teacher = _median_us(teacher_ours["callback"])
-    ours_phases["teacher_callback"] = teacher
-    ours_phases["teacher_read"] = _median_us(teacher_ours["read"])
-    ours_phases["teacher_serialize"] = _median_us(teacher_ours["serialize"])
-    ours_phases["dds_both_ways"] = round(ours_phases["network"] - teacher, 1)
-    hand_phases = {
-        contender: {
-            name: _median_us([r[name] for r in runs]) for name in runs[0] if name != "total"
-        }
-        for contender, runs in hand.items()
-    }
-    for contender in ("raw", "floor"):
-        cb = _median_us(teacher_hand.get(contender, []))
-        hand_phases[contender]["teacher_callback"] = cb
-        hand_phases[contender]["dds_both_ways"] = round(hand_phases[contender]["network"] - cb, 1)
+    """One run's figures: each contender's times (µs), the median of each phase (µs), the
+    ratios to the raw pair."""
+
+    def medians(rounds: list[dict[str, int]]) -> dict[str, float]:
+        names = dict.fromkeys(k for r in rounds for k in r if k != "total")
+        return {n: _median_us([r[n] for r in rounds if n in r]) for n in names}
+
     result: dict[str, Any] = {
         "executor": kind,
         "rounds": len(ours),
-        "raw": _stats(raw),
-        "floor": _stats(floor),
+        "raw": _stats([r["total"] for r in hand["raw"]]),
+        "floor": _stats([r["total"] for r in hand["floor"]]),
         "ours": _stats(ours),
-        "ours_phases": ours_phases,
-        "hand_phases": hand_phases,
+        "ours_phases": medians(legs(phases, teacher_ours)),
+        "hand_phases": {
+            contender: medians(legs(hand[contender], teacher_hand.get(contender, [])))
+            for contender in ("raw", "floor")
+        },
         **extra,
     }
     r, f, o = result["raw"]["median"], result["floor"]["median"], result["ours"]["median"]
@@ -429,11 +451,12 @@ OURS_PHASES = (
     ("serialize", "the `Query` serialised (CDR)"),
     ("publish", "open-query bookkeeping + `publish`"),
     ("network", "publish returned -> the answer's callback entered"),
-    ("teacher_callback", "  of which the teacher's callback (read, lookup, answer, publish)"),
-    ("teacher_read", "    of which reading the query (CDR + checks)"),
-    ("teacher_serialize", "    of which serialising the answer"),
-    ("own_query_read_back", "  of which the learner reading its own query back"),
-    ("dds_both_ways", "  the rest: DDS both ways, each executor's wake and take"),
+    ("out_leg", "  DDS to the teacher, its executor's wake and take"),
+    ("teacher_to_publish", "  the teacher's callback up to `publish` (read, look up, build)"),
+    ("teacher_read", "    of which reading the query (CDR, section 1 checks)"),
+    ("teacher_serialize", "    of which serialising the answer (CDR)"),
+    ("back_leg", "  the answer's `publish`, DDS back, the learner's wake and take"),
+    ("own_query_read_back", "  meanwhile: the learner reading its own query back"),
     ("answer_decode", "answer read (CDR, section 1 checks)"),
     ("answer_check", "answer's bookkeeping (open query, trust screen, inbox)"),
     ("tick_wait_merge", "waiting for the node's next tick (100 Hz)"),
@@ -447,9 +470,11 @@ OURS_PHASES = (
 )
 
 
-def _range(runs: Sequence[Mapping[str, Any]], key: str) -> str:
+def _range(runs: Sequence[Mapping[str, Any]], key: str, digits: int = 1) -> str:
+    """The median over the runs of each run's median, and their range."""
     values = [r[key]["median"] if isinstance(r[key], Mapping) else r[key] for r in runs]
-    return f"{statistics.median(values):,.1f} ({min(values):,.1f} to {max(values):,.1f})"
+    low, mid, high = min(values), statistics.median(values), max(values)
+    return f"{mid:,.{digits}f} ({low:,.{digits}f} to {high:,.{digits}f})"
 
 
 def report_transfer(t: Mapping[str, Any]) -> list[str]:
@@ -462,9 +487,9 @@ def report_transfer(t: Mapping[str, Any]) -> list[str]:
             [f"{LABEL[kind]}: raw rclpy pair, publish `Query` -> `Answer` in the callback",
              _range(runs, "raw"), "1.00x", ""],
             [f"{LABEL[kind]}: floor, the pair + answer built, parse, merge, tick",
-             _range(runs, "floor"), _range(runs, "floor_ratio") + "x", ""],
+             _range(runs, "floor"), _range(runs, "floor_ratio", 2) + "x", ""],
             [f"{LABEL[kind]}: ours, `ktbt ros2 run` nodes at 100 Hz",
-             _range(runs, "ours"), _range(runs, "ratio") + "x",
+             _range(runs, "ours"), _range(runs, "ratio", 2) + "x",
              f"{min(loads):.1f} to {max(loads):.1f}"],
         ]  # fmt: skip
     headers = ["transfer, need -> merged + ticked, two processes a pair",
@@ -493,7 +518,10 @@ def report_transfer(t: Mapping[str, Any]) -> list[str]:
         parts.append(
             f"Target, {LABEL[kind]}: ours ≤ {TARGET_RATIO:g}x the raw pair on the same "
             f"executor: {ratio['median']:.2f}x ({ratio['min']:.2f}x to {ratio['max']:.2f}x in "
-            f"{len(runs)} runs): {met}."
+            f"{len(runs)} runs): {met}. Added latency over the raw pair: "
+            f"{_range(runs, 'added_over_raw', 2)}x the raw round trip (target ≤ 0.5x). "
+            f"One tick of the idle learner between rounds: {_range(runs, 'idle_tick')} µs "
+            "(its timer callback, 100 a second)."
         )
     return parts
 

@@ -179,6 +179,8 @@ def _pause(executor: Any) -> None:
 
 def teacher_ours(kind: str, marks: Path) -> int:
     """``ktbt ros2 run`` as a user starts it, its transport's callbacks timed."""
+    from rclpy.publisher import Publisher
+
     from ktbt_proto.tools.cli import main
     from ktbt_proto.transport import ros2 as transport
 
@@ -187,6 +189,7 @@ def teacher_ours(kind: str, marks: Path) -> int:
     timed(transport.Ros2Transport, "_on_query", "on_query")
     timed(transport.Ros2Transport, "_read", "read")
     timed(transport, "serialized", "serialize")
+    timed(Publisher, "publish", "publish")
     sys.argv = [
         "ktbt", "ros2", "run", "--autostart", "--executor", kind,
         "--ros-args", "-r", "__ns:=/teacher", "-p", f"knowledge:={KNOWLEDGE_PATH}",
@@ -272,13 +275,18 @@ def learner_ours(kind: str) -> int:
     def rounds(n: int) -> dict[str, Any]:
         samples: list[int] = []
         phases: list[dict[str, int]] = []
+        idle: list[int] = []
         for _ in range(n):
             text = sequence_of(COLOURS[(COLOURS.index(_colour(known[0])) + 1) % len(COLOURS)])
             key = sequence_key(read_sequence(text))
             # Untimed: what the last round learned is forgotten, as ~/forget does.
             if agent.forget(known[0]):
                 member.forgot(known[0])
+            marks.clear()
             _pause(executor)
+            # The pause's ticks but the first (which applies the forget): ticks with nothing
+            # to learn, what an idle node pays 100 times a second.
+            idle += [m[2] - m[1] for m in marks if m[0] == "node_tick"][1:]
             marks.clear()
             wanted.key, wanted.end = key, None
             start = clock()
@@ -289,7 +297,12 @@ def learner_ours(kind: str) -> int:
             samples.append(wanted.end - start)
             phases.append(ours_phases(list(marks), start, told, wanted.end))
             known[0] = key
-        return {"ours": samples, "phases": phases, "refused": node.transport.refused}
+        return {
+            "ours": samples,
+            "phases": phases,
+            "idle_ticks": idle,
+            "refused": node.transport.refused,
+        }
 
     try:
         serve(executor, rounds, ready)
@@ -326,6 +339,8 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
     ser = sum(m[2] - m[1] for m in serialize)
     checks = [sum(m[2] - m[1] for m in part) for part in (provenance, item, merge)]
     return {
+        "at_published": broadcast[2],
+        "at_answer": answer[1],
         "tell": told - start,
         "tick_wait_ask": ask_tick[1] - told,
         "step_to_ask": broadcast[1] - ask_tick[1],
@@ -382,23 +397,27 @@ def teacher_hand(kind: str) -> int:
     raw_out = node.create_publisher(Answer, RAW_ANSWERS, exchange_qos())
     floor_out = node.create_publisher(Answer, FLOOR_ANSWERS, exchange_qos())
     clock = time.perf_counter_ns
-    spent: dict[str, list[int]] = {"raw": [], "floor": []}
+    calls: dict[str, list[list[int]]] = {"raw": [], "floor": []}
+    """Each callback's [entry, publish entered, publish returned, exit] (ns)."""
 
     def raw(_query: Any) -> None:
         start = clock()
+        publish = clock()
         raw_out.publish(ready_answer)
-        spent["raw"].append(clock() - start)
+        published = clock()
+        calls["raw"].append([start, publish, published, clock()])
 
     def floor(query: Any) -> None:
         start = clock()
         found = lookup(query.sequence)
         if found is not None:
             subtree = found if isinstance(found, str) else found.subtree
-            floor_out.publish(
-                Answer(v=1, id=query.id, sender=TEACHER, to=query.sender,
-                       sequence=query.sequence, subtree=subtree)
-            )  # fmt: skip
-        spent["floor"].append(clock() - start)
+            answer = Answer(v=1, id=query.id, sender=TEACHER, to=query.sender,
+                            sequence=query.sequence, subtree=subtree)  # fmt: skip
+            publish = clock()
+            floor_out.publish(answer)
+            published = clock()
+            calls["floor"].append([start, publish, published, clock()])
 
     node.create_subscription(Query, RAW_QUERIES, raw, exchange_qos())
     node.create_subscription(Query, FLOOR_QUERIES, floor, exchange_qos())
@@ -411,7 +430,7 @@ def teacher_hand(kind: str) -> int:
     finally:
         node.destroy_node()
         try_shutdown()
-    print(json.dumps(spent), flush=True)
+    print(json.dumps(calls), flush=True)
     return 0
 
 
@@ -470,6 +489,8 @@ def learner_hand(kind: str) -> int:
     executor.add_node(node)
 
     def one(contender: str, colour: int) -> dict[str, int]:
+        """One round: ``total`` and its phases (ns), with the absolute times the parent
+        places the teacher's callback between."""
         got.clear()
         if contender == "floor":
             p = fresh_learner(control, registry, colour)
@@ -484,7 +505,12 @@ def learner_hand(kind: str) -> int:
         published = clock()
         if not spin_until(executor, lambda: "end" in got, WAIT):
             raise RuntimeError(f"{contender}: no answer within {WAIT} s")
-        phases = {"publish": published - start, "network": got["entry"] - published}
+        phases = {
+            "at_published": published,
+            "at_answer": got["entry"],
+            "publish": published - start,
+            "network": got["entry"] - published,
+        }
         if contender == "floor":
             phases |= {
                 "parse": got["parsed"] - got["entry"],

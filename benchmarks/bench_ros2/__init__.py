@@ -1,30 +1,31 @@
-"""KT-BT over ROS 2 (spec/protocol.md section 11) beside its anchors, in one run (issue 26's
-targets). ``python -m benchmarks.bench_ros2`` (or ``python -m benchmarks`` for every module)
-prints Markdown tables and writes the numbers to ``benchmarks/results/ros2.json``.
+"""KT-BT over ROS 2 (spec/protocol.md section 11) beside its anchors, in one run (issue 33's
+item 8: measured the way a user compares). ``python -m benchmarks.bench_ros2`` (or ``python -m
+benchmarks`` for every module) prints Markdown tables and writes the numbers to
+``benchmarks/results/ros2.json``.
 
 Every ROS process runs in one network namespace with only loopback up,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a ``ROS_DOMAIN_ID`` of the run's own
 (``tests/interop/ros2/rosns.py``'s :class:`RosNamespace`, the project's one definition of a
-namespace for ROS processes), and is ended by its pid when the run ends. Three measures:
+namespace for ROS processes), and is ended by its pid when the run ends. Each measure compares
+ours with what a user would write, on the same executor and in the same process layout, on
+each of rclpy's two executors (the events executor ``ktbt ros2 run`` spins by default, and the
+``SingleThreadedExecutor`` of ``--executor single`` and ``rclpy.spin``):
 
-1. **Transfer** (:mod:`.transfer`): query -> answer -> checked, merged, first tick, against a
-   raw rclpy publish and reply of the same messages and against the floor (the same round trip
-   with the transfer's own work and none of the protocol's checks), alternating round by round;
-   the teacher's side and the learner's side in two processes (as robots are). Three runs
-   (:data:`TRANSFER_RUNS`): ours as ``ktbt ros2 run`` spins it (rclpy's events executor)
-   against the anchors as ``rclpy.spin`` spins a node (its ``SingleThreadedExecutor``), on
-   which the target is judged, as the idle target is against a bare node spun so; then all three
-   on the events executor, and all three on the ``SingleThreadedExecutor``.
-2. **Idle CPU**: a ``ktbt ros2 run`` node, active and ticking at 10 Hz with nothing to learn
-   (it is given the four colour skills it would ask about: an empty ``sequences`` cannot be
-   typed on the command line, rclpy leaves ``[]`` uninitialized), beside a bare rclpy node
-   with the same 10 Hz timer (:mod:`.bare_node`), both running at once: each process's CPU time
-   (user + system, ``/proc/PID/stat``) over the same wall-clock window.
+1. **Transfer** (:mod:`.transfer`): the shipped lifecycle node at its default 100 Hz, teacher
+   and learner in two processes, against a hand-written rclpy pair in two processes (raw: a
+   ready answer; floor: the answer built, parsed, merged and ticked), from the learner needing
+   a sequence to the item merged and ticked; the two pairs' processes all up at once, timed in
+   alternating blocks, :data:`TRANSFER_RUNS` runs of each executor; ours cut into phases.
+2. **Idle CPU**: ``ktbt ros2 run --autostart`` (100 Hz, nothing to learn: it is given the four
+   colour skills it would ask about) beside a bare rclpy node with a 100 Hz timer
+   (:mod:`.bare_node`), on each executor, all four at once: each process's CPU time (user +
+   system, ``/proc/PID/stat``) over the same windows.
 3. **Fleet** (:mod:`.fleet`): ten robots in namespaces of their own (``__ns:=/robotN``)
    learning the four colour skills from one teacher, beside a zenoh fleet of the same size run by
    the fleet tool (``ktbt fleet run``'s runner), alternating: convergence is when the last
    learner knew all four, counted from when the teacher came up, as the fleet tool counts it.
 
+The load average is recorded beside each part: the machine is shared.
 Where ROS 2 cannot run (no wheels for the platform, the interfaces not built, no network
 namespace) it says so in one line and measures nothing.
 """
@@ -60,7 +61,7 @@ TRANSFER_ROUNDS = 200
 TRANSFER_BLOCKS = 8
 TRANSFER_RUNS = 3
 IDLE_SECONDS = 15.0
-IDLE_WINDOWS = 3
+IDLE_WINDOWS = 5
 IDLE_RATE = 100.0
 """The node's default tick rate, and the bare node's timer's."""
 SETTLE = 2.0
@@ -208,7 +209,8 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
 
 def _teacher_calls(marks: list[list[Any]]) -> list[list[int]]:
     """Our teacher's query callbacks that answered: [entry, the answer's ``publish`` entered
-    and returned, exit, ns reading the query, ns serialising the answer], from its marks."""
+    and returned, exit, ns reading the query, ns serialising the answer, ns in its other
+    ``publish`` calls (fleet events)], from its marks."""
     calls = []
     for _, start, end in (m for m in marks if m[0] == "on_query"):
         inner = [m for m in marks if m[0] != "on_query" and start <= m[1] and m[2] <= end]
@@ -217,7 +219,9 @@ def _teacher_calls(marks: list[list[Any]]) -> list[list[int]]:
             continue  # answered nothing (its own query, a sequence it does not know)
         publish = next(m for m in inner if m[0] == "publish" and m[1] >= serialize[0][2])
         read = sum(m[2] - m[1] for m in inner if m[0] == "read")
-        calls.append([start, publish[1], publish[2], end, read, serialize[0][2] - serialize[0][1]])
+        others = sum(m[2] - m[1] for m in inner if m[0] == "publish" and m is not publish)
+        ser = serialize[0][2] - serialize[0][1]
+        calls.append([start, publish[1], publish[2], end, read, ser, others])
     return calls
 
 
@@ -242,7 +246,11 @@ def legs(rounds: list[dict[str, int]], calls: list[list[int]]) -> list[dict[str,
                 "teacher_publish_call": call[2] - call[1],
             }
             if len(call) > 4:
-                r |= {"teacher_read": call[4], "teacher_serialize": call[5]}
+                r |= {
+                    "teacher_read": call[4],
+                    "teacher_serialize": call[5],
+                    "teacher_events": call[6],
+                }
         cut.append(r)
     return cut
 
@@ -449,12 +457,14 @@ OURS_PHASES = (
     ("tick_wait_ask", "waiting for the node's next tick (100 Hz)"),
     ("step_to_ask", "the tick's step up to the query (receive, peers, learner)"),
     ("serialize", "the `Query` serialised (CDR)"),
-    ("publish", "open-query bookkeeping + `publish`"),
+    ("bookkeeping", "the open query's bookkeeping"),
+    ("publish", "`publish` (rclpy, Fast DDS)"),
     ("network", "publish returned -> the answer's callback entered"),
     ("out_leg", "  DDS to the teacher, its executor's wake and take"),
     ("teacher_to_publish", "  the teacher's callback up to `publish` (read, look up, build)"),
     ("teacher_read", "    of which reading the query (CDR, section 1 checks)"),
     ("teacher_serialize", "    of which serialising the answer (CDR)"),
+    ("teacher_events", "    of which its fleet events published (`~/events`)"),
     ("back_leg", "  the answer's `publish`, DDS back, the learner's wake and take"),
     ("own_query_read_back", "  meanwhile: the learner reading its own query back"),
     ("answer_decode", "answer read (CDR, section 1 checks)"),
@@ -464,8 +474,13 @@ OURS_PHASES = (
     ("provenance", "provenance / trust check"),
     ("parse_validate", "the item read: parse + validate against the vocabulary"),
     ("merge", "`merge` into the running tree"),
-    ("accept_rest", "transfer log, knowledge base, metrics"),
-    ("step_to_tick", "the step's rest before the tick (learned line logged, learner)"),
+    ("accept_rest", "the rest of `accept`: transfer log, knowledge base, metrics"),
+    ("accept_records", "  of which two events recorded (`TransferLog.record`)"),
+    ("accept_publishes", "    of which published on `~/events` (rclpy `publish`)"),
+    ("accept_kb_add", "  of which the item added to the knowledge base"),
+    ("step_to_tick", "the step's rest before the control tree's tick"),
+    ("step_say", "  of which the `learned ...` INFO line (rclpy logger, /rosout)"),
+    ("step_appeared", "  of which the peers read from the ROS graph"),
     ("control_tick", "the first tick with the item"),
 )
 
@@ -499,7 +514,9 @@ def report_transfer(t: Mapping[str, Any]) -> list[str]:
         runs = t[kind]
         prow: list[list[str]] = []
         for key, label in OURS_PHASES:
-            values = [r["ours_phases"][key] for r in runs]
+            values = [r["ours_phases"][key] for r in runs if key in r["ours_phases"]]
+            if not values:
+                continue
             prow.append([label, f"{statistics.median(values):,.1f}"])
         total = [r["ours"]["median"] for r in runs]
         prow.append(["ours, whole transfer (median of the rounds)",

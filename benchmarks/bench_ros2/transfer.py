@@ -213,11 +213,14 @@ class _Wanted:
 def learner_ours(kind: str) -> int:
     import rclpy
     from rclpy.parameter import Parameter
+    from rclpy.publisher import Publisher
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import try_shutdown
 
     from ktbt_proto.exchange import core
     from ktbt_proto.exchange.application import ApplicationTimedAgent
+    from ktbt_proto.exchange.knowledge import KnowledgeBase
+    from ktbt_proto.exchange.transferlog import TransferLog
     from ktbt_proto.items import read_sequence, sequence_key
     from ktbt_proto.tools.ros2.node import KtbtNode
     from ktbt_proto.transport import ros2 as transport
@@ -235,6 +238,10 @@ def learner_ours(kind: str) -> int:
         (core.AgentCore, "accept", "accept"),
         (core, "check_provenance", "provenance"),
         (core, "read_item", "read_item"),
+        (Publisher, "publish", "publish"),
+        (TransferLog, "record", "record"),
+        (KnowledgeBase, "add", "kb_add"),
+        (transport.Ros2Transport, "appeared", "appeared"),
     ):
         timed(owner, attr, name)
     first = sequence_of(COLOURS[0])
@@ -253,6 +260,7 @@ def learner_ours(kind: str) -> int:
     wanted = _Wanted()
     control = agent.control
     timed(control, "merge", "merge")
+    timed(member, "say", "say")
     tick_control = control.tick
     clock, marks = time.perf_counter_ns, MARKS
 
@@ -337,6 +345,11 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
     merge = _within(marks, "merge", accept[1], accept[2])
     own = _within(marks, "on_query", broadcast[2], answer[1])
     ser = sum(m[2] - m[1] for m in serialize)
+    sent = _within(marks, "publish", broadcast[1], broadcast[2])
+
+    def spent(name: str, start: int, end: int) -> int:
+        return sum(m[2] - m[1] for m in _within(marks, name, start, end))
+
     checks = [sum(m[2] - m[1] for m in part) for part in (provenance, item, merge)]
     return {
         "at_published": broadcast[2],
@@ -345,7 +358,8 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
         "tick_wait_ask": ask_tick[1] - told,
         "step_to_ask": broadcast[1] - ask_tick[1],
         "serialize": ser,
-        "publish": broadcast[2] - broadcast[1] - ser,
+        "publish": sum(m[2] - m[1] for m in sent),
+        "bookkeeping": broadcast[2] - broadcast[1] - ser - sum(m[2] - m[1] for m in sent),
         "network": answer[1] - broadcast[2],
         "own_query_read_back": sum(m[2] - m[1] for m in own),
         "ask_tick_after_publish": ask_tick[2] - broadcast[2],
@@ -357,6 +371,11 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
         "parse_validate": checks[1],
         "merge": checks[2],
         "accept_rest": accept[2] - accept[1] - sum(checks),
+        "accept_records": spent("record", accept[1], accept[2]),
+        "accept_publishes": spent("publish", accept[1], accept[2]),
+        "accept_kb_add": spent("kb_add", accept[1], accept[2]),
+        "step_say": spent("say", accept[2], control_tick[1]),
+        "step_appeared": spent("appeared", accept[2], control_tick[1]),
         "step_to_tick": control_tick[1] - accept[2],
         "control_tick": control_tick[2] - control_tick[1],
     }

@@ -59,6 +59,8 @@ EXECUTORS = ("events", "single")
 TRANSFER_ROUNDS = 200
 """Timed rounds of each contender in one run, in :data:`TRANSFER_BLOCKS` alternating blocks."""
 TRANSFER_BLOCKS = 8
+ATTACH_SHARE = 0.25
+"""The attached robot's rounds, as a share of the others' (each takes about 0.3 s)."""
 TRANSFER_RUNS = 3
 IDLE_SECONDS = 15.0
 IDLE_WINDOWS = 5
@@ -149,24 +151,28 @@ class Driven:
 
 
 def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
-    """Both pairs on executor ``kind``, their four processes up at once; ours and the
-    hand-written pair timed in alternating blocks (:data:`TRANSFER_BLOCKS`)."""
+    """Every pair on executor ``kind``, their six processes up at once (ours, the attached
+    robot with a teacher of its own, the hand-written pair); timed in alternating blocks
+    (:data:`TRANSFER_BLOCKS`), the attached robot :data:`ATTACH_SHARE` of the rounds."""
     worker = [sys.executable, "-m", f"{__name__}.transfer", "--executor", kind]
     marks = ns.tmp / f"teacher-ours-{tag}.json"
     load = os.getloadavg()[0]
-    names = {who: f"{who}-{tag}" for who in ("teacher-ours", "teacher-hand")}
-    teachers = {
-        who: ns.start([*worker, "--role", who, *(["--marks", str(marks)] if who == "teacher-ours"
-                                                 else [])], name, cwd=ROOT)
-        for who, name in names.items()
+    args = {
+        "teacher-ours": ["--role", "teacher-ours", "--marks", str(marks)],
+        "teacher-attach": ["--role", "teacher-ours", "--marks", str(marks) + ".attach",
+                           "--topics", "/ktbt_attach"],
+        "teacher-hand": ["--role", "teacher-hand"],
     }  # fmt: skip
+    names = {who: f"{who}-{tag}" for who in args}
+    teachers = {who: ns.start([*worker, *args[who]], names[who], cwd=ROOT) for who in args}
     learners: dict[str, Driven] = {}
     try:
-        wait_for(in_log(ns, names["teacher-ours"], ": active", teachers["teacher-ours"]),
-                 "ktbt ros2 run (the teacher) did not become active")  # fmt: skip
+        for who in ("teacher-ours", "teacher-attach"):
+            wait_for(in_log(ns, names[who], ": active", teachers[who]),
+                     f"ktbt ros2 run ({who}) did not become active")  # fmt: skip
         wait_for(in_log(ns, names["teacher-hand"], "ready", teachers["teacher-hand"]),
                  "the hand-written teacher did not start")  # fmt: skip
-        for who in ("learner-ours", "learner-hand"):
+        for who in ("learner-ours", "learner-attach", "learner-hand"):
             learners[who] = Driven(ns, who, kind, f"{who}-{tag}")
         began = time.monotonic()
         for who, learner in learners.items():
@@ -176,17 +182,26 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
         ours: list[int] = []
         phases: list[dict[str, int]] = []
         idle_ticks: list[int] = []
+        attached: list[int] = []
+        attach_phases: list[dict[str, int]] = []
         hand: dict[str, list[dict[str, int]]] = {"raw": [], "floor": []}
         refused = 0
+        order = ("learner-ours", "learner-attach", "learner-hand")
         for block in range(TRANSFER_BLOCKS):
-            order = ("learner-ours", "learner-hand")
-            for who in order if block % 2 == 0 else order[::-1]:
-                got = learners[who].ask(op="rounds", n=max(1, rounds // TRANSFER_BLOCKS))
+            shift = block % len(order)
+            for who in order[shift:] + order[:shift]:
+                n = rounds // TRANSFER_BLOCKS
+                if who == "learner-attach":
+                    n = int(n * ATTACH_SHARE)
+                got = learners[who].ask(op="rounds", n=max(1, n))
                 if who == "learner-ours":
                     ours += got["ours"]
                     phases += got["phases"]
                     idle_ticks += got["idle_ticks"]
                     refused = got["refused"]
+                elif who == "learner-attach":
+                    attached += got["attach"]
+                    attach_phases += got["phases"]
                 else:
                     hand["raw"] += got["raw"]
                     hand["floor"] += got["floor"]
@@ -200,11 +215,17 @@ def transfer_run(ns: Any, kind: str, rounds: int, tag: str) -> dict[str, Any]:
     teacher_ours = _teacher_calls(json.loads(marks.read_text()) if marks.exists() else [])
     last = (ns.log(names["teacher-hand"]).strip().splitlines() or ["{}"])[-1]
     teacher_hand = json.loads(last) if last.startswith("{") else {}
-    return summarize(kind, ours, phases, hand, teacher_ours, teacher_hand, {
+    result = summarize(kind, ours, phases, hand, teacher_ours, teacher_hand, {
         "connect_s": round(connect_s, 2), "learner_refused": refused,
         "load_average": [round(load, 2), round(os.getloadavg()[0], 2)],
         "idle_tick": _stats(idle_ticks),
     })  # fmt: skip
+    result["attach"] = _stats(attached)
+    result["attach_phases"] = {
+        name: _median_us([p[name] for p in attach_phases]) for name in attach_phases[0]
+    }
+    result["attach_ratio"] = round(result["attach"]["median"] / result["raw"]["median"], 2)
+    return result
 
 
 def _teacher_calls(marks: list[list[Any]]) -> list[list[int]]:
@@ -312,9 +333,10 @@ def run_transfer(ns: Any, rounds: int, runs: int) -> dict[str, Any]:
         for kind in EXECUTORS if run % 2 == 0 else EXECUTORS[::-1]:
             result[kind].append(transfer_run(ns, kind, rounds, f"{kind}-{run}"))
     for kind in EXECUTORS:
-        ratios = [r["ratio"] for r in result[kind]]
-        result[f"{kind}_ratio"] = {"median": statistics.median(ratios), "min": min(ratios),
-                                   "max": max(ratios)}  # fmt: skip
+        for key in ("ratio", "attach_ratio"):
+            ratios = [r[key] for r in result[kind]]
+            result[f"{kind}_{key}"] = {"median": statistics.median(ratios), "min": min(ratios),
+                                       "max": max(ratios)}  # fmt: skip
     return result
 
 
@@ -506,6 +528,8 @@ def report_transfer(t: Mapping[str, Any]) -> list[str]:
             [f"{LABEL[kind]}: ours, `ktbt ros2 run` nodes at 100 Hz",
              _range(runs, "ours"), _range(runs, "ratio", 2) + "x",
              f"{min(loads):.1f} to {max(loads):.1f}"],
+            [f"{LABEL[kind]}: ours, `attach` (its timer at 0.1 s) on a user's node ticking "
+             "at 100 Hz", _range(runs, "attach"), _range(runs, "attach_ratio", 2) + "x", ""],
         ]  # fmt: skip
     headers = ["transfer, need -> merged + ticked, two processes a pair",
                "median µs (runs' range)", "vs raw", "load"]  # fmt: skip
@@ -530,6 +554,11 @@ def report_transfer(t: Mapping[str, Any]) -> list[str]:
             whole = statistics.median(r[contender]["median"] for r in runs)
             prow.append([f"{contender} pair, whole: {told}", f"{whole:,.1f}"])
         parts.append(markdown_table([f"where ours' time goes, {LABEL[kind]}", "median µs"], prow))
+        phases = " + ".join(
+            f"{name} {statistics.median(r['attach_phases'][name] for r in runs):,.0f}"
+            for name in runs[0]["attach_phases"]
+        )
+        parts.append(f"`attach`, {LABEL[kind]}, median µs of each phase: {phases}.")
         ratio = t[f"{kind}_ratio"]
         met = "met" if ratio["median"] <= TARGET_RATIO else "missed"
         parts.append(

@@ -59,6 +59,9 @@ from typing import Any
 
 PAUSE = (0.050, 0.060)
 """Seconds before each round (uniform): one tick period at 100 Hz wide."""
+ATTACH_PAUSE = (0.100, 0.200)
+"""The same for an attached robot: one period of its agent's timer (0.1 s, ``attach``'s
+default) wide."""
 WAIT = 2.0
 """Seconds one round may take; its answer ends it long before."""
 CONNECT_TIMEOUT = 60.0
@@ -177,8 +180,14 @@ def _pause(executor: Any) -> None:
 # -- ours -------------------------------------------------------------------------------------
 
 
-def teacher_ours(kind: str, marks: Path) -> int:
-    """``ktbt ros2 run`` as a user starts it, its transport's callbacks timed."""
+ATTACH_TOPICS = "/ktbt_attach"
+"""The attached robot's pair has fleet topics of its own (``/ktbt_attach/queries``, ...): two
+learners on one fleet would answer each other's queries."""
+
+
+def teacher_ours(kind: str, marks: Path, topics: str | None = None) -> int:
+    """``ktbt ros2 run`` as a user starts it, its transport's callbacks timed; with ``topics``,
+    on the fleet topics under that prefix."""
     from rclpy.publisher import Publisher
 
     from ktbt_proto.tools.cli import main
@@ -190,9 +199,15 @@ def teacher_ours(kind: str, marks: Path) -> int:
     timed(transport.Ros2Transport, "_read", "read")
     timed(transport, "serialized", "serialize")
     timed(Publisher, "publish", "publish")
+    where = ["-r", "__ns:=/teacher"]
+    if topics is not None:
+        where = ["-r", "__ns:=/teacher_attach"] + [
+            arg for name in ("queries", "answers", "errors")
+            for arg in ("-p", f"{name}_topic:={topics}/{name}")
+        ]  # fmt: skip
     sys.argv = [
         "ktbt", "ros2", "run", "--autostart", "--executor", kind,
-        "--ros-args", "-r", "__ns:=/teacher", "-p", f"knowledge:={KNOWLEDGE_PATH}",
+        "--ros-args", *where, "-p", f"knowledge:={KNOWLEDGE_PATH}",
     ]  # fmt: skip
     try:
         main()
@@ -318,6 +333,110 @@ def learner_ours(kind: str) -> int:
         node.destroy_node()
         try_shutdown()
     return 0
+
+
+def learner_attach(kind: str) -> int:
+    """A user's node with their py_trees tree ticked by their own 100 Hz timer, a KT-BT agent
+    attached to it with ``attach``'s defaults (its timer every 0.1 s), told what to meet with
+    ``meet``. A round ends when the user's tick that applies the merged item returns (an item
+    accepted by the agent's timer is inserted at the next tick's start, section 4.4)."""
+    import py_trees
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import try_shutdown
+
+    from ktbt_proto.interop.ros2.embed import Embedded, attach
+    from ktbt_proto.items import read_sequence, sequence_key
+    from ktbt_proto.tools.demo import demo_registry
+    from ktbt_proto.transport import ros2 as transport
+
+    from ..bench_transfer import COLOURS, sequence_of
+
+    for owner, attr, name in (
+        (Embedded, "_run", "agent_run"),
+        (transport.Ros2Transport, "broadcast", "broadcast"),
+        (transport.Ros2Transport, "_on_answer", "on_answer"),
+    ):
+        timed(owner, attr, name)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node("bt", namespace="/attacher")
+    root = py_trees.composites.Selector(
+        "Root", memory=False,
+        children=[py_trees.composites.Selector("k:new", memory=False),
+                  py_trees.behaviours.Running("Wander")],
+    )  # fmt: skip
+    tree = py_trees.trees.BehaviourTree(root)
+    first = sequence_of(COLOURS[0])
+    topics = transport.Topics(*(f"{ATTACH_TOPICS}/{n}" for n in ("queries", "answers", "errors")))
+    robot = attach(node, tree, demo_registry(), sequences=[first], topics=topics)
+    wanted = _Wanted()
+    clock, marks = time.perf_counter_ns, MARKS
+
+    def user_tick() -> None:
+        applies = wanted.end is None and wanted.key is not None and robot.knows(wanted.key)
+        start = clock()
+        tree.tick()
+        end = clock()
+        marks.append(("user_tick", start, end))
+        if applies:
+            wanted.end = end
+
+    node.create_timer(1.0 / TICK_RATE, user_tick)
+    executor = make_executor(kind)
+    executor.add_node(node)
+    known = [sequence_key(read_sequence(first))]
+
+    def ready() -> bool:
+        return spin_until(executor, lambda: robot.knows(known[0]), CONNECT_TIMEOUT)
+
+    def rounds(n: int) -> dict[str, Any]:
+        samples: list[int] = []
+        phases: list[dict[str, int]] = []
+        for _ in range(n):
+            text = sequence_of(COLOURS[(COLOURS.index(_colour(known[0])) + 1) % len(COLOURS)])
+            key = sequence_key(read_sequence(text))
+            if robot.agent.forget(known[0]):  # untimed, as ~/ktbt/forget does
+                robot.member.forgot(known[0])
+            spin_for(executor, random.uniform(*ATTACH_PAUSE))
+            marks.clear()
+            wanted.key, wanted.end = key, None
+            start = clock()
+            robot.meet(text)
+            told = clock()
+            if not spin_until(executor, lambda: wanted.end is not None, WAIT) or wanted.end is None:
+                raise RuntimeError(f"attach: {text} not learned within {WAIT} s")
+            samples.append(wanted.end - start)
+            phases.append(attach_phases(list(marks), start, told, wanted.end))
+            known[0] = key
+        return {"attach": samples, "phases": phases}
+
+    try:
+        serve(executor, rounds, ready)
+    finally:
+        robot.close()
+        node.destroy_node()
+        try_shutdown()
+    return 0
+
+
+def attach_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str, int]:
+    """One round of the attached robot cut into consecutive phases (ns)."""
+    broadcast = next(m for m in marks if m[0] == "broadcast" and m[1] >= told)
+    ask_run = next(m for m in marks if m[0] == "agent_run" and m[1] <= broadcast[1] <= m[2])
+    answer = next(m for m in marks if m[0] == "on_answer" and m[1] >= broadcast[2])
+    take_run = next(m for m in marks if m[0] == "agent_run" and m[1] >= answer[2])
+    user = next(m for m in marks if m[0] == "user_tick" and m[2] == end)
+    return {
+        "tell": told - start,
+        "timer_wait_ask": ask_run[1] - told,
+        "run_to_ask": broadcast[2] - ask_run[1],
+        "network": answer[1] - broadcast[2],
+        "answer_read": answer[2] - answer[1],
+        "timer_wait_take": take_run[1] - answer[2],
+        "take_run": take_run[2] - take_run[1],
+        "tick_wait": user[1] - take_run[2],
+        "user_tick": user[2] - user[1],
+    }
 
 
 def _colour(key: str) -> int:
@@ -577,17 +696,20 @@ def learner_hand(kind: str) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros2.transfer")
-    roles = ("teacher-ours", "learner-ours", "teacher-hand", "learner-hand")
+    roles = ("teacher-ours", "learner-ours", "learner-attach", "teacher-hand", "learner-hand")
     parser.add_argument("--role", choices=roles, required=True)
     parser.add_argument("--executor", choices=EXECUTORS, default="events")
     parser.add_argument("--marks", type=Path, help="teacher-ours: where its timings go")
+    parser.add_argument("--topics", help="teacher-ours: the fleet topics' prefix (/ktbt)")
     args = parser.parse_args(argv)
     if args.role == "teacher-ours":
         if args.marks is None:
             parser.error("--marks: give a file for teacher-ours")
-        return teacher_ours(args.executor, args.marks)
+        return teacher_ours(args.executor, args.marks, args.topics)
     if args.role == "learner-ours":
         return learner_ours(args.executor)
+    if args.role == "learner-attach":
+        return learner_attach(args.executor)
     if args.role == "teacher-hand":
         return teacher_hand(args.executor)
     return learner_hand(args.executor)

@@ -16,6 +16,7 @@ each of rclpy's two executors (the events executor ``ktbt ros2 run`` spins by de
    ready answer; floor: the answer built, parsed, merged and ticked), from the learner needing
    a sequence to the item merged and ticked; the two pairs' processes all up at once, timed in
    alternating blocks, :data:`TRANSFER_RUNS` runs of each executor; ours cut into phases.
+   A robot embedded with ``attach`` (its defaults) is timed beside them.
 2. **Idle CPU**: ``ktbt ros2 run --autostart`` (100 Hz, nothing to learn: it is given the four
    colour skills it would ask about) beside a bare rclpy node with a 100 Hz timer
    (:mod:`.bare_node`), on each executor, all four at once: each process's CPU time (user +

@@ -13,6 +13,11 @@ answering, one asking, for each pair. Run inside the benchmark's network namespa
   ``spin_once(timeout_sec=0.1)`` in a loop), told one sequence to meet at a time through its
   ``sequences`` parameter; what it learned is forgotten between rounds as ``~/forget`` does
   (``agent.forget``, ``member.forgot``), untimed.
+* ``learner-attach``: a user's node (``/attacher/bt``) ticking its py_trees tree on its own
+  100 Hz timer, a robot attached to it with ``attach``'s defaults (its agent's timer every
+  0.1 s), told with ``meet``; it asks a ``teacher-ours`` of its own on fleet topics of its own
+  (``--topics /ktbt_attach``). Its round ends when the user's tick that inserts the item
+  returns.
 * ``teacher-hand``: the hand-written answering node: on ``/bench/raw/queries`` it publishes a
   ready ``Answer``; on ``/bench/floor/queries`` it looks the sequence up and builds the
   ``Answer`` for the query (the floor: the transfer's own work and none of the protocol's).

@@ -1,10 +1,10 @@
-"""The idle benchmark's anchor: a bare rclpy node with a 10 Hz timer that does nothing, spun the
-idiomatic way (``rclpy.spin``), or with ``--events`` by rclpy's events executor, spun as
+"""The idle benchmark's anchor: a bare rclpy node with a timer (100 Hz, the lifecycle node's
+default tick rate) that does nothing, on the executor given: ``single`` spun the idiomatic way
+(``rclpy.spin`` with a ``SingleThreadedExecutor``), ``events`` (rclpy's events executor) spun as
 ``ktbt ros2 run`` spins it (``spin_once(timeout_sec=0.1)`` until SIGTERM: ``rclpy.spin`` with
-that executor never ran the timer here), so that the executor's own saving is told apart from
-ours. Run
-inside the benchmark's network namespace by :mod:`benchmarks.bench_ros2`; it says ``ready`` on
-stdout once spinning, and ends on SIGTERM."""
+that executor never ran the timer here). Run inside the benchmark's network namespace by
+:mod:`benchmarks.bench_ros2`; it says ``ready`` on stdout once its timer ran, and ends on
+SIGTERM."""
 
 from __future__ import annotations
 
@@ -15,14 +15,14 @@ import threading
 from collections.abc import Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.utilities import try_shutdown
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros2.bare_node")
-    parser.add_argument("--rate", type=float, default=10.0, help="timer rate, Hz")
-    parser.add_argument("--events", action="store_true", help="spin rclpy's events executor")
+    parser.add_argument("--rate", type=float, default=100.0, help="timer rate, Hz")
+    parser.add_argument("--executor", choices=("events", "single"), default="single")
     args = parser.parse_args(argv)
     rclpy.init()
     stop = threading.Event()
@@ -32,7 +32,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try_shutdown()
 
     signal.signal(signal.SIGTERM, end)
-    node = rclpy.create_node("bare", namespace="/bare")
+    node = rclpy.create_node("bare", namespace=f"/bare_{args.executor}")
     ticks = [0]
 
     def tick() -> None:
@@ -42,7 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     node.create_timer(1.0 / args.rate, tick)
     try:
-        if args.events:
+        if args.executor == "events":
             from rclpy.experimental.events_executor import EventsExecutor
 
             executor = EventsExecutor()
@@ -50,7 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             while not stop.is_set():
                 executor.spin_once(timeout_sec=0.1)
         else:
-            rclpy.spin(node)
+            rclpy.spin(node, executor=SingleThreadedExecutor())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import statistics
 from datetime import datetime
 from pathlib import Path
@@ -143,17 +144,18 @@ def run_zenoh(folder: Path, robots: int) -> dict[str, Any]:
 
 
 def run_fleets(folder: Path, robots: int, trials: int) -> dict[str, Any]:
-    """``trials`` of each, alternating (ROS first in odd trials, zenoh first in even ones)."""
+    """``trials`` of each, alternating (ROS first in odd trials, zenoh first in even ones);
+    each with the load average (1 min) when it began and ended."""
     ros: list[dict[str, Any]] = []
     zenoh: list[dict[str, Any]] = []
     for trial in range(trials):
         for kind in ("ros2", "zenoh") if trial % 2 == 0 else ("zenoh", "ros2"):
             where = folder / f"{kind}-{trial}"
             where.mkdir()
-            if kind == "ros2":
-                ros.append(run_ros_fleet(where, robots))
-            else:
-                zenoh.append(run_zenoh(where, robots))
+            load = os.getloadavg()[0]
+            done = run_ros_fleet(where, robots) if kind == "ros2" else run_zenoh(where, robots)
+            done["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
+            (ros if kind == "ros2" else zenoh).append(done)
 
     def median(runs: list[dict[str, Any]]) -> float | None:
         times = [r["convergence_s"] for r in runs]
@@ -173,7 +175,7 @@ def run_fleets(folder: Path, robots: int, trials: int) -> dict[str, Any]:
     return result
 
 
-def report_fleet(fleet: dict[str, Any]) -> str:
+def report_fleet(fleet: dict[str, Any], target: float) -> str:
     def cell(runs: list[dict[str, Any]]) -> str:
         times = [r["convergence_s"] for r in runs]
         return ", ".join("-" if t is None else f"{t:.2f}" for t in times)
@@ -196,7 +198,13 @@ def report_fleet(fleet: dict[str, Any]) -> str:
         ],
     )  # fmt: skip
     ratio = fleet["ratio"]
+    loads = [x for r in [*fleet["ros2"], *fleet["zenoh"]] for x in r.get("load_average", [])]
+    met = "met" if ratio is not None and ratio <= target else "missed"
     note = "Convergence: from the teacher up to the last learner knowing every item. " + (
-        f"ROS 2 / zenoh: {ratio:.2f}x." if ratio is not None else "A fleet did not converge."
+        f"ROS 2 / zenoh (medians): {ratio:.2f}x; target ≤ {target:g}x: {met}."
+        if ratio is not None
+        else "A fleet did not converge: target missed."
     )
+    if loads:
+        note += f" Load average {min(loads):.1f} to {max(loads):.1f}."
     return "\n\n".join([table, note])

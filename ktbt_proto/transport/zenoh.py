@@ -50,7 +50,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, Self, TypeVar
 
 import zenoh
 
@@ -476,7 +476,7 @@ class ZenohTransport:
             entity.undeclare()
         self._session.close()
 
-    def __enter__(self) -> ZenohTransport:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -5,6 +5,7 @@ and learns from the published copy; what an overhearing peer refuses."""
 from __future__ import annotations
 
 import itertools
+import json
 import multiprocessing
 import signal
 from multiprocessing.connection import Connection
@@ -251,7 +252,7 @@ def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_pa
     forger, rogue = Identity.generate(), Identity.generate()  # rogue's key is trusted
     teacher_key.save(tmp_path / "teacher.key")
     ear_key.save(tmp_path / "ear.key")
-    trust = tmp_path / "trust.txt"
+    trust, log = tmp_path / "trust.txt", tmp_path / "ear.log"
     trust.write_text(f"teacher {teacher_key.public}\near {ear_key.public}\nrogue {rogue.public}\n")
     green = tmp_path / "green.sbt"
     green.write_text(f"<k>(prior){HONEST.replace('<sq>', '<sq><c>(TargetSeen, colour=2)', 1)}<e>")
@@ -290,7 +291,7 @@ def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_pa
         ktbt_process(
             "peer", "serve", "--id", "ear", "--knowledge", str(blue), "--overhear", "update",
             "--policy", "trusted", "--trust", str(trust), "--key", str(tmp_path / "ear.key"),
-            "--vocabulary", str(ROOT / "examples" / "sar_vocabulary.toml"),
+            "--vocabulary", str(ROOT / "examples" / "sar_vocabulary.toml"), "--log", str(log),
             "--listen", endpoint(pe), "--connect", endpoint(pt), ready="serving",
         ) as server,
         ZenohTransport("probe", settings(pl, pt, pe), serving=False) as probe,
@@ -341,4 +342,7 @@ def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_pa
         out.join()
     summary = next(line for line in out.lines if line.startswith("ear: stopped; refused "))
     assert int(summary.split("refused ")[1].split()[0]) >= len(lies)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    reasons = " ".join(e["reason"] for e in logged if e["event"] == "refused")
+    assert all(line.removeprefix("ear refused: ") in reasons for line in refusals.values())
     assert "Traceback" not in out.text()

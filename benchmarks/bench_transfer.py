@@ -47,7 +47,7 @@ from typing import Any
 import zenoh
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.answers import answers
+from ktbt_proto.exchange.answers import answers, encoded_answer
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
@@ -180,8 +180,8 @@ checked and parsed; the merge and the first tick after it."""
 
 INSIDE = ("teacher_callback", "learner_reply", "zenoh_rest")
 """Where the ``ask`` phase goes, timed in place in the same rounds (:class:`TimedTransport`):
-the teacher's query callback until it ends the query (decode the query, look up, build and
-encode the response, reply); the learner's handling of the reply (decode, the checks of a
+the teacher's query callback until it ends the query (decode the query, look up, the answer's
+bytes, reply); the learner's handling of the reply (decode, the checks of a
 reply); the rest: building the query, and zenoh (encode included: ``ask`` encodes the
 query)."""
 
@@ -388,15 +388,18 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
     query, response = wire_messages(lookup)
     query_bytes, response_bytes = encode(query), encode(response)
 
+    made = lookup(query.sequence)
+    assert made is not None
+    head, tail = encoded_answer(TEACHER, query.sequence, made)
+
     def teacher_answers() -> bytes:
-        # ZenohTransport._on_query with a lookup, less the zenoh calls.
+        # ZenohTransport._on_query with a lookup, less the zenoh calls: without a key pair, an
+        # answer's bytes are made once per item (encoded_answer) and given the query's id.
         asked = decode(query_bytes)
         assert isinstance(asked, Query)
         item = lookup(asked.sequence)
         assert item is not None
-        return encode(
-            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=item.subtree)
-        )
+        return head + asked.id.encode() + tail
 
     def check_parse() -> object:
         conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
@@ -504,7 +507,7 @@ def report(result: Mapping[str, Any]) -> str:
             ["ours, `ask` (above)", *us(t["ours_phases"]["ask"])],
             [
                 "  teacher's query callback until it ends the query: `decode` query, lookup, "
-                "`Response`, `encode`, reply",
+                "the answer's bytes, reply",
                 *us(inside["teacher_callback"]),
             ],
             ["  learner's reply handling: `decode` response, the reply's checks",
@@ -525,7 +528,7 @@ def report(result: Mapping[str, Any]) -> str:
     c = result["components"]
     labels = {
         "build_encode_query": "learner: `Query(...)` + `encode`",
-        "teacher_answer": "teacher: `decode` query + lookup + format + `encode` response",
+        "teacher_answer": "teacher: `decode` query + lookup + the answer's bytes (made once)",
         "decode_response": "learner: `decode` response",
         "check_parse": "learner: `parse_sequence` + `kp.parse` subtree (`RECEIVE_LIMITS`)",
     }

@@ -22,8 +22,12 @@ to it):
 
 The two contenders alternate round by round (the first one alternating too), after the peers see
 each other and a warm-up; the cyclic collector is off while timing and runs every 100 rounds,
-outside the timed region. The Python-side work of ours is also timed alone, without zenoh, to
-show where the difference from the anchor goes.
+outside the timed region. Where the difference from the anchor goes is measured two ways: in
+place, in the same rounds (the teacher's query callback, the learner's handling of the reply and
+the raw queryable's callback, each timed where it runs, :class:`TimedTransport`; the rest is
+zenoh's), and alone, each part of ours' Python-side work without zenoh. The run also counts the
+visits the asker's own queryable had (none: its gets go to remote queryables only), and notes
+the load average before and after, since the machine may be shared.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib.metadata
+import os
 import socket
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -42,7 +47,7 @@ from typing import Any
 import zenoh
 
 import ktbt_proto as kp
-from ktbt_proto.exchange.answers import answers
+from ktbt_proto.exchange.answers import answers, encoded_answer
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, decode, encode
 from ktbt_proto.exchange.receiving import RECEIVE_LIMITS
@@ -119,6 +124,16 @@ def _wait(until: Callable[[], bool], what: str) -> float:
     return time.monotonic() - start
 
 
+def _settle(called: list[int]) -> None:
+    """Wait, yielding the processor, until a queryable's callback has noted its time (it does
+    so just after it ends the query, so perhaps after the get returned)."""
+    deadline = time.monotonic() + CONNECT_TIMEOUT
+    while not called:
+        if time.monotonic() > deadline:
+            raise TimeoutError("a queryable's callback never returned")
+        time.sleep(0)
+
+
 Timed = tuple[int, bool]
 """Nanoseconds of one timed region, and whether it did what it should."""
 
@@ -126,9 +141,16 @@ Timed = tuple[int, bool]
 # -- raw zenoh -----------------------------------------------------------------------------------
 
 
-def raw_server(reply: bytes) -> Callable[[zenoh.Query], None]:
+def raw_server(reply: bytes, spent: list[int] | None = None) -> Callable[[zenoh.Query], None]:
+    """The anchor's queryable; with ``spent``, the time each call takes until it ends the query
+    (its reply sent) is appended to it."""
+    clock = time.perf_counter_ns
+
     def on_query(query: zenoh.Query) -> None:
+        start = clock()
         query.reply(RAW_KEY, reply)
+        if spent is not None:
+            spent.append(clock() - start)
         query.drop()  # type: ignore[no-untyped-call]
 
     return on_query
@@ -155,6 +177,63 @@ def raw_round_trip(session: zenoh.Session, payload: bytes, expected: bytes) -> C
 PHASES = ("ask", "check_parse", "merge_tick")
 """Parts of a transfer of ours: query built and asked through the answer decoded; the answer
 checked and parsed; the merge and the first tick after it."""
+
+INSIDE = ("teacher_callback", "learner_reply", "zenoh_rest")
+"""Where the ``ask`` phase goes, timed in place in the same rounds (:class:`TimedTransport`):
+the teacher's query callback until it ends the query (decode the query, look up, the answer's
+bytes, reply); the learner's handling of the reply (decode, the checks of a
+reply); the rest: building the query, and zenoh (encode included: ``ask`` encodes the
+query)."""
+
+
+class _Ending:
+    """A zenoh query whose end is timed: what a callback does before it ends the query (its
+    replies sent) is its own work; the end itself is zenoh's. Timing up to the callback's
+    return instead would count the wait for the interpreter lock that the learner, in the same
+    process, holds meanwhile."""
+
+    __slots__ = ("ended", "query")
+
+    def __init__(self, query: zenoh.Query) -> None:
+        self.query, self.ended = query, 0
+
+    @property
+    def payload(self) -> Any:
+        return self.query.payload
+
+    def reply(self, *args: Any, **kwargs: Any) -> None:
+        self.query.reply(*args, **kwargs)
+
+    def reply_err(self, *args: Any, **kwargs: Any) -> None:
+        self.query.reply_err(*args, **kwargs)
+
+    def drop(self) -> None:
+        self.ended = time.perf_counter_ns()
+        self.query.drop()  # type: ignore[no-untyped-call]
+
+
+class TimedTransport(ZenohTransport):
+    """A ``ZenohTransport`` whose query callback (until it ends the query) and reply handling
+    are timed where they run, inside a real transfer, and whose own queryable counts its visits:
+    with the get restricted to remote queryables (spec/protocol.md section 3), an asker's own is
+    never visited."""
+
+    def __post_init__(self) -> None:
+        self.query_ns: list[int] = []
+        self.reply_ns: list[int] = []
+        super().__post_init__()
+
+    def _on_query(self, query: Any) -> None:
+        start = time.perf_counter_ns()
+        timed = _Ending(query)
+        super()._on_query(timed)
+        self.query_ns.append((timed.ended or time.perf_counter_ns()) - start)
+
+    def _reply(self, reply: Any, asked: Any, heard: set[str]) -> Response | None:
+        start = time.perf_counter_ns()
+        answer = super()._reply(reply, asked, heard)
+        self.reply_ns.append(time.perf_counter_ns() - start)
+        return answer
 
 
 @dataclass
@@ -230,12 +309,17 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
     control = kp.parse(DEMO_CONTROL)
     registry = demo_registry()
     pt, pl, ps, pc = (free_port() for _ in range(4))
+    raw_callback: list[int] = []
     with ExitStack() as stack:
-        stack.enter_context(ZenohTransport(TEACHER, settings(pt), lookup=lookup, catalog=kb.keys))
-        learner = stack.enter_context(ZenohTransport(LEARNER, settings(pl, pt)))
+        teacher = stack.enter_context(
+            TimedTransport(TEACHER, settings(pt), lookup=lookup, catalog=kb.keys)
+        )
+        learner = stack.enter_context(TimedTransport(LEARNER, settings(pl, pt)))
         server = stack.enter_context(open_session(settings(ps)))
         client = stack.enter_context(open_session(settings(pc, ps)))
-        stack.enter_context(server.declare_queryable(RAW_KEY, raw_server(response_bytes)))
+        stack.enter_context(
+            server.declare_queryable(RAW_KEY, raw_server(response_bytes, raw_callback))
+        )
         raw = raw_round_trip(client, query_bytes, response_bytes)
         connect_s = {
             "ours": _wait(lambda: TEACHER in peers(learner, 0.3), "the learner sees no teacher"),
@@ -245,6 +329,9 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
         raw_ns: list[int] = []
         ours_ns: list[int] = []
         phases: list[list[int]] = [[] for _ in PHASES]
+        inside: list[list[int]] = [[] for _ in INSIDE]
+        raw_zenoh: list[int] = []
+        raw_callbacks: list[int] = []
         with gc_paused():
             for r in range(warmup + rounds):
                 if r and r % 100 == 0:
@@ -252,14 +339,30 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
                 fresh = fresh_learner(control, registry, COLOURS[r % len(COLOURS)])
                 timed = phases if r >= warmup else [[] for _ in PHASES]
                 for contender in ("raw", "ours") if r % 2 else ("ours", "raw"):
+                    for spent in (teacher.query_ns, learner.reply_ns, raw_callback):
+                        spent.clear()
                     if contender == "raw":
                         elapsed, ok = raw()
                     else:
                         elapsed, ok = transfer(learner, fresh, timed)
                     if not ok:
                         raise AssertionError(f"{contender}: round {r} did not complete")
-                    if r >= warmup:
-                        (raw_ns if contender == "raw" else ours_ns).append(elapsed)
+                    # A callback notes its time after the get may have returned: wait, untimed.
+                    called = raw_callback if contender == "raw" else teacher.query_ns
+                    _settle(called)
+                    if r < warmup:
+                        continue
+                    if contender == "raw":
+                        raw_ns.append(elapsed)
+                        raw_callbacks.append(sum(raw_callback))
+                        raw_zenoh.append(elapsed - sum(raw_callback))
+                    else:
+                        ours_ns.append(elapsed)
+                        callback, reply = sum(teacher.query_ns), sum(learner.reply_ns)
+                        for samples, ns in zip(
+                            inside, (callback, reply, timed[0][-1] - callback - reply), strict=True
+                        ):
+                            samples.append(ns)
     result: dict[str, Any] = {
         "rounds": rounds,
         "warmup_rounds": warmup,
@@ -268,6 +371,9 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
         "raw": _us(raw_ns),
         "ours": _us(ours_ns),
         "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
+        "ours_ask_inside": {name: _us(s) for name, s in zip(INSIDE, inside, strict=True)},
+        "raw_inside": {"callback": _us(raw_callbacks), "zenoh_rest": _us(raw_zenoh)},
+        "asker_own_queryable_visits": len(learner.query_ns),
     }
     result["ratio"] = {
         q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
@@ -282,15 +388,18 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
     query, response = wire_messages(lookup)
     query_bytes, response_bytes = encode(query), encode(response)
 
+    made = lookup(query.sequence)
+    assert made is not None
+    head, tail = encoded_answer(TEACHER, query.sequence, made)
+
     def teacher_answers() -> bytes:
-        # ZenohTransport._on_query with a lookup, less the zenoh calls.
+        # ZenohTransport._on_query with a lookup, less the zenoh calls: without a key pair, an
+        # answer's bytes are made once per item (encoded_answer) and given the query's id.
         asked = decode(query_bytes)
         assert isinstance(asked, Query)
         item = lookup(asked.sequence)
         assert item is not None
-        return encode(
-            Response(id=asked.id, sender=TEACHER, sequence=asked.sequence, subtree=item.subtree)
-        )
+        return head + asked.id.encode() + tail
 
     def check_parse() -> object:
         conds = parse_sequence(query.sequence, RECEIVE_LIMITS)
@@ -315,7 +424,6 @@ def run_components(rounds: int) -> dict[str, dict[str, float]]:
             "build_encode_query": lambda: encode(
                 Query(id=Query.new_id(), sender=LEARNER, sequence=query.sequence)
             ),
-            "own_queryable_decode": lambda: decode(query_bytes),
             "teacher_answer": teacher_answers,
             "decode_response": lambda: decode(response_bytes),
             "check_parse": check_parse,
@@ -336,6 +444,7 @@ def run(rounds: int = ROUNDS, component_rounds: int = COMPONENT_ROUNDS) -> dict[
         "python": machine(),
         "zenoh": importlib.metadata.version("eclipse-zenoh"),
         "pydantic": importlib.metadata.version("pydantic"),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
         "transfer": run_round_trips(rounds),
         "components": run_components(component_rounds),
     }
@@ -343,6 +452,7 @@ def run(rounds: int = ROUNDS, component_rounds: int = COMPONENT_ROUNDS) -> dict[
         "ours_over_raw_median_max": TARGET_RATIO,
         "met": result["transfer"]["ratio"]["median"] <= TARGET_RATIO,
     }
+    result["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     result["seconds"] = round(time.perf_counter() - started, 1)
     return result
 
@@ -389,11 +499,36 @@ def report(result: Mapping[str, Any]) -> str:
         f"Target: ours' median ≤ {TARGET_RATIO:g}x raw's: {ratio['median']:.2f}x "
         f"({'met' if met else 'missed'}); p99 {ratio['p99']:.2f}x."
     )
+    inside, raw_inside = t["ours_ask_inside"], t["raw_inside"]
+    inside_table = markdown_table(
+        ["where a round trip goes, timed in place in the same rounds", "median µs", "p90 µs",
+         "p99 µs"],
+        [
+            ["ours, `ask` (above)", *us(t["ours_phases"]["ask"])],
+            [
+                "  teacher's query callback until it ends the query: `decode` query, lookup, "
+                "the answer's bytes, reply",
+                *us(inside["teacher_callback"]),
+            ],
+            ["  learner's reply handling: `decode` response, the reply's checks",
+             *us(inside["learner_reply"])],
+            ["  the rest: `Query(...)`, `encode`, zenoh", *us(inside["zenoh_rest"])],
+            ["raw (above)", *us(raw)],
+            ["  raw queryable's callback until it ends the query: reply",
+             *us(raw_inside["callback"])],
+            ["  the rest: zenoh", *us(raw_inside["zenoh_rest"])],
+        ],
+    )  # fmt: skip
+    own = t["asker_own_queryable_visits"]
+    inside_note = (
+        f"The asker's own queryable was visited {own} times: its get goes to remote queryables "
+        "only (`allowed_destination=Locality.REMOTE`, spec/protocol.md section 3). Each row is "
+        "the median of its own samples: the parts' medians need not add up to the whole's."
+    )
     c = result["components"]
     labels = {
         "build_encode_query": "learner: `Query(...)` + `encode`",
-        "own_queryable_decode": "learner's own queryable (matches `knowledge/*`): `decode` query",
-        "teacher_answer": "teacher: `decode` query + lookup + format + `encode` response",
+        "teacher_answer": "teacher: `decode` query + lookup + the answer's bytes (made once)",
         "decode_response": "learner: `decode` response",
         "check_parse": "learner: `parse_sequence` + `kp.parse` subtree (`RECEIVE_LIMITS`)",
     }
@@ -422,10 +557,19 @@ def report(result: Mapping[str, Any]) -> str:
         f"{t['rounds']} interleaved rounds after {t['warmup_rounds']} warm-up rounds, tcp on "
         "127.0.0.1 with explicit endpoints and multicast scouting off, gc off while timing; "
         "every transfer of ours merged new knowledge into a fresh running tree. "
-        f"Whole run: {result['seconds']:.0f} s."
+        f"Whole run: {result['seconds']:.0f} s; load average (1 min) "
+        f"{result['load_average'][0]:.2f} before, {result['load_average_after'][0]:.2f} after."
     )
     return "\n\n".join(
-        ["## Knowledge transfer over zenoh", main_table, target, component_table, note]
+        [
+            "## Knowledge transfer over zenoh",
+            main_table,
+            target,
+            inside_table,
+            inside_note,
+            component_table,
+            note,
+        ]
     )
 
 

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -178,3 +179,30 @@ def reached(transport: Any, name: str, seconds: float = 15) -> None:
         return any(r.ok is not None for r in replies)
 
     assert wait_until(answered, seconds), f"{name} never answered {transport.name}"
+
+
+class Output:
+    """A process's output, read line by line in a thread of its own, so a test can wait for a
+    line while the process runs."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        self._proc = proc
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        assert self._proc.stdout is not None
+        for line in self._proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_for(self, *needles: str, seconds: float = 30) -> None:
+        assert wait_until(lambda: all(n in self.text() for n in needles), seconds), (
+            f"never printed {needles}:\n{self.text()[-3000:]}"
+        )
+
+    def join(self) -> None:
+        self._thread.join(timeout=15)

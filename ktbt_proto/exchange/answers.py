@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
-from ktbt_proto.exchange.messages import Query, Response
+from ktbt_proto.exchange.messages import Query, Response, encode
 from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.formatter import format_tree
 
@@ -52,6 +52,24 @@ def answer_to(
         signed.signature,
     )
     return identity.sign_reply(response) if identity is not None else response
+
+
+TEMPLATE_ID = "x" * 64
+"""A query id of the longest form (section 1), for :func:`encoded_answer`: an answer made with
+it fits a message with any id."""
+
+
+def encoded_answer(sender: str, sequence: str, item: SignedItem) -> tuple[bytes, bytes]:
+    """The encoded response ``sender`` gives for ``sequence`` with ``item`` to any query, not
+    hop-signed, split where the query's id goes: ``head + id + tail`` is the bytes of
+    ``encode(answer_to(query, sender, item, None, sequence))`` for a query with that id (a
+    response's fields encode in their order, the id first of the strings, and an id holds
+    nothing JSON escapes, section 1). Made once per item, so that a knowledge server without a
+    key pair answers each query with one concatenation, not a message built and encoded anew.
+    Raises pydantic's ``ValidationError`` if the answer is too large to send (section 1)."""
+    response = Response.of(TEMPLATE_ID, sender, sequence, item.subtree, item.author, item.signature)
+    head, tail = encode(response).split(f'"{TEMPLATE_ID}"'.encode(), 1)
+    return head + b'"', b'"' + tail
 
 
 def answers(

@@ -20,9 +20,12 @@ from typing import Any
 
 from ktbt_proto.exchange.knowledge import Knowledge, KnowledgeBase
 from ktbt_proto.exchange.messages import Response
-from ktbt_proto.exchange.receiving import Refused, check
+from ktbt_proto.exchange.receiving import RECEIVE_LIMITS, Refused, check
 from ktbt_proto.exchange.refusals import Throttle, guarded
+from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import SignedItem
+from ktbt_proto.exchange.transferlog import Event, TransferLog
+from ktbt_proto.registry import Registry
 
 
 class Overhear(StrEnum):
@@ -102,12 +105,15 @@ class Overhearing:
 
 class ServerOverhearing:
     """A knowledge server that overhears (section 4.3), through the one :class:`Overhearing` and the
-    one set of receive checks (``ktbt_proto.exchange.receiving``; the trust policy also runs in
-    the transport): an answer another peer published is added to what the server serves, at
-    once (``update``) or, kept in the buffer, when a query first asks for it (``buffer``). The
-    subtree is served as received, so its author's signature still holds. Lookups run in zenoh
-    callbacks while the main thread hears: one lock guards the tables. ``learned`` is told of
-    each answer learned; a refusal is counted and logged at WARNING with its reason."""
+    one set of receive checks (``ktbt_proto.exchange.receiving``): an answer another peer
+    published is added to what the server serves, at once (``update``) or, kept in the buffer,
+    when a query first asks for it (``buffer``), only if it passes the checks a learner runs
+    before it learns: its trust policy and store (``security``; the transport screens with them
+    too), the receive limits and, with a ``registry``, its vocabulary. A server never serves
+    what it would refuse to learn. The subtree is served as received, so its author's signature
+    still holds. Lookups run in zenoh callbacks while the main thread hears: one lock guards the
+    tables. ``learned`` is told of each answer learned; a refusal is counted, logged at WARNING
+    with its reason and recorded in ``log`` (the server's transfer log, if it keeps one)."""
 
     def __init__(
         self,
@@ -117,9 +123,16 @@ class ServerOverhearing:
         mode: Overhear,
         learned: Callable[[Response], None] = lambda _: None,
         buffer_size: int = 16,
+        *,
+        security: Security | None = None,
+        registry: Registry | None = None,
     ) -> None:
         self.name, self.knowledge, self.served, self.on_learned = name, knowledge, served, learned
         self.ear = Overhearing(mode, buffer_size)
+        self.security = security or Security()
+        self.registry = registry
+        self.log: TransferLog | None = self.security.log
+        """Where refusals are recorded; the server's transport may make one (events)."""
         self.learned: dict[str, SignedItem] = {}
         self.refused = 0
         self.lock = threading.Lock()
@@ -160,7 +173,14 @@ class ServerOverhearing:
 
     def _learn(self, answer: Response) -> bool:
         try:
-            conds, subtree = check(answer, answer.sequence)
+            conds, subtree = check(
+                answer,
+                answer.sequence,
+                self.security.policy,
+                self.security.trust,
+                RECEIVE_LIMITS,
+                self.registry,
+            )
         except Refused as refused:
             self._refuse(refused.reason)
             return False
@@ -176,3 +196,5 @@ class ServerOverhearing:
     def _refuse(self, reason: str) -> None:
         self.refused += 1
         self._warn(f"{self.name} refused: {reason}")
+        if self.log is not None:
+            self.log.record(Event.REFUSED, peer=self.name, reason=reason)

@@ -119,10 +119,14 @@ def wait_for_peers(transport: ZenohTransport, timeout: float) -> dict[str, list[
     return found
 
 
-def serve(member: PeerSettings, knowledge: KnowledgeBase, say: Say) -> int:
+def serve(
+    member: PeerSettings, knowledge: KnowledgeBase, say: Say, registry: Registry | None = None
+) -> int:
     """Serve ``knowledge`` until stopped, answering inside zenoh's callback; publishing and
-    overhearing as the member says (section 4.3); with the member's ``groot``, the knowledge
-    is shown to Groot2 (spec/groot2.md)."""
+    overhearing as the member says (section 4.3), an overheard answer served only if it passes
+    the checks a learner runs (the member's trust policy and store, the receive limits and
+    ``registry``, the server's vocabulary, if it has one); with the member's ``groot``, the
+    knowledge is shown to Groot2 (spec/groot2.md)."""
     security = member.security
     ear = ServerOverhearing(
         member.name,
@@ -130,6 +134,8 @@ def serve(member: PeerSettings, knowledge: KnowledgeBase, say: Say) -> int:
         answers(knowledge, security.identity),
         member.overhear,
         lambda a: say(f"{member.name}: learned {shown(a.sequence)} from {a.sender} (overheard)"),
+        security=security,
+        registry=registry,
     )
     policy = security.policy
     name = member.name
@@ -145,6 +151,7 @@ def serve(member: PeerSettings, knowledge: KnowledgeBase, say: Say) -> int:
             tree=lambda: format_tree(knowledge.tree(), "compact"),
         ) as transport,
     ):
+        ear.log = transport.log  # with --publish-events, the transport made one
         say(f"{name}: serving {len(knowledge)} skills; Ctrl-C to stop")
         announce_ready(member.ready, name, len(knowledge))
         if groot is not None:

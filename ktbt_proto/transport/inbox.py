@@ -13,7 +13,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import ValidationError
 
@@ -25,6 +25,8 @@ from ktbt_proto.exchange.transport import Received
 
 Refuse = Callable[..., None]
 """A transport's own refusal: ``refuse(reason, **fields)`` counts, logs at WARNING and records."""
+
+_Made = TypeVar("_Made")
 
 Lookup = Callable[[str], str | SignedItem | None]
 """What a robot answers for one sequence key: the subtree's text, an item already signed
@@ -130,6 +132,20 @@ class AnswersGiven:
     ) -> Iterator[Response]:
         """The responses to ``query`` not given yet, the query recorded as received first;
         each response is recorded once the caller has sent it (when the next is asked for)."""
+        return self.made(
+            query, lookup, log, lambda seq, item: answer_to(query, self.name, item, identity, seq)
+        )
+
+    def made(
+        self,
+        query: Query,
+        lookup: Lookup,
+        log: TransferLog | None,
+        make: Callable[[str, SignedItem], _Made],
+    ) -> Iterator[_Made]:
+        """:meth:`answers`, each answer made by ``make`` from its sequence and item: a
+        response, or what a transport sends of it (its bytes); ``make`` raises pydantic's
+        ``ValidationError`` for an answer too large to send."""
         if log is not None:
             more = {"more": list(query.more)} if query.more else {}
             log.record(
@@ -157,7 +173,7 @@ class AnswersGiven:
                 continue
             item = found if isinstance(found, SignedItem) else SignedItem(found)
             try:
-                response = answer_to(query, self.name, item, identity, sequence)
+                response = make(sequence, item)
             except ValidationError as exc:  # too large to send: no peer could accept it
                 reason = exc.errors()[0].get("msg", "invalid")
                 self.warn(f"{self.name} cannot answer {sequence[:80]}: {reason}")

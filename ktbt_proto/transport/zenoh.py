@@ -50,11 +50,11 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, Self, TypeVar
 
 import zenoh
 
-from ktbt_proto.exchange.answers import catalog, live_answers
+from ktbt_proto.exchange.answers import answer_to, catalog, encoded_answer, live_answers
 from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.member import CATALOG_PERIOD
 from ktbt_proto.exchange.messages import (
@@ -67,7 +67,7 @@ from ktbt_proto.exchange.messages import (
     encode,
 )
 from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
-from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.exchange.signing import Identity, SignedItem
 from ktbt_proto.exchange.transferlog import Event, TransferLog
 from ktbt_proto.exchange.transport import Message, NetworkError, Received
 from ktbt_proto.exchange.trust import refusal
@@ -331,6 +331,8 @@ class ZenohTransport:
         self._warn = Throttle(log.warning)
         self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit)
         self._given = AnswersGiven(self.name, self.answer_window, self.max_pending, log.warning)
+        self._templates: dict[tuple[str, SignedItem], tuple[bytes, bytes]] = {}
+        self._knowledge_key = f"{PREFIX}/knowledge/{self.name}"
         self._publisher: Any = None
         self._sink: EventPublisher | None = None
         self._asking = 0
@@ -476,7 +478,7 @@ class ZenohTransport:
             entity.undeclare()
         self._session.close()
 
-    def __enter__(self) -> ZenohTransport:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -702,12 +704,32 @@ class ZenohTransport:
 
     def _answer_at_once(self, query: Any, message: Query, lookup: Lookup) -> None:
         """A knowledge server's answers, given inside the callback: one reply for each
-        sequence of the query it knows, not given already (section 4.5, :class:`AnswersGiven`)."""
-        for response in self._given.answers(message, lookup, self.identity, self.log):
-            payload = encode(response)
-            query.reply(f"{PREFIX}/knowledge/{self.name}", payload)
+        sequence of the query it knows, not given already (section 4.5, :class:`AnswersGiven`).
+        Without a key pair, each answer's bytes are made once per item and given the query's id
+        (:func:`encoded_answer`): a teacher's work per query is then its lookup."""
+        identity = self.identity
+
+        def make(sequence: str, item: SignedItem) -> bytes:
+            if identity is None:
+                return self._encoded(message.id, sequence, item)
+            return encode(answer_to(message, self.name, item, identity, sequence))
+
+        for payload in self._given.made(message, lookup, self.log, make):
+            query.reply(self._knowledge_key, payload)
             self.answered += 1
             self._publish(payload)
+
+    def _encoded(self, id: str, sequence: str, item: SignedItem) -> bytes:
+        """The unsigned answer with ``item`` for ``sequence`` to the query ``id``, its bytes
+        made once and kept for the next queries (at most ``max_pending`` items; the queryable's
+        one callback thread is the only one to use them)."""
+        made = self._templates.get((sequence, item))
+        if made is None:
+            made = encoded_answer(self.name, sequence, item)
+            if len(self._templates) >= self.max_pending:
+                self._templates.clear()
+            self._templates[(sequence, item)] = made
+        return made[0] + id.encode() + made[1]
 
     def _on_catalog(self, query: Any) -> None:
         known = self.catalog() if self.catalog is not None else []

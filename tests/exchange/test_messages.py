@@ -9,7 +9,9 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
+from ktbt_proto.exchange.answers import TEMPLATE_ID, answer_to, encoded_answer
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
     ErrorReply,
@@ -20,6 +22,7 @@ from ktbt_proto.exchange.messages import (
     decode_fields,
     encode,
 )
+from ktbt_proto.exchange.signing import Identity, SignedItem
 
 QUERY = Query(id="q1", sender="r1", sequence="<c>(A)")
 
@@ -142,3 +145,29 @@ def test_a_message_read_from_its_fields_is_refused_by_the_size_of_its_text() -> 
     with pytest.raises(MessageRefused, match="exceeds the limit"):
         decode_fields(fields, 20_000)
     assert isinstance(decode_fields(fields, 30_000), Query)
+
+
+_IDS = st.from_regex(r"[A-Za-z0-9_.-]{1,64}", fullmatch=True)
+_TEXT = st.text(min_size=1, max_size=40)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_IDS, _TEXT, _TEXT, st.booleans())
+def test_an_answer_made_once_is_the_answer_encoded_for_every_id(
+    id: str, sequence: str, subtree: str, signed: bool
+) -> None:
+    """A server without a key pair gives the query's id to bytes made once per item
+    (``encoded_answer``): exactly what the response built and encoded for that id would be, a
+    sequence or subtree holding quotes, escapes, non-ASCII or the template's own id included."""
+    author = Identity.generate() if signed else None
+    subtree += f'"{TEMPLATE_ID}"' if len(subtree) % 2 else TEMPLATE_ID
+    item = author.sign_item(sequence, subtree) if author is not None else SignedItem(subtree)
+    head, tail = encoded_answer("teacher", sequence, item)
+    query = Query(id=id, sender="learner", sequence=sequence)
+    assert head + id.encode() + tail == encode(answer_to(query, "teacher", item, None))
+    assert decode(head + id.encode() + tail) == answer_to(query, "teacher", item, None)
+
+
+def test_an_answer_too_large_to_send_is_not_made() -> None:
+    with pytest.raises(ValidationError):
+        encoded_answer("teacher", "<c>(A)", SignedItem("<a>(" + "\u2028" * 59_990 + ")"))

@@ -7,10 +7,14 @@ from __future__ import annotations
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent
 from ktbt_proto.exchange.application import ApplicationTimedAgent
-from ktbt_proto.exchange.overhearing import Overhear, Overhearing
+from ktbt_proto.exchange.knowledge import KnowledgeBase
+from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.overhearing import Overhear, Overhearing, ServerOverhearing
 from ktbt_proto.exchange.security import Security
-from ktbt_proto.exchange.trust import Policy
+from ktbt_proto.exchange.signing import Identity
+from ktbt_proto.exchange.trust import Policy, TrustStore
 from ktbt_proto.items import sequence_key
+from ktbt_proto.tools.demo import demo_registry
 from ktbt_proto.transport import MemoryNetwork
 from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
@@ -161,3 +165,32 @@ def test_an_announced_query_names_only_what_is_unanswered_of_it() -> None:
     announced = newcomer.heard("l")
     assert announced is not None and announced.id == query.id
     assert announced.sequences == (other,)
+
+
+def test_a_server_buffers_but_serves_only_what_passes_its_policy_and_vocabulary() -> None:
+    """A knowledge server's buffer (section 4.3): an answer kept there is checked when a query
+    first asks for it, under the server's policy and vocabulary, and served only if it passes."""
+    author = Identity.generate()
+    store = TrustStore(frozenset({author.public}))
+    good = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=2)<e>"
+
+    def signed(sequence: str, subtree: str) -> Response:
+        item = author.sign_item(sequence, subtree)
+        unsigned = Response(id="q1", sender="teacher", sequence=sequence, subtree=subtree)
+        return author.sign_reply(
+            unsigned.model_copy(update={"author": item.author, "signature": item.signature})
+        )
+
+    green, red, blue = (f"<c>(TargetSeen,colour={c})" for c in (2, 1, 4))
+    server = ServerOverhearing(
+        "s", KnowledgeBase(), lambda _: None, Overhear.BUFFER,
+        security=Security(policy=Policy.TRUSTED, trust=store), registry=demo_registry(),
+    )  # fmt: skip
+    server.heard(signed(green, good))
+    server.heard(Response(id="q2", sender="liar", sequence=red, subtree=good))  # unsigned
+    server.heard(signed(blue, "<a>(SelfDestruct)"))  # trusted, but not in the vocabulary
+    assert server.refused == 0  # kept, not checked yet
+    found = server.lookup(green)
+    assert found is not None and found.author == author.public
+    assert server.lookup(red) is None and server.lookup(blue) is None
+    assert server.refused == 2 and set(server.learned) == {green}

@@ -10,8 +10,6 @@ from __future__ import annotations
 import http.client
 import json
 import socket
-import subprocess
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,6 +20,7 @@ from ktbt_proto.exchange.messages import Response, encode
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import (
     ROOT,
+    Output,
     endpoint,
     free_port,
     ktbt_process,
@@ -38,33 +37,6 @@ BLUE = "<c>(TargetSeen,colour=3)"
 KILLER = "<sq><c>true.5<e>"  # 16 bytes of stringBT that once raised AssertionError
 FAULTY = "<sq><a>(ktbt-fault)<e>"  # reading it raises, under KTBT_FAULT_READING=item
 INTERNAL = "internal error reading a message: InjectedFault"
-
-
-class Output:
-    """A process's output, read line by line in a thread of its own, so a test can wait for a
-    line while the process runs."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.lines: list[str] = []
-        self._proc = proc
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-
-    def _read(self) -> None:
-        assert self._proc.stdout is not None
-        for line in self._proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def wait_for(self, *needles: str, seconds: float = 30) -> None:
-        assert wait_until(lambda: all(n in self.text() for n in needles), seconds), (
-            f"never printed {needles}:\n{self.text()[-3000:]}"
-        )
-
-    def join(self) -> None:
-        self._thread.join(timeout=15)
 
 
 @contextmanager

@@ -5,6 +5,7 @@ and learns from the published copy; what an overhearing peer refuses."""
 from __future__ import annotations
 
 import itertools
+import json
 import multiprocessing
 import signal
 from multiprocessing.connection import Connection
@@ -19,12 +20,14 @@ from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import Query, Response, encode
 from ktbt_proto.exchange.overhearing import Overhear, Overhearing
 from ktbt_proto.exchange.security import Security
+from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import Policy
 from ktbt_proto.syntax import parse
 from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.zenoh_helpers import (
     ROOT,
+    Output,
     endpoint,
     free_port,
     ktbt_process,
@@ -234,3 +237,112 @@ def test_a_server_that_overhears_with_buffer_serves_what_it_kept(tmp_path: Path)
         assert server.wait(timeout=15) == 0
         assert server.stdout is not None
         assert "ear: learned TargetSeen(colour=2) from teacher (overheard)" in server.stdout.read()
+
+
+@pytest.mark.slow
+def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_path: Path) -> None:
+    """``ktbt peer serve --overhear update --policy trusted --vocabulary`` (section 4.3): three
+    liars publish answers, one unsigned, one signed by a key the server does not trust, one
+    signed by a trusted key but naming an action the server's vocabulary lacks; an honest,
+    trusted teacher (a ``ktbt`` process) answers a question and publishes its answer. The
+    server refuses, counts and logs each lie and serves none of them to a learner that asks it;
+    it serves the honest answer, signed by its author."""
+    pt, pe, pl = free_port(), free_port(), free_port()
+    teacher_key, ear_key = Identity.generate(), Identity.generate()
+    forger, rogue = Identity.generate(), Identity.generate()  # rogue's key is trusted
+    teacher_key.save(tmp_path / "teacher.key")
+    ear_key.save(tmp_path / "ear.key")
+    trust, log = tmp_path / "trust.txt", tmp_path / "ear.log"
+    trust.write_text(f"teacher {teacher_key.public}\near {ear_key.public}\nrogue {rogue.public}\n")
+    green = tmp_path / "green.sbt"
+    green.write_text(f"<k>(prior){HONEST.replace('<sq>', '<sq><c>(TargetSeen, colour=2)', 1)}<e>")
+    blue = tmp_path / "blue.sbt"
+    blue.write_text(
+        "<k>(prior)<sq><c>(TargetSeen, colour=4)<a>(PickTreasure)"
+        "<a>(AssignCollectionPoint, colour=4)<e><e>"
+    )
+    red, yellow, carrying = "<c>(TargetSeen,colour=1)", "<c>(TargetSeen,colour=3)", "<c>(Carrying)"
+    lie = "<sq><a>(PickTreasure)<a>(AssignCollectionPoint,colour=4)<e>"
+
+    def signed(by: Identity, answer: Response) -> Response:
+        item = by.sign_item(answer.sequence, answer.subtree)
+        return by.sign_reply(
+            answer.model_copy(update={"author": item.author, "signature": item.signature})
+        )
+
+    lies = {
+        "liar": Response(id="l1", sender="liar", sequence=yellow, subtree=lie),
+        "forger": signed(forger, Response(id="f1", sender="forger", sequence=red, subtree=lie)),
+        "rogue": signed(
+            rogue, Response(id="r1", sender="rogue", sequence=carrying, subtree="<a>(SelfDestruct)")
+        ),
+    }
+    refusals = {
+        "liar": "ear refused: overheard from liar: the item is not signed by its author",
+        "forger": f"ear refused: overheard from forger: author {forger.public} is not in the trust",
+        "rogue": "ear refused: from rogue: SBT",
+    }
+    with (
+        ktbt_process(
+            "peer", "serve", "--id", "teacher", "--knowledge", str(green), "--key",
+            str(tmp_path / "teacher.key"), "--publish-answers", "--listen", endpoint(pt),
+            ready="serving",
+        ) as teacher,
+        ktbt_process(
+            "peer", "serve", "--id", "ear", "--knowledge", str(blue), "--overhear", "update",
+            "--policy", "trusted", "--trust", str(trust), "--key", str(tmp_path / "ear.key"),
+            "--vocabulary", str(ROOT / "examples" / "sar_vocabulary.toml"), "--log", str(log),
+            "--listen", endpoint(pe), "--connect", endpoint(pt), ready="serving",
+        ) as server,
+        ZenohTransport("probe", settings(pl, pt, pe), serving=False) as probe,
+    ):  # fmt: skip
+        out = Output(server)
+        liars = {name: ZenohTransport(name, settings(free_port(), pe), serving=False)
+                 for name in lies}  # fmt: skip
+        try:
+
+            def refused_all() -> bool:  # put again until the server's subscription has them
+                for name, answer in lies.items():
+                    liars[name]._session.put(f"ktbt/v1/answers/{name}", encode(answer))
+                return all(line in out.text() for line in refusals.values())
+
+            assert wait_until(refused_all, 60), out.text()
+        finally:
+            for liar in liars.values():
+                liar.close()
+        tries = itertools.count()
+
+        def learned() -> bool:  # ask the teacher again until the server has overheard it
+            probe.ask(Query(id=f"t{next(tries)}", sender="probe", sequence=GREEN), 2)
+            return "ear: learned TargetSeen(colour=2) from teacher (overheard)" in out.text()
+
+        assert wait_until(learned, 60), out.text()
+        for n, sequence in enumerate((red, yellow, carrying)):  # asked on the server's own key
+            question = encode(Query(id=f"s{n}", sender="probe", sequence=sequence))
+            replies = probe._session.get("ktbt/v1/knowledge/ear", payload=question, timeout=2)
+            assert [r for r in replies if r.ok is not None] == []
+        teacher.send_signal(signal.SIGTERM)
+        assert teacher.wait(timeout=15) == 0
+        asked = ktbt_run(
+            "peer", "ask", "--sequence", "TargetSeen(colour=2)", "--connect", endpoint(pe),
+            "--policy", "trusted", "--trust", str(trust), "--timeout", "3",
+        )  # fmt: skip
+        assert asked.returncode == 0, asked.stdout + asked.stderr
+        assert f"# from ear (author {teacher_key.public}, sent with key {ear_key.public})" in (
+            asked.stdout
+        )
+        for conditions in ("TargetSeen(colour=1)", "TargetSeen(colour=3)", "Carrying"):
+            lied = ktbt_run(
+                "peer", "ask", "--sequence", conditions, "--connect", endpoint(pe),
+                "--timeout", "2",
+            )  # fmt: skip
+            assert lied.returncode == 1 and "# from" not in lied.stdout, lied.stdout
+        server.send_signal(signal.SIGTERM)
+        assert server.wait(timeout=15) == 0
+        out.join()
+    summary = next(line for line in out.lines if line.startswith("ear: stopped; refused "))
+    assert int(summary.split("refused ")[1].split()[0]) >= len(lies)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    reasons = " ".join(e["reason"] for e in logged if e["event"] == "refused")
+    assert all(line.removeprefix("ear refused: ") in reasons for line in refusals.values())
+    assert "Traceback" not in out.text()

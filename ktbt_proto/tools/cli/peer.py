@@ -87,6 +87,8 @@ def peer_serve(
     vocabulary: VocabularyOption = None,
     name: PeerId = "server",
     key: KeyFile = None,
+    policy: PolicyOption = Policy.ANY,
+    trust: TrustFile = None,
     log: LogFile = None,
     publish_answers: PublishAnswers = False,
     overhear: OverhearOption = Overhear.OFF,
@@ -105,17 +107,19 @@ def peer_serve(
 
     A .sbt file's <k>(...) items, or a .xml file's BehaviorTree.CPP skills (one
     <BehaviorTree> each). With --vocabulary, an item it names wrongly is refused at start.
-    Answers are signed with --key; with --overhear, it also serves what it overhears."""
+    Answers are signed with --key; with --overhear, it also serves what it overhears, once
+    that passes the checks a learner runs (--policy, --trust, --vocabulary, the receive
+    limits)."""
     from ktbt_proto.tools import peer
 
     settings = zenoh_settings(listen, connect, config, multicast, mode, retry, lease)
     registry = vocabulary_or_exit(vocabulary) if vocabulary is not None else None
     served = knowledge_or_exit(knowledge, registry)
-    secure = security(key, Policy.ANY, None, log)
+    secure = security(key, policy, trust, log)
     member = peer.PeerSettings(
         name, settings, secure, publish_answers, overhear, publish_events, groot, ready
     )
-    _peer_call(lambda: peer.serve(member, served, typer.echo))
+    _peer_call(lambda: peer.serve(member, served, typer.echo, registry))
 
 
 @peer_app.command(

@@ -175,7 +175,7 @@ def reached(transport: Any, name: str, seconds: float = 15) -> None:
     reached ``transport``. No fixed sleep can promise either."""
 
     def answered() -> bool:
-        replies = transport._session.get(f"ktbt/v1/catalog/{name}", timeout=1)
+        replies = transport.session.get(f"ktbt/v1/catalog/{name}", timeout=1)
         return any(r.ok is not None for r in replies)
 
     assert wait_until(answered, seconds), f"{name} never answered {transport.name}"

@@ -464,6 +464,14 @@ class ZenohTransport:
         self._expire()
         return self._inbox.drain()
 
+    @property
+    def session(self) -> zenoh.Session:
+        """The zenoh session this peer runs on (section 3's keys are declared on it), for an
+        application that puts, gets or declares keys of its own on the same session; it is
+        closed with the transport."""
+        session: zenoh.Session = self._session
+        return session
+
     def close(self) -> None:
         if self.closed:
             return
@@ -829,7 +837,7 @@ def catalog_replies(
 
 
 def _catalog_replies(owner: ZenohTransport, timeout: float) -> dict[str, list[dict[str, str]]]:
-    out = dict(catalog_replies(owner._session, timeout))
+    out = dict(catalog_replies(owner.session, timeout))
     out.pop(owner.name, None)
     return out
 
@@ -857,7 +865,7 @@ class ZenohCatalogs:
 
 def peers(session_owner: ZenohTransport, timeout: float = 1.0) -> dict[str, list[str]]:
     """Who is present (liveliness) and what each knows (its catalog)."""
-    session = session_owner._session
+    session = session_owner.session
     present = sorted(
         str(r.ok.key_expr).rsplit("/", 1)[-1]
         for r in session.liveliness().get(f"{PREFIX}/peers/*", timeout=timeout)

@@ -48,7 +48,7 @@ def hostile(name: str, port: int, *connect: int) -> Iterator[tuple[ZenohTranspor
 
 
 def declare(peer: ZenohTransport, key: str, handler: Callable[[Any], None]) -> None:
-    peer._declared.append(peer._session.declare_queryable(key, handler))
+    peer._declared.append(peer.session.declare_queryable(key, handler))
 
 
 def teacher_kb() -> KnowledgeBase:
@@ -123,7 +123,7 @@ def test_queries_come_only_through_the_queryable_and_are_not_replaced() -> None:
         assert wait_until(lambda: victim.refused >= 1)
         assert victim._pending[("alice", "g1")][0] is first
         # A query put in an inbox, or sent back as a reply, is not a received query.
-        evil._session.put(
+        evil.session.put(
             "ktbt/v1/inbox/victim", encode(Query(id="x", sender="bob", sequence=GREEN))
         )
         assert wait_until(lambda: victim.refused >= 2)
@@ -147,7 +147,7 @@ def test_a_query_sent_back_as_a_reply_and_an_over_long_reason_are_refused() -> N
         assert me.refused == 1
         # A refusal whose reason would not fit an error reply still gets one.
         replies = list(
-            me._session.get(
+            me.session.get(
                 "ktbt/v1/knowledge/*", payload=b'{"type":"' + b"q" * 1000 + b'"}', timeout=2
             )
         )

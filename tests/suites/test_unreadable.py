@@ -109,13 +109,13 @@ def test_a_server_that_overhears_refuses_what_it_cannot_read_and_serves_an_hones
 
         def heard_both() -> bool:  # put again until the server's subscription has them
             for answer in (faulty, killer):
-                bad._session.put("ktbt/v1/answers/mallory", encode(answer))
+                bad.session.put("ktbt/v1/answers/mallory", encode(answer))
             return f"s refused: from mallory: {INTERNAL}" in out.text() and "SBT101" in out.text()
 
         assert wait_until(heard_both, 30), out.text()
         assert server.poll() is None
         honest = Response(id="h1", sender="honest", sequence=door, subtree="<a>(GoThrough)")
-        good._session.put("ktbt/v1/answers/honest", encode(honest))
+        good.session.put("ktbt/v1/answers/honest", encode(honest))
         out.wait_for("s: learned DoorOpen from honest (overheard)")
         asked = ktbt_run("peer", "ask", "--sequence", "DoorOpen", "--connect", endpoint(ps))
         assert asked.returncode == 0, asked.stdout + asked.stderr
@@ -159,7 +159,7 @@ def test_the_monitor_counts_an_event_it_cannot_read_and_shows_an_honest_peer(
         assert wait_until(uds.exists, 15)
 
         def dropped() -> bool:
-            bad._session.put("ktbt/v1/events/mallory", b'{"ktbt-fault": 1}')
+            bad.session.put("ktbt/v1/events/mallory", b'{"ktbt-fault": 1}')
             drops = state(uds)["drops"]
             return isinstance(drops, dict) and drops.get("malformed", 0) >= 1
 

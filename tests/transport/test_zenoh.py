@@ -79,9 +79,11 @@ def test_ask_answer_presence_and_refusals_in_one_process() -> None:
         assert learner.ask(many, timeout=1) == []
         assert len(learner.ask(Query.asking("learner", [GREEN, blue]), timeout=2)) == 2
         # A malformed query gets an error reply, and the teacher counts the refusal.
-        replies = list(learner._session.get("ktbt/v1/knowledge/*", payload=b"{oops", timeout=2))
+        replies = list(learner.session.get("ktbt/v1/knowledge/*", payload=b"{oops", timeout=2))
         assert replies and all(r.err is not None for r in replies)  # the asker's own, too
-        error = decode(replies[0].err.payload.to_bytes())
+        first = replies[0].err
+        assert first is not None
+        error = decode(first.payload.to_bytes())
         assert isinstance(error, ErrorReply) and error.code == "refused"
         assert t.refused == 1
 
@@ -366,15 +368,15 @@ def test_hostile_peers_cannot_break_asking_or_listing() -> None:
     ):
         # The evil peer's catalog is deeply nested JSON, and its answers are garbage.
         bad._declared.append(
-            bad._session.declare_queryable(
+            bad.session.declare_queryable(
                 "ktbt/v1/catalog/evil2",
-                lambda q: (q.reply("ktbt/v1/catalog/evil2", b"[" * 100_000), q.drop()),
+                lambda q: (q.reply("ktbt/v1/catalog/evil2", b"[" * 100_000), q.drop()),  # type: ignore[no-untyped-call]
             )
         )
         bad._declared.append(
-            bad._session.declare_queryable(
+            bad.session.declare_queryable(
                 "ktbt/v1/knowledge/evil2",
-                lambda q: (q.reply("ktbt/v1/knowledge/evil2", b"{nope"), q.drop()),
+                lambda q: (q.reply("ktbt/v1/knowledge/evil2", b"{nope"), q.drop()),  # type: ignore[no-untyped-call]
             )
         )
         with ZenohTransport("me", settings(me, good, evil), serving=False) as asker:
@@ -394,11 +396,11 @@ def test_pending_queries_are_bounded_and_keyed_by_sender() -> None:
         see(other, "t")
         finished: list[str] = []
         for n in range(8):  # eight askers at once, more than the teacher holds open
-            other._session.get(
+            other.session.get(
                 "ktbt/v1/knowledge/t",
                 payload=encode(Query(id=f"q{n}", sender=f"s{n}", sequence=GREEN)),
                 timeout=60,
-                handler=zenoh.handlers.Callback(
+                handler=zenoh.handlers.Callback(  # type: ignore[arg-type]
                     lambda _: None, functools.partial(finished.append, f"q{n}")
                 ),
             )

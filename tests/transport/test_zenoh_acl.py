@@ -125,14 +125,14 @@ def test_only_the_named_robot_serves_its_name(tmp_path: Path, acl: bool) -> None
                 q.drop()
 
             impostor._declared.append(
-                impostor._session.declare_queryable("ktbt/v1/knowledge/t", forge)
+                impostor.session.declare_queryable("ktbt/v1/knowledge/t", forge)
             )
             see(asker, "t")
             # The router handles what one peer sends in order: once the impostor's late answer,
             # put after its declaration, reaches the asker's inbox, the declaration has reached
             # the router and been routed, or denied.
             late = Response(id="after", sender="m", sequence=GREEN, subtree="<a>(Wait)")
-            impostor._session.put("ktbt/v1/inbox/r1", encode(late))
+            impostor.session.put("ktbt/v1/inbox/r1", encode(late))
             assert wait_until(lambda: any(m.id == "after" for m in asker.receive()))
             got = asker.ask(Query(id="q1", sender="r1", sequence=GREEN), 3)
     finally:

@@ -103,7 +103,7 @@ def test_a_member_killed_with_sigkill_comes_back_the_same_peer_with_what_it_save
     assert "learned TargetSeen(colour=1)" not in again.stdout  # not learned twice
     assert len(KnowledgeBase.load(save)) == 3
     with PeerSettings("r").transport() as same:  # what both runs opened: the same zenoh peer
-        assert str(same._session.info.zid()) == stable_zid("r")
+        assert str(same.session.info.zid()) == stable_zid("r")
 
 
 @pytest.mark.slow

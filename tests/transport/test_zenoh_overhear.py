@@ -121,26 +121,26 @@ def test_published_answers_on_a_wrong_key_garbage_and_floods_are_refused_and_cou
 
         reached(other, "ear")  # so the listener's subscription has reached the sender
         # An honest answer on the sender's own key is overheard.
-        other._session.put("ktbt/v1/answers/x", answer("x", 0))
+        other.session.put("ktbt/v1/answers/x", answer("x", 0))
         assert wait_until(lambda: [m.id for m in heard.receive()] == ["a0"])
         before = heard.refused
-        other._session.put("ktbt/v1/answers/x", answer("teacher", 1))  # in another's name
-        other._session.put("ktbt/v1/answers/ear", answer("ear", 2))  # in the listener's own
-        other._session.put("ktbt/v1/answers/x", b"{oops")
-        other._session.put("ktbt/v1/answers/x", encode(Query(id="q", sender="x", sequence=GREEN)))
+        other.session.put("ktbt/v1/answers/x", answer("teacher", 1))  # in another's name
+        other.session.put("ktbt/v1/answers/ear", answer("ear", 2))  # in the listener's own
+        other.session.put("ktbt/v1/answers/x", b"{oops")
+        other.session.put("ktbt/v1/answers/x", encode(Query(id="q", sender="x", sequence=GREEN)))
         assert wait_until(lambda: heard.refused - before == 4)
         assert heard.receive() == []
         # A flood: the queue keeps the first two, the newcomers are refused and counted.
         for n in range(3, 8):
-            other._session.put("ktbt/v1/answers/x", answer("x", n))
+            other.session.put("ktbt/v1/answers/x", answer("x", n))
         assert wait_until(lambda: heard.refused - before == 7)
         assert [m.id for m in heard.receive()] == ["a3", "a4"]
         # A copy of an answer to this peer's own query is left to the reply: not overheard.
         heard._inbox.asked("mine")
-        other._session.put("ktbt/v1/answers/x", encode(
+        other.session.put("ktbt/v1/answers/x", encode(
             Response(id="mine", sender="x", sequence=GREEN, subtree=HONEST)
         ))  # fmt: skip
-        other._session.put("ktbt/v1/answers/x", answer("x", 9))
+        other.session.put("ktbt/v1/answers/x", answer("x", 9))
         assert wait_until(lambda: len(heard._inbox) >= 1)  # in order: "mine" came first
         assert [m.id for m in heard.receive()] == ["a9"]
 
@@ -216,7 +216,7 @@ def test_a_server_that_overhears_with_buffer_serves_what_it_kept(tmp_path: Path)
                 question = encode(Query(id=f"e{n}", sender="probe", sequence=GREEN))
                 if any(
                     r.ok is not None
-                    for r in probe._session.get("ktbt/v1/knowledge/ear", payload=question)
+                    for r in probe.session.get("ktbt/v1/knowledge/ear", payload=question)
                 ):
                     return True
                 probe.ask(Query(id=f"t{n}", sender="probe", sequence=GREEN), 2)
@@ -303,7 +303,7 @@ def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_pa
 
             def refused_all() -> bool:  # put again until the server's subscription has them
                 for name, answer in lies.items():
-                    liars[name]._session.put(f"ktbt/v1/answers/{name}", encode(answer))
+                    liars[name].session.put(f"ktbt/v1/answers/{name}", encode(answer))
                 return all(line in out.text() for line in refusals.values())
 
             assert wait_until(refused_all, 60), out.text()
@@ -319,7 +319,7 @@ def test_a_trusted_server_never_serves_what_it_overheard_and_would_refuse(tmp_pa
         assert wait_until(learned, 60), out.text()
         for n, sequence in enumerate((red, yellow, carrying)):  # asked on the server's own key
             question = encode(Query(id=f"s{n}", sender="probe", sequence=sequence))
-            replies = probe._session.get("ktbt/v1/knowledge/ear", payload=question, timeout=2)
+            replies = probe.session.get("ktbt/v1/knowledge/ear", payload=question, timeout=2)
             assert [r for r in replies if r.ok is not None] == []
         teacher.send_signal(signal.SIGTERM)
         assert teacher.wait(timeout=15) == 0

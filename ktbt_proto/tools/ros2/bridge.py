@@ -133,6 +133,15 @@ MAX_HELD = 64
 """Queries waiting for their sender's proof at most; one beyond is refused."""
 QUERIED = "the query topic"
 """The source of a name known only by its queries (a message does not say who sent it)."""
+_KINDS = {
+    "a ROS robot named": "names",
+    "zenoh peer": "names",
+    "events topic": "events",
+    "an event": "events",
+    "an answer": "answers",
+    "": "other",
+}
+"""The kinds of the bridge's refusals, by how their reasons begin (see ``Bridge._warns``)."""
 EVENT_TYPE = "ktbt_interfaces/msg/FleetEvent"
 """The type by which a robot's events topic is found on the graph."""
 
@@ -214,7 +223,10 @@ class Bridge:
         self.policy, self.trust, self.max_per_source = policy, trust, max_per_source
         self.counts = Counts()
         self._lock = threading.Lock()
-        self._warn = Throttle(self.logger.warning)
+        self._warns = {kind: Throttle(self.logger.warning) for kind in _KINDS.values()}
+        """Refusals are thinned by kind (names, events, answers, the rest), each at its own rate
+        limit: a flood of invented names or malformed events never hides another kind's line,
+        an answer in a proven robot's name that its key did not sign above all."""
         self.name = f"bridge.{node.get_name()}"[:64]
         self.ros = Ros2Transport(
             node,
@@ -289,11 +301,13 @@ class Bridge:
     # -- counting -------------------------------------------------------------------------------
 
     def _refuse(self, reason: str) -> None:
-        """Count and log (WARNING) one of the bridge's own refusals."""
+        """Count and log (WARNING) one of the bridge's own refusals, under its kind's rate
+        limit."""
         with self._lock:
             self.counts.refused += 1
             self.counts.reasons = [*self.counts.reasons[-7:], reason]
-        self._warn(f"{self.name} refused: {reason}")
+        kind = next((k for prefix, k in _KINDS.items() if reason.startswith(prefix)), "other")
+        self._warns[kind](f"{self.name} refused: {reason}")
 
     def refused(self) -> int:
         """Everything refused: the bridge's own refusals and its transports'."""

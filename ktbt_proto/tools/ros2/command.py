@@ -119,8 +119,8 @@ def run_command(
         Executor,
         typer.Option(
             "--executor",
-            help="events: rclpy's events executor (a third of the CPU when idle, faster "
-            "transfers); single: its SingleThreadedExecutor, rclpy.spin's.",
+            help="events: rclpy's events executor (less than half the CPU when idle, "
+            "transfers as fast); single: its SingleThreadedExecutor, rclpy.spin's.",
         ),
     ] = "events",
 ) -> None:

@@ -12,7 +12,9 @@ inside its callback, from what the agent knows at that moment.
 
 What the loop needs of a network is declared: :class:`Appearing` (the peers that appeared since
 it last asked) and :class:`Catalogs` (what the fleet's catalogs list, when they may have
-changed), implemented by the zenoh and ROS 2 transports alike.
+changed), implemented by the zenoh and ROS 2 transports alike; and, where the network carries
+them, :class:`Relay` (announcements of what a peer just learned, so that a neighbour that lacks
+it asks at once: zenoh's, section 4.5).
 """
 
 from __future__ import annotations
@@ -36,11 +38,14 @@ from ktbt_proto.validate import find_problems
 __all__ = [
     "ASK_ALONE",
     "CATALOG_PERIOD",
+    "RELAY_AT_ONCE",
+    "RELAY_HOLD",
     "Appearing",
     "Catalogs",
     "FleetMember",
     "Learner",
     "ListedSequences",
+    "Relay",
 ]
 
 log = logging.getLogger("ktbt.member")
@@ -52,6 +57,15 @@ broadcast: one message, where they would take one each."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner told no sequences
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
+
+RELAY_HOLD = 2.0
+"""Seconds during which a member does not ask an announcer at once again for a sequence it
+announced (section 4.5): a flood of announcements, or a lie, costs at most one ask per announcer
+and sequence per hold."""
+
+RELAY_AT_ONCE = 8
+"""Announcers asked at once in one step at most (section 4.5); those beyond wait for the
+member's next ask."""
 
 Catalog = dict[str, list[dict[str, str]]]
 """The fleet's catalogs as read: peer name -> its entries (``{"sequence": ..., ...}``)."""
@@ -73,6 +87,21 @@ class Catalogs(Protocol):
     def changed(self, now: float, appeared: bool) -> Catalog | None:
         """What the catalogs list, when they may have changed since the last call (a peer
         ``appeared``, :data:`CATALOG_PERIOD` passed, a catalog was republished); else None."""
+        ...
+
+
+class Relay(Protocol):
+    """A network that carries announcements of what a peer just learned (section 3: zenoh's
+    ``ktbt/v1/learned/<peer>``), so that a neighbour that lacks it asks the announcer at once
+    instead of at its next timed ask (section 4.5)."""
+
+    def learned(self, keys: list[str]) -> None:
+        """Announce the sequence keys this member just learned, in one announcement."""
+        ...
+
+    def heard(self) -> list[tuple[str, tuple[str, ...]]]:
+        """The announcements heard since the last call: (announcer, sequences), oldest
+        first."""
         ...
 
 
@@ -214,6 +243,9 @@ class FleetMember:
     say: Callable[[str], None]
     export: Synced | None = None
     ticks_control: bool = True
+    relay: Relay | None = None
+    """Where what it learns is announced and its neighbours' announcements are heard (section
+    4.5); None: it learns what a neighbour learned at its next timed ask."""
     todo: list[str] = field(init=False)
     """The sequence keys still to learn."""
     listed: ListedSequences | None = field(init=False)
@@ -229,6 +261,8 @@ class FleetMember:
         )
         self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
         self._reported = set(self.agent.metrics.learned)
+        self._held: dict[tuple[str, str], float] = {}
+        """(announcer, sequence) -> when it was asked at once for it (:data:`RELAY_HOLD`)."""
         if self.export is not None:  # what a resumed save file holds already
             self.export.sync(self.agent.knowledge)
 
@@ -270,19 +304,44 @@ class FleetMember:
             tick, source = agent.metrics.learned[key]
             self.say(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
             self._reported.add(key)
+        if learned and self.relay is not None:
+            self.relay.learned(learned)
         if self.export is not None:
             self.export.sync(agent.knowledge)
         appeared = self.network.appeared()
+        heard = self.relay.heard() if self.relay is not None else []
         if self.listed is not None and self.catalogs is not None:
             found = self.catalogs.changed(now, bool(appeared))
             if found is not None:
                 self.todo += self.listed.read(found)
+        if self.listed is not None and heard:  # told none: what its vocabulary can execute
+            told: Catalog = {}
+            for peer, sequences in heard:
+                told.setdefault(peer, []).extend({"sequence": s} for s in sequences)
+            self.todo += self.listed.read(told)
         self.todo = [key for key in self.todo if key not in agent.knowledge]
-        self.learner.step(now, self.todo, appeared)
+        relayed = [p for p in self._worth_asking(now, heard) if p not in appeared]
+        self.learner.step(now, self.todo, appeared + relayed)
         if self.ticks_control:
             agent.control.tick()
         agent.tend_memory()
         return learned
+
+    def _worth_asking(self, now: float, heard: list[tuple[str, tuple[str, ...]]]) -> list[str]:
+        """The announcers to ask at once, as if they had just appeared (section 4.5): each
+        announced a sequence this member lacks and was not asked at once for it in the last
+        :data:`RELAY_HOLD` seconds; :data:`RELAY_AT_ONCE` of them at most."""
+        held = self._held
+        for place in [p for p, when in held.items() if now - when >= RELAY_HOLD]:
+            del held[place]
+        lacking, worth = set(self.todo), list[str]()
+        for peer, sequences in heard:
+            fresh = [s for s in sequences if s in lacking and (peer, s) not in held]
+            if fresh and len(worth) < RELAY_AT_ONCE:
+                held.update(((peer, s), now) for s in fresh)
+                if peer not in worth:
+                    worth.append(peer)
+        return worth
 
     def forgot(self, key: str) -> None:
         """``key`` was forgotten on request: reported again when it is learned again."""

@@ -18,7 +18,9 @@ from ktbt_proto.exchange.messages import (
     Response,
     decode,
     decode_fields,
+    decode_learned,
     encode,
+    encode_learned,
 )
 
 QUERY = Query(id="q1", sender="r1", sequence="<c>(A)")
@@ -142,3 +144,24 @@ def test_a_message_read_from_its_fields_is_refused_by_the_size_of_its_text() -> 
     with pytest.raises(MessageRefused, match="exceeds the limit"):
         decode_fields(fields, 20_000)
     assert isinstance(decode_fields(fields, 30_000), Query)
+
+
+LEARNED = VECTORS.with_name("learned.json")
+
+
+@pytest.mark.parametrize("vector", json.loads(LEARNED.read_text()), ids=lambda v: str(v["name"]))
+def test_announcement_vectors(vector: dict[str, Any]) -> None:
+    """spec/vectors/learned.json: an announcement of what a peer learned (section 3) is a JSON
+    array of 1 to 64 distinct sequences; anything else is refused."""
+    data = vector["payload"].encode()
+    if not vector["valid"]:
+        with pytest.raises(MessageRefused):
+            decode_learned(data)
+        return
+    assert list(decode_learned(data)) == vector["sequences"]
+    assert decode_learned(encode_learned(vector["sequences"])) == decode_learned(data)
+
+
+def test_an_announcement_larger_than_a_message_is_refused_before_it_is_read() -> None:
+    with pytest.raises(MessageRefused, match="exceeds the limit"):
+        decode_learned(b'["<c>(A)"' + b" " * MAX_MESSAGE_BYTES + b"]")

@@ -14,7 +14,7 @@ What the loop needs of a network is declared: :class:`Appearing` (the peers that
 it last asked) and :class:`Catalogs` (what the fleet's catalogs list, when they may have
 changed), implemented by the zenoh and ROS 2 transports alike; and, where the network carries
 them, :class:`Relay` (announcements of what a peer just learned, so that a neighbour that lacks
-it asks at once: zenoh's, section 4.5).
+it asks at once, section 4.5: zenoh's announcements, ROS 2's republished catalogs).
 """
 
 from __future__ import annotations
@@ -92,16 +92,17 @@ class Catalogs(Protocol):
 
 class Relay(Protocol):
     """A network that carries announcements of what a peer just learned (section 3: zenoh's
-    ``ktbt/v1/learned/<peer>``), so that a neighbour that lacks it asks the announcer at once
-    instead of at its next timed ask (section 4.5)."""
+    ``ktbt/v1/learned/<peer>``; section 11: a ROS 2 robot's latched catalog, republished after
+    a merge), so that a neighbour that lacks it asks the announcer at once instead of at its
+    next timed ask (section 4.5)."""
 
     def learned(self, keys: list[str]) -> None:
         """Announce the sequence keys this member just learned, in one announcement."""
         ...
 
-    def heard(self) -> list[tuple[str, tuple[str, ...]]]:
-        """The announcements heard since the last call: (announcer, sequences), oldest
-        first."""
+    def news(self, now: float) -> list[tuple[str, tuple[str, ...]]]:
+        """The announcements heard since the last call (``now``: the host's clock, as
+        :meth:`Catalogs.changed`'s): (announcer, sequences), oldest first."""
         ...
 
 
@@ -309,7 +310,7 @@ class FleetMember:
         if self.export is not None:
             self.export.sync(agent.knowledge)
         appeared = self.network.appeared()
-        heard = self.relay.heard() if self.relay is not None else []
+        heard = self.relay.news(now) if self.relay is not None else []
         if self.listed is not None and self.catalogs is not None:
             found = self.catalogs.changed(now, bool(appeared))
             if found is not None:

@@ -8,7 +8,7 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/inbox/<peer>``: where a late answer is put when the asker's query has closed.
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
 - ``ktbt/v1/learned/<peer>``: a fleet member's announcement of what it just learned, heard by
-  its neighbours (:meth:`ZenohTransport.learned`, :meth:`ZenohTransport.heard`; spec section 3).
+  its neighbours (:meth:`ZenohTransport.learned`, :meth:`ZenohTransport.news`; spec section 3).
 - ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
   for the peers that overhear (``overhear``; spec section 4.3).
 - ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
@@ -334,7 +334,7 @@ class ZenohTransport:
     announced: int = 0
     """Announcements of what this peer learned it put (:meth:`learned`, section 3)."""
     announcements: int = 0
-    """Announcements of its neighbours it heard and took (:meth:`heard`)."""
+    """Announcements of its neighbours it heard and took (:meth:`news`)."""
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -347,7 +347,7 @@ class ZenohTransport:
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
         self._heard: dict[str, tuple[str, ...]] = {}
-        """Announcements heard since :meth:`heard` was last called: announcer -> sequences."""
+        """Announcements heard since :meth:`news` was last called: announcer -> sequences."""
         self._announcer: Any = None
         self._hearing: Any = None
         self._pending: dict[tuple[str, str], tuple[Any, float, int]] = {}
@@ -688,10 +688,11 @@ class ZenohTransport:
             self._announcer.put(encode_learned(keys[first : first + 1 + MAX_MORE]))
             self.announced += 1
 
-    def heard(self) -> list[tuple[str, tuple[str, ...]]]:
+    def news(self, now: float = 0.0) -> list[tuple[str, tuple[str, ...]]]:
         """The announcements heard since the last call (section 4.5): (announcer, sequences),
-        one entry per announcer, oldest first. The subscription to ``ktbt/v1/learned/*`` is
-        declared at the first call, so only a peer that reads announcements hears them."""
+        one entry per announcer, oldest first (``now`` is not needed: they arrive as
+        events). The subscription to ``ktbt/v1/learned/*`` is declared at the first call, so
+        only a peer that reads announcements hears them."""
         if self.closed:
             return []
         if self._hearing is None:
@@ -708,7 +709,7 @@ class ZenohTransport:
     def _on_learned(self, sample: Any) -> None:
         """An announcement (section 3): believed only as its key's peer's, a JSON array of 1
         to 64 sequences within the message limit; anything else is refused. Announcements of
-        one peer between two calls of :meth:`heard` are taken as one (the latest 64
+        one peer between two calls of :meth:`news` are taken as one (the latest 64
         sequences); those of a newcomer beyond ``max_pending`` announcers are refused."""
         key = str(sample.key_expr)
         name = key.rsplit("/", 1)[-1]

@@ -20,7 +20,7 @@ it asks at once, section 4.5: zenoh's announcements, ROS 2's republished catalog
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -28,7 +28,7 @@ from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
-from ktbt_proto.exchange.messages import MAX_MORE
+from ktbt_proto.exchange.messages import MAX_MORE, Query
 from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
 from ktbt_proto.items import parse_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
@@ -39,6 +39,7 @@ __all__ = [
     "ASK_ALONE",
     "CATALOG_PERIOD",
     "RELAY_AT_ONCE",
+    "RELAY_GRACE",
     "RELAY_HOLD",
     "Appearing",
     "Catalogs",
@@ -59,9 +60,15 @@ CATALOG_PERIOD = 2.0
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
 
 RELAY_HOLD = 2.0
-"""Seconds during which a member does not ask an announcer at once again for a sequence it
-announced (section 4.5): a flood of announcements, or a lie, costs at most one ask per announcer
-and sequence per hold."""
+"""Seconds during which a member, having asked an announcer at once for a sequence, asks no
+announcer at once for it again, whoever announces it (section 4.5): a hundred peers that
+learned it together cost one ask, and a flood of announcements, or a lie, one ask a hold."""
+
+RELAY_GRACE = 1.0
+"""Seconds after a member sent its open query to another peer (or to all) during which an
+announcer is not asked yet (section 4.5): that peer's answer may be on its way, as when a
+teacher that joined a fleet answers its learners one after the other and the first to learn
+announce. The announcement waits, and is taken once no answer can be on its way."""
 
 RELAY_AT_ONCE = 8
 """Announcers asked at once in one step at most (section 4.5); those beyond wait for the
@@ -180,15 +187,41 @@ class Learner:
     of them, all at the moment a teacher joins a large fleet), several that appeared together
     in one broadcast (one message). After a query nobody answered, it holds back ``cooldown``
     seconds and then the ``backoff``'s hold; after one answered (in part), it asks at once for
-    what is left."""
+    what is left. The announcers of what it lacks (``relayed``, section 4.5) are asked as
+    newcomers are, except that they stretch an open query's wait once at most, so that no
+    stream of announcements keeps a query open for ever."""
 
     robot: ApplicationTimedAgent
     backoff: Backoff
     wait: float
     cooldown: float
     opened: float = 0.0
+    stretched: str = ""
+    """The id of the last query an announcer was asked in (its wait stretched once)."""
+    sent: dict[str, float] = field(default_factory=dict)
+    """Where the open query went and when: a peer's name, or "" for a broadcast."""
 
-    def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
+    def awaited(self, now: float, announcer: str) -> bool:
+        """Whether an answer to the open query may be on its way from a peer other than
+        ``announcer`` (sent it, or broadcast, within :data:`RELAY_GRACE`)."""
+        if self.robot.open_query is None:
+            return False
+        return any(p != announcer and now - t < RELAY_GRACE for p, t in self.sent.items())
+
+    def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
+        query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
+        self.sent = {peer: now for peer in to} if to else {"": now}
+        self.opened = now
+        return query
+
+    def _announce(self, now: float, peers: Iterable[str]) -> None:
+        for peer in peers:
+            self.robot.announce(peer)
+            self.sent[peer] = now
+
+    def step(
+        self, now: float, missing: list[str], appeared: list[str], relayed: Sequence[str] = ()
+    ) -> None:
         robot = self.robot
         if robot.buffered:  # overheard and kept (section 4.3): learned without asking
             for key in [k for k in missing if k in robot.buffered]:
@@ -203,17 +236,23 @@ class Learner:
             else:
                 self.backoff.lost(now + self.cooldown)
         if appeared and robot.open_query is not None:  # newcomers hear the open query at once
-            for peer in appeared:
-                robot.announce(peer)
+            self._announce(now, appeared)
             self.opened = now
         elif appeared and missing:  # the newcomer alone: the others were asked already
-            alone = appeared if len(appeared) <= ASK_ALONE else []
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
+            self._ask(now, missing, appeared if len(appeared) <= ASK_ALONE else [])
             self.backoff.reset(now)
-            self.opened = now
+        if relayed and missing:  # announcers of what it lacks (section 4.5)
+            query = robot.open_query
+            if query is None:
+                query = self._ask(now, missing, list(relayed) if len(relayed) <= ASK_ALONE else [])
+                self.backoff.reset(now)
+            else:
+                self._announce(now, relayed)
+                if self.stretched != query.id:
+                    self.opened = now
+            self.stretched = query.id
         if missing and robot.open_query is None and self.backoff.ready(now):
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
-            self.opened = now
+            self._ask(now, missing)
 
 
 class Synced(Protocol):
@@ -262,8 +301,10 @@ class FleetMember:
         )
         self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
         self._reported = set(self.agent.metrics.learned)
-        self._held: dict[tuple[str, str], float] = {}
-        """(announcer, sequence) -> when it was asked at once for it (:data:`RELAY_HOLD`)."""
+        self._held: dict[str, float] = {}
+        """Sequence -> when an announcer of it was asked at once (:data:`RELAY_HOLD`)."""
+        self._waiting: dict[str, tuple[str, ...]] = {}
+        """Announcements kept while an answer may be on its way (:data:`RELAY_GRACE`)."""
         if self.export is not None:  # what a resumed save file holds already
             self.export.sync(self.agent.knowledge)
 
@@ -322,26 +363,36 @@ class FleetMember:
             self.todo += self.listed.read(told)
         self.todo = [key for key in self.todo if key not in agent.knowledge]
         relayed = [p for p in self._worth_asking(now, heard) if p not in appeared]
-        self.learner.step(now, self.todo, appeared + relayed)
+        self.learner.step(now, self.todo, appeared, relayed)
         if self.ticks_control:
             agent.control.tick()
         agent.tend_memory()
         return learned
 
     def _worth_asking(self, now: float, heard: list[tuple[str, tuple[str, ...]]]) -> list[str]:
-        """The announcers to ask at once, as if they had just appeared (section 4.5): each
-        announced a sequence this member lacks and was not asked at once for it in the last
-        :data:`RELAY_HOLD` seconds; :data:`RELAY_AT_ONCE` of them at most."""
+        """The announcers to ask at once (section 4.5), the first heard first: each announced a
+        sequence this member lacks for which no announcer was asked at once in the last
+        :data:`RELAY_HOLD` seconds (those sequences are then held, whoever else announces
+        them); :data:`RELAY_AT_ONCE` of them at most. While an answer to the open query may be
+        on its way from another peer (:data:`RELAY_GRACE`), an announcement waits (those of 256
+        announcers at most)."""
         held = self._held
-        for place in [p for p, when in held.items() if now - when >= RELAY_HOLD]:
-            del held[place]
+        for key in [k for k, when in held.items() if now - when >= RELAY_HOLD]:
+            del held[key]
         lacking, worth = set(self.todo), list[str]()
+        news, self._waiting = self._waiting, {}
         for peer, sequences in heard:
-            fresh = [s for s in sequences if s in lacking and (peer, s) not in held]
-            if fresh and len(worth) < RELAY_AT_ONCE:
-                held.update(((peer, s), now) for s in fresh)
-                if peer not in worth:
-                    worth.append(peer)
+            news[peer] = tuple(dict.fromkeys((*news.get(peer, ()), *sequences)))[-1 - MAX_MORE :]
+        for peer, sequences in news.items():
+            fresh = [s for s in sequences if s in lacking and s not in held]
+            if not fresh or len(worth) >= RELAY_AT_ONCE:
+                continue
+            if self.learner.awaited(now, peer):
+                if len(self._waiting) < 256:
+                    self._waiting[peer] = tuple(fresh)
+                continue
+            held.update((s, now) for s in fresh)
+            worth.append(peer)
         return worth
 
     def forgot(self, key: str) -> None:

@@ -19,7 +19,7 @@ import pytest
 from ktbt_proto.exchange import refusals
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.knowledge import KnowledgeBase, with_knowledge
-from ktbt_proto.exchange.member import RELAY_AT_ONCE, RELAY_HOLD, FleetMember
+from ktbt_proto.exchange.member import RELAY_GRACE, RELAY_HOLD, FleetMember
 from ktbt_proto.exchange.messages import encode_learned
 from ktbt_proto.files import packaged
 from ktbt_proto.items import sequence_key
@@ -173,39 +173,76 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         assert "an announcement from liar: internal error reading a message: InjectedFault" in (
             caplog.text
         )
-        # A lie (it announces what it does not know), a hundred times: asked once, at once.
+        # A lie (it announces what it does not know), a hundred times. Just after its broadcast
+        # an answer may be on its way: the announcement waits; then the liar is asked, once.
         for _ in range(100):
             lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements >= 1)
+        for _ in range(10):
+            step(learner, now=t0)
+        assert len(queries) == 1
+        t1 = t0 + RELAY_GRACE
         while len(queries) < 2:
             assert time.monotonic() < t0 + 15
-            step(learner, now=t0)
+            step(learner, now=t1)
         heard = network.announcements
         for _ in range(100):
             lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements > heard)
         for _ in range(20):
-            step(learner, now=t0)
+            step(learner, now=t1)
         assert len(queries) == 2  # the broadcast, and one ask of the liar within the hold
         lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements > heard + 1)
         while len(queries) < 3:  # once the hold is over, one more
             assert time.monotonic() < t0 + 15
-            step(learner, now=t0 + RELAY_HOLD)
-        # A flood of announcers: those beyond the 256 waiting are refused; RELAY_AT_ONCE asked.
+            step(learner, now=t1 + RELAY_HOLD)
+        # A flood of announcers, 300 names each announcing one of the four sequences: those
+        # beyond the 256 waiting are refused; one announcer of each sequence is asked, alone.
         refused, sent = network.refused, learner.agent.metrics.queries_sent
         for n in range(300):
-            session.put(f"ktbt/v1/learned/liar{n}", encode_learned([GREEN]))
+            session.put(f"ktbt/v1/learned/liar{n}", encode_learned([KEYS[n % len(KEYS)]]))
         assert wait_until(lambda: network.refused == refused + 300 - network.max_pending)
-        step(learner, now=t0 + 2 * RELAY_HOLD)
+        step(learner, now=t1 + 2 * RELAY_HOLD)
 
         def flood() -> list[str]:
             return [k for k in queries if re.fullmatch(r"ktbt/v1/knowledge/liar\d+", k)]
 
-        assert wait_until(lambda: len(flood()) == RELAY_AT_ONCE)
+        assert wait_until(lambda: len(flood()) == len(KEYS))
         for _ in range(10):
-            step(learner, now=t0 + 2 * RELAY_HOLD)
-        assert len(flood()) == RELAY_AT_ONCE  # the rest wait for its next ask
+            step(learner, now=t1 + 2 * RELAY_HOLD)
+        assert len(flood()) == len(KEYS)  # the others held back: each sequence asked once
         assert learner.todo == KEYS  # nothing learned from a lie, nothing broken
         assert learner.agent.metrics.queries_sent == sent  # the open query, sent on
         assert learner.refused == 0
+
+
+def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> None:
+    """A liar announcing what the learner lacks every hold cannot keep the learner's query
+    open for ever (which would put off its timed ask): the first announcer asked stretches the
+    wait, later ones are asked without stretching it. Steps on the member's own clock."""
+    pl, ph = free_port(), free_port()
+    with ExitStack() as stack:
+        learner, network = stack.enter_context(
+            member("learner", line_settings(quiet, pl), wait=3.0)
+        )
+        session, queries = stack.enter_context(liar(ph, pl))
+        lies: Any = session.declare_publisher("ktbt/v1/learned/liar")
+        stack.callback(lies.undeclare)
+        t0 = time.monotonic()
+        while not (queries and lies.matching_status.matching):
+            assert time.monotonic() < t0 + 15
+            step(learner, now=t0)
+        query = learner.agent.open_query
+        assert query is not None
+        for when, asked in ((t0 + 1.5, 2), (t0 + 3.6, 3)):  # each past the last one's hold
+            heard = network.announcements
+            lies.put(encode_learned([GREEN]))
+            assert wait_until(lambda: network.announcements > heard)  # noqa: B023
+            step(learner, now=when)
+            assert wait_until(lambda: len(queries) == asked)  # noqa: B023
+            assert learner.agent.open_query is query
+        lost = learner.agent.metrics.queries_lost
+        step(learner, now=t0 + 4.5)  # the wait, stretched once (to t0 + 1.5 + 3), is over
+        assert learner.agent.open_query is None
+        assert learner.agent.metrics.queries_lost == lost + 1

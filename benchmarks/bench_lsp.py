@@ -19,7 +19,7 @@ Against it, on the 51-node reference tree:
 Three keystrokes, each against ``ktbt check`` of the very text the server checks:
 
 - **a letter changed in a name** (``Act0a`` to ``Act0b`` and back, compact form): the target's
-  measure (issue 34: at most one ``ktbt check``);
+  measure (at most one ``ktbt check``);
 - **a letter typed into a name, then deleted** (``Act0a`` to ``Act0ax`` and back, pretty form):
   a name's length changes, the nodes on other lines keep their positions;
 - **a letter changed in a tag** (``<sq>`` to ``<sl>`` and back): not inside a name, so the

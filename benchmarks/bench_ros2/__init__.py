@@ -1,5 +1,5 @@
-"""KT-BT over ROS 2 (spec/protocol.md section 11) beside its anchors, in one run (issue 33's
-item 8: measured the way a user compares). ``python -m benchmarks.bench_ros2`` (or ``python -m
+"""KT-BT over ROS 2 (spec/protocol.md section 11) beside its anchors, in one run, measured the
+way a user compares. ``python -m benchmarks.bench_ros2`` (or ``python -m
 benchmarks`` for every module) prints Markdown tables and writes the numbers to
 ``benchmarks/results/ros2.json``.
 

@@ -12,14 +12,16 @@ inside its callback, from what the agent knows at that moment.
 
 What the loop needs of a network is declared: :class:`Appearing` (the peers that appeared since
 it last asked) and :class:`Catalogs` (what the fleet's catalogs list, when they may have
-changed), implemented by the zenoh and ROS 2 transports alike.
+changed), implemented by the zenoh and ROS 2 transports alike; and, where the network carries
+them, :class:`Relay` (announcements of what a peer just learned, so that a neighbour that lacks
+it asks at once, section 4.5: zenoh's announcements, ROS 2's republished catalogs).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -27,7 +29,7 @@ from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
-from ktbt_proto.exchange.messages import MAX_MORE
+from ktbt_proto.exchange.messages import MAX_MORE, Query
 from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
 from ktbt_proto.items import parse_sequence, sequence_key, shown
 from ktbt_proto.registry import Registry
@@ -37,11 +39,15 @@ from ktbt_proto.validate import find_problems
 __all__ = [
     "ASK_ALONE",
     "CATALOG_PERIOD",
+    "RELAY_AT_ONCE",
+    "RELAY_GRACE",
+    "RELAY_HOLD",
     "Appearing",
     "Catalogs",
     "FleetMember",
     "Learner",
     "ListedSequences",
+    "Relay",
 ]
 
 log = logging.getLogger("ktbt.member")
@@ -53,6 +59,21 @@ broadcast: one message, where they would take one each."""
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner told no sequences
 (besides one whenever a peer appears): peers learn, so their catalogs grow (section 4.5)."""
+
+RELAY_HOLD = 2.0
+"""Seconds during which a member, having asked an announcer at once for a sequence, asks no
+announcer at once for it again, whoever announces it (section 4.5): a hundred peers that
+learned it together cost one ask, and a flood of announcements, or a lie, one ask a hold."""
+
+RELAY_GRACE = 1.0
+"""Seconds after a member sent its open query to another peer (or to all) during which an
+announcer is not asked yet (section 4.5): that peer's answer may be on its way, as when a
+teacher that joined a fleet answers its learners one after the other and the first to learn
+announce. The announcement waits, and is taken once no answer can be on its way."""
+
+RELAY_AT_ONCE = 8
+"""Announcers asked at once in one step at most (section 4.5); those beyond wait for the
+member's next ask."""
 
 Catalog = dict[str, list[dict[str, str]]]
 """The fleet's catalogs as read: peer name -> its entries (``{"sequence": ..., ...}``)."""
@@ -74,6 +95,22 @@ class Catalogs(Protocol):
     def changed(self, now: float, appeared: bool) -> Catalog | None:
         """What the catalogs list, when they may have changed since the last call (a peer
         ``appeared``, :data:`CATALOG_PERIOD` passed, a catalog was republished); else None."""
+        ...
+
+
+class Relay(Protocol):
+    """A network that carries announcements of what a peer just learned (section 3: zenoh's
+    ``ktbt/v1/learned/<peer>``; section 11: a ROS 2 robot's latched catalog, republished after
+    a merge), so that a neighbour that lacks it asks the announcer at once instead of at its
+    next timed ask (section 4.5)."""
+
+    def learned(self, keys: list[str]) -> None:
+        """Announce the sequence keys this member just learned, in one announcement."""
+        ...
+
+    def news(self, now: float) -> list[tuple[str, tuple[str, ...]]]:
+        """The announcements heard since the last call (``now``: the host's clock, as
+        :meth:`Catalogs.changed`'s): (announcer, sequences), oldest first."""
         ...
 
 
@@ -151,15 +188,41 @@ class Learner:
     of them, all at the moment a teacher joins a large fleet), several that appeared together
     in one broadcast (one message). After a query nobody answered, it holds back ``cooldown``
     seconds and then the ``backoff``'s hold; after one answered (in part), it asks at once for
-    what is left."""
+    what is left. The announcers of what it lacks (``relayed``, section 4.5) are asked as
+    newcomers are, except that they stretch an open query's wait once at most, so that no
+    stream of announcements keeps a query open for ever."""
 
     robot: ApplicationTimedAgent
     backoff: Backoff
     wait: float
     cooldown: float
     opened: float = 0.0
+    stretched: str = ""
+    """The id of the last query an announcer was asked in (its wait stretched once)."""
+    sent: dict[str, float] = field(default_factory=dict)
+    """Where the open query went and when: a peer's name, or "" for a broadcast."""
 
-    def step(self, now: float, missing: list[str], appeared: list[str]) -> None:
+    def awaited(self, now: float, announcer: str) -> bool:
+        """Whether an answer to the open query may be on its way from a peer other than
+        ``announcer`` (sent it, or broadcast, within :data:`RELAY_GRACE`)."""
+        if self.robot.open_query is None:
+            return False
+        return any(p != announcer and now - t < RELAY_GRACE for p, t in self.sent.items())
+
+    def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
+        query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
+        self.sent = {peer: now for peer in to} if to else {"": now}
+        self.opened = now
+        return query
+
+    def _announce(self, now: float, peers: Iterable[str]) -> None:
+        for peer in peers:
+            self.robot.announce(peer)
+            self.sent[peer] = now
+
+    def step(
+        self, now: float, missing: list[str], appeared: list[str], relayed: Sequence[str] = ()
+    ) -> None:
         robot = self.robot
         if robot.buffered:  # overheard and kept (section 4.3): learned without asking
             for key in [k for k in missing if k in robot.buffered]:
@@ -174,17 +237,23 @@ class Learner:
             else:
                 self.backoff.lost(now + self.cooldown)
         if appeared and robot.open_query is not None:  # newcomers hear the open query at once
-            for peer in appeared:
-                robot.announce(peer)
+            self._announce(now, appeared)
             self.opened = now
         elif appeared and missing:  # the newcomer alone: the others were asked already
-            alone = appeared if len(appeared) <= ASK_ALONE else []
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=alone)
+            self._ask(now, missing, appeared if len(appeared) <= ASK_ALONE else [])
             self.backoff.reset(now)
-            self.opened = now
+        if relayed and missing:  # announcers of what it lacks (section 4.5)
+            query = robot.open_query
+            if query is None:
+                query = self._ask(now, missing, list(relayed) if len(relayed) <= ASK_ALONE else [])
+                self.backoff.reset(now)
+            else:
+                self._announce(now, relayed)
+                if self.stretched != query.id:
+                    self.opened = now
+            self.stretched = query.id
         if missing and robot.open_query is None and self.backoff.ready(now):
-            robot.ask(missing[0], *missing[1 : 1 + MAX_MORE])
-            self.opened = now
+            self._ask(now, missing)
 
 
 class Synced(Protocol):
@@ -215,6 +284,9 @@ class FleetMember:
     say: Callable[[str], None]
     export: Synced | None = None
     ticks_control: bool = True
+    relay: Relay | None = None
+    """Where what it learns is announced and its neighbours' announcements are heard (section
+    4.5); None: it learns what a neighbour learned at its next timed ask."""
     todo: list[str] = field(init=False)
     """The sequence keys still to learn."""
     listed: ListedSequences | None = field(init=False)
@@ -231,6 +303,10 @@ class FleetMember:
         self.learner = Learner(self.agent, Backoff(seed=name), self.wait, self.cooldown)
         self._reported = set(self.agent.metrics.learned)
         self._last = -math.inf
+        self._held: dict[str, float] = {}
+        """Sequence -> when an announcer of it was asked at once (:data:`RELAY_HOLD`)."""
+        self._waiting: dict[str, tuple[str, ...]] = {}
+        """Announcements kept while an answer may be on its way (:data:`RELAY_GRACE`)."""
         if self.export is not None:  # what a resumed save file holds already
             self.export.sync(self.agent.knowledge)
 
@@ -272,6 +348,7 @@ class FleetMember:
         if now < self._last:
             self.learner.backoff.reset(now)
             self.learner.opened = now
+            self._held.clear()  # held from a time that is now to come
         self._last = now
         agent.receive()
         learned = [k for k in agent.metrics.learned if k not in self._reported]
@@ -279,19 +356,54 @@ class FleetMember:
             tick, source = agent.metrics.learned[key]
             self.say(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
             self._reported.add(key)
+        if learned and self.relay is not None:
+            self.relay.learned(learned)
         if self.export is not None:
             self.export.sync(agent.knowledge)
         appeared = self.network.appeared()
+        heard = self.relay.news(now) if self.relay is not None else []
         if self.listed is not None and self.catalogs is not None:
             found = self.catalogs.changed(now, bool(appeared))
             if found is not None:
                 self.todo += self.listed.read(found)
+        if self.listed is not None and heard:  # told none: what its vocabulary can execute
+            told: Catalog = {}
+            for peer, sequences in heard:
+                told.setdefault(peer, []).extend({"sequence": s} for s in sequences)
+            self.todo += self.listed.read(told)
         self.todo = [key for key in self.todo if key not in agent.knowledge]
-        self.learner.step(now, self.todo, appeared)
+        relayed = [p for p in self._worth_asking(now, heard) if p not in appeared]
+        self.learner.step(now, self.todo, appeared, relayed)
         if self.ticks_control:
             agent.control.tick()
         agent.tend_memory()
         return learned
+
+    def _worth_asking(self, now: float, heard: list[tuple[str, tuple[str, ...]]]) -> list[str]:
+        """The announcers to ask at once (section 4.5), the first heard first: each announced a
+        sequence this member lacks for which no announcer was asked at once in the last
+        :data:`RELAY_HOLD` seconds (those sequences are then held, whoever else announces
+        them); :data:`RELAY_AT_ONCE` of them at most. While an answer to the open query may be
+        on its way from another peer (:data:`RELAY_GRACE`), an announcement waits (those of 256
+        announcers at most)."""
+        held = self._held
+        for key in [k for k, when in held.items() if now - when >= RELAY_HOLD]:
+            del held[key]
+        lacking, worth = set(self.todo), list[str]()
+        news, self._waiting = self._waiting, {}
+        for peer, sequences in heard:
+            news[peer] = tuple(dict.fromkeys((*news.get(peer, ()), *sequences)))[-1 - MAX_MORE :]
+        for peer, sequences in news.items():
+            fresh = [s for s in sequences if s in lacking and s not in held]
+            if not fresh or len(worth) >= RELAY_AT_ONCE:
+                continue
+            if self.learner.awaited(now, peer):
+                if len(self._waiting) < 256:
+                    self._waiting[peer] = tuple(fresh)
+                continue
+            held.update((s, now) for s in fresh)
+            worth.append(peer)
+        return worth
 
     def forgot(self, key: str) -> None:
         """``key`` was forgotten on request: reported again when it is learned again."""

@@ -280,3 +280,38 @@ def schema_text() -> str:
     import json
 
     return json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
+
+
+Learned = Annotated[
+    tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...],
+    Field(min_length=1, max_length=1 + MAX_MORE),
+]
+"""An announcement of what a peer just learned (spec/protocol.md section 3): the sequences of
+one merge, in canonical compact stringBT, 1 to 64, each named once."""
+_LEARNED: TypeAdapter[tuple[str, ...]] = TypeAdapter(Learned)
+
+
+def encode_learned(sequences: Sequence[str]) -> bytes:
+    """The announcement of ``sequences`` (at most 64, each once), as a JSON array."""
+    return json.dumps(list(dict.fromkeys(sequences))[: 1 + MAX_MORE]).encode("utf-8")
+
+
+def decode_learned(data: bytes, max_bytes: int = MAX_MESSAGE_BYTES) -> tuple[str, ...]:
+    """The sequences an announcement names (section 3), checked as a message is: size first,
+    then a JSON array of 1 to 64 distinct sequences of 1 to 4,096 characters. Raises only
+    :class:`MessageRefused`."""
+    _check_size(len(data), max_bytes)
+    try:
+        fault("message", data)
+        sequences = _LEARNED.validate_json(data, strict=True)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first.get("loc", ())) or "announcement"
+        raise MessageRefused(
+            f"invalid announcement: {where}: {first.get('msg', 'invalid')}"
+        ) from None
+    except Exception as exc:  # a reader's own failure is a refusal too (section 2.1)
+        raise MessageRefused(internal_error(exc)) from exc
+    if len(set(sequences)) != len(sequences):
+        raise MessageRefused("invalid announcement: a sequence named twice")
+    return sequences

@@ -309,6 +309,7 @@ def run_agent(
             cooldown,
             say,
             export,
+            relay=transport,  # what it learns is announced, and asked for at once (section 4.5)
         )
         if fleet.listed is None:
             say(f"{name}: knows {len(robot.knowledge)}, will meet {len(fleet.todo)} sequences")

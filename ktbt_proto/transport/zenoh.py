@@ -7,6 +7,8 @@ Key expressions (``spec/protocol.md``):
 - ``ktbt/v1/catalog/<peer>``: answers with the sequences the peer knows (``ktbt peer list``).
 - ``ktbt/v1/inbox/<peer>``: where a late answer is put when the asker's query has closed.
 - ``ktbt/v1/peers/<peer>``: a liveliness token, present while the peer runs.
+- ``ktbt/v1/learned/<peer>``: a fleet member's announcement of what it just learned, heard by
+  its neighbours (:meth:`ZenohTransport.learned`, :meth:`ZenohTransport.news`; spec section 3).
 - ``ktbt/v1/answers/<peer>``: with ``publish_answers``, a copy of every answer the peer sends,
   for the peers that overhear (``overhear``; spec section 4.3).
 - ``ktbt/v1/events/<peer>``: with ``publish_events``, every event of the peer's transfer log
@@ -59,12 +61,16 @@ from ktbt_proto.exchange.events import EventPublisher
 from ktbt_proto.exchange.member import CATALOG_PERIOD
 from ktbt_proto.exchange.messages import (
     MAX_MESSAGE_BYTES,
+    MAX_MORE,
+    NAME_PATTERN,
     ErrorReply,
     MessageRefused,
     Query,
     Response,
     decode,
+    decode_learned,
     encode,
+    encode_learned,
 )
 from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity, SignedItem
@@ -325,6 +331,10 @@ class ZenohTransport:
     joined: int = 0
     """Peers that appeared (their liveliness token) since this one started: a new neighbour,
     worth asking again at once."""
+    announced: int = 0
+    """Announcements of what this peer learned it put (:meth:`learned`, section 3)."""
+    announcements: int = 0
+    """Announcements of its neighbours it heard and took (:meth:`news`)."""
     _session: Any = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -338,6 +348,10 @@ class ZenohTransport:
         self._asking = 0
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
+        self._heard: dict[str, tuple[str, ...]] = {}
+        """Announcements heard since :meth:`news` was last called: announcer -> sequences."""
+        self._announcer: Any = None
+        self._hearing: Any = None
         self._pending: dict[tuple[str, str], tuple[Any, float, int]] = {}
         """Queries handed to the agent: (sender, id) -> (query, deadline, answers still
         possible), so a query naming several sequences stays open for an answer to each."""
@@ -482,6 +496,9 @@ class ZenohTransport:
             query.drop()
         if self._sink is not None and self.log is not None:
             self.log.remove_sink(self._sink)
+        for entity in (self._announcer, self._hearing):
+            if entity is not None:
+                entity.undeclare()
         for entity in self._declared:
             entity.undeclare()
         self._session.close()
@@ -665,6 +682,64 @@ class ZenohTransport:
             names = list(self._appeared)
             self._appeared.clear()
         return names
+
+    # -- relaying (section 3) ---------------------------------------------------------------------
+
+    def learned(self, keys: list[str]) -> None:
+        """Announce on ``ktbt/v1/learned/<name>`` the sequences this peer just learned (a fleet
+        member after a merge, section 4.5): one put, heard by its neighbours only (peers do
+        not forward between peers), 64 sequences to an announcement. The publisher is declared
+        at the first announcement, so a peer that never learns costs nothing."""
+        if self.closed or not keys:
+            return
+        if self._announcer is None:
+            self._announcer = self._session.declare_publisher(f"{PREFIX}/learned/{self.name}")
+        for first in range(0, len(keys), 1 + MAX_MORE):
+            self._announcer.put(encode_learned(keys[first : first + 1 + MAX_MORE]))
+            self.announced += 1
+
+    def news(self, now: float = 0.0) -> list[tuple[str, tuple[str, ...]]]:
+        """The announcements heard since the last call (section 4.5): (announcer, sequences),
+        one entry per announcer, oldest first (``now`` is not needed: they arrive as
+        events). The subscription to ``ktbt/v1/learned/*`` is declared at the first call, so
+        only a peer that reads announcements hears them."""
+        if self.closed:
+            return []
+        if self._hearing is None:
+            self._hearing = self._session.declare_subscriber(
+                f"{PREFIX}/learned/*",
+                self._on_learned,
+                allowed_origin=zenoh.Locality.REMOTE,  # not our own announcements
+            )
+        with self._lock:
+            heard, self._heard = list(self._heard.items()), {}
+        return heard
+
+    @guarded("an announcement")
+    def _on_learned(self, sample: Any) -> None:
+        """An announcement (section 3): believed only as its key's peer's, a JSON array of 1
+        to 64 sequences within the message limit; anything else is refused. Announcements of
+        one peer between two calls of :meth:`news` are taken as one (the latest 64
+        sequences); those of a newcomer beyond ``max_pending`` announcers are refused."""
+        key = str(sample.key_expr)
+        name = key.rsplit("/", 1)[-1]
+        if re.fullmatch(NAME_PATTERN, name) is None or name == self.name:
+            self._refuse(f"an announcement came on {key[:80]}", key=key[:80])
+            return
+        try:
+            sequences = decode_learned(sample.payload.to_bytes(), self.max_bytes)
+        except MessageRefused as exc:
+            self._refuse(f"an announcement from {name}: {exc.reason}", key=key)
+            return
+        with self._lock:
+            known = self._heard.get(name)
+            full = known is None and len(self._heard) >= self.max_pending
+            if not full:
+                merged = dict.fromkeys((*(known or ()), *sequences))
+                self._heard[name] = tuple(merged)[-(1 + MAX_MORE) :]
+                self.announcements += 1
+        if full:
+            self._refuse(f"an announcement from {name}: {self.max_pending} announcers waiting")
 
     # -- being asked ------------------------------------------------------------------------------
 

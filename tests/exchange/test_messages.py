@@ -20,7 +20,9 @@ from ktbt_proto.exchange.messages import (
     Response,
     decode,
     decode_fields,
+    decode_learned,
     encode,
+    encode_learned,
 )
 from ktbt_proto.exchange.signing import Identity, SignedItem
 
@@ -171,3 +173,24 @@ def test_an_answer_made_once_is_the_answer_encoded_for_every_id(
 def test_an_answer_too_large_to_send_is_not_made() -> None:
     with pytest.raises(ValidationError):
         encoded_answer("teacher", "<c>(A)", SignedItem("<a>(" + "\u2028" * 59_990 + ")"))
+
+
+LEARNED = VECTORS.with_name("learned.json")
+
+
+@pytest.mark.parametrize("vector", json.loads(LEARNED.read_text()), ids=lambda v: str(v["name"]))
+def test_announcement_vectors(vector: dict[str, Any]) -> None:
+    """spec/vectors/learned.json: an announcement of what a peer learned (section 3) is a JSON
+    array of 1 to 64 distinct sequences; anything else is refused."""
+    data = vector["payload"].encode()
+    if not vector["valid"]:
+        with pytest.raises(MessageRefused):
+            decode_learned(data)
+        return
+    assert list(decode_learned(data)) == vector["sequences"]
+    assert decode_learned(encode_learned(vector["sequences"])) == decode_learned(data)
+
+
+def test_an_announcement_larger_than_a_message_is_refused_before_it_is_read() -> None:
+    with pytest.raises(MessageRefused, match="exceeds the limit"):
+        decode_learned(b'["<c>(A)"' + b" " * MAX_MESSAGE_BYTES + b"]")

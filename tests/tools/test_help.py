@@ -74,8 +74,8 @@ def test_help_fits_80_columns_without_noise_or_cuts(path: tuple[str, ...]) -> No
 @pytest.mark.parametrize(
     ("path", "choices"),
     [
-        (("fleet", "run"), ["--topology <mesh|line|router|geometric|grid|edges>", "--teacher <run|serve>",
-                            "--partition-kind <silent|reset|none>"]),
+        (("fleet", "run"), ["--topology <mesh|line|router|geometric|grid|edges>",
+                            "--teacher <run|serve>", "--partition-kind <silent|reset|none>"]),
         (("peer", "run"), ["--policy <any|signed|trusted>", "--overhear <off|update|buffer>",
                            "--mode <peer|client>"]),
         (("show",), ["<outline|dot|mermaid>"]),

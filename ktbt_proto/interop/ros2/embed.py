@@ -229,11 +229,9 @@ class Embedded:
         agent = self.agent
         self.shown = ShownTopics(node, name, catalog(agent.knowledge, security.identity), log,
                            security.identity, PREFIX)  # fmt: skip
-        self._catalogs = (
-            FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)
-            if todo is None
-            else None
-        )
+        # Read for what to meet when told none; heard always, each republished catalog as its
+        # robot's announcement of what it learned (section 11).
+        self._catalogs = FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)
         self.member = FleetMember(
             agent,
             self.transport,
@@ -243,6 +241,7 @@ class Embedded:
             cooldown=0.0,
             say=self.logger.info,
             ticks_control=False,  # the user ticks the tree
+            relay=self._catalogs,
         )
         self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
 

@@ -391,6 +391,9 @@ class FleetCatalogs:
         self._refreshed, self._taken = -math.inf, -1
         self._found: dict[str, tuple[str, list[dict[str, str]]]] = {}
         """Topic -> (the peer it names, its entries)."""
+        self._fresh: dict[str, tuple[str, tuple[str, ...]]] = {}
+        """Topic -> (the peer it names, its sequences), for catalogs received since
+        :meth:`news` was last called."""
 
     def refresh(self) -> int:
         """Follow the catalog topics that appeared on the graph with a publisher (a topic only
@@ -469,6 +472,7 @@ class FleetCatalogs:
         peer = msg.peer if re.fullmatch(NAME, msg.peer) else topic
         with self._lock:
             self._found[topic] = (peer, entries)
+            self._fresh[topic] = (peer, tuple(e["sequence"] for e in entries))
             self.version += 1
         if self.heard is not None:
             self.heard(topic, msg.peer[:200], entries)
@@ -489,6 +493,22 @@ class FleetCatalogs:
             return None
         self._taken = self.version
         return self.read()
+
+    def learned(self, keys: list[str]) -> None:
+        """For a fleet member (:class:`~ktbt_proto.exchange.member.Relay`): nothing to send
+        (section 11), as its host republishes its latched catalog after the merge, and that
+        republished catalog is the announcement its neighbours hear."""
+
+    def news(self, now: float) -> list[tuple[str, tuple[str, ...]]]:
+        """For a fleet member (:class:`~ktbt_proto.exchange.member.Relay`): every catalog
+        received since the last call, as its peer's announcement of what it knows (section
+        11); the catalog topics that appeared are followed every ``CATALOG_PERIOD``."""
+        if now - self._refreshed >= CATALOG_PERIOD:
+            self._refreshed = now
+            self.refresh()
+        with self._lock:
+            fresh, self._fresh = list(self._fresh.values()), {}
+        return fresh
 
     def read(self) -> dict[str, list[dict[str, str]]]:
         """What each peer's catalog lists now, by peer (two topics naming one peer are told

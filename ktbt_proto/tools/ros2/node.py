@@ -304,10 +304,9 @@ class KtbtNode(LifecycleNode):
         self._shown = ShownTopics(
             self, name, catalog(agent.knowledge, identity), self.log, identity
         )
-        if todo is None:
-            self._catalogs = FleetCatalogs(
-                self, self._shown.catalog_topic, fleet=self.transport.peers
-            )
+        # Read for what to meet when told none; heard by every robot, each republished catalog
+        # as its robot's announcement of what it learned (section 11).
+        self._catalogs = FleetCatalogs(self, self._shown.catalog_topic, fleet=self.transport.peers)
         for _, reason in agent.metrics.refusals:  # a damaged save file, say
             self.logger.warning(f"{name} refused: {reason}")
         rate = float(self._param("tick_rate"))
@@ -320,6 +319,7 @@ class KtbtNode(LifecycleNode):
             cooldown=cooldown_ticks / rate,
             say=self.logger.info,
             export=self._learned_export(),
+            relay=self._catalogs,
         )
         self._offered = Services(self, self.member, self._shown, self._show)
         meets = "what the fleet's catalogs list" if todo is None else f"{len(todo)} sequences"

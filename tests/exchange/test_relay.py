@@ -1,0 +1,248 @@
+"""Knowledge relayed at once (spec/protocol.md sections 3 and 4.5), over real zenoh sessions on
+loopback: a fleet member announces what it learned, and a neighbour that lacks it asks the
+announcer at once, so an item crosses a line of members hop by hop without any timed ask; a
+hostile announcer (bad bytes, a wrong key, a lie, a flood) is refused and counted, or costs one
+bounded ask."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ktbt_proto.exchange import refusals
+from ktbt_proto.exchange.application import ApplicationTimedAgent
+from ktbt_proto.exchange.knowledge import KnowledgeBase, with_knowledge
+from ktbt_proto.exchange.member import RELAY_GRACE, RELAY_HOLD, FleetMember
+from ktbt_proto.exchange.messages import encode_learned
+from ktbt_proto.files import packaged
+from ktbt_proto.items import sequence_key
+from ktbt_proto.syntax import parse
+from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
+from ktbt_proto.transport.zenoh import ZenohSettings, ZenohTransport, open_session
+from tests.zenoh_helpers import endpoint, free_port, wait_until
+
+pytestmark = pytest.mark.network  # zenoh sessions on loopback
+
+COLOURS = KnowledgeBase.from_tree(
+    parse(packaged("examples", "knowledge", "colours.sbt").read_text())
+)
+KEYS = [item.key for item in COLOURS]
+GREEN = sequence_key(["TargetSeen(colour=2)"])
+COOLDOWN = 60.0
+"""Longer than any deadline here: a member that lost a query asks again only when told."""
+
+
+def line_settings(config: Path, port: int, *connect: int) -> ZenohSettings:
+    """A peer on ``port`` dialling ``connect`` only, without gossip (so the links given are the
+    only paths: peers do not forward between peers, section 3)."""
+    return ZenohSettings(
+        listen=[endpoint(port)], connect=[endpoint(p) for p in connect], config=config
+    )
+
+
+@contextmanager
+def member(
+    name: str, conf: ZenohSettings, knowledge: KnowledgeBase | None = None, wait: float = 0.5
+) -> Iterator[tuple[FleetMember, ZenohTransport]]:
+    """The demo robot as a fleet member on zenoh that relays (``ktbt peer run``'s wiring):
+    told the four colours, or, with ``knowledge``, a teacher told nothing."""
+    with ZenohTransport(name, conf, query_timeout=2.0) as transport:
+        robot = ApplicationTimedAgent(
+            name, with_knowledge(DEMO_CONTROL, knowledge), demo_registry(), transport
+        )
+        todo = [] if knowledge is not None else KEYS
+        yield (
+            FleetMember(
+                robot,
+                transport,
+                None,
+                todo,
+                wait=wait,
+                cooldown=COOLDOWN,
+                say=lambda _: None,
+                relay=transport,
+            ),
+            transport,
+        )
+
+
+def step(*members: FleetMember, now: float | None = None) -> None:
+    for m in members:
+        m.agent.now += 1
+        m.step(time.monotonic() if now is None else now)
+    time.sleep(0.01)
+
+
+def steps_until(members: list[FleetMember], done: Any, seconds: float = 30.0) -> None:
+    deadline = time.monotonic() + seconds
+    while not done():
+        assert time.monotonic() < deadline, {m.name: m.todo for m in members}
+        step(*members)
+
+
+@pytest.fixture
+def quiet(tmp_path: Path) -> Path:
+    path = tmp_path / "no-gossip.json5"
+    path.write_text(json.dumps({"scouting": {"gossip": {"enabled": False}}}))
+    return path
+
+
+def test_an_item_crosses_a_line_of_members_hop_by_hop_without_a_timed_ask(quiet: Path) -> None:
+    """t - r1 - r2 - r3, each dialling only its neighbour. The learners start first, ask, and
+    lose their queries (nobody knows): each then holds back its 60 s cool-down. The teacher
+    appears to r1 alone, which asks it at once; from then on only the announcements can move
+    the items on: r2 hears r1's, r3 hears r2's, each asks its announcer at once."""
+    ports = [free_port() for _ in range(4)]
+    with ExitStack() as stack:
+        learners = [
+            stack.enter_context(member(f"r{i}", line_settings(quiet, ports[i], ports[i - 1])))
+            for i in (1, 2, 3)
+        ]
+        robots = [m for m, _ in learners]
+        # Every learner asked and lost a query, and its cool-down holds it back.
+        steps_until(
+            robots,
+            lambda: all(
+                m.agent.metrics.queries_lost >= 1 and m.agent.open_query is None for m in robots
+            ),
+        )
+        teacher, _ = stack.enter_context(member("t", line_settings(quiet, ports[0]), COLOURS))
+        everyone = [teacher, *robots]
+        steps_until(everyone, lambda: all(m.done for m in robots))
+        for m, taught_by in zip(robots, ["t", "r1", "r2"], strict=True):
+            assert {source for _, source in m.agent.metrics.learned.values()} == {taught_by}
+        transports = [t for _, t in learners]
+        assert all(1 <= t.announced <= len(KEYS) for t in transports)  # one put a merge
+        assert all(t.refused == 0 for t in transports) and all(m.refused == 0 for m in robots)
+
+
+@contextmanager
+def liar(port: int, connect: int) -> Iterator[tuple[Any, list[str]]]:
+    """A raw zenoh session beside a learner: it announces what it likes, in any name, and its
+    queryable on ``ktbt/v1/knowledge/*`` keeps the key of every query it gets (it never
+    answers)."""
+    session: Any = open_session(ZenohSettings(listen=[endpoint(port)], connect=[endpoint(connect)]))
+    queries: list[str] = []
+
+    def on_query(query: Any) -> None:
+        queries.append(str(query.key_expr))
+        query.drop()
+
+    entities = [session.declare_queryable("ktbt/v1/knowledge/*", on_query)]
+    try:
+        yield session, queries
+    finally:
+        for entity in entities:
+            entity.undeclare()
+        session.close()
+
+
+def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
+    quiet: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    pl, ph = free_port(), free_port()
+    with ExitStack() as stack:
+        learner, network = stack.enter_context(
+            member("learner", line_settings(quiet, pl), wait=30.0)
+        )
+        session, queries = stack.enter_context(liar(ph, pl))
+        lies: Any = session.declare_publisher("ktbt/v1/learned/liar")
+        stack.callback(lies.undeclare)
+        t0 = time.monotonic()
+        # Its first step asks (a broadcast, which the liar gets) and starts hearing.
+        while not (queries and lies.matching_status.matching):
+            assert time.monotonic() < t0 + 15
+            step(learner, now=t0)
+        # Bad bytes, the wrong shape, a name no peer has, too large: each a counted refusal.
+        bad = [b"\xff", b"[]", b'{"v": 1}', b'["<c>(A)", "<c>(A)"]', b"[" + b" " * 70_000 + b"]"]
+        for payload in bad:
+            lies.put(payload)
+        session.put("ktbt/v1/learned/" + "x" * 65, encode_learned([GREEN]))
+        # And one whose reading raises (section 2.1's test hook): a refusal like the others.
+        monkeypatch.setattr(refusals, "_stage", "message")
+        lies.put(encode_learned(["<c>(ktbt-fault)"]))
+        assert wait_until(lambda: network.refused == len(bad) + 2)
+        monkeypatch.setattr(refusals, "_stage", "")
+        assert "an announcement from liar: internal error reading a message: InjectedFault" in (
+            caplog.text
+        )
+        # A lie (it announces what it does not know), a hundred times. Just after its broadcast
+        # an answer may be on its way: the announcement waits; then the liar is asked, once.
+        for _ in range(100):
+            lies.put(encode_learned([GREEN]))
+        assert wait_until(lambda: network.announcements >= 1)
+        for _ in range(10):
+            step(learner, now=t0)
+        assert len(queries) == 1
+        t1 = t0 + RELAY_GRACE
+        while len(queries) < 2:
+            assert time.monotonic() < t0 + 15
+            step(learner, now=t1)
+        heard = network.announcements
+        for _ in range(100):
+            lies.put(encode_learned([GREEN]))
+        assert wait_until(lambda: network.announcements > heard)
+        for _ in range(20):
+            step(learner, now=t1)
+        assert len(queries) == 2  # the broadcast, and one ask of the liar within the hold
+        lies.put(encode_learned([GREEN]))
+        assert wait_until(lambda: network.announcements > heard + 1)
+        while len(queries) < 3:  # once the hold is over, one more
+            assert time.monotonic() < t0 + 15
+            step(learner, now=t1 + RELAY_HOLD)
+        # A flood of announcers, 300 names each announcing one of the four sequences: those
+        # beyond the 256 waiting are refused; one announcer of each sequence is asked, alone.
+        refused, sent = network.refused, learner.agent.metrics.queries_sent
+        for n in range(300):
+            session.put(f"ktbt/v1/learned/liar{n}", encode_learned([KEYS[n % len(KEYS)]]))
+        assert wait_until(lambda: network.refused == refused + 300 - network.max_pending)
+        step(learner, now=t1 + 2 * RELAY_HOLD)
+
+        def flood() -> list[str]:
+            return [k for k in queries if re.fullmatch(r"ktbt/v1/knowledge/liar\d+", k)]
+
+        assert wait_until(lambda: len(flood()) == len(KEYS))
+        for _ in range(10):
+            step(learner, now=t1 + 2 * RELAY_HOLD)
+        assert len(flood()) == len(KEYS)  # the others held back: each sequence asked once
+        assert learner.todo == KEYS  # nothing learned from a lie, nothing broken
+        assert learner.agent.metrics.queries_sent == sent  # the open query, sent on
+        assert learner.refused == 0
+
+
+def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> None:
+    """A liar announcing what the learner lacks every hold cannot keep the learner's query
+    open for ever (which would put off its timed ask): the first announcer asked stretches the
+    wait, later ones are asked without stretching it. Steps on the member's own clock."""
+    pl, ph = free_port(), free_port()
+    with ExitStack() as stack:
+        learner, network = stack.enter_context(
+            member("learner", line_settings(quiet, pl), wait=3.0)
+        )
+        session, queries = stack.enter_context(liar(ph, pl))
+        lies: Any = session.declare_publisher("ktbt/v1/learned/liar")
+        stack.callback(lies.undeclare)
+        t0 = time.monotonic()
+        while not (queries and lies.matching_status.matching):
+            assert time.monotonic() < t0 + 15
+            step(learner, now=t0)
+        query = learner.agent.open_query
+        assert query is not None
+        for when, asked in ((t0 + 1.5, 2), (t0 + 3.6, 3)):  # each past the last one's hold
+            heard = network.announcements
+            lies.put(encode_learned([GREEN]))
+            assert wait_until(lambda: network.announcements > heard)  # noqa: B023
+            step(learner, now=when)
+            assert wait_until(lambda: len(queries) == asked)  # noqa: B023
+            assert learner.agent.open_query is query
+        lost = learner.agent.metrics.queries_lost
+        step(learner, now=t0 + 4.5)  # the wait, stretched once (to t0 + 1.5 + 3), is over
+        assert learner.agent.open_query is None
+        assert learner.agent.metrics.queries_lost == lost + 1

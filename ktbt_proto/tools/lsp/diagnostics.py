@@ -8,32 +8,49 @@ of the input), a leaf's or container's head (``<a>(TurnHandle, degrees=600)``), 
 problem is about (an unknown action's name). ``SBT5xx`` are warnings, every other code an
 error. Only the problem's own head is read to place it, never the whole text again.
 
-**After an edit inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or
-``degrees=60`` into ``degrees=600``), the server does not read the whole text again: given the
-previous check and how much of the text's start and end the edit left alone, :func:`check`
-reads that one leaf's token again, puts the leaf in the previous tree in place of the old one
-and validates it alone. This gives the same tree and the same problems as checking the whole
-text, for these reasons, each tested for (``tests/tools/lsp/test_analysis.py`` holds the two
-ways of checking to the same result on chained random edits):
+**After an edit that leaves the text's tokens as they were, but for one leaf or one tag, or
+blanks**, the server does not read the whole text again: given the previous check and how much
+of the text's start and end the edit left alone, :func:`check` reuses the previous tree. Each
+way gives the same tree (positions and comments included) and the same problems as checking the
+whole text, for the reasons below; ``tests/tools/lsp/test_analysis.py`` holds the ways of
+checking to the same result on chained random edits. Common to all three: no line break and no
+``#`` is added or removed, the text has no byte order mark, the previous check reached no limit
+(a limit is a whole-tree matter) and the parser reads, around the edit, the same tokens as
+before (spec/stringbt.md section 2: blanks and comments may stand between any two tokens).
 
-- the text before the leaf's token and after its ``)`` is unchanged, the old token (found by
-  its own reading, strings whole) reads alone as the very leaf the tree holds there, and the new
-  one reads alone as one leaf of the same kind, without a comment in it: the parser reads the
-  same tokens around it, and this leaf among them (spec/stringbt.md section 2);
-- no line break is added or removed, and when the length changes no other node starts after
-  the edit on its line, so every other node keeps its position;
-- what ``find_problems`` says of a leaf depends on that leaf alone (its name, arguments and the
-  vocabulary), once no limit was reached (a limit is a whole-tree matter: no reuse then);
-- warnings (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no placeholder
-  and a root that is no item has none, whatever its leaves hold; otherwise they are looked for
-  again in the new tree.
+- **Inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or ``degrees=60`` into
+  ``degrees=600``): that leaf's token is read again, put in the tree in place of the old one
+  and validated alone. The old token (found by its own reading, strings whole) reads alone as
+  the very leaf the tree holds there, and the new one as one leaf of the same kind, without a
+  comment in it; when the length changes no other node starts after the edit on its line, so
+  every other node keeps its position; what ``find_problems`` says of a leaf depends on that
+  leaf alone (its name, arguments and the vocabulary); warnings (``SBT501``, ``SBT502``) are
+  only about knowledge items: a tree with no placeholder and a root that is no item has none,
+  whatever its leaves hold; otherwise they are looked for again in the new tree.
+- **Inside a container's tag** (``<sq>`` to ``<sl>``, ``<msq>``, ``<pl>``, ``<neg>``...): when
+  the old and the new token are both tags that make a container's whole head (``<sq>``,
+  ``<msq>``, ``<sl>``, ``<msl>``, ``<pl>``, ``<neg>``), the old one reads alone as the very
+  container the tree holds at its position (so not ``<pl>(2)``, whose threshold would follow a
+  ``<sq>``), the container is replaced by one of the new kind with the same children, position
+  and comments, the nodes after the tag on its line move by the change of length, and the tree
+  is validated again whole and its warnings looked for (the checks of a container depend on
+  its kind and children, and whether the root is a knowledge item on the root's kind), which
+  costs a third of reading the text.
+- **In blanks** (spaces and tabs, typed or deleted): the edit is blanks for blanks, in a run of
+  blanks or just after a token, read from the start of its line (only blanks span lines, so the
+  tokens read from there are the text's): never in a string or a comment (blanks typed after a
+  comment's end are stripped from its text). Nodes' positions are where their tags start, and a
+  comment's place depends on lines only, so the tree is the same but for the nodes after the
+  edit on its line, which move; their problems move with them (validated again when one has a
+  problem), the others stay.
 
-Any other edit, a text that did not parse, or another vocabulary, and the whole text is
-checked, exactly as ``ktbt check`` does.
+Any other edit (a line break, a comment's text, a ``<e>``, a leaf's tag), a text that did not
+parse, or another vocabulary, and the whole text is checked, exactly as ``ktbt check`` does.
 """
 
 from __future__ import annotations
 
+import re
 from bisect import bisect_left
 from dataclasses import dataclass, field
 from typing import cast
@@ -42,7 +59,7 @@ from ktbt_proto.errors import ErrorCode, LimitError, StringBTError
 from ktbt_proto.items import find_warnings, split_item
 from ktbt_proto.limits import DEFAULT_LIMITS
 from ktbt_proto.syntax import parse
-from ktbt_proto.tools.lsp.outline import head_at, leaf_end, token_at
+from ktbt_proto.tools.lsp.outline import head_at, leaf_end, token_at, token_to
 from ktbt_proto.tree import (
     Action,
     Condition,
@@ -64,6 +81,9 @@ _ON_NAME = frozenset(
 _LEAF_HEADS = ("<a>(", "<c>(", "<w>(", "<wt>(")
 """How a leaf's token starts when its parentheses follow its tag at once (the usual way)."""
 _LEAVES = (Action, Condition, Wait)
+_BARE_TAGS = frozenset(("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>"))
+"""The containers whose head is their tag alone (a parallel's threshold is optional)."""
+_BLANKS = re.compile(r"[ \t]*")
 
 
 @dataclass(frozen=True)
@@ -82,13 +102,20 @@ class Problem:
 @dataclass(frozen=True)
 class Nodes:
     """Where a tree's nodes are: their positions in document order, each one's parent (its
-    index here, -1 for the root) and place among the parent's children, and whether the tree
-    can hold a warning at all (it has a placeholder, or its root is a knowledge item)."""
+    index here, -1 for the root), place among the parent's children and the index past its
+    subtree's last node; and whether the tree holds a placeholder and its root is a knowledge
+    item (a tree can hold a warning only then)."""
 
     positions: list[tuple[int, int]]
     parents: list[int]
     places: list[int]
-    warns: bool
+    ends: list[int]
+    placeholder: bool
+    item: bool
+
+    @property
+    def warns(self) -> bool:
+        return self.placeholder or self.item
 
     @classmethod
     def of(cls, tree: Tree) -> Nodes | None:
@@ -96,7 +123,7 @@ class Nodes:
         positions: list[tuple[int, int]] = []
         parents: list[int] = []
         places: list[int] = []
-        warns = split_item(tree.root) is not None
+        placeholder = False
         stack: list[tuple[Node, int, int]] = [(tree.root, -1, 0)]
         while stack:
             node, parent, place = stack.pop()
@@ -107,10 +134,15 @@ class Nodes:
             parents.append(parent)
             places.append(place)
             if isinstance(node, Container):
-                warns = warns or isinstance(node, Placeholder)
+                placeholder = placeholder or isinstance(node, Placeholder)
                 children = node.children
                 stack.extend((children[i], here, i) for i in range(len(children) - 1, -1, -1))
-        return cls(positions, parents, places, warns)
+        ends = list(range(1, len(positions) + 1))
+        for i in range(len(positions) - 1, 0, -1):  # a subtree ends where its last one does
+            parent = parents[i]
+            if ends[i] > ends[parent]:
+                ends[parent] = ends[i]
+        return cls(positions, parents, places, ends, placeholder, split_item(tree.root) is not None)
 
     def path(self, at: int) -> tuple[int, ...]:
         """The child indices from the root to node ``at``."""
@@ -135,6 +167,8 @@ class Checked:
     found: list[StringBTError] = field(default_factory=list)
     warnings: list[StringBTError] = field(default_factory=list)
     _nodes: Nodes | None = field(default=None, repr=False, compare=False)
+    by: str = "text"
+    """How it was made: ``text`` (the whole text read), ``leaf``, ``tag`` or ``blanks``."""
 
     def nodes(self) -> Nodes | None:
         if self._nodes is None and self.tree is not None:
@@ -172,20 +206,22 @@ def _checked(
     found: list[StringBTError],
     warnings: list[StringBTError],
     nodes: Nodes | None = None,
+    by: str = "text",
 ) -> Checked:
     ordered = sorted([*found, *warnings], key=lambda p: (p.line, p.column))
     if len(ordered) > MAX_PROBLEMS:
         ordered = ordered[:MAX_PROBLEMS]
     starts = line_starts(text) if ordered else []
     problems = [_placed(text, p, node_problem=True, starts=starts) for p in ordered]
-    return Checked(tree, problems, text, registry, found, warnings, nodes)
+    return Checked(tree, problems, text, registry, found, warnings, nodes, by)
 
 
 def _recheck(
     previous: Checked, text: str, registry: SupportsNames | None, prefix: int, suffix: int
 ) -> Checked | None:
     """The check of ``text`` from ``previous``'s, when the edit between them lies inside one
-    leaf's parentheses (see the module's docstring); None when it does not."""
+    leaf's parentheses, inside one container's tag, or in one run of blanks (see the module's
+    docstring); None when it does not."""
     old, tree = previous.text, previous.tree
     if tree is None or previous.registry is not registry or len(text) > DEFAULT_LIMITS.max_size:
         return None
@@ -201,58 +237,203 @@ def _recheck(
     removed, added = old[start:old_end], text[start:new_end]
     if "\n" in removed or "\n" in added or "#" in removed or "#" in added:
         return None  # a line or a comment comes or goes: read it all
-    tag = old.rfind("<", 0, start)
-    head = next((h for h in _LEAF_HEADS if old.startswith(h, tag)), None) if tag >= 0 else None
-    if head is None or start < tag + len(head):
-        return None  # not inside a leaf's parentheses (a tag, a blank...): read it all
     if old.startswith("\ufeff") or any(isinstance(p, LimitError) for p in previous.found):
-        return None
-    close = leaf_end(old, tag + len(head))
-    if close is None or old_end >= close:
         return None
     nodes = previous.nodes()
     if nodes is None:
         return None
-    line_start = old.rfind("\n", 0, tag) + 1
-    line = old.count("\n", 0, line_start) + 1
-    pos = (line, tag - line_start + 1)
-    at = bisect_left(nodes.positions, pos)
-    if at == len(nodes.positions) or nodes.positions[at] != pos:
-        return None
-    path = nodes.path(at)
-    leaf = tree.root
-    for i in path:
-        leaf = leaf.children[i]  # type: ignore[attr-defined]
-    kind = type(leaf)
-    delta = new_end - old_end
-    edited_line = line + old.count("\n", tag, start)
-    if kind not in _LEAVES or (
-        delta and at + 1 < len(nodes.positions) and nodes.positions[at + 1][0] == edited_line
-    ):
-        return None  # not a leaf, or the nodes after it on the edited line would move
-    try:
-        was, now = parse(old[tag:close]).root, parse(text[tag : close + delta]).root
-    except StringBTError:
-        return None  # the leaf is no longer one leaf: read it all
-    if was != leaf or type(now) is not kind or now.comments is not None:
-        return None
-    now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
-    renamed = Tree(_replaced(tree.root, path, now), footer=tree.footer)
-    found = [p for p in previous.found if (p.line, p.column) != pos]
-    found.extend(find_problems(now, registry))
-    found.sort(key=lambda p: (p.line, p.column))
-    warnings = find_warnings(renamed) if nodes.warns else []
-    return _checked(text, registry, renamed, found, warnings, nodes)
+    edit = _Edit(previous, tree, nodes, text, registry, start, old_end, new_end)
+    return edit.in_leaf() or edit.in_tag() or edit.in_blanks()
 
 
-def _replaced(node: Node, path: tuple[int, ...], new: Node) -> Node:
-    """``node`` with the node at ``path`` (child indices) replaced by ``new``."""
-    if not path:
-        return new
-    container = cast(Container, node)  # a path leads through containers
-    children = list(container.children)
-    children[path[0]] = _replaced(children[path[0]], path[1:], new)
-    return with_children(container, tuple(children))
+@dataclass
+class _Edit:
+    """One edit of a checked text that parsed: where it is, and the three ways of checking the
+    new text from the old check."""
+
+    previous: Checked
+    tree: Tree
+    nodes: Nodes
+    text: str
+    registry: SupportsNames | None
+    start: int
+    old_end: int
+    new_end: int
+
+    def _node_at(self, offset: int) -> tuple[int, int, int] | None:
+        """The index in :class:`Nodes` of the node whose tag starts at ``offset`` of the old
+        text, with its line and the offset where that line starts; None if none does."""
+        old = self.previous.text
+        line_start = old.rfind("\n", 0, offset) + 1
+        line = old.count("\n", 0, line_start) + 1
+        pos = (line, offset - line_start + 1)
+        positions = self.nodes.positions
+        at = bisect_left(positions, pos)
+        if at == len(positions) or positions[at] != pos:
+            return None
+        return at, line, line_start
+
+    def _node(self, at: int) -> Node:
+        node = self.tree.root
+        for i in self.nodes.path(at):
+            node = node.children[i]  # type: ignore[attr-defined]
+        return node
+
+    def _moved(self, line: int, line_start: int) -> tuple[int, int]:
+        """The indices of the nodes that start on ``line`` after the edit (they move with a
+        change of length), ``lo`` to ``hi``."""
+        column = self.old_end - line_start + 1
+        positions = self.nodes.positions
+        lo = bisect_left(positions, (line, column))
+        hi = bisect_left(positions, (line + 1, 0), lo)
+        return lo, hi
+
+    def in_leaf(self) -> Checked | None:
+        """An edit inside one leaf's parentheses: that leaf read again and validated alone."""
+        old, text, start = self.previous.text, self.text, self.start
+        tag = old.rfind("<", 0, start)
+        head = next((h for h in _LEAF_HEADS if old.startswith(h, tag)), None) if tag >= 0 else None
+        if head is None or start < tag + len(head):
+            return None  # not inside a leaf's parentheses (a tag, a blank...)
+        close = leaf_end(old, tag + len(head))
+        if close is None or self.old_end >= close:
+            return None
+        found_at = self._node_at(tag)
+        if found_at is None:
+            return None
+        at, line, _ = found_at
+        leaf = self._node(at)
+        kind = type(leaf)
+        delta = self.new_end - self.old_end
+        edited_line = line + old.count("\n", tag, start)
+        positions = self.nodes.positions
+        if kind not in _LEAVES or (
+            delta and at + 1 < len(positions) and positions[at + 1][0] == edited_line
+        ):
+            return None  # not a leaf, or the nodes after it on the edited line would move
+        try:
+            was, now = parse(old[tag:close]).root, parse(text[tag : close + delta]).root
+        except StringBTError:
+            return None  # the leaf is no longer one leaf
+        if was != leaf or type(now) is not kind or now.comments is not None:
+            return None
+        now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
+        tree = self.tree
+        root = _copied(tree.root, 0, self.nodes.ends, at, now, 0, 0, self.nodes.positions)
+        renamed = Tree(root, footer=tree.footer)
+        pos = leaf.pos
+        found = [p for p in self.previous.found if (p.line, p.column) != pos]
+        found.extend(find_problems(now, self.registry))
+        found.sort(key=lambda p: (p.line, p.column))
+        warnings = find_warnings(renamed) if self.nodes.warns else []
+        return _checked(text, self.registry, renamed, found, warnings, self.nodes, "leaf")
+
+    def in_tag(self) -> Checked | None:
+        """An edit inside a container's tag that leaves another tag standing alone: the
+        container's kind swapped in the old tree, the tree validated again without reading."""
+        old, text, start = self.previous.text, self.text, self.start
+        tag = old.rfind("<", 0, start + 1)
+        close = old.find(">", tag) + 1
+        delta = self.new_end - self.old_end
+        if tag < 0 or close == 0 or self.old_end > close:
+            return None
+        was_tag, now_tag = old[tag:close], text[tag : close + delta]
+        if was_tag not in _BARE_TAGS or now_tag not in _BARE_TAGS:
+            return None
+        found_at = self._node_at(tag)
+        if found_at is None:
+            return None
+        at, line, line_start = found_at
+        container = self._node(at)
+        if not isinstance(container, Container):
+            return None
+        was = cast(Container, parse(was_tag + "<e>").root)
+        if with_children(was, container.children) != container:
+            return None  # a parallel's threshold after its tag: no longer one
+        now = with_children(cast(Container, parse(now_tag + "<e>").root), container.children)
+        now.__dict__["pos"], now.__dict__["comments"] = container.pos, container.comments
+        lo, hi = self._moved(line, line_start) if delta else (0, 0)
+        return self._rebuilt(at, now, lo, hi, delta, "tag")
+
+    def in_blanks(self) -> Checked | None:
+        """Blanks (spaces and tabs) typed, or deleted from a run of blanks, between two tokens:
+        the same tree, its nodes after the edit on that line moved."""
+        old, start, old_end = self.previous.text, self.start, self.old_end
+        if _BLANKS.fullmatch(self.text, start, self.new_end) is None:
+            return None
+        line_start = old.rfind("\n", 0, start) + 1
+        if not start == line_start == old_end:  # blanks typed at a line's start are blanks
+            token = token_to(old, line_start, old_end)
+            if token is None or not (
+                (token.kind == "ws" and token.start <= start)  # in a run of blanks
+                or token.end == start  # typed after a token (a comment's end is stripped)
+            ):
+                return None  # in a token: a string's, a comment's, a name's...
+        delta = self.new_end - old_end
+        line = old.count("\n", 0, line_start) + 1 if delta else 0
+        lo, hi = self._moved(line, line_start) if delta else (0, 0)
+        return self._rebuilt(-1, None, lo, hi, delta, "blanks")
+
+    def _rebuilt(
+        self, at: int, new: Container | None, lo: int, hi: int, delta: int, by: str
+    ) -> Checked:
+        """The old tree with the node at index ``at`` replaced by ``new`` and the nodes
+        ``lo`` to ``hi`` moved ``delta`` columns; validated again (and warnings looked for)
+        when a node changed kind or a problem moved, its problems kept otherwise."""
+        previous, nodes = self.previous, self.nodes
+        tree = self.tree
+        positions = nodes.positions
+        if lo < hi:
+            positions = positions[:]
+            for i in range(lo, hi):
+                line, column = positions[i]
+                positions[i] = (line, column + delta)
+        root = _copied(tree.root, 0, nodes.ends, at, new, lo, hi, positions)
+        item = nodes.item if new is None or at else split_item(root) is not None
+        moved = Nodes(positions, nodes.parents, nodes.places, nodes.ends, nodes.placeholder, item)
+        renamed = Tree(root, footer=tree.footer)
+        found, warnings = previous.found, previous.warnings
+        if lo < hi and new is None:  # the problems of the nodes that moved move with them
+            first, last = nodes.positions[lo], nodes.positions[hi - 1]
+            stay = all(not first <= (p.line, p.column) <= last for p in (*found, *warnings))
+        else:
+            stay = new is None
+        if not stay:
+            found = find_problems(renamed, self.registry)
+            warnings = find_warnings(renamed) if moved.warns else []
+        return _checked(self.text, self.registry, renamed, found, warnings, moved, by)
+
+
+def _copied(
+    node: Node,
+    i: int,
+    ends: list[int],
+    at: int,
+    new: Node | None,
+    lo: int,
+    hi: int,
+    positions: list[tuple[int, int]],
+) -> Node:
+    """``node`` (index ``i``) with the node at index ``at`` replaced by ``new`` and the nodes
+    ``lo`` to ``hi`` given their new ``positions``; every subtree that holds none of them is
+    shared."""
+    end = ends[i]
+    if not (i <= at < end or (i < hi and end > lo)):
+        return node
+    if i == at and new is not None:
+        node = copy = new
+    else:
+        copy = object.__new__(type(node))
+        copy.__dict__.update(node.__dict__)
+    if lo <= i < hi:
+        copy.__dict__["pos"] = positions[i]
+    if isinstance(node, Container):
+        children, j = [], i + 1
+        for child in node.children:
+            children.append(_copied(child, j, ends, at, new, lo, hi, positions))
+            j = ends[j]
+        copy.__dict__["children"] = tuple(children)
+    return copy
 
 
 def line_starts(text: str) -> list[int]:

@@ -293,19 +293,24 @@ def _said(error: StringBTError) -> tuple[object, ...]:
     return type(error), error.code, error.message, error.line, error.column
 
 
+BARE_TAGS = ("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>")
+
+
 def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
-    # Edits typed into names (where the previous check is reused), around them and anywhere,
-    # one or several per change, chained as an editor sends them: each check from the one
-    # before gives the tree, positions, comments and problems that checking the whole new text
-    # gives, and the document's lines are those of its new text.
+    # Edits typed into names (where the previous check is reused), into tags (a container's
+    # kind swapped), into blanks (the nodes after them moved), around them and anywhere, one or
+    # several per change, chained as an editor sends them: each check from the one before gives
+    # the tree, positions, comments and problems that checking the whole new text gives, and
+    # the document's lines are those of its new text.
     corpus = fuzz.load_corpus()
     rng = random.Random(1)
     seeds = [FLAT, MEMORY, "<sq>\r\n  <a>(Push) # go\r\n  <c>(!DoorClosed)\r<a>(P)\n<e>\n"]
     seeds += [t for t in corpus.texts + corpus.pieces if len(t) < 3_000]
     seeds += [format_tree(parse(FLAT)), "<k>(door)\n    " + MEMORY + "\n    <a>(Push)\n<e>\n"]
     typed = 'abzAZ_09.!<>(),="# \n\ré😀'
-    reused = 0
-    for seed, start, end, new in (  # edits inside a leaf and beside it
+    reused: dict[str, int] = {}
+    flat_tree = format_tree(parse(FLAT), "compact")
+    for seed, start, end, new in (  # edits inside a leaf, a tag, blanks, and beside them
         ("<sq><a>(trux)<e>", 11, 12, "e"),  # a word that is no name: SBT103
         ("<sq><a>(Push)<e>", 12, 12, "."),
         ("<sq><a>(Push)<e>", 8, 8, "9"),
@@ -323,6 +328,40 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>(Push, x=1)<e>", 17, 17, ", y=2"),
         ("<sq><a>(Push, x=1)<e>", 17, 17, ") <a>(Y"),  # two leaves now
         ("<sq>\n<a>(Push\n)<e>", 13, 13, "#c"),  # a comment in it: it moves to the next node
+        ("<sq><a>(Push)<e>", 2, 3, "l"),  # a sequence becomes a selector
+        ("<sq><a>(Push)<e>", 1, 1, "m"),  # ... a memory sequence, the leaf after it moves
+        ("<sq><a>(Push)<e>", 1, 3, "neg"),  # ... an inverter: one child, so still valid
+        ("<sq><a>(Push)<a>(Pull)<e>", 1, 3, "neg"),  # SBT301
+        ("<sl><c>(DoorClosed)<a>(Push)<e>", 2, 3, "q"),  # the root becomes an item
+        ("<sl>" + FLAT[4:], 2, 3, "q"),  # ... with the SBT502 trap
+        (FLAT, 2, 3, "l"),  # ... and is no longer one
+        ("<sq><c>(DoorClosed)<msl><a>(Push)<e><e>", 20, 21, ""),  # flat: the SBT502 trap
+        ("<pl>(1)<a>(Push)<e>", 1, 3, "sq"),  # a threshold after a sequence: SBT103
+        ("<pl> (1)<a>(Push)<e>", 2, 3, "x"),  # SBT102
+        ("<sq><a>(Push)<e>", 14, 15, "k"),  # the <e>: not a container's tag
+        ("<Root><sq><a>(Push)<e>", 8, 9, "l"),
+        ("<sq>\t<a>(Push) # go\n<e>", 4, 4, " "),  # blanks: the leaf moves, not its comment
+        ("<sq> <a>(Push)  <a>(X) # go\n<e>", 15, 16, ""),  # SBT306 moves
+        ("<sq> <a>(Push) <a>(X) # go\n<e>", 14, 15, ""),  # a run of blanks gone
+        ("<sq> <a>(Push) <a>(X)\n<e>", 4, 4, "  "),  # at a token's end: the run grows
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 15, 15, "\t"),  # at the line's start
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 15, 17, ""),  # the indentation gone
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 16, 17, "   "),
+        ('<sq><a>(Push, s="a b")<e>', 18, 18, " "),  # in a string: the leaf's
+        ('<sq><a>(Push, s="a b")<a>(X)<e>', 18, 18, " "),  # the leaf after it moves
+        ('<sq><a>(Push, s="a b")<a>(X)<e>', 18, 19, ""),
+        ("<sq><a>(Push) # a b\n<e>", 17, 17, " "),  # in a comment
+        ("<sq><a>(Push) # a b\n<e>", 17, 18, ""),
+        ("<sq><a>(Push) # a  b\n<e>", 17, 18, ""),
+        ("<sq><a>(Push) #  b\n<e>", 15, 16, ""),  # one blank after the "#" is not its text
+        ("<sq><a>(Push) # a \n<e>", 18, 18, " "),  # at a comment's end
+        ("<sq><a>(Push) <e>", 13, 13, " "),  # between two tokens
+        ("<sq><a>Push <e>", 11, 11, " "),
+        ("<sq><a>Push<e>", 11, 11, " "),
+        ("<sq><c> !Door<e>", 7, 8, ""),
+        ("<sq><w> 5<e>", 7, 8, ""),
+        (flat_tree, 0, 0, " "),
+        (flat_tree, 4, 4, "\t "),
     ):
         document = Document("file:///t.sbt", seed)
         previous = check(seed, DOOR.registry, None, document.take_edits())
@@ -330,6 +369,7 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         document.apply([lsp.TextDocumentContentChangePartial(range=where, text=new)], 1)
         checked = check(document.text, DOOR.registry, previous, document.take_edits())
         assert _seen(checked) == _seen(check(document.text, DOOR.registry)), document.text
+        reused[checked.by] = reused.get(checked.by, 0) + 1
     for seed in seeds:
         for registry in (DOOR.registry, None):
             document = Document("file:///t.sbt", seed)
@@ -339,7 +379,22 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 for _ in range(rng.choice((1, 1, 1, 2))):
                     text = document.text
                     names = [i for i, ch in enumerate(text) if ch.isalnum() or ch == "_"]
-                    if names and rng.random() < 0.7:  # a letter typed, changed or deleted
+                    tags = [i for i in range(len(text)) if text.startswith(BARE_TAGS, i)]
+                    blanks = [i for i, ch in enumerate(text) if ch in " \t\n"]
+                    roll = rng.random()
+                    if tags and roll < 0.15:  # a tag changed, a letter of it or all of it
+                        start = rng.choice(tags)
+                        end = text.index(">", start) + 1
+                        new = rng.choice(BARE_TAGS)
+                        if rng.random() < 0.5:
+                            start, end = start + 1, end - 1
+                            new = new[1:-1]
+                    elif blanks and roll < 0.35:  # blanks typed or deleted beside blanks
+                        start = rng.choice(blanks) + rng.choice((-1, 0, 0, 1))
+                        start = min(max(start, 0), len(text))
+                        end = min(len(text), start + rng.choice((0, 0, 1, 2)))
+                        new = "".join(rng.choice(" \t") for _ in range(rng.choice((0, 1, 1, 3))))
+                    elif names and roll < 0.75:  # a letter typed, changed or deleted
                         start = rng.choice(names) + rng.choice((0, 1))
                         end = start + rng.choice((0, 1)) if start < len(text) else start
                         new = rng.choice(typed[:9]) if start == end or rng.random() < 0.7 else ""
@@ -365,12 +420,13 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 checked = check(document.text, registry, previous, document.take_edits())
                 whole = check(document.text, registry)
                 assert _seen(checked) == _seen(whole), (seed, document.text)
-                reused += checked.nodes() is previous.nodes() is not None
+                reused[checked.by] = reused.get(checked.by, 0) + 1
                 previous = checked
                 if checked.tree is None:  # start again from the seed, which parses
                     document = Document("file:///t.sbt", seed)
                     previous = check(seed, registry, None, document.take_edits())
-    assert reused > 1_000  # the edits in names did reuse the check before them
+    # Each way of reusing the check before was taken, many times.
+    assert min(reused.get(by, 0) for by in ("leaf", "tag", "blanks")) > 200, reused
 
 
 def test_the_fuzzers_corpus_goes_through_every_feature_without_an_exception() -> None:

@@ -13,20 +13,21 @@ blanks**, the server does not read the whole text again: given the previous chec
 of the text's start and end the edit left alone, :func:`check` reuses the previous tree. Each
 way gives the same tree (positions and comments included) and the same problems as checking the
 whole text, for the reasons below; ``tests/tools/lsp/test_analysis.py`` holds the ways of
-checking to the same result on chained random edits. Common to all three: no line break and no
-``#`` is added or removed, the text has no byte order mark, the previous check reached no limit
-(a limit is a whole-tree matter) and the parser reads, around the edit, the same tokens as
-before (spec/stringbt.md section 2: blanks and comments may stand between any two tokens).
+checking to the same result on chained random edits. Common to all three: no ``#`` is added or
+removed, the text has no byte order mark, the previous check reached no limit (a limit is a
+whole-tree matter) and the parser reads, around the edit, the same tokens as before
+(spec/stringbt.md section 2: blanks and comments may stand between any two tokens).
 
 - **Inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or ``degrees=60`` into
   ``degrees=600``): that leaf's token is read again, put in the tree in place of the old one
   and validated alone. The old token (found by its own reading, strings whole) reads alone as
   the very leaf the tree holds there, and the new one as one leaf of the same kind, without a
-  comment in it; when the length changes no other node starts after the edit on its line, so
-  every other node keeps its position; what ``find_problems`` says of a leaf depends on that
-  leaf alone (its name, arguments and the vocabulary); warnings (``SBT501``, ``SBT502``) are
-  only about knowledge items: a tree with no placeholder and a root that is no item has none,
-  whatever its leaves hold; otherwise they are looked for again in the new tree.
+  comment in it; no line comes or goes, and when the length changes no other node starts after
+  the edit on its line, so every other node keeps its position; what ``find_problems`` says of
+  a leaf depends on that leaf alone (its name, arguments and the vocabulary); warnings
+  (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no placeholder and a root
+  that is no item has none, whatever its leaves hold; otherwise they are looked for again in
+  the new tree.
 - **Inside a container's tag** (``<sq>`` to ``<sl>``, ``<msq>``, ``<pl>``, ``<neg>``...): when
   the old and the new token are both tags that make a container's whole head (``<sq>``,
   ``<msq>``, ``<sl>``, ``<msl>``, ``<pl>``, ``<neg>``), the old one reads alone as the very
@@ -36,16 +37,18 @@ before (spec/stringbt.md section 2: blanks and comments may stand between any tw
   is validated again whole and its warnings looked for (the checks of a container depend on
   its kind and children, and whether the root is a knowledge item on the root's kind), which
   costs a third of reading the text.
-- **In blanks** (spaces and tabs, typed or deleted): the edit is blanks for blanks, in a run of
-  blanks or just after a token, read from the start of its line (only blanks span lines, so the
-  tokens read from there are the text's): never in a string or a comment (blanks typed after a
-  comment's end are stripped from its text). Nodes' positions are where their tags start, and a
-  comment's place depends on lines only, so the tree is the same but for the nodes after the
-  edit on its line, which move; their problems move with them (validated again when one has a
-  problem), the others stay.
+- **In blanks** (spaces, tabs and line breaks, typed or deleted): the edit is blanks for blanks,
+  in a run of blanks or just after a token, read from the start of its line (only blanks span
+  lines, so the tokens read from there are the text's): never in a string or a comment (blanks
+  typed after a comment's end are stripped from its text). Nodes' positions are where their
+  tags start, so the tree is the same but for the nodes after the edit, which move: on its last
+  line with its end, on later lines by the lines it adds or removes. A comment's place (trailing
+  a node, or leading the next) depends on whether a token stands before it on its line, so a
+  line may come or go only when no ``#`` stands on the edit's lines. The problems of nodes that
+  moved are found again (the tree validated again when one has a problem), the others stay.
 
-Any other edit (a line break, a comment's text, a ``<e>``, a leaf's tag), a text that did not
-parse, or another vocabulary, and the whole text is checked, exactly as ``ktbt check`` does.
+Any other edit (a comment's text, a ``<e>``, a leaf's tag), a text that did not parse, or
+another vocabulary, and the whole text is checked, exactly as ``ktbt check`` does.
 """
 
 from __future__ import annotations
@@ -81,9 +84,13 @@ _ON_NAME = frozenset(
 _LEAF_HEADS = ("<a>(", "<c>(", "<w>(", "<wt>(")
 """How a leaf's token starts when its parentheses follow its tag at once (the usual way)."""
 _LEAVES = (Action, Condition, Wait)
-_BARE_TAGS = frozenset(("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>"))
-"""The containers whose head is their tag alone (a parallel's threshold is optional)."""
-_BLANKS = re.compile(r"[ \t]*")
+_BARE_TAGS = {
+    tag: cast(Container, parse(tag + "<e>").root)
+    for tag in ("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>")
+}
+"""The containers whose head can be their tag alone (a parallel's threshold is optional), each
+as the parser reads it with no child."""
+_BLANKS = re.compile(r"[ \t\r\n]*")
 
 
 @dataclass(frozen=True)
@@ -234,9 +241,8 @@ def _recheck(
     if prefix == len(old) == len(text):
         return previous  # the same text
     start, old_end, new_end = prefix, len(old) - suffix, len(text) - suffix
-    removed, added = old[start:old_end], text[start:new_end]
-    if "\n" in removed or "\n" in added or "#" in removed or "#" in added:
-        return None  # a line or a comment comes or goes: read it all
+    if "#" in old[start:old_end] or "#" in text[start:new_end]:
+        return None  # a comment comes or goes: read it all
     if old.startswith("\ufeff") or any(isinstance(p, LimitError) for p in previous.found):
         return None
     nodes = previous.nodes()
@@ -279,18 +285,36 @@ class _Edit:
             node = node.children[i]  # type: ignore[attr-defined]
         return node
 
-    def _moved(self, line: int, line_start: int) -> tuple[int, int]:
-        """The indices of the nodes that start on ``line`` after the edit (they move with a
-        change of length), ``lo`` to ``hi``."""
-        column = self.old_end - line_start + 1
+    def _moved(self) -> tuple[int, int, list[tuple[int, int]]]:
+        """The indices ``lo`` to ``hi`` of the nodes that start after the edit and move with
+        it, and every node's position in the new text: those on the edit's last line follow
+        its end, those on later lines (all moved when a line comes or goes) change line."""
+        old, text, old_end, new_end = self.previous.text, self.text, self.old_end, self.new_end
         positions = self.nodes.positions
+        old_start = old.rfind("\n", 0, old_end) + 1  # the start of old_end's line
+        line = old.count("\n", 0, old_start) + 1
+        lines = text.count("\n", self.start, new_end) - old.count("\n", self.start, old_end)
+        column = old_end - old_start + 1
+        shift = new_end - (text.rfind("\n", 0, new_end) + 1) + 1 - column
         lo = bisect_left(positions, (line, column))
-        hi = bisect_left(positions, (line + 1, 0), lo)
-        return lo, hi
+        hi = len(positions) if lines else bisect_left(positions, (line + 1, 0), lo)
+        if lo == hi or not (lines or shift):
+            return 0, 0, positions
+        moved = positions[:lo]
+        for i in range(lo, hi):
+            at_line, at_column = positions[i]
+            if at_line == line:
+                moved.append((at_line + lines, at_column + shift))
+            else:
+                moved.append((at_line + lines, at_column))
+        moved.extend(positions[hi:])
+        return lo, hi, moved
 
     def in_leaf(self) -> Checked | None:
         """An edit inside one leaf's parentheses: that leaf read again and validated alone."""
         old, text, start = self.previous.text, self.text, self.start
+        if "\n" in old[start : self.old_end] or "\n" in text[start : self.new_end]:
+            return None  # a line comes or goes
         tag = old.rfind("<", 0, start)
         head = next((h for h in _LEAF_HEADS if old.startswith(h, tag)), None) if tag >= 0 else None
         if head is None or start < tag + len(head):
@@ -343,21 +367,19 @@ class _Edit:
         found_at = self._node_at(tag)
         if found_at is None:
             return None
-        at, line, line_start = found_at
-        container = self._node(at)
+        container = self._node(found_at[0])
         if not isinstance(container, Container):
             return None
-        was = cast(Container, parse(was_tag + "<e>").root)
+        was = _BARE_TAGS[was_tag]
         if with_children(was, container.children) != container:
             return None  # a parallel's threshold after its tag: no longer one
-        now = with_children(cast(Container, parse(now_tag + "<e>").root), container.children)
+        now = with_children(_BARE_TAGS[now_tag], container.children)
         now.__dict__["pos"], now.__dict__["comments"] = container.pos, container.comments
-        lo, hi = self._moved(line, line_start) if delta else (0, 0)
-        return self._rebuilt(at, now, lo, hi, delta, "tag")
+        return self._rebuilt(found_at[0], now, *self._moved(), "tag")
 
     def in_blanks(self) -> Checked | None:
-        """Blanks (spaces and tabs) typed, or deleted from a run of blanks, between two tokens:
-        the same tree, its nodes after the edit on that line moved."""
+        """Blanks (spaces, tabs, line breaks) typed, or deleted from a run of blanks, between
+        two tokens: the same tree, its nodes after the edit moved."""
         old, start, old_end = self.previous.text, self.start, self.old_end
         if _BLANKS.fullmatch(self.text, start, self.new_end) is None:
             return None
@@ -369,25 +391,29 @@ class _Edit:
                 or token.end == start  # typed after a token (a comment's end is stripped)
             ):
                 return None  # in a token: a string's, a comment's, a name's...
-        delta = self.new_end - old_end
-        line = old.count("\n", 0, line_start) + 1 if delta else 0
-        lo, hi = self._moved(line, line_start) if delta else (0, 0)
-        return self._rebuilt(-1, None, lo, hi, delta, "blanks")
+        if "\n" in old[start:old_end] or "\n" in self.text[start : self.new_end]:
+            # Lines come or go: whether a comment trails a node or leads the next depends on
+            # the tokens before it on its line, so none may stand on the edit's lines.
+            line_end = old.find("\n", old_end)
+            rest = old[old_end:] if line_end < 0 else old[old_end:line_end]
+            if "#" in old[line_start:start] or "#" in rest:
+                return None
+        return self._rebuilt(-1, None, *self._moved(), "blanks")
 
     def _rebuilt(
-        self, at: int, new: Container | None, lo: int, hi: int, delta: int, by: str
+        self,
+        at: int,
+        new: Container | None,
+        lo: int,
+        hi: int,
+        positions: list[tuple[int, int]],
+        by: str,
     ) -> Checked:
         """The old tree with the node at index ``at`` replaced by ``new`` and the nodes
-        ``lo`` to ``hi`` moved ``delta`` columns; validated again (and warnings looked for)
-        when a node changed kind or a problem moved, its problems kept otherwise."""
+        ``lo`` to ``hi`` given their new ``positions``; validated again (and warnings looked
+        for) when a node changed kind or a problem moved, its problems kept otherwise."""
         previous, nodes = self.previous, self.nodes
         tree = self.tree
-        positions = nodes.positions
-        if lo < hi:
-            positions = positions[:]
-            for i in range(lo, hi):
-                line, column = positions[i]
-                positions[i] = (line, column + delta)
         root = _copied(tree.root, 0, nodes.ends, at, new, lo, hi, positions)
         item = nodes.item if new is None or at else split_item(root) is not None
         moved = Nodes(positions, nodes.parents, nodes.places, nodes.ends, nodes.placeholder, item)

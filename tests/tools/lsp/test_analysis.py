@@ -360,6 +360,16 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>Push<e>", 11, 11, " "),
         ("<sq><c> !Door<e>", 7, 8, ""),
         ("<sq><w> 5<e>", 7, 8, ""),
+        ("<sq> <a>(Push) <a>(X) # go\n<e>", 14, 14, "\n"),  # the comment would lead the <e>
+        ("<sq> <a>(Push)\n<a>(X) # go\n<e>", 14, 15, " "),
+        ("<sq> <a>(Push)\n# go\n<a>(X)\n<e>", 14, 15, ""),  # ... would trail the leaf
+        ("<sq> <a>(Push) # go\n<a>(X)\n<e>", 19, 20, ""),  # ... would hide the leaf
+        ("<sq> <a>(Push)\n\n  <a>(X)\n<e>", 14, 16, " "),  # lines joined
+        ("<sq> <a>(Push)  <a>(X)\n<e>", 15, 15, "\n"),  # a line broken, SBT306 moves
+        ("<sq> <a>(Push,  x=1)<a>(Y)\n<e>", 15, 15, "\r\n"),  # in a leaf, which spans lines
+        ("<sq>\n# go\n  <a>(Push)\n<e>", 10, 10, "\n  "),  # an empty line under the comment
+        ("<sq><a>(Push)<e>\n# end\n", 16, 16, "\n"),  # before the footer
+        (flat_tree, flat_tree.index("<a>"), flat_tree.index("<a>"), "\n"),
         (flat_tree, 0, 0, " "),
         (flat_tree, 4, 4, "\t "),
     ):
@@ -393,7 +403,8 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                         start = rng.choice(blanks) + rng.choice((-1, 0, 0, 1))
                         start = min(max(start, 0), len(text))
                         end = min(len(text), start + rng.choice((0, 0, 1, 2)))
-                        new = "".join(rng.choice(" \t") for _ in range(rng.choice((0, 1, 1, 3))))
+                        size = rng.choice((0, 1, 1, 3))
+                        new = "".join(rng.choice(" \t \n\r") for _ in range(size))
                     elif names and roll < 0.75:  # a letter typed, changed or deleted
                         start = rng.choice(names) + rng.choice((0, 1))
                         end = start + rng.choice((0, 1)) if start < len(text) else start

@@ -18,7 +18,7 @@ Against it, on the 51-node reference tree:
 - **server, over stdio**: a real server process, from writing the ``didChange`` to reading its
   ``publishDiagnostics``, JSON and pipes included.
 
-Five keystrokes, each against ``ktbt check`` of the very text the server checks:
+Six keystrokes, each against ``ktbt check`` of the very text the server checks:
 
 - **a letter changed in a name** (``Act0a`` to ``Act0b`` and back, compact form): the target's
   measure (issue 34: at most one ``ktbt check``);
@@ -28,8 +28,10 @@ Five keystrokes, each against ``ktbt check`` of the very text the server checks:
   the tree is validated again without being read;
 - **a blank typed into an indentation, then deleted** (pretty form): the nodes after it on its
   line move;
-- **a line break typed, then deleted** (between two leaves, compact form): the lines change, so
-  the whole text is checked again, what any other edit costs (a comment's text, a ``<e>``...).
+- **a line break typed, then deleted** (between two leaves, compact form): the nodes after it
+  move to other lines;
+- **a letter typed into a comment, then deleted** (the pretty form under a comment line): the
+  whole text is checked again, what any other edit costs (a ``<e>``, a leaf's tag...).
 
 The in-process cases are measured ``--runs`` times (interleaved rounds each); the figures are
 the medians of the runs' medians, with each run's ratio. And a 1 MB file (the parse
@@ -289,6 +291,7 @@ KEYSTROKES = (
     "a letter changed in a tag",
     "a blank typed into an indentation",
     "a line break typed",
+    "a letter typed into a comment",
 )
 
 
@@ -300,6 +303,7 @@ def run(
 ) -> dict[str, Any]:
     text = reference_compact()
     pretty = format_tree(parse(text), "pretty")
+    commented = f"# The reference tree\n{pretty}"
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="ktbt-bench-lsp-") as folder:
         root = Path(folder)
@@ -314,6 +318,7 @@ def run(
                 KEYSTROKES[2]: Keystrokes(tree, text, text.index("<sq>", 4) + 2, "ql"),
                 KEYSTROKES[3]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)") - 2, " "),
                 KEYSTROKES[4]: Keystrokes(tree, text, text.index("<a>(Act0a)"), "\n"),
+                KEYSTROKES[5]: Keystrokes(tree, commented, commented.index("tree"), "x"),
             }
 
         keys, staged = keystrokes(), keystrokes()

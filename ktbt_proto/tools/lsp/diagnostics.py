@@ -245,10 +245,7 @@ def _recheck(
         return None  # a comment comes or goes: read it all
     if old.startswith("\ufeff") or any(isinstance(p, LimitError) for p in previous.found):
         return None
-    nodes = previous.nodes()
-    if nodes is None:
-        return None
-    edit = _Edit(previous, tree, nodes, text, registry, start, old_end, new_end)
+    edit = _Edit(previous, tree, text, registry, start, old_end, new_end)
     return edit.in_leaf() or edit.in_tag() or edit.in_blanks()
 
 
@@ -259,38 +256,37 @@ class _Edit:
 
     previous: Checked
     tree: Tree
-    nodes: Nodes
     text: str
     registry: SupportsNames | None
     start: int
     old_end: int
     new_end: int
 
-    def _node_at(self, offset: int) -> tuple[int, int, int] | None:
+    def _node_at(self, nodes: Nodes, offset: int) -> tuple[int, int, int] | None:
         """The index in :class:`Nodes` of the node whose tag starts at ``offset`` of the old
         text, with its line and the offset where that line starts; None if none does."""
         old = self.previous.text
         line_start = old.rfind("\n", 0, offset) + 1
         line = old.count("\n", 0, line_start) + 1
         pos = (line, offset - line_start + 1)
-        positions = self.nodes.positions
+        positions = nodes.positions
         at = bisect_left(positions, pos)
         if at == len(positions) or positions[at] != pos:
             return None
         return at, line, line_start
 
-    def _node(self, at: int) -> Node:
+    def _node(self, nodes: Nodes, at: int) -> Node:
         node = self.tree.root
-        for i in self.nodes.path(at):
+        for i in nodes.path(at):
             node = node.children[i]  # type: ignore[attr-defined]
         return node
 
-    def _moved(self) -> tuple[int, int, list[tuple[int, int]]]:
+    def _moved(self, nodes: Nodes) -> tuple[int, int, list[tuple[int, int]]]:
         """The indices ``lo`` to ``hi`` of the nodes that start after the edit and move with
         it, and every node's position in the new text: those on the edit's last line follow
         its end, those on later lines (all moved when a line comes or goes) change line."""
         old, text, old_end, new_end = self.previous.text, self.text, self.old_end, self.new_end
-        positions = self.nodes.positions
+        positions = nodes.positions
         old_start = old.rfind("\n", 0, old_end) + 1  # the start of old_end's line
         line = old.count("\n", 0, old_start) + 1
         lines = text.count("\n", self.start, new_end) - old.count("\n", self.start, old_end)
@@ -322,15 +318,16 @@ class _Edit:
         close = leaf_end(old, tag + len(head))
         if close is None or self.old_end >= close:
             return None
-        found_at = self._node_at(tag)
-        if found_at is None:
+        nodes = self.previous.nodes()
+        found_at = None if nodes is None else self._node_at(nodes, tag)
+        if nodes is None or found_at is None:
             return None
         at, line, _ = found_at
-        leaf = self._node(at)
+        leaf = self._node(nodes, at)
         kind = type(leaf)
         delta = self.new_end - self.old_end
         edited_line = line + old.count("\n", tag, start)
-        positions = self.nodes.positions
+        positions = nodes.positions
         if kind not in _LEAVES or (
             delta and at + 1 < len(positions) and positions[at + 1][0] == edited_line
         ):
@@ -343,14 +340,14 @@ class _Edit:
             return None
         now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
         tree = self.tree
-        root = _copied(tree.root, 0, self.nodes.ends, at, now, 0, 0, self.nodes.positions)
+        root = _copied(tree.root, 0, nodes.ends, at, now, 0, 0, nodes.positions)
         renamed = Tree(root, footer=tree.footer)
         pos = leaf.pos
         found = [p for p in self.previous.found if (p.line, p.column) != pos]
         found.extend(find_problems(now, self.registry))
         found.sort(key=lambda p: (p.line, p.column))
-        warnings = find_warnings(renamed) if self.nodes.warns else []
-        return _checked(text, self.registry, renamed, found, warnings, self.nodes, "leaf")
+        warnings = find_warnings(renamed) if nodes.warns else []
+        return _checked(text, self.registry, renamed, found, warnings, nodes, "leaf")
 
     def in_tag(self) -> Checked | None:
         """An edit inside a container's tag that leaves another tag standing alone: the
@@ -364,10 +361,11 @@ class _Edit:
         was_tag, now_tag = old[tag:close], text[tag : close + delta]
         if was_tag not in _BARE_TAGS or now_tag not in _BARE_TAGS:
             return None
-        found_at = self._node_at(tag)
-        if found_at is None:
+        nodes = self.previous.nodes()
+        found_at = None if nodes is None else self._node_at(nodes, tag)
+        if nodes is None or found_at is None:
             return None
-        container = self._node(found_at[0])
+        container = self._node(nodes, found_at[0])
         if not isinstance(container, Container):
             return None
         was = _BARE_TAGS[was_tag]
@@ -375,7 +373,7 @@ class _Edit:
             return None  # a parallel's threshold after its tag: no longer one
         now = with_children(_BARE_TAGS[now_tag], container.children)
         now.__dict__["pos"], now.__dict__["comments"] = container.pos, container.comments
-        return self._rebuilt(found_at[0], now, *self._moved(), "tag")
+        return self._rebuilt(nodes, found_at[0], now, *self._moved(nodes), "tag")
 
     def in_blanks(self) -> Checked | None:
         """Blanks (spaces, tabs, line breaks) typed, or deleted from a run of blanks, between
@@ -398,10 +396,14 @@ class _Edit:
             rest = old[old_end:] if line_end < 0 else old[old_end:line_end]
             if "#" in old[line_start:start] or "#" in rest:
                 return None
-        return self._rebuilt(-1, None, *self._moved(), "blanks")
+        nodes = self.previous.nodes()
+        if nodes is None:
+            return None
+        return self._rebuilt(nodes, -1, None, *self._moved(nodes), "blanks")
 
     def _rebuilt(
         self,
+        nodes: Nodes,
         at: int,
         new: Container | None,
         lo: int,
@@ -412,8 +414,7 @@ class _Edit:
         """The old tree with the node at index ``at`` replaced by ``new`` and the nodes
         ``lo`` to ``hi`` given their new ``positions``; validated again (and warnings looked
         for) when a node changed kind or a problem moved, its problems kept otherwise."""
-        previous, nodes = self.previous, self.nodes
-        tree = self.tree
+        previous, tree = self.previous, self.tree
         root = _copied(tree.root, 0, nodes.ends, at, new, lo, hi, positions)
         item = nodes.item if new is None or at else split_item(root) is not None
         moved = Nodes(positions, nodes.parents, nodes.places, nodes.ends, nodes.placeholder, item)

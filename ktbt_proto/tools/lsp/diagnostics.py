@@ -8,14 +8,14 @@ of the input), a leaf's or container's head (``<a>(TurnHandle, degrees=600)``), 
 problem is about (an unknown action's name). ``SBT5xx`` are warnings, every other code an
 error. Only the problem's own head is read to place it, never the whole text again.
 
-**After an edit that leaves the text's tokens as they were, but for one leaf or one tag, or
-blanks**, the server does not read the whole text again: given the previous check and how much
-of the text's start and end the edit left alone, :func:`check` reuses the previous tree. Each
-way gives the same tree (positions and comments included) and the same problems as checking the
-whole text, for the reasons below; ``tests/tools/lsp/test_analysis.py`` holds the ways of
-checking to the same result on chained random edits. Common to all three: no ``#`` is added or
-removed, the text has no byte order mark, the previous check reached no limit (a limit is a
-whole-tree matter) and the parser reads, around the edit, the same tokens as before
+**After an edit that leaves the text's tokens as they were, but for one leaf, one tag, blanks
+or a comment's text**, the server does not read the whole text again: given the previous check
+and how much of the text's start and end the edit left alone, :func:`check` reuses the previous
+tree. Each way gives the same tree (positions and comments included) and the same problems as
+checking the whole text, for the reasons below; ``tests/tools/lsp/test_analysis.py`` holds
+the ways of checking to the same result on chained random edits. Common to all four: no ``#``
+is added or removed, the text has no byte order mark, the previous check reached no limit (a
+limit is a whole-tree matter) and the parser reads, around the edit, the same tokens as before
 (spec/stringbt.md section 2: blanks and comments may stand between any two tokens).
 
 - **Inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or ``degrees=60`` into
@@ -47,7 +47,13 @@ whole-tree matter) and the parser reads, around the edit, the same tokens as bef
   line may come or go only when no ``#`` stands on the edit's lines. The problems of nodes that
   moved are found again (the tree validated again when one has a problem), the others stay.
 
-Any other edit (a comment's text, a ``<e>``, a leaf's tag), a text that did not parse, or
+- **In a comment's text** (after its ``#``, no line broken): the comment is the same token to
+  the end of its line, so it stays where the parser put it, with its new text. Which comment of
+  the tree it is: when the text holds as many ``#`` as the tree holds comments, each ``#``
+  starts one of them (none in a string, none dropped), so the one comment held with the old
+  text, when only one is, is the one edited. Problems and positions stay.
+
+Any other edit (a ``<e>``, a leaf's tag, a ``#`` typed...), a text that did not parse, or
 another vocabulary, and the whole text is checked, exactly as ``ktbt check`` does.
 """
 
@@ -55,16 +61,18 @@ from __future__ import annotations
 
 import re
 from bisect import bisect_left
-from dataclasses import dataclass, field
-from typing import cast
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from typing import Any, cast
 
 from ktbt_proto.errors import ErrorCode, LimitError, StringBTError
 from ktbt_proto.items import find_warnings, split_item
 from ktbt_proto.limits import DEFAULT_LIMITS
-from ktbt_proto.syntax import parse
+from ktbt_proto.syntax import comment_text, parse
 from ktbt_proto.tools.lsp.outline import head_at, leaf_end, token_at, token_to
 from ktbt_proto.tree import (
     Action,
+    Comments,
     Condition,
     Container,
     Node,
@@ -110,8 +118,10 @@ class Problem:
 class Nodes:
     """Where a tree's nodes are: their positions in document order, each one's parent (its
     index here, -1 for the root), place among the parent's children and the index past its
-    subtree's last node; and whether the tree holds a placeholder and its root is a knowledge
-    item (a tree can hold a warning only then)."""
+    subtree's last node; whether the tree holds a placeholder and its root is a knowledge item
+    (a tree can hold a warning only then); and every comment it holds, as the index of its node
+    (-1 for the footer), its field of :class:`~ktbt_proto.tree.Comments`, its place in that
+    field and its text."""
 
     positions: list[tuple[int, int]]
     parents: list[int]
@@ -119,6 +129,7 @@ class Nodes:
     ends: list[int]
     placeholder: bool
     item: bool
+    comments: list[tuple[int, str, int, str]]
 
     @property
     def warns(self) -> bool:
@@ -131,6 +142,7 @@ class Nodes:
         parents: list[int] = []
         places: list[int] = []
         placeholder = False
+        comments = [(-1, "footer", k, text) for k, text in enumerate(tree.footer)]
         stack: list[tuple[Node, int, int]] = [(tree.root, -1, 0)]
         while stack:
             node, parent, place = stack.pop()
@@ -140,6 +152,8 @@ class Nodes:
             positions.append(node.pos)
             parents.append(parent)
             places.append(place)
+            if node.comments is not None:
+                comments.extend(_held(here, node.comments))
             if isinstance(node, Container):
                 placeholder = placeholder or isinstance(node, Placeholder)
                 children = node.children
@@ -149,7 +163,11 @@ class Nodes:
             parent = parents[i]
             if ends[i] > ends[parent]:
                 ends[parent] = ends[i]
-        return cls(positions, parents, places, ends, placeholder, split_item(tree.root) is not None)
+        item = split_item(tree.root) is not None
+        return cls(positions, parents, places, ends, placeholder, item, comments)
+
+    def but(self, **changes: object) -> Nodes:
+        return replace(self, **changes)  # type: ignore[arg-type]
 
     def path(self, at: int) -> tuple[int, ...]:
         """The child indices from the root to node ``at``."""
@@ -175,7 +193,8 @@ class Checked:
     warnings: list[StringBTError] = field(default_factory=list)
     _nodes: Nodes | None = field(default=None, repr=False, compare=False)
     by: str = "text"
-    """How it was made: ``text`` (the whole text read), ``leaf``, ``tag`` or ``blanks``."""
+    """How it was made: ``text`` (the whole text read), ``leaf``, ``tag``, ``blanks`` or
+    ``comment``."""
 
     def nodes(self) -> Nodes | None:
         if self._nodes is None and self.tree is not None:
@@ -246,7 +265,7 @@ def _recheck(
     if old.startswith("\ufeff") or any(isinstance(p, LimitError) for p in previous.found):
         return None
     edit = _Edit(previous, tree, text, registry, start, old_end, new_end)
-    return edit.in_leaf() or edit.in_tag() or edit.in_blanks()
+    return edit.in_leaf() or edit.in_tag() or edit.in_blanks() or edit.in_comment()
 
 
 @dataclass
@@ -401,6 +420,51 @@ class _Edit:
             return None
         return self._rebuilt(nodes, -1, None, *self._moved(nodes), "blanks")
 
+    def in_comment(self) -> Checked | None:
+        """An edit inside a comment's text (after its ``#``, no line broken): the same tree,
+        with that comment's new text where the old one was."""
+        old, text, start, old_end = self.previous.text, self.text, self.start, self.old_end
+        if "\n" in text[start : self.new_end]:
+            return None
+        line_start = old.rfind("\n", 0, start) + 1
+        token = token_to(old, line_start, old_end)
+        if token is None or token.kind != "comment" or not token.start < start:
+            return None
+        delta = self.new_end - old_end
+        was = comment_text(old[token.start + 1 : token.end])
+        now = comment_text(text[token.start + 1 : token.end + delta])
+        nodes = self.previous.nodes()
+        if nodes is None:
+            return None
+        tree = self.tree
+        if was != now:
+            # Each "#" starts a comment the tree holds, so the one comment held with the old
+            # text is the one edited.
+            held = [i for i, c in enumerate(nodes.comments) if c[3] == was]
+            if len(held) != 1 or old.count("#") != len(nodes.comments):
+                return None
+            at, where, k, _ = nodes.comments[held[0]]
+            comments = nodes.comments[:]
+            comments[held[0]] = (at, where, k, now)
+            nodes = nodes.but(comments=comments)
+            if at < 0:
+                tree = Tree(tree.root, footer=_put(tree.footer, k, now))
+            else:
+                node = self._node(nodes, at)
+                notes = cast(Comments, node.comments)
+                texts = getattr(notes, where)
+                texts = _put(texts, k, now) if isinstance(texts, tuple) else now
+                copy = object.__new__(type(node))
+                copy.__dict__.update(node.__dict__)
+                changes: dict[str, Any] = {where: texts}
+                copy.__dict__["comments"] = replace(notes, **changes)
+                root = _copied(tree.root, 0, nodes.ends, at, copy, 0, 0, nodes.positions)
+                tree = Tree(root, footer=tree.footer)
+        previous = self.previous
+        return _checked(
+            text, self.registry, tree, previous.found, previous.warnings, nodes, "comment"
+        )
+
     def _rebuilt(
         self,
         nodes: Nodes,
@@ -417,7 +481,7 @@ class _Edit:
         previous, tree = self.previous, self.tree
         root = _copied(tree.root, 0, nodes.ends, at, new, lo, hi, positions)
         item = nodes.item if new is None or at else split_item(root) is not None
-        moved = Nodes(positions, nodes.parents, nodes.places, nodes.ends, nodes.placeholder, item)
+        moved = nodes.but(positions=positions, item=item)
         renamed = Tree(root, footer=tree.footer)
         found, warnings = previous.found, previous.warnings
         if lo < hi and new is None:  # the problems of the nodes that moved move with them
@@ -429,6 +493,21 @@ class _Edit:
             found = find_problems(renamed, self.registry)
             warnings = find_warnings(renamed) if moved.warns else []
         return _checked(self.text, self.registry, renamed, found, warnings, moved, by)
+
+
+def _held(at: int, comments: Comments) -> Iterator[tuple[int, str, int, str]]:
+    """A node's comments, as :class:`Nodes` lists them."""
+    for where in ("leading", "end"):
+        for k, text in enumerate(getattr(comments, where)):
+            yield at, where, k, text
+    for where in ("trailing", "end_trailing"):
+        text = getattr(comments, where)
+        if text is not None:
+            yield at, where, 0, text
+
+
+def _put(texts: tuple[str, ...], k: int, text: str) -> tuple[str, ...]:
+    return (*texts[:k], text, *texts[k + 1 :])
 
 
 def _copied(

@@ -298,7 +298,8 @@ BARE_TAGS = ("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>")
 
 def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
     # Edits typed into names (where the previous check is reused), into tags (a container's
-    # kind swapped), into blanks (the nodes after them moved), around them and anywhere, one or
+    # kind swapped), into blanks (the nodes after them moved), into comments, around them and
+    # anywhere, one or
     # several per change, chained as an editor sends them: each check from the one before gives
     # the tree, positions, comments and problems that checking the whole new text gives, and
     # the document's lines are those of its new text.
@@ -371,6 +372,25 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>(Push)<e>\n# end\n", 16, 16, "\n"),  # before the footer
         (flat_tree, flat_tree.index("<a>"), flat_tree.index("<a>"), "\n"),
         (flat_tree, 0, 0, " "),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 2, 3, "x"),  # leading
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 11, 11, "x"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 16, 17, "xy"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 33, 34, ""),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 39, 40, "e e"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 47, 47, "f"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 51, 52, "h"),  # footer
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 1, 1, " "),
+        ("<sq> # b\n<a>(Push) # b\n<e>", 7, 7, "x"),  # two alike: which one?
+        ("<sq> # b\n<a>(Push) # b\n<e>", 21, 21, "x"),
+        ("<Root> # b\n<sq> # b\n<a>(Push)\n<e>", 9, 9, "x"),  # ... the tree drops one
+        ("<sq> # b\n<a>(Push)\n<e>\n# c\n", 23, 23, "x"),  # typed before a comment
+        ('<sq> # b\n<a>(Push, s="#") # c\n<e>', 7, 7, "x"),  # a "#" in a string
+        ("<Root> # r\n<sq> # b\n<a>(Push)\n<e>", 9, 10, "s"),  # a comment the tree drops
+        ("<Root> # r\n<sq> # b\n<a>(Push)\n<e>", 18, 18, "s"),
+        ("<sq><a>(Push, # in\n x=1)<a>(X)\n<e>", 17, 18, "out"),  # it leads the next leaf
+        ("<sq> # b # c\n<a>(Push)\n<e>", 7, 7, "x"),
+        ("<sq> # b\n<a>(Push)\n<e>", 6, 8, ""),  # no text left
+        ("<sq> # b\n<a>(Push)\n<e>", 5, 6, ""),  # the "#" gone: all read
         (flat_tree, 4, 4, "\t "),
     ):
         document = Document("file:///t.sbt", seed)
@@ -405,6 +425,15 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                         end = min(len(text), start + rng.choice((0, 0, 1, 2)))
                         size = rng.choice((0, 1, 1, 3))
                         new = "".join(rng.choice(" \t \n\r") for _ in range(size))
+                    elif "#" in text and roll < 0.5:  # a letter typed into a comment or deleted
+                        start = text.index("#", rng.randrange(text.index("#") + 1))
+                        start = min(len(text), start + rng.choice((1, 2, 3, 5)))
+                        end = start + rng.choice((0, 1)) if start < len(text) else start
+                        new = (
+                            rng.choice(typed[:9] + " ")
+                            if start == end or rng.random() < 0.6
+                            else ""
+                        )
                     elif names and roll < 0.75:  # a letter typed, changed or deleted
                         start = rng.choice(names) + rng.choice((0, 1))
                         end = start + rng.choice((0, 1)) if start < len(text) else start
@@ -436,8 +465,21 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 if checked.tree is None:  # start again from the seed, which parses
                     document = Document("file:///t.sbt", seed)
                     previous = check(seed, registry, None, document.take_edits())
+    # Typing into a comment, letter by letter, reuses the check before each time.
+    text = "<sq> # b\n  <a>(Push)\n<e> # e\n"
+    document = Document("file:///t.sbt", text)
+    previous = check(text, DOOR.registry, None, document.take_edits())
+    for letter in "abc":
+        at = document.position_at(document.text.index(" # e") + 4)
+        change = lsp.TextDocumentContentChangePartial(
+            range=lsp.Range(start=at, end=at), text=letter
+        )
+        document.apply([change], document.version + 1)
+        previous = check(document.text, DOOR.registry, previous, document.take_edits())
+        assert previous.by == "comment"
+        assert _seen(previous) == _seen(check(document.text, DOOR.registry))
     # Each way of reusing the check before was taken, many times.
-    assert min(reused.get(by, 0) for by in ("leaf", "tag", "blanks")) > 200, reused
+    assert min(reused.get(by, 0) for by in ("leaf", "tag", "blanks", "comment")) > 150, reused
 
 
 def test_the_fuzzers_corpus_goes_through_every_feature_without_an_exception() -> None:

@@ -12,13 +12,13 @@ Against it, on the 51-node reference tree:
   document's vocabulary (``KtbtServer.known``: a ``stat`` of each settings file and of the
   vocabulary, never a read while they are unchanged), check the text from the previous check
   (``diagnostics.check``: the one leaf read again and validated when the edit is inside its
-  parentheses, the container's kind swapped and the tree validated again when it is inside a
-  tag, the nodes moved when it is blanks, the whole text otherwise), and turn each problem into
-  an LSP diagnostic;
+  tag or parentheses, the container's kind swapped and the tree validated again when it is
+  inside a container's tag, the nodes moved when it is blanks, the comment's text replaced when
+  it is inside one, the whole text otherwise), and turn each problem into an LSP diagnostic;
 - **server, over stdio**: a real server process, from writing the ``didChange`` to reading its
   ``publishDiagnostics``, JSON and pipes included.
 
-Six keystrokes, each against ``ktbt check`` of the very text the server checks:
+Eight keystrokes, each against ``ktbt check`` of the very text the server checks:
 
 - **a letter changed in a name** (``Act0a`` to ``Act0b`` and back, compact form): the target's
   measure (issue 34: at most one ``ktbt check``);
@@ -31,7 +31,10 @@ Six keystrokes, each against ``ktbt check`` of the very text the server checks:
 - **a line break typed, then deleted** (between two leaves, compact form): the nodes after it
   move to other lines;
 - **a letter typed into a comment, then deleted** (the pretty form under a comment line): the
-  whole text is checked again, what any other edit costs (a ``<e>``, a leaf's tag...).
+  comment's new text put in the tree;
+- **a leaf's tag changed** (``<c>`` to ``<a>`` and back): the leaf read again;
+- **a leaf commented out, then back** (a ``#`` typed before it, pretty form): the whole text is
+  checked again, what any other edit costs (a ``<e>``, a text that does not parse...).
 
 The in-process cases are measured ``--runs`` times (interleaved rounds each); the figures are
 the medians of the runs' medians, with each run's ratio. And a 1 MB file (the parse
@@ -292,6 +295,8 @@ KEYSTROKES = (
     "a blank typed into an indentation",
     "a line break typed",
     "a letter typed into a comment",
+    "a leaf's tag changed",
+    "a leaf commented out",
 )
 
 
@@ -319,6 +324,8 @@ def run(
                 KEYSTROKES[3]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)") - 2, " "),
                 KEYSTROKES[4]: Keystrokes(tree, text, text.index("<a>(Act0a)"), "\n"),
                 KEYSTROKES[5]: Keystrokes(tree, commented, commented.index("tree"), "x"),
+                KEYSTROKES[6]: Keystrokes(tree, text, text.index("<c>(Cond0a)") + 1, "ca"),
+                KEYSTROKES[7]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)"), "#"),
             }
 
         keys, staged = keystrokes(), keystrokes()

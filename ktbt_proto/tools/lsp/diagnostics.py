@@ -18,15 +18,16 @@ is added or removed, the text has no byte order mark, the previous check reached
 limit is a whole-tree matter) and the parser reads, around the edit, the same tokens as before
 (spec/stringbt.md section 2: blanks and comments may stand between any two tokens).
 
-- **Inside one leaf's parentheses** (typing ``MoveTo`` letter by letter, or ``degrees=60`` into
-  ``degrees=600``): that leaf's token is read again, put in the tree in place of the old one
-  and validated alone. The old token (found by its own reading, strings whole) reads alone as
-  the very leaf the tree holds there, and the new one as one leaf of the same kind, without a
-  comment in it; no line comes or goes, and when the length changes no other node starts after
-  the edit on its line, so every other node keeps its position; what ``find_problems`` says of
-  a leaf depends on that leaf alone (its name, arguments and the vocabulary); warnings
-  (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no placeholder and a root
-  that is no item has none, whatever its leaves hold; otherwise they are looked for again in
+- **Inside one leaf's tag or parentheses** (typing ``MoveTo`` letter by letter, ``degrees=60``
+  into ``degrees=600``, ``<c>`` into ``<a>``): that leaf's token is read again, put in the tree
+  in place of the old one and validated alone. The old token (found by its own reading,
+  strings whole) reads alone as the very leaf the tree holds there, and the new one as one
+  leaf, without a comment in it; no line comes or goes, and when the length changes no other
+  node starts after the edit on its line, so every other node keeps its position; what
+  ``find_problems`` says of a leaf depends on that leaf alone (its name, arguments and the
+  vocabulary); warnings (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no
+  placeholder and a root that is no item has none, whatever its leaves hold (whether the root
+  is an item is found again when a leaf changes kind); otherwise they are looked for again in
   the new tree.
 - **Inside a container's tag** (``<sq>`` to ``<sl>``, ``<msq>``, ``<pl>``, ``<neg>``...): when
   the old and the new token are both tags that make a container's whole head (``<sq>``,
@@ -53,8 +54,9 @@ limit is a whole-tree matter) and the parser reads, around the edit, the same to
   starts one of them (none in a string, none dropped), so the one comment held with the old
   text, when only one is, is the one edited. Problems and positions stay.
 
-Any other edit (a ``<e>``, a leaf's tag, a ``#`` typed...), a text that did not parse, or
-another vocabulary, and the whole text is checked, exactly as ``ktbt check`` does.
+Any other edit (a ``#`` typed or deleted, a ``<e>``, a line broken beside a comment...), a text
+that did not parse, or another vocabulary, and the whole text is checked, exactly as ``ktbt
+check`` does.
 """
 
 from __future__ import annotations
@@ -326,14 +328,15 @@ class _Edit:
         return lo, hi, moved
 
     def in_leaf(self) -> Checked | None:
-        """An edit inside one leaf's parentheses: that leaf read again and validated alone."""
+        """An edit inside one leaf's tag or parentheses: that leaf read again and validated
+        alone."""
         old, text, start = self.previous.text, self.text, self.start
         if "\n" in old[start : self.old_end] or "\n" in text[start : self.new_end]:
             return None  # a line comes or goes
         tag = old.rfind("<", 0, start)
         head = next((h for h in _LEAF_HEADS if old.startswith(h, tag)), None) if tag >= 0 else None
-        if head is None or start < tag + len(head):
-            return None  # not inside a leaf's parentheses (a tag, a blank...)
+        if head is None:
+            return None  # not inside a leaf (a container's tag, a blank...)
         close = leaf_end(old, tag + len(head))
         if close is None or self.old_end >= close:
             return None
@@ -355,7 +358,7 @@ class _Edit:
             was, now = parse(old[tag:close]).root, parse(text[tag : close + delta]).root
         except StringBTError:
             return None  # the leaf is no longer one leaf
-        if was != leaf or type(now) is not kind or now.comments is not None:
+        if was != leaf or type(now) not in _LEAVES or now.comments is not None:
             return None
         now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
         tree = self.tree
@@ -365,6 +368,8 @@ class _Edit:
         found = [p for p in self.previous.found if (p.line, p.column) != pos]
         found.extend(find_problems(now, self.registry))
         found.sort(key=lambda p: (p.line, p.column))
+        if type(now) is not kind:  # a condition that leads an item, or an action...
+            nodes = nodes.but(item=split_item(root) is not None)
         warnings = find_warnings(renamed) if nodes.warns else []
         return _checked(text, self.registry, renamed, found, warnings, nodes, "leaf")
 

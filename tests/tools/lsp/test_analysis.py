@@ -329,6 +329,17 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>(Push, x=1)<e>", 17, 17, ", y=2"),
         ("<sq><a>(Push, x=1)<e>", 17, 17, ") <a>(Y"),  # two leaves now
         ("<sq>\n<a>(Push\n)<e>", 13, 13, "#c"),  # a comment in it: it moves to the next node
+        ("<sq><a>(Push)<c>(DoorClosed)<e>", 14, 15, "a"),  # a condition becomes an action
+        ("<sq><c>(Push)<a>(DoorClosed)<e>", 5, 6, "a"),  # ... which the vocabulary lacks
+        ("<sl><a>(DoorClosed)<a>(Push)<e>", 5, 6, "c"),  # the root is still no item
+        ("<sq><a>(DoorClosed)<a>(Push)<e>", 5, 6, "c"),  # it becomes one
+        ("<sq><c>(DoorClosed)<a>(Push)<e>", 5, 6, "a"),  # it is no longer one
+        ("<sq><a>(DoorClosed)" + FLAT[19:], 5, 6, "c"),  # ... one with the SBT502 trap
+        (FLAT, 5, 6, "a"),
+        ("<sq><c>(!DoorClosed)<a>(Push)<e>", 5, 6, "a"),  # an action is never negated
+        ("<sq><w>(5)<a>(Push)<e>", 6, 6, "t"),  # seconds: the leaf after it would move
+        ("<sq><w>(5)\n<a>(Push)<e>", 6, 6, "t"),
+        ("<sq><a>(Push)<e>", 5, 6, "k"),  # SBT102
         ("<sq><a>(Push)<e>", 2, 3, "l"),  # a sequence becomes a selector
         ("<sq><a>(Push)<e>", 1, 1, "m"),  # ... a memory sequence, the leaf after it moves
         ("<sq><a>(Push)<e>", 1, 3, "neg"),  # ... an inverter: one child, so still valid

@@ -248,7 +248,7 @@ def _recheck(
     previous: Checked, text: str, registry: SupportsNames | None, prefix: int, suffix: int
 ) -> Checked | None:
     """The check of ``text`` from ``previous``'s, when the edit between them lies inside one
-    leaf's parentheses, inside one container's tag, or in one run of blanks (see the module's
+    leaf, inside one container's tag, in blanks or in a comment's text (see the module's
     docstring); None when it does not."""
     old, tree = previous.text, previous.tree
     if tree is None or previous.registry is not registry or len(text) > DEFAULT_LIMITS.max_size:
@@ -272,7 +272,7 @@ def _recheck(
 
 @dataclass
 class _Edit:
-    """One edit of a checked text that parsed: where it is, and the three ways of checking the
+    """One edit of a checked text that parsed: where it is, and the four ways of checking the
     new text from the old check."""
 
     previous: Checked

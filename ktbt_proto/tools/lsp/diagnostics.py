@@ -22,8 +22,8 @@ limit is a whole-tree matter) and the parser reads, around the edit, the same to
   into ``degrees=600``, ``<c>`` into ``<a>``): that leaf's token is read again, put in the tree
   in place of the old one and validated alone. The old token (found by its own reading,
   strings whole) reads alone as the very leaf the tree holds there, and the new one as one
-  leaf, without a comment in it; no line comes or goes, and when the length changes no other
-  node starts after the edit on its line, so every other node keeps its position; what
+  leaf, without a comment in it; no line comes or goes, and the nodes after the edit on its line
+  move by the change of length (their problems found again when one has some); what
   ``find_problems`` says of a leaf depends on that leaf alone (its name, arguments and the
   vocabulary); warnings (``SBT501``, ``SBT502``) are only about knowledge items: a tree with no
   placeholder and a root that is no item has none, whatever its leaves hold (whether the root
@@ -344,16 +344,12 @@ class _Edit:
         found_at = None if nodes is None else self._node_at(nodes, tag)
         if nodes is None or found_at is None:
             return None
-        at, line, _ = found_at
+        at = found_at[0]
         leaf = self._node(nodes, at)
         kind = type(leaf)
         delta = self.new_end - self.old_end
-        edited_line = line + old.count("\n", tag, start)
-        positions = nodes.positions
-        if kind not in _LEAVES or (
-            delta and at + 1 < len(positions) and positions[at + 1][0] == edited_line
-        ):
-            return None  # not a leaf, or the nodes after it on the edited line would move
+        if kind not in _LEAVES:
+            return None
         try:
             was, now = parse(old[tag:close]).root, parse(text[tag : close + delta]).root
         except StringBTError:
@@ -362,12 +358,18 @@ class _Edit:
             return None
         now.__dict__["pos"], now.__dict__["comments"] = leaf.pos, leaf.comments
         tree = self.tree
-        root = _copied(tree.root, 0, nodes.ends, at, now, 0, 0, nodes.positions)
+        lo, hi, positions = self._moved(nodes) if delta else (0, 0, nodes.positions)
+        root = _copied(tree.root, 0, nodes.ends, at, now, lo, hi, positions)
         renamed = Tree(root, footer=tree.footer)
         pos = leaf.pos
         found = [p for p in self.previous.found if (p.line, p.column) != pos]
         found.extend(find_problems(now, self.registry))
         found.sort(key=lambda p: (p.line, p.column))
+        if lo < hi:  # the nodes after it on its line moved, and their problems with them
+            first, last = nodes.positions[lo], nodes.positions[hi - 1]
+            if any(first <= (p.line, p.column) <= last for p in found):
+                found = find_problems(renamed, self.registry)
+            nodes = nodes.but(positions=positions)
         if type(now) is not kind:  # a condition that leads an item, or an action...
             nodes = nodes.but(item=split_item(root) is not None)
         warnings = find_warnings(renamed) if nodes.warns else []

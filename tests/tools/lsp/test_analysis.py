@@ -316,6 +316,8 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>(Push)<e>", 12, 12, "."),
         ("<sq><a>(Push)<e>", 8, 8, "9"),
         ("<sq><c>(!Door)<a>(Push)<e>", 13, 13, "s"),  # the next node moves
+        ("<sq><a>(Push)<a>(X)<e>", 11, 11, "x"),  # ... with its problem (SBT306)
+        ("<sq><a>(Pus)<a>(X)<e>", 11, 11, "h"),
         ("<sq>\r<a>(Push)\n<e>", 14, 14, "x"),
         ("<sq><a>(Push)<e>", 8, 12, ""),
         (FLAT, FLAT.index("60"), FLAT.index("60") + 1, "9"),  # an argument's value

@@ -18,12 +18,13 @@ Against it, on the 51-node reference tree:
 - **server, over stdio**: a real server process, from writing the ``didChange`` to reading its
   ``publishDiagnostics``, JSON and pipes included.
 
-Eight keystrokes, each against ``ktbt check`` of the very text the server checks:
+Nine keystrokes, each against ``ktbt check`` of the very text the server checks:
 
 - **a letter changed in a name** (``Act0a`` to ``Act0b`` and back, compact form): the target's
   measure (issue 34: at most one ``ktbt check``);
 - **a letter typed into a name, then deleted** (``Act0a`` to ``Act0ax`` and back, pretty form):
   a name's length changes, the nodes on other lines keep their positions;
+- **the same in the compact form**: the nodes after it, all on its one line, move;
 - **a letter changed in a tag** (``<sq>`` to ``<sl>`` and back): a sequence becomes a selector,
   the tree is validated again without being read;
 - **a blank typed into an indentation, then deleted** (pretty form): the nodes after it on its
@@ -291,6 +292,7 @@ STAGES = (
 KEYSTROKES = (
     "a letter changed in a name",
     "a letter typed into a name",
+    "a letter typed into a name, compact form",
     "a letter changed in a tag",
     "a blank typed into an indentation",
     "a line break typed",
@@ -320,12 +322,13 @@ def run(
             return {
                 KEYSTROKES[0]: Keystrokes(tree, text, text.index("Act0a") + 4, "ab"),
                 KEYSTROKES[1]: Keystrokes(tree, pretty, pretty.index("Act0a") + 5, "x"),
-                KEYSTROKES[2]: Keystrokes(tree, text, text.index("<sq>", 4) + 2, "ql"),
-                KEYSTROKES[3]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)") - 2, " "),
-                KEYSTROKES[4]: Keystrokes(tree, text, text.index("<a>(Act0a)"), "\n"),
-                KEYSTROKES[5]: Keystrokes(tree, commented, commented.index("tree"), "x"),
-                KEYSTROKES[6]: Keystrokes(tree, text, text.index("<c>(Cond0a)") + 1, "ca"),
-                KEYSTROKES[7]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)"), "#"),
+                KEYSTROKES[2]: Keystrokes(tree, text, text.index("Act0a") + 5, "x"),
+                KEYSTROKES[3]: Keystrokes(tree, text, text.index("<sq>", 4) + 2, "ql"),
+                KEYSTROKES[4]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)") - 2, " "),
+                KEYSTROKES[5]: Keystrokes(tree, text, text.index("<a>(Act0a)"), "\n"),
+                KEYSTROKES[6]: Keystrokes(tree, commented, commented.index("tree"), "x"),
+                KEYSTROKES[7]: Keystrokes(tree, text, text.index("<c>(Cond0a)") + 1, "ca"),
+                KEYSTROKES[8]: Keystrokes(tree, pretty, pretty.index("<a>(Act0a)"), "#"),
             }
 
         keys, staged = keystrokes(), keystrokes()

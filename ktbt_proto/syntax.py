@@ -258,13 +258,13 @@ _ARG_FIELD = {"<pl>": "threshold", "<tt1>": "ticks", "<tt2>": "ticks", "<k>": "n
 def _tail_comments(span: str) -> list[str]:
     """Comments written inside a node's parentheses (rare): they move to the next node."""
     return [
-        _comment_text(m.group("c"))
+        comment_text(m.group("c"))
         for m in _COMMENT_OR_STRING.finditer(span)
         if m.group("c") is not None
     ]
 
 
-def _comment_text(raw: str) -> str:
+def comment_text(raw: str) -> str:
     """A comment's text: without the '#', one space after it, or trailing blanks."""
     raw = raw.rstrip()
     return raw[1:] if raw.startswith(" ") else raw
@@ -300,7 +300,7 @@ def _parse_fast(text: str, limits: Limits) -> Tree | None:
         col = offset - line_start + 1
         if com:
             offset += len(com)
-            comment = _comment_text(com[1:])
+            comment = comment_text(com[1:])
             if last_line != line:
                 pending.append(comment)
             elif last_frame is not None:

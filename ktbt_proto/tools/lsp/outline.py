@@ -249,6 +249,17 @@ def leaf_end(text: str, at: int) -> int | None:
     return None
 
 
+def token_to(text: str, line_start: int, offset: int) -> Token | None:
+    """The first token that ends at or after ``offset`` (the one holding it, or the one just
+    before it when tokens meet there), read from the start of its line, ``line_start``: only
+    blanks span lines (a string or a comment stops at a line's end), so the tokens read from
+    there are the text's. None when the text ends first."""
+    for match in _TOKEN.finditer(text, line_start):
+        if match.end() >= offset:
+            return Token(match.lastgroup, match.start(), match.end(), match.group())  # type: ignore[arg-type]
+    return None
+
+
 def token_at(text: str, offset: int) -> Token | None:
     """The token that starts at ``offset`` (None at the end of the text)."""
     match = _TOKEN.match(text, offset)

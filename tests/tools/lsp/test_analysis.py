@@ -293,23 +293,31 @@ def _said(error: StringBTError) -> tuple[object, ...]:
     return type(error), error.code, error.message, error.line, error.column
 
 
+BARE_TAGS = ("<sq>", "<msq>", "<sl>", "<msl>", "<pl>", "<neg>")
+
+
 def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
-    # Edits typed into names (where the previous check is reused), around them and anywhere,
-    # one or several per change, chained as an editor sends them: each check from the one
-    # before gives the tree, positions, comments and problems that checking the whole new text
-    # gives, and the document's lines are those of its new text.
+    # Edits typed into names (where the previous check is reused), into tags (a container's
+    # kind swapped), into blanks (the nodes after them moved), into comments, around them and
+    # anywhere, one or
+    # several per change, chained as an editor sends them: each check from the one before gives
+    # the tree, positions, comments and problems that checking the whole new text gives, and
+    # the document's lines are those of its new text.
     corpus = fuzz.load_corpus()
     rng = random.Random(1)
     seeds = [FLAT, MEMORY, "<sq>\r\n  <a>(Push) # go\r\n  <c>(!DoorClosed)\r<a>(P)\n<e>\n"]
     seeds += [t for t in corpus.texts + corpus.pieces if len(t) < 3_000]
     seeds += [format_tree(parse(FLAT)), "<k>(door)\n    " + MEMORY + "\n    <a>(Push)\n<e>\n"]
     typed = 'abzAZ_09.!<>(),="# \n\ré😀'
-    reused = 0
-    for seed, start, end, new in (  # edits inside a leaf and beside it
+    reused: dict[str, int] = {}
+    flat_tree = format_tree(parse(FLAT), "compact")
+    for seed, start, end, new in (  # edits inside a leaf, a tag, blanks, and beside them
         ("<sq><a>(trux)<e>", 11, 12, "e"),  # a word that is no name: SBT103
         ("<sq><a>(Push)<e>", 12, 12, "."),
         ("<sq><a>(Push)<e>", 8, 8, "9"),
         ("<sq><c>(!Door)<a>(Push)<e>", 13, 13, "s"),  # the next node moves
+        ("<sq><a>(Push)<a>(X)<e>", 11, 11, "x"),  # ... with its problem (SBT306)
+        ("<sq><a>(Pus)<a>(X)<e>", 11, 11, "h"),
         ("<sq>\r<a>(Push)\n<e>", 14, 14, "x"),
         ("<sq><a>(Push)<e>", 8, 12, ""),
         (FLAT, FLAT.index("60"), FLAT.index("60") + 1, "9"),  # an argument's value
@@ -323,6 +331,80 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         ("<sq><a>(Push, x=1)<e>", 17, 17, ", y=2"),
         ("<sq><a>(Push, x=1)<e>", 17, 17, ") <a>(Y"),  # two leaves now
         ("<sq>\n<a>(Push\n)<e>", 13, 13, "#c"),  # a comment in it: it moves to the next node
+        ("<sq><a>(Push)<c>(DoorClosed)<e>", 14, 15, "a"),  # a condition becomes an action
+        ("<sq><c>(Push)<a>(DoorClosed)<e>", 5, 6, "a"),  # ... which the vocabulary lacks
+        ("<sl><a>(DoorClosed)<a>(Push)<e>", 5, 6, "c"),  # the root is still no item
+        ("<sq><a>(DoorClosed)<a>(Push)<e>", 5, 6, "c"),  # it becomes one
+        ("<sq><c>(DoorClosed)<a>(Push)<e>", 5, 6, "a"),  # it is no longer one
+        ("<sq><a>(DoorClosed)" + FLAT[19:], 5, 6, "c"),  # ... one with the SBT502 trap
+        (FLAT, 5, 6, "a"),
+        ("<sq><c>(!DoorClosed)<a>(Push)<e>", 5, 6, "a"),  # an action is never negated
+        ("<sq><w>(5)<a>(Push)<e>", 6, 6, "t"),  # seconds: the leaf after it would move
+        ("<sq><w>(5)\n<a>(Push)<e>", 6, 6, "t"),
+        ("<sq><a>(Push)<e>", 5, 6, "k"),  # SBT102
+        ("<sq><a>(Push)<e>", 2, 3, "l"),  # a sequence becomes a selector
+        ("<sq><a>(Push)<e>", 1, 1, "m"),  # ... a memory sequence, the leaf after it moves
+        ("<sq><a>(Push)<e>", 1, 3, "neg"),  # ... an inverter: one child, so still valid
+        ("<sq><a>(Push)<a>(Pull)<e>", 1, 3, "neg"),  # SBT301
+        ("<sl><c>(DoorClosed)<a>(Push)<e>", 2, 3, "q"),  # the root becomes an item
+        ("<sl>" + FLAT[4:], 2, 3, "q"),  # ... with the SBT502 trap
+        (FLAT, 2, 3, "l"),  # ... and is no longer one
+        ("<sq><c>(DoorClosed)<msl><a>(Push)<e><e>", 20, 21, ""),  # flat: the SBT502 trap
+        ("<pl>(1)<a>(Push)<e>", 1, 3, "sq"),  # a threshold after a sequence: SBT103
+        ("<pl> (1)<a>(Push)<e>", 2, 3, "x"),  # SBT102
+        ("<sq><a>(Push)<e>", 14, 15, "k"),  # the <e>: not a container's tag
+        ("<Root><sq><a>(Push)<e>", 8, 9, "l"),
+        ("<sq>\t<a>(Push) # go\n<e>", 4, 4, " "),  # blanks: the leaf moves, not its comment
+        ("<sq> <a>(Push)  <a>(X) # go\n<e>", 15, 16, ""),  # SBT306 moves
+        ("<sq> <a>(Push) <a>(X) # go\n<e>", 14, 15, ""),  # a run of blanks gone
+        ("<sq> <a>(Push) <a>(X)\n<e>", 4, 4, "  "),  # at a token's end: the run grows
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 15, 15, "\t"),  # at the line's start
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 15, 17, ""),  # the indentation gone
+        ("<sq> <a>(Push)\n  <a>(X)\n<e>", 16, 17, "   "),
+        ('<sq><a>(Push, s="a b")<e>', 18, 18, " "),  # in a string: the leaf's
+        ('<sq><a>(Push, s="a b")<a>(X)<e>', 18, 18, " "),  # the leaf after it moves
+        ('<sq><a>(Push, s="a b")<a>(X)<e>', 18, 19, ""),
+        ("<sq><a>(Push) # a b\n<e>", 17, 17, " "),  # in a comment
+        ("<sq><a>(Push) # a b\n<e>", 17, 18, ""),
+        ("<sq><a>(Push) # a  b\n<e>", 17, 18, ""),
+        ("<sq><a>(Push) #  b\n<e>", 15, 16, ""),  # one blank after the "#" is not its text
+        ("<sq><a>(Push) # a \n<e>", 18, 18, " "),  # at a comment's end
+        ("<sq><a>(Push) <e>", 13, 13, " "),  # between two tokens
+        ("<sq><a>Push <e>", 11, 11, " "),
+        ("<sq><a>Push<e>", 11, 11, " "),
+        ("<sq><c> !Door<e>", 7, 8, ""),
+        ("<sq><w> 5<e>", 7, 8, ""),
+        ("<sq> <a>(Push) <a>(X) # go\n<e>", 14, 14, "\n"),  # the comment would lead the <e>
+        ("<sq> <a>(Push)\n<a>(X) # go\n<e>", 14, 15, " "),
+        ("<sq> <a>(Push)\n# go\n<a>(X)\n<e>", 14, 15, ""),  # ... would trail the leaf
+        ("<sq> <a>(Push) # go\n<a>(X)\n<e>", 19, 20, ""),  # ... would hide the leaf
+        ("<sq> <a>(Push)\n\n  <a>(X)\n<e>", 14, 16, " "),  # lines joined
+        ("<sq> <a>(Push)  <a>(X)\n<e>", 15, 15, "\n"),  # a line broken, SBT306 moves
+        ("<sq> <a>(Push,  x=1)<a>(Y)\n<e>", 15, 15, "\r\n"),  # in a leaf, which spans lines
+        ("<sq>\n# go\n  <a>(Push)\n<e>", 10, 10, "\n  "),  # an empty line under the comment
+        ("<sq><a>(Push)<e>\n# end\n", 16, 16, "\n"),  # before the footer
+        (flat_tree, flat_tree.index("<a>"), flat_tree.index("<a>"), "\n"),
+        (flat_tree, 0, 0, " "),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 2, 3, "x"),  # leading
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 11, 11, "x"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 16, 17, "xy"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 33, 34, ""),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 39, 40, "e e"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 47, 47, "f"),
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 51, 52, "h"),  # footer
+        ("# a\n<sq> # b\n  # c\n  <a>(Push) # d\n  # e\n<e> # f\n# g\n", 1, 1, " "),
+        ("<sq> # b\n<a>(Push) # b\n<e>", 7, 7, "x"),  # two alike: which one?
+        ("<sq> # b\n<a>(Push) # b\n<e>", 21, 21, "x"),
+        ("<Root> # b\n<sq> # b\n<a>(Push)\n<e>", 9, 9, "x"),  # ... the tree drops one
+        ("<sq> # b\n<a>(Push)\n<e>\n# c\n", 23, 23, "x"),  # typed before a comment
+        ('<sq> # b\n<a>(Push, s="#") # c\n<e>', 7, 7, "x"),  # a "#" in a string
+        ("<Root> # r\n<sq> # b\n<a>(Push)\n<e>", 9, 10, "s"),  # a comment the tree drops
+        ("<Root> # r\n<sq> # b\n<a>(Push)\n<e>", 18, 18, "s"),
+        ("<sq><a>(Push, # in\n x=1)<a>(X)\n<e>", 17, 18, "out"),  # it leads the next leaf
+        ("<sq> # b # c\n<a>(Push)\n<e>", 7, 7, "x"),
+        ("<sq> # b\n<a>(Push)\n<e>", 6, 8, ""),  # no text left
+        ("<sq> # b\n<a>(Push)\n<e>", 5, 6, ""),  # the "#" gone: all read
+        (flat_tree, 4, 4, "\t "),
     ):
         document = Document("file:///t.sbt", seed)
         previous = check(seed, DOOR.registry, None, document.take_edits())
@@ -330,6 +412,7 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
         document.apply([lsp.TextDocumentContentChangePartial(range=where, text=new)], 1)
         checked = check(document.text, DOOR.registry, previous, document.take_edits())
         assert _seen(checked) == _seen(check(document.text, DOOR.registry)), document.text
+        reused[checked.by] = reused.get(checked.by, 0) + 1
     for seed in seeds:
         for registry in (DOOR.registry, None):
             document = Document("file:///t.sbt", seed)
@@ -339,7 +422,32 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 for _ in range(rng.choice((1, 1, 1, 2))):
                     text = document.text
                     names = [i for i, ch in enumerate(text) if ch.isalnum() or ch == "_"]
-                    if names and rng.random() < 0.7:  # a letter typed, changed or deleted
+                    tags = [i for i in range(len(text)) if text.startswith(BARE_TAGS, i)]
+                    blanks = [i for i, ch in enumerate(text) if ch in " \t\n"]
+                    roll = rng.random()
+                    if tags and roll < 0.15:  # a tag changed, a letter of it or all of it
+                        start = rng.choice(tags)
+                        end = text.index(">", start) + 1
+                        new = rng.choice(BARE_TAGS)
+                        if rng.random() < 0.5:
+                            start, end = start + 1, end - 1
+                            new = new[1:-1]
+                    elif blanks and roll < 0.35:  # blanks typed or deleted beside blanks
+                        start = rng.choice(blanks) + rng.choice((-1, 0, 0, 1))
+                        start = min(max(start, 0), len(text))
+                        end = min(len(text), start + rng.choice((0, 0, 1, 2)))
+                        size = rng.choice((0, 1, 1, 3))
+                        new = "".join(rng.choice(" \t \n\r") for _ in range(size))
+                    elif "#" in text and roll < 0.5:  # a letter typed into a comment or deleted
+                        start = text.index("#", rng.randrange(text.index("#") + 1))
+                        start = min(len(text), start + rng.choice((1, 2, 3, 5)))
+                        end = start + rng.choice((0, 1)) if start < len(text) else start
+                        new = (
+                            rng.choice(typed[:9] + " ")
+                            if start == end or rng.random() < 0.6
+                            else ""
+                        )
+                    elif names and roll < 0.75:  # a letter typed, changed or deleted
                         start = rng.choice(names) + rng.choice((0, 1))
                         end = start + rng.choice((0, 1)) if start < len(text) else start
                         new = rng.choice(typed[:9]) if start == end or rng.random() < 0.7 else ""
@@ -365,12 +473,26 @@ def test_a_check_after_an_edit_says_what_checking_the_whole_text_says() -> None:
                 checked = check(document.text, registry, previous, document.take_edits())
                 whole = check(document.text, registry)
                 assert _seen(checked) == _seen(whole), (seed, document.text)
-                reused += checked.nodes() is previous.nodes() is not None
+                reused[checked.by] = reused.get(checked.by, 0) + 1
                 previous = checked
                 if checked.tree is None:  # start again from the seed, which parses
                     document = Document("file:///t.sbt", seed)
                     previous = check(seed, registry, None, document.take_edits())
-    assert reused > 1_000  # the edits in names did reuse the check before them
+    # Typing into a comment, letter by letter, reuses the check before each time.
+    text = "<sq> # b\n  <a>(Push)\n<e> # e\n"
+    document = Document("file:///t.sbt", text)
+    previous = check(text, DOOR.registry, None, document.take_edits())
+    for letter in "abc":
+        at = document.position_at(document.text.index(" # e") + 4)
+        change = lsp.TextDocumentContentChangePartial(
+            range=lsp.Range(start=at, end=at), text=letter
+        )
+        document.apply([change], document.version + 1)
+        previous = check(document.text, DOOR.registry, previous, document.take_edits())
+        assert previous.by == "comment"
+        assert _seen(previous) == _seen(check(document.text, DOOR.registry))
+    # Each way of reusing the check before was taken, many times.
+    assert min(reused.get(by, 0) for by in ("leaf", "tag", "blanks", "comment")) > 150, reused
 
 
 def test_the_fuzzers_corpus_goes_through_every_feature_without_an_exception() -> None:

@@ -42,6 +42,7 @@ __all__ = [
     "read_sequence",
     "sequence_digest",
     "sequence_key",
+    "show_key",
     "show_sequence",
     "split_item",
     "stray_nodes",
@@ -105,7 +106,7 @@ def show_sequence(sequence: str | Iterable[Condition]) -> str:
     return ", ".join(parts)
 
 
-def shown(key: str) -> str:
+def show_key(key: str) -> str:
     """A sequence key as people read and type it (``TargetSeen(colour=2)``); a key that does
     not parse (a hostile peer's catalog) is shown quoted, as it came."""
     try:

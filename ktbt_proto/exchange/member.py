@@ -31,7 +31,7 @@ from ktbt_proto.exchange.backoff import Backoff
 from ktbt_proto.exchange.knowledge import KnowledgeBase
 from ktbt_proto.exchange.messages import MAX_MORE, Query
 from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
-from ktbt_proto.items import parse_sequence, sequence_key, shown
+from ktbt_proto.items import parse_sequence, sequence_key, show_key
 from ktbt_proto.registry import Registry
 from ktbt_proto.tree import SequenceNode
 from ktbt_proto.validate import find_problems
@@ -168,12 +168,13 @@ class ListedSequences:
                     log.info(
                         "%s: not asking for %s, listed by %s: its vocabulary cannot execute it "
                         "(%s %s)",
-                        self.name, shown(given), peer[:64], problems[0].code, problems[0].message,
+                        self.name, show_key(given), peer[:64], problems[0].code,
+                        problems[0].message,
                     )  # fmt: skip
                     continue
                 self.found.append(key)
                 new.append(key)
-                self.say(f"{self.name}: will meet {shown(key)} (listed by {peer[:64]})")
+                self.say(f"{self.name}: will meet {show_key(key)} (listed by {peer[:64]})")
         return new
 
 
@@ -354,7 +355,7 @@ class FleetMember:
         learned = [k for k in agent.metrics.learned if k not in self._reported]
         for key in learned:
             tick, source = agent.metrics.learned[key]
-            self.say(f"{agent.name}: learned {shown(key)} from {source} at tick {tick}")
+            self.say(f"{agent.name}: learned {show_key(key)} from {source} at tick {tick}")
             self._reported.add(key)
         if learned and self.relay is not None:
             self.relay.learned(learned)

@@ -33,7 +33,7 @@ from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
 from ktbt_proto.interop.sidecar import LearnedExport
-from ktbt_proto.items import sequence_key, show_sequence, shown
+from ktbt_proto.items import sequence_key, show_key, show_sequence
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.zenoh import (
     ZenohCatalogs,
@@ -133,7 +133,7 @@ def serve(
         knowledge,
         answers(knowledge, security.identity),
         member.overhear,
-        lambda a: say(f"{member.name}: learned {shown(a.sequence)} from {a.sender} (overheard)"),
+        lambda a: say(f"{member.name}: learned {show_key(a.sequence)} from {a.sender} (overheard)"),
         security=security,
         registry=registry,
     )
@@ -366,7 +366,7 @@ def list_peers(name: str, settings: ZenohSettings, timeout: float, say: Say) -> 
         entries = detail.get(peer) or [{"sequence": key} for key in known]
         for entry in entries:
             origin = [f"{k} {entry[k]}" for k in ("author", "teacher", "received_at") if k in entry]
-            say(f"  {shown(entry['sequence'])}" + (f"  ({', '.join(origin)})" if origin else ""))
+            say(f"  {show_key(entry['sequence'])}" + (f"  ({', '.join(origin)})" if origin else ""))
     if not found:
         say("no peers found")
     return 0 if found else 1

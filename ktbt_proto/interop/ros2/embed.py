@@ -56,7 +56,7 @@ from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
 from ktbt_proto.interop.ros2.logs import hear, speaking, unhear
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, ShownTopics
-from ktbt_proto.items import read_sequence, sequence_key, shown
+from ktbt_proto.items import read_sequence, sequence_key, show_key
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.ros2 import Ros2Transport, Topics, open_to_strangers, robot_name
 from ktbt_proto.tree import Condition, Placeholder, SequenceNode
@@ -255,7 +255,7 @@ class Embedded:
                 where = item_slot(names, item.segment, slot)
                 if not self._control.merge(item.subtree, where, item.conditions):
                     self.node.get_logger().warning(
-                        f"{self.name}: {shown(item.key)} not merged: k:{where} admits no other "
+                        f"{self.name}: {show_key(item.key)} not merged: k:{where} admits no other "
                         "item for its conditions"
                     )
                     continue

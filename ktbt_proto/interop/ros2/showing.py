@@ -41,7 +41,7 @@ from ktbt_proto.exchange.refusals import Throttle, guarded, internal_error
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.items import read_sequence, sequence_key, shown
+from ktbt_proto.items import read_sequence, sequence_key, show_key
 from ktbt_proto.transport.cdr import BOUNDS
 from ktbt_proto.transport.ros2 import NAME, quiet, watched
 from ktbt_proto.tree import Tree
@@ -331,13 +331,13 @@ class Services:
         item = agent.knowledge.lookup(key)
         if not agent.forget(key):
             if item is None:
-                return refuse(Forget.Response.NOT_KNOWN, f"{shown(key)} is not known")
+                return refuse(Forget.Response.NOT_KNOWN, f"{show_key(key)} is not known")
             return refuse(
                 Forget.Response.INNATE,
-                f"{shown(key)} is innate: only learned items are forgotten",
+                f"{show_key(key)} is innate: only learned items are forgotten",
             )
         response.success, response.code = True, Forget.Response.FORGOTTEN
-        logger.info(f"{agent.name}: forgot {shown(key)} (asked)")
+        logger.info(f"{agent.name}: forgot {show_key(key)} (asked)")
         self.member.forgot(key)
         self.changed()
         return response

@@ -158,7 +158,7 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         t0 = time.monotonic()
         # Its first step asks (a broadcast, which the liar gets) and starts hearing.
         while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 15
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t0)
         # Bad bytes, the wrong shape, a name no peer has, too large: each a counted refusal.
         bad = [b"\xff", b"[]", b'{"v": 1}', b'["<c>(A)", "<c>(A)"]', b"[" + b" " * 70_000 + b"]"]
@@ -183,7 +183,7 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         assert len(queries) == 1
         t1 = t0 + RELAY_GRACE
         while len(queries) < 2:
-            assert time.monotonic() < t0 + 15
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t1)
         heard = network.announcements
         for _ in range(100):
@@ -195,7 +195,7 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements > heard + 1)
         while len(queries) < 3:  # once the hold is over, one more
-            assert time.monotonic() < t0 + 15
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t1 + RELAY_HOLD)
         # A flood of announcers, 300 names each announcing one of the four sequences: those
         # beyond the 256 waiting are refused; one announcer of each sequence is asked, alone.
@@ -231,7 +231,7 @@ def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> 
         stack.callback(lies.undeclare)
         t0 = time.monotonic()
         while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 15
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t0)
         query = learner.agent.open_query
         assert query is not None

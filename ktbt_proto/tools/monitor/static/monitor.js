@@ -361,12 +361,40 @@
   }
 
   const COLOURS = ["#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#e6ab02", "#a6761d", "#666666"];
+  const DASHES = [[], [8, 4], [2, 3], [10, 3, 2, 3]];
+  // Lines that coincide (items spreading together) stay told apart: each has its colour and
+  // dash, and the earlier ones are drawn wider, so a later line lies inside an earlier one.
+  function lineStyle(ctx, i, n) {
+    ctx.strokeStyle = COLOURS[i % COLOURS.length];
+    ctx.setLineDash(DASHES[i % DASHES.length]);
+    ctx.lineWidth = 1.5 + Math.max(0, Math.min(n, 4) - 1 - i);
+  }
+  function swatch(i, n) {
+    const c = el("canvas");
+    c.width = 28;
+    c.height = 10;
+    const ctx = c.getContext("2d");
+    lineStyle(ctx, i, n);
+    ctx.beginPath();
+    ctx.moveTo(0, 5);
+    ctx.lineTo(28, 5);
+    ctx.stroke();
+    return c;
+  }
 
+  // The plot fills its canvas, sized to the box the page gives it (so the page never overflows);
+  // the axis titles and the legend are elements beside and under it, never over the lines.
   function drawTimeline() {
     dirty.timeline = false;
     const canvas = document.getElementById("timeline");
+    const ratio = window.devicePixelRatio || 1;
+    const cssW = Math.max(120, canvas.clientWidth);
+    const cssH = Math.max(80, canvas.clientHeight);
+    if (canvas.width !== Math.round(cssW * ratio)) canvas.width = Math.round(cssW * ratio);
+    if (canvas.height !== Math.round(cssH * ratio)) canvas.height = Math.round(cssH * ratio);
     const ctx = canvas.getContext("2d");
-    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+    ctx.clearRect(0, 0, cssW, cssH);
     let t0 = Infinity;
     let t1 = -Infinity;
     for (const line of model.timeline.values())
@@ -376,39 +404,68 @@
       }
     const legend = [];
     const total = Math.max(1, model.peers.size);
-    const w = canvas.width - 40;
-    const h = canvas.height - 30;
-    ctx.strokeStyle = "#999";
-    ctx.strokeRect(30, 10, w, h);
-    ctx.fillStyle = "#444";
+    const left = 34;
+    const top = 8;
+    const w = cssW - left - 10;
+    const h = cssH - top - 20;
     ctx.font = "11px sans-serif";
-    ctx.fillText(String(total), 4, 18);
-    ctx.fillText("0", 4, 10 + h);
+    ctx.fillStyle = "#444";
+    ctx.strokeStyle = "#e3e3e3";
+    ctx.lineWidth = 1;
+    ctx.textAlign = "right";
+    ctx.textBaseline = "middle";
+    for (const share of [0, 0.25, 0.5, 0.75, 1]) {
+      const y = top + h - share * h;
+      ctx.beginPath();
+      ctx.moveTo(left, y);
+      ctx.lineTo(left + w, y);
+      ctx.stroke();
+      ctx.fillText(String(Math.round(share * total)), left - 4, y);
+    }
+    ctx.strokeStyle = "#999";
+    ctx.strokeRect(left, top, w, h);
+    ctx.textBaseline = "top";
+    const span = t0 < Infinity ? Math.max(1000, t1 - t0) : 1000;
+    for (const share of [0, 0.5, 1]) {
+      ctx.textAlign = share === 0 ? "left" : share === 1 ? "right" : "center";
+      ctx.fillText(((share * span) / 1000).toFixed(1), left + share * w, top + h + 4);
+    }
     if (t0 < Infinity) {
-      const span = Math.max(1000, t1 - t0);
-      ctx.fillText(((t1 - t0) / 1000).toFixed(1) + " s", 30 + w - 40, 24 + h);
+      const n = model.timeline.size;
       let i = 0;
       for (const [item, line] of model.timeline) {
-        const colour = COLOURS[i++ % COLOURS.length];
-        ctx.strokeStyle = colour;
+        ctx.save();
         ctx.beginPath();
-        let y = 10 + h;
-        ctx.moveTo(30, y);
+        ctx.rect(left, top, w, h);
+        ctx.clip();
+        lineStyle(ctx, i, n);
+        ctx.beginPath();
+        let y = top + h;
+        ctx.moveTo(left, y);
         for (const [ms, count] of line) {
-          const x = 30 + ((ms - t0) / span) * w;
+          const x = left + ((ms - t0) / span) * w;
           ctx.lineTo(x, y);
-          y = 10 + h - (count / total) * h;
+          y = top + h - (count / total) * h;
           ctx.lineTo(x, y);
         }
-        ctx.lineTo(30 + w, y);
+        ctx.lineTo(left + w, y);
         ctx.stroke();
-        const li = el("li", shown(model.items.get(item) || item));
-        li.style.borderLeftColor = colour;
+        ctx.restore();
+        const li = el("li");
+        li.setAttribute("data-item", item);
+        li.appendChild(swatch(i, n));
+        li.appendChild(el("span", shown(model.items.get(item) || item)));
         legend.push(li);
+        i += 1;
       }
     }
     document.getElementById("timeline-legend").replaceChildren(...legend);
   }
+  window.addEventListener("resize", () => {
+    dirty.timeline = true;
+    last.timeline = 0;
+    schedule();
+  });
 
   function select(name) {
     selected = name;

@@ -38,6 +38,8 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("geometric-40", {"peers": 40, "topology": "geometric", "radius": 0.2},
      "at most 0.1 s a hop on the longest shortest path"),
     ("size-40-both", {"peers": 40, "dial": "both"}, ""),
+    ("router-100", {"peers": 100, "topology": "router", "routers": 5, "settle": 10.0},
+     "within 3 s of the last peer up"),
 ]  # fmt: skip
 """Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
 is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
@@ -49,7 +51,10 @@ partition and the healthy 20 at the other leases measured (what the lease buys a
 :func:`lease_lines`). ``geometric-40`` is a fleet shaped like a real one: 40 robots placed at
 random (seed 7) in a square of side 1 and linked within a radio range of 0.2, a graph whose
 longest shortest path from the teacher is several hops (knowledge measured per hop,
-check.hops)."""
+check.hops). ``router-100`` is a fleet of 100 peers as zenoh clients spread over 5 routers
+(20 each, the routers linked in a chain, every link through the fault layer), kept 10 s
+after convergence to measure what each process costs with nothing left to learn
+(check.idle_cost); last, as the heaviest."""
 FIGURE_RECORDS = ("partition-30s", "churn-20")
 """The scenarios whose records the figure draws (what each peer knew over time)."""
 LEASES = (1_000, 4_000, 10_000)
@@ -57,7 +62,13 @@ LEASES = (1_000, 4_000, 10_000)
 BEFORE_OPTION_LEASE_MS = 4_000
 """The lease of a scenario recorded before ``--lease`` existed (its config has no
 ``lease_ms``)."""
-LIMITS = {"size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0, "line-10": 1.0}
+LIMITS = {
+    "size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0, "line-10": 1.0,
+    "router-100": 3.0,
+}  # fmt: skip
+IDLE_CPU_MS, IDLE_RSS_MB = 3.0, 50.0
+"""The target of one idle peer (nothing left to learn): at most 3 ms of CPU a second and 50 MB
+resident (issue 35)."""
 HOP_LIMITS = {"geometric-40": 0.1}
 """Seconds a hop on the longest shortest path from the teacher (``per_hop_s``), the target of
 the scenarios whose shape is the point."""
@@ -254,7 +265,7 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
         "learn). The floor is one query round trip to the teacher on a direct link (no proxy),",
         "measured in the same run; the linked floor, one through a proxied link (its delay and",
         "loss included) to the learner behind it, an agent that answers from its tick loop",
-        "(none in router-20, whose links end at routers). Every run must converge",
+        "(none in router-20 and router-100, whose links end at routers). Every run must converge",
         "within 60 s (the bound) to pass. The newer peer of every pair dials the older (both",
         "ends dial in size-40-both). geometric-40 is shaped like a real fleet: 40 robots",
         "placed at random (seed 7) in a square of side 1, linked when within 0.2 of each other",
@@ -273,6 +284,7 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
     lines += _hop_table(summaries)
     lines += _stage_table(summaries)
     lines += _messages_table(summaries)
+    lines += _idle_table(summaries)
     lines += _dial_lines(summaries)
     lines += lease_lines(summaries)
     return _closing(lines, summaries, by_name)
@@ -439,6 +451,44 @@ def _messages_table(summaries: list[dict[str, Any]]) -> list[str]:
         "",
         "| scenario | messages per item | before |",
         "| --- | --- | --- |",
+        *rows,
+    ]
+
+
+def _idle_table(summaries: list[dict[str, Any]]) -> list[str]:
+    """What a process costs with nothing left to learn (check.idle_cost), by role, for the
+    scenarios whose settle window was long enough to measure it (5 s or more: the CPU time is
+    counted in ticks of 10 ms), beside the target of one idle peer."""
+    rows = []
+    for s in summaries:
+        idle = s.get("idle") or {}
+        if float(idle.get("window_s") or 0) < 5.0:
+            continue
+        load = s.get("load_before")
+        for role, cpu in idle["cpu_ms_per_s"].items():
+            rss = idle["rss_mb"][role]
+            met = "-"
+            if role == "learner":
+                ok = cpu["median"] <= IDLE_CPU_MS and rss["median"] <= IDLE_RSS_MB
+                met = "yes" if ok else "no"
+            rows.append(
+                f"| {s['name']} | {role} | {cpu['median']:.1f} / {cpu['worst']:.1f} "
+                f"| {rss['median']:.0f} / {rss['worst']:.0f} | {met} | {idle['window_s']:.1f} "
+                f"| {'-' if load is None else load} |"
+            )
+    if not rows:
+        return []
+    return [
+        "",
+        "What a process costs with nothing left to learn: from convergence to the end of the"
+        " run, each process's CPU time (user and system, /proc) over the window, in ms a"
+        " second, and its resident memory (RSS) at the end, the median / worst over the"
+        f" processes of each role; target for an idle learner (a `ktbt peer run`): at most"
+        f" {IDLE_CPU_MS:g} ms a second and {IDLE_RSS_MB:g} MB (both medians).",
+        "",
+        "| scenario | role | CPU (ms a second) | RSS (MB) | target met | window (s)"
+        " | load before |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
         *rows,
     ]
 

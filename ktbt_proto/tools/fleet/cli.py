@@ -126,7 +126,9 @@ def run_command(
     partition: Annotated[
         str,
         typer.Option(
-            "--partition", metavar="TIME", help="A half/half partition this long, e.g. 30s."
+            "--partition",
+            metavar="TIME",
+            help="A half/half partition this long, e.g. 30s (routers: between two groups).",
         ),
     ] = "0",
     partition_kind: Annotated[

@@ -40,6 +40,9 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("size-40-both", {"peers": 40, "dial": "both"}, ""),
     ("router-100", {"peers": 100, "topology": "router", "routers": 5, "settle": 10.0},
      "within 3 s of the last peer up"),
+    ("router-100-partition-30s",
+     {"peers": 100, "topology": "router", "routers": 5, "partition": 30.0},
+     "within 2 s after the heal"),
 ]  # fmt: skip
 """Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
 is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
@@ -54,7 +57,9 @@ longest shortest path from the teacher is several hops (knowledge measured per h
 check.hops). ``router-100`` is a fleet of 100 peers as zenoh clients spread over 5 routers
 (20 each, the routers linked in a chain, every link through the fault layer), kept 10 s
 after convergence to measure what each process costs with nothing left to learn
-(check.idle_cost); last, as the heaviest."""
+(check.idle_cost); ``router-100-partition-30s`` the same fleet with the link between the
+router groups r0-r2 and r3-r4 silently cut for 30 s from before the teacher is up
+(plan.router_halves); last, as the heaviest."""
 FIGURE_RECORDS = ("partition-30s", "churn-20")
 """The scenarios whose records the figure draws (what each peer knew over time)."""
 LEASES = (1_000, 4_000, 10_000)
@@ -64,7 +69,7 @@ BEFORE_OPTION_LEASE_MS = 4_000
 ``lease_ms``)."""
 LIMITS = {
     "size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0, "line-10": 1.0,
-    "router-100": 3.0,
+    "router-100": 3.0, "router-100-partition-30s": 2.0,
 }  # fmt: skip
 IDLE_CPU_MS, IDLE_RSS_MB = 3.0, 50.0
 """The target of one idle peer (nothing left to learn): at most 3 ms of CPU a second and 50 MB

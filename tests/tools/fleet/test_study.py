@@ -167,7 +167,10 @@ def test_router_100_spreads_100_clients_over_5_routers_with_a_target() -> None:
     served = [sum(1 for link in plan.links if link.listener == r.name and link.dialer[0] != "r")
               for r in plan.routers]  # fmt: skip
     assert served == [20] * 5
-    assert LIMITS["router-100"] == 3.0
+    assert LIMITS["router-100"] == 3.0 and LIMITS["router-100-partition-30s"] == 2.0
+    cut = {name: p for name, p, _ in SCENARIOS}["router-100-partition-30s"]
+    parted = make_plan(FleetConfig(name="cut", seed=7, teacher="serve", **cut), 1)
+    assert [(li.dialer, li.listener) for li in parted.crossing()] == [("r3", "r2")]
     assert params["settle"] >= 5.0  # long enough for the idle table
 
 

@@ -364,16 +364,16 @@ class FleetRun:
     def _sample(self) -> None:
         for m in self.members.values():
             if m.running and m.life is not None:
-                usage = _usage(m.life.proc.pid)
-                if usage is not None:
+                used = usage(m.life.proc.pid)
+                if used is not None:
                     self.record.emit(
-                        "sample", peer=m.node.name, life=m.life.number, rss_kb=usage[0],
-                        fds=usage[1], cpu_ms=usage[2],
+                        "sample", peer=m.node.name, life=m.life.number, rss_kb=used[0],
+                        fds=used[1], cpu_ms=used[2],
                     )  # fmt: skip
-        usage = _usage(os.getpid())
-        if usage is not None:
+        used = usage(os.getpid())
+        if used is not None:
             self.record.emit(
-                "sample", peer="runner", life=1, rss_kb=usage[0], fds=usage[1], cpu_ms=usage[2]
+                "sample", peer="runner", life=1, rss_kb=used[0], fds=used[1], cpu_ms=used[2]
             )
 
     async def observe(self, stop: asyncio.Event) -> None:
@@ -665,10 +665,10 @@ class FleetRun:
         return {"problem": problem, "floor": probe}
 
 
-def _usage(pid: int) -> tuple[int, int, float] | None:
+def usage(pid: int) -> tuple[int, int, float] | None:
     """A process's resident memory (kB), open descriptors and CPU time so far (user and
     system, ms), from ``/proc``: the CPU time of two samples over the time between them is
-    what the process costs a second (check.idle_cost)."""
+    what the process costs a second (check.idle_cost, study.idle_alone)."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
         fds = len(os.listdir(f"/proc/{pid}/fd"))

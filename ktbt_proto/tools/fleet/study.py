@@ -186,6 +186,75 @@ def keep_alive_rates(leases: tuple[int, ...] = LEASES, seconds: float = 10.0) ->
             session.close()
 
 
+def idle_alone(seconds: float = 10.0, settle: float = 5.0) -> dict[str, dict[str, float]]:
+    """What one process costs idle and alone, as the study's machine runs it: a ``ktbt peer
+    run --demo`` with nothing to learn (no sequence to meet, no neighbour) and a ``ktbt peer
+    router`` with no client, side by side on loopback, each measured over ``seconds`` once
+    ``settle`` seconds after it is up: CPU time (ms a second) and resident memory (MB), from
+    /proc (runner.usage). The target of one idle peer (issue 35): 3 ms a second, 50 MB."""
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from ktbt_proto.tools.fleet.runner import usage
+
+    def port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            found: int = s.getsockname()[1]
+            return found
+
+    peer = ["ktbt_proto", "peer"]
+    commands = {
+        "peer": [*peer, "run", "--demo", "--listen", f"tcp/127.0.0.1:{port()}", "--duration",
+                 str(int(settle + seconds + 60)), "--no-multicast"],
+        "router": [*peer, "router", "--listen", f"tcp/127.0.0.1:{port()}"],
+    }  # fmt: skip
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    out: dict[str, dict[str, float]] = {}
+    with tempfile.TemporaryDirectory(prefix="ktbt-idle-") as folder:
+        try:
+            for name, args in commands.items():
+                ready = Path(folder) / f"{name}.ready"
+                procs[name] = subprocess.Popen(
+                    [sys.executable, "-m", *args, "--ready", str(ready)],
+                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                    stdin=subprocess.DEVNULL,
+                )  # fmt: skip
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and not all(
+                (Path(folder) / f"{n}.ready").exists() for n in commands
+            ):
+                if any(p.poll() is not None for p in procs.values()):
+                    return {}
+                time.sleep(0.1)
+            time.sleep(settle)
+            first = {n: usage(p.pid) for n, p in procs.items()}
+            began = time.monotonic()
+            time.sleep(seconds)
+            last = {n: usage(p.pid) for n, p in procs.items()}
+            took = time.monotonic() - began
+            for name in commands:
+                a, b = first[name], last[name]
+                if a is not None and b is not None:
+                    out[name] = {
+                        "cpu_ms_per_s": round((b[2] - a[2]) / took, 2),
+                        "rss_mb": round(b[0] / 1024, 1),
+                    }
+        finally:
+            for p in procs.values():
+                if p.poll() is None:
+                    p.terminate()
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+    return out
+
+
 def load_average() -> float | None:
     """The machine's load average over the last minute (``/proc/loadavg``), read before each
     run: on a shared machine, what else was running shows in every number."""
@@ -227,14 +296,18 @@ def study(out: Path, docs: Path, say: Say, only: list[str] | None = None) -> lis
     say(f"connection attempts a second to a dead endpoint: {rates}")
     keep_alives = keep_alive_rates()
     say(f"writes a second on an idle link, by lease (ms): {keep_alives}")
+    alone = idle_alone()
+    say(f"one idle process alone: {alone}")
     kept = {} if not only else previous
     summaries = [ran.get(n) or kept[n] for n, _, _ in SCENARIOS if n in ran or n in kept]
     for s in summaries:
         s.pop("dial_rates", None)
         s.pop("keep_alive_rates", None)
+        s.pop("idle_alone", None)
     if summaries:
         summaries[0]["dial_rates"] = rates
         summaries[0]["keep_alive_rates"] = keep_alives
+        summaries[0]["idle_alone"] = {**alone, "load_before": load_average()}
     docs.mkdir(parents=True, exist_ok=True)
     (docs / "fleet.json").write_text(json.dumps(summaries, indent=1, default=str))
     (docs / "fleet.md").write_text("\n".join(table(summaries)) + "\n")
@@ -464,6 +537,21 @@ def _idle_table(summaries: list[dict[str, Any]]) -> list[str]:
     """What a process costs with nothing left to learn (check.idle_cost), by role, for the
     scenarios whose settle window was long enough to measure it (5 s or more: the CPU time is
     counted in ticks of 10 ms), beside the target of one idle peer."""
+    alone = next((s["idle_alone"] for s in summaries if s.get("idle_alone")), {})
+    lines = []
+    if alone.get("peer"):
+        peer, router = alone["peer"], alone.get("router") or {}
+        ok = peer["cpu_ms_per_s"] <= IDLE_CPU_MS and peer["rss_mb"] <= IDLE_RSS_MB
+        lines = [
+            "",
+            f"One idle peer alone (a `ktbt peer run --demo` with nothing to learn and no"
+            f" neighbour, measured over 10 s in the same study, load average"
+            f" {alone.get('load_before', '-')} at the end): {peer['cpu_ms_per_s']:.1f} ms of CPU"
+            f" a second and {peer['rss_mb']:.1f} MB RSS, against a target of {IDLE_CPU_MS:g} ms"
+            f" and {IDLE_RSS_MB:g} MB: {'met' if ok else 'missed'}; a `ktbt peer router` with"
+            f" no client beside it: {router.get('cpu_ms_per_s', '-')} ms a second and"
+            f" {router.get('rss_mb', '-')} MB.",
+        ]
     rows = []
     for s in summaries:
         idle = s.get("idle") or {}
@@ -482,8 +570,9 @@ def _idle_table(summaries: list[dict[str, Any]]) -> list[str]:
                 f"| {'-' if load is None else load} |"
             )
     if not rows:
-        return []
+        return lines
     return [
+        *lines,
         "",
         "What a process costs with nothing left to learn: from convergence to the end of the"
         " run, each process's CPU time (user and system, /proc) over the window, in ms a"

@@ -191,3 +191,18 @@ def test_the_idle_table_has_a_row_a_role_and_the_target_on_the_learners() -> Non
     assert "| router-100 | learner | 3.5 / 9.0 | 48 / 52 | no | 10.0 | 1.5 |" in missed
     short = table([_summary("size-5", convergence_s=1.0, idle=idle(1.0, window=1.0))])
     assert not any(line.startswith("| size-5 | learner |") for line in short)
+
+
+def test_one_idle_peer_alone_is_measured_and_set_against_its_target() -> None:
+    from ktbt_proto.tools.fleet.study import idle_alone
+
+    alone = idle_alone(seconds=2.0, settle=0.5)
+    assert set(alone) == {"peer", "router"}, alone
+    for cost in alone.values():
+        assert cost["cpu_ms_per_s"] >= 0 and 5 < cost["rss_mb"] < 2_000, alone
+    summary = _summary("size-5", convergence_s=0.1, idle_alone={**alone, "load_before": 2.0})
+    line = next(line for line in table([summary]) if line.startswith("One idle peer alone"))
+    assert f"{alone['peer']['rss_mb']:.1f} MB RSS" in line and "load average 2.0" in line
+    cheap = {"peer": {"cpu_ms_per_s": 2.0, "rss_mb": 40.0}, "load_before": 1.0}
+    line = next(ln for ln in table([{**summary, "idle_alone": cheap}]) if "idle peer alone" in ln)
+    assert "against a target of 3 ms and 50 MB: met" in line

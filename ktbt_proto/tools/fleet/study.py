@@ -537,7 +537,7 @@ def _idle_table(summaries: list[dict[str, Any]]) -> list[str]:
     """What a process costs with nothing left to learn (check.idle_cost), by role, for the
     scenarios whose settle window was long enough to measure it (5 s or more: the CPU time is
     counted in ticks of 10 ms), beside the target of one idle peer."""
-    alone = next((s["idle_alone"] for s in summaries if s.get("idle_alone")), {})
+    alone: dict[str, Any] = next((s["idle_alone"] for s in summaries if s.get("idle_alone")), {})
     lines = []
     if alone.get("peer"):
         peer, router = alone["peer"], alone.get("router") or {}

@@ -193,6 +193,7 @@ def test_the_idle_table_has_a_row_a_role_and_the_target_on_the_learners() -> Non
     assert not any(line.startswith("| size-5 | learner |") for line in short)
 
 
+@pytest.mark.network
 def test_one_idle_peer_alone_is_measured_and_set_against_its_target() -> None:
     from ktbt_proto.tools.fleet.study import idle_alone
 

@@ -734,6 +734,44 @@ def given_up(h: History) -> float | None:
     return round(statistics.median(first.values()), 3) if first else None
 
 
+def idle_cost(h: History) -> dict[str, Any]:
+    """What a peer costs when nothing is left to learn: from the samples of the settle window
+    (from convergence to the end; the runner samples every process every 2 s), each process's
+    CPU time over the window's length (ms a second) and its last resident memory (MB), the
+    median and the worst by role (learner, teacher, router). Empty when the fleet did not
+    converge or a process has fewer than two samples in the window (a record from before CPU
+    time was sampled)."""
+    done = h.one("converged")
+    if done is None or done.get("at") is None:
+        return {}
+    roles = {n["name"]: n["role"] for n in h.plan["nodes"]}
+    window: dict[tuple[str, int], list[dict[str, Any]]] = defaultdict(list)
+    for s in h.of("sample"):
+        if s["t"] >= done["t"] and s["peer"] in roles and "cpu_ms" in s:
+            window[(s["peer"], s["life"])].append(s)
+    cpu: dict[str, list[float]] = defaultdict(list)
+    rss: dict[str, list[float]] = defaultdict(list)
+    spans = []
+    for (peer, _), samples in window.items():
+        first, last = samples[0], samples[-1]
+        if last["t"] - first["t"] < 1.0:
+            continue
+        spans.append(last["t"] - first["t"])
+        cpu[roles[peer]].append((last["cpu_ms"] - first["cpu_ms"]) / (last["t"] - first["t"]))
+        rss[roles[peer]].append(last["rss_kb"] / 1024)
+    if not spans:
+        return {}
+
+    def spread(values: list[float]) -> dict[str, float]:
+        return {"median": round(statistics.median(values), 2), "worst": round(max(values), 2)}
+
+    return {
+        "window_s": round(min(spans), 2),
+        "cpu_ms_per_s": {role: spread(v) for role, v in sorted(cpu.items())},
+        "rss_mb": {role: spread(v) for role, v in sorted(rss.items())},
+    }
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
@@ -777,6 +815,7 @@ def metrics(h: History) -> dict[str, Any]:
         "silent_link_given_up_s": given_up(h),
         "error_replies": len(h.of(Event.ERROR_RECEIVED)),
         "network_errors": len(h.of(Event.NETWORK_ERROR)),
+        "idle": idle_cost(h),
     }
 
 

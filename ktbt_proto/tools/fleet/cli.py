@@ -42,6 +42,18 @@ def _show(summary: dict[str, object]) -> None:
     )
     for item in summary.get("hops") or ():  # type: ignore[attr-defined]
         typer.echo(f"  hop by hop, {show_sequence(item['item'])}: {hop_line(item)}")
+    idle: Any = summary.get("idle")
+    if idle:
+        typer.echo(f"  idle after convergence ({idle['window_s']:.1f} s): {idle_line(idle)}")
+
+
+def idle_line(idle: dict[str, Any]) -> str:
+    """What each role cost when nothing was left to learn (check.idle_cost), median / worst."""
+    return "; ".join(
+        f"{role} {cpu['median']:.1f} / {cpu['worst']:.1f} ms CPU a second,"
+        f" {idle['rss_mb'][role]['median']:.0f} / {idle['rss_mb'][role]['worst']:.0f} MB RSS"
+        for role, cpu in idle["cpu_ms_per_s"].items()
+    )
 
 
 def hop_line(item: dict[str, Any]) -> str:
@@ -114,7 +126,9 @@ def run_command(
     partition: Annotated[
         str,
         typer.Option(
-            "--partition", metavar="TIME", help="A half/half partition this long, e.g. 30s."
+            "--partition",
+            metavar="TIME",
+            help="A half/half partition this long, e.g. 30s (routers: between two groups).",
         ),
     ] = "0",
     partition_kind: Annotated[

@@ -128,8 +128,8 @@ class FleetConfig:
         durations = (self.delay, self.partition, self.churn_down, self.settle, self.bound)
         if not all(math.isfinite(d) and d >= 0 for d in durations):
             raise PlanError("durations are not negative, and finite")
-        if self.partition and self.topology == "router":
-            raise PlanError("--partition needs peer links to cut: not --topology router")
+        if self.partition and self.topology == "router" and self.router_count < 2:
+            raise PlanError("--partition with --topology router needs --routers 2 or more")
         if self.teacher not in ("run", "serve"):
             raise PlanError("--teacher must be run or serve")
         if self.dial not in ("one", "both"):
@@ -207,7 +207,8 @@ class Plan:
     nodes: list[Host] = field(default_factory=list)
     links: list[Link] = field(default_factory=list)
     half: dict[str, int] = field(default_factory=dict)
-    """0 or 1 for every peer (teachers in half 0); empty without a partition."""
+    """0 or 1 for every peer (teachers in half 0), and every router through routers (its group
+    of clients with it); empty without a partition."""
     victims: list[list[str]] = field(default_factory=list)
     """The learners killed in each churn round."""
     positions: dict[str, list[float]] = field(default_factory=dict)
@@ -392,6 +393,23 @@ def distances(plan: dict[str, Any]) -> dict[str, int]:
     return hops
 
 
+def router_halves(plan: Plan) -> dict[str, int]:
+    """The halves of a fleet through routers: its chain of routers cut in the middle (one
+    link between router groups crosses), each peer in its router's half, half 0 the one with
+    the first teacher's router. Every router and peer is named, so that the crossing links
+    are exactly the routers' link across the cut."""
+    routers, peers = plan.routers, plan.peers
+    own = {p.name: routers[i % len(routers)].index for i, p in enumerate(peers)}
+    cut = (len(routers) + 1) // 2  # routers below it on one side
+    teacher = next(p for p in peers if p.role == "teacher")
+    near = own[teacher.name] < cut
+
+    def side(r: int) -> int:
+        return 0 if (r < cut) == near else 1
+
+    return {**{r.name: side(r.index) for r in routers}, **{p: side(r) for p, r in own.items()}}
+
+
 def make_plan(config: FleetConfig, port: int) -> Plan:
     """Peers, links and the seeded schedule choices of ``config``: each decision draws from a
     stream of its own, so that adding churn does not move the partition's halves."""
@@ -428,7 +446,9 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
         plan.positions = {
             peers[k].name: [round(x, 4), round(y, 4)] for k, (x, y) in positions(config).items()
         }
-    if config.partition:
+    if config.partition and config.topology == "router":
+        plan.half = router_halves(plan)
+    elif config.partition:
         learners = [p.name for p in peers if p.role == "learner"]
         size_a = (len(peers) + 1) // 2 - config.teachers
         if size_a < 0 or len(learners) - max(size_a, 0) < 1:

@@ -364,15 +364,17 @@ class FleetRun:
     def _sample(self) -> None:
         for m in self.members.values():
             if m.running and m.life is not None:
-                usage = _usage(m.life.proc.pid)
-                if usage is not None:
+                used = usage(m.life.proc.pid)
+                if used is not None:
                     self.record.emit(
-                        "sample", peer=m.node.name, life=m.life.number, rss_kb=usage[0],
-                        fds=usage[1],
+                        "sample", peer=m.node.name, life=m.life.number, rss_kb=used[0],
+                        fds=used[1], cpu_ms=used[2],
                     )  # fmt: skip
-        usage = _usage(os.getpid())
-        if usage is not None:
-            self.record.emit("sample", peer="runner", life=1, rss_kb=usage[0], fds=usage[1])
+        used = usage(os.getpid())
+        if used is not None:
+            self.record.emit(
+                "sample", peer="runner", life=1, rss_kb=used[0], fds=used[1], cpu_ms=used[2]
+            )
 
     async def observe(self, stop: asyncio.Event) -> None:
         live = None
@@ -520,6 +522,8 @@ class FleetRun:
         self.record.emit("converged", at=self.converged)
         if plan.victims and self.converged is not None:
             self.record.emit("round-converged", round=len(plan.victims))
+        self._sample()  # the settle window opens: nothing is left to learn (check.idle_cost)
+        self.last_sample = time.monotonic()
         await asyncio.sleep(cfg.settle)
         if cfg.watch:
             await self.watched()
@@ -661,14 +665,24 @@ class FleetRun:
         return {"problem": problem, "floor": probe}
 
 
-def _usage(pid: int) -> tuple[int, int] | None:
+def usage(pid: int) -> tuple[int, int, float] | None:
+    """A process's resident memory (kB), open descriptors and CPU time so far (user and
+    system, ms), from ``/proc``: the CPU time of two samples over the time between them is
+    what the process costs a second (check.idle_cost, study.idle_alone)."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
         fds = len(os.listdir(f"/proc/{pid}/fd"))
+        stat = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
     found = re.search(r"VmRSS:\s+(\d+)", status)
-    return (int(found.group(1)) if found else 0), fds
+    fields = stat.rsplit(")", 1)[-1].split()  # after the command name, which may hold spaces
+    try:
+        ticks = int(fields[11]) + int(fields[12])  # utime and stime (fields 14 and 15)
+    except (IndexError, ValueError):
+        return None
+    cpu_ms = ticks * 1000.0 / os.sysconf("SC_CLK_TCK")
+    return (int(found.group(1)) if found else 0), fds, cpu_ms
 
 
 def _port() -> int:

@@ -38,6 +38,11 @@ SCENARIOS: list[tuple[str, dict[str, Any], str]] = [
     ("geometric-40", {"peers": 40, "topology": "geometric", "radius": 0.2},
      "at most 0.1 s a hop on the longest shortest path"),
     ("size-40-both", {"peers": 40, "dial": "both"}, ""),
+    ("router-100", {"peers": 100, "topology": "router", "routers": 5, "settle": 10.0},
+     "within 3 s of the last peer up"),
+    ("router-100-partition-30s",
+     {"peers": 100, "topology": "router", "routers": 5, "partition": 30.0},
+     "within 2 s after the heal"),
 ]  # fmt: skip
 """Teachers are knowledge servers (``ktbt peer serve``) except in ``member-10``, whose teacher
 is a fleet member (``ktbt peer run --knowledge``, an agent that teaches one asker per
@@ -49,7 +54,12 @@ partition and the healthy 20 at the other leases measured (what the lease buys a
 :func:`lease_lines`). ``geometric-40`` is a fleet shaped like a real one: 40 robots placed at
 random (seed 7) in a square of side 1 and linked within a radio range of 0.2, a graph whose
 longest shortest path from the teacher is several hops (knowledge measured per hop,
-check.hops)."""
+check.hops). ``router-100`` is a fleet of 100 peers as zenoh clients spread over 5 routers
+(20 each, the routers linked in a chain, every link through the fault layer), kept 10 s
+after convergence to measure what each process costs with nothing left to learn
+(check.idle_cost); ``router-100-partition-30s`` the same fleet with the link between the
+router groups r0-r2 and r3-r4 silently cut for 30 s from before the teacher is up
+(plan.router_halves); last, as the heaviest."""
 FIGURE_RECORDS = ("partition-30s", "churn-20")
 """The scenarios whose records the figure draws (what each peer knew over time)."""
 LEASES = (1_000, 4_000, 10_000)
@@ -57,7 +67,13 @@ LEASES = (1_000, 4_000, 10_000)
 BEFORE_OPTION_LEASE_MS = 4_000
 """The lease of a scenario recorded before ``--lease`` existed (its config has no
 ``lease_ms``)."""
-LIMITS = {"size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0, "line-10": 1.0}
+LIMITS = {
+    "size-40": 3.0, "loss-20": 10.0, "partition-30s": 2.0, "churn-20": 5.0, "line-10": 1.0,
+    "router-100": 3.0, "router-100-partition-30s": 2.0,
+}  # fmt: skip
+IDLE_CPU_MS, IDLE_RSS_MB = 3.0, 50.0
+"""The target of one idle peer (nothing left to learn): at most 3 ms of CPU a second and 50 MB
+resident (issue 35)."""
 HOP_LIMITS = {"geometric-40": 0.1}
 """Seconds a hop on the longest shortest path from the teacher (``per_hop_s``), the target of
 the scenarios whose shape is the point."""
@@ -170,6 +186,75 @@ def keep_alive_rates(leases: tuple[int, ...] = LEASES, seconds: float = 10.0) ->
             session.close()
 
 
+def idle_alone(seconds: float = 10.0, settle: float = 5.0) -> dict[str, dict[str, float]]:
+    """What one process costs idle and alone, as the study's machine runs it: a ``ktbt peer
+    run --demo`` with nothing to learn (no sequence to meet, no neighbour) and a ``ktbt peer
+    router`` with no client, side by side on loopback, each measured over ``seconds`` once
+    ``settle`` seconds after it is up: CPU time (ms a second) and resident memory (MB), from
+    /proc (runner.usage). The target of one idle peer (issue 35): 3 ms a second, 50 MB."""
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from ktbt_proto.tools.fleet.runner import usage
+
+    def port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            found: int = s.getsockname()[1]
+            return found
+
+    peer = ["ktbt_proto", "peer"]
+    commands = {
+        "peer": [*peer, "run", "--demo", "--listen", f"tcp/127.0.0.1:{port()}", "--duration",
+                 str(int(settle + seconds + 60)), "--no-multicast"],
+        "router": [*peer, "router", "--listen", f"tcp/127.0.0.1:{port()}"],
+    }  # fmt: skip
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    out: dict[str, dict[str, float]] = {}
+    with tempfile.TemporaryDirectory(prefix="ktbt-idle-") as folder:
+        try:
+            for name, args in commands.items():
+                ready = Path(folder) / f"{name}.ready"
+                procs[name] = subprocess.Popen(
+                    [sys.executable, "-m", *args, "--ready", str(ready)],
+                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                    stdin=subprocess.DEVNULL,
+                )  # fmt: skip
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and not all(
+                (Path(folder) / f"{n}.ready").exists() for n in commands
+            ):
+                if any(p.poll() is not None for p in procs.values()):
+                    return {}
+                time.sleep(0.1)
+            time.sleep(settle)
+            first = {n: usage(p.pid) for n, p in procs.items()}
+            began = time.monotonic()
+            time.sleep(seconds)
+            last = {n: usage(p.pid) for n, p in procs.items()}
+            took = time.monotonic() - began
+            for name in commands:
+                a, b = first[name], last[name]
+                if a is not None and b is not None:
+                    out[name] = {
+                        "cpu_ms_per_s": round((b[2] - a[2]) / took, 2),
+                        "rss_mb": round(b[0] / 1024, 1),
+                    }
+        finally:
+            for p in procs.values():
+                if p.poll() is None:
+                    p.terminate()
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+    return out
+
+
 def load_average() -> float | None:
     """The machine's load average over the last minute (``/proc/loadavg``), read before each
     run: on a shared machine, what else was running shows in every number."""
@@ -211,14 +296,18 @@ def study(out: Path, docs: Path, say: Say, only: list[str] | None = None) -> lis
     say(f"connection attempts a second to a dead endpoint: {rates}")
     keep_alives = keep_alive_rates()
     say(f"writes a second on an idle link, by lease (ms): {keep_alives}")
+    alone = idle_alone()
+    say(f"one idle process alone: {alone}")
     kept = {} if not only else previous
     summaries = [ran.get(n) or kept[n] for n, _, _ in SCENARIOS if n in ran or n in kept]
     for s in summaries:
         s.pop("dial_rates", None)
         s.pop("keep_alive_rates", None)
+        s.pop("idle_alone", None)
     if summaries:
         summaries[0]["dial_rates"] = rates
         summaries[0]["keep_alive_rates"] = keep_alives
+        summaries[0]["idle_alone"] = {**alone, "load_before": load_average()}
     docs.mkdir(parents=True, exist_ok=True)
     (docs / "fleet.json").write_text(json.dumps(summaries, indent=1, default=str))
     (docs / "fleet.md").write_text("\n".join(table(summaries)) + "\n")
@@ -254,7 +343,7 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
         "learn). The floor is one query round trip to the teacher on a direct link (no proxy),",
         "measured in the same run; the linked floor, one through a proxied link (its delay and",
         "loss included) to the learner behind it, an agent that answers from its tick loop",
-        "(none in router-20, whose links end at routers). Every run must converge",
+        "(none in router-20 and router-100, whose links end at routers). Every run must converge",
         "within 60 s (the bound) to pass. The newer peer of every pair dials the older (both",
         "ends dial in size-40-both). geometric-40 is shaped like a real fleet: 40 robots",
         "placed at random (seed 7) in a square of side 1, linked when within 0.2 of each other",
@@ -273,6 +362,7 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
     lines += _hop_table(summaries)
     lines += _stage_table(summaries)
     lines += _messages_table(summaries)
+    lines += _idle_table(summaries)
     lines += _dial_lines(summaries)
     lines += lease_lines(summaries)
     return _closing(lines, summaries, by_name)
@@ -439,6 +529,60 @@ def _messages_table(summaries: list[dict[str, Any]]) -> list[str]:
         "",
         "| scenario | messages per item | before |",
         "| --- | --- | --- |",
+        *rows,
+    ]
+
+
+def _idle_table(summaries: list[dict[str, Any]]) -> list[str]:
+    """What a process costs with nothing left to learn (check.idle_cost), by role, for the
+    scenarios whose settle window was long enough to measure it (5 s or more: the CPU time is
+    counted in ticks of 10 ms), beside the target of one idle peer."""
+    alone: dict[str, Any] = next((s["idle_alone"] for s in summaries if s.get("idle_alone")), {})
+    lines = []
+    if alone.get("peer"):
+        peer, router = alone["peer"], alone.get("router") or {}
+        ok = peer["cpu_ms_per_s"] <= IDLE_CPU_MS and peer["rss_mb"] <= IDLE_RSS_MB
+        lines = [
+            "",
+            f"One idle peer alone (a `ktbt peer run --demo` with nothing to learn and no"
+            f" neighbour, measured over 10 s in the same study, load average"
+            f" {alone.get('load_before', '-')} at the end): {peer['cpu_ms_per_s']:.1f} ms of CPU"
+            f" a second and {peer['rss_mb']:.1f} MB RSS, against a target of {IDLE_CPU_MS:g} ms"
+            f" and {IDLE_RSS_MB:g} MB: {'met' if ok else 'missed'}; a `ktbt peer router` with"
+            f" no client beside it: {router.get('cpu_ms_per_s', '-')} ms a second and"
+            f" {router.get('rss_mb', '-')} MB.",
+        ]
+    rows = []
+    for s in summaries:
+        idle = s.get("idle") or {}
+        if float(idle.get("window_s") or 0) < 5.0:
+            continue
+        load = s.get("load_before")
+        for role, cpu in idle["cpu_ms_per_s"].items():
+            rss = idle["rss_mb"][role]
+            met = "-"
+            if role == "learner":
+                ok = cpu["median"] <= IDLE_CPU_MS and rss["median"] <= IDLE_RSS_MB
+                met = "yes" if ok else "no"
+            rows.append(
+                f"| {s['name']} | {role} | {cpu['median']:.1f} / {cpu['worst']:.1f} "
+                f"| {rss['median']:.0f} / {rss['worst']:.0f} | {met} | {idle['window_s']:.1f} "
+                f"| {'-' if load is None else load} |"
+            )
+    if not rows:
+        return lines
+    return [
+        *lines,
+        "",
+        "What a process costs with nothing left to learn: from convergence to the end of the"
+        " run, each process's CPU time (user and system, /proc) over the window, in ms a"
+        " second, and its resident memory (RSS) at the end, the median / worst over the"
+        f" processes of each role; target for an idle learner (a `ktbt peer run`): at most"
+        f" {IDLE_CPU_MS:g} ms a second and {IDLE_RSS_MB:g} MB (both medians).",
+        "",
+        "| scenario | role | CPU (ms a second) | RSS (MB) | target met | window (s)"
+        " | load before |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
         *rows,
     ]
 

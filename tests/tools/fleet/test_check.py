@@ -15,6 +15,7 @@ from ktbt_proto.tools.fleet.check import (
     check,
     convergence_time,
     hops,
+    idle_cost,
     metrics,
     timelines,
 )
@@ -476,3 +477,38 @@ def test_hops_show_a_hop_off_the_graph_a_detour_and_a_peer_that_never_learned() 
     # a teacher whose own merge the record lacks ends the count: no depth
     lost = line_of_three([(1.5, "p0", "A", "p1"), (1.2, "p1", "B", "t2")])
     assert {i["item"]: i["depth"] for i in hops(History(lost))} == {"A": None, "B": 1}
+
+
+def _sampled(cpu: dict[str, tuple[float, float]], t0: float = 1.9) -> list[dict[str, Any]]:
+    """``base()`` with each peer sampled before convergence, at it and 2 s later, its CPU time
+    (ms) at the last two given."""
+    events = base()
+    end = events.pop()
+    for peer, (first, last) in cpu.items():
+        for t, ms, rss in ((1.0, 0.0, 20_000), (t0, first, 40_000), (t0 + 2.0, last, 51_200)):
+            events.append({"t": t, "kind": "sample", "peer": peer, "life": 1, "rss_kb": rss,
+                           "fds": 9, "cpu_ms": ms})  # fmt: skip
+    events.append({"t": 3.0, "kind": "sample", "peer": "runner", "life": 1, "rss_kb": 1,
+                   "fds": 1, "cpu_ms": 99_999.0})  # fmt: skip
+    return [*sorted(events, key=lambda e: e["t"]), end]
+
+
+def test_idle_cost_is_cpu_over_the_window_after_convergence_by_role() -> None:
+    events = _sampled({"p0": (500.0, 510.0), "p1": (700.0, 730.0), "t2": (900.0, 904.0)})
+    idle = idle_cost(History(events))
+    assert idle["window_s"] == 2.0
+    # p0: 10 ms over 2 s, p1: 30 ms; what they spent before convergence is not counted
+    assert idle["cpu_ms_per_s"] == {
+        "learner": {"median": 10.0, "worst": 15.0},
+        "teacher": {"median": 2.0, "worst": 2.0},
+    }
+    assert idle["rss_mb"]["learner"] == {"median": 50.0, "worst": 50.0}  # the last sample
+    assert "runner" not in idle["cpu_ms_per_s"]
+
+
+def test_idle_cost_is_empty_without_convergence_or_cpu_samples() -> None:
+    unconverged = [e for e in _sampled({"p0": (0.0, 10.0)}) if e["kind"] != "converged"]
+    assert idle_cost(History(unconverged)) == {}
+    before_cpu = [{k: v for k, v in e.items() if k != "cpu_ms"}
+                  for e in _sampled({"p0": (0.0, 10.0)})]  # fmt: skip
+    assert idle_cost(History(before_cpu)) == {}

@@ -147,3 +147,37 @@ def test_sigterm_while_the_monitor_starts_leaves_nothing(tmp_path: Path) -> None
     assert "Traceback" not in printed.read_text()
     folder = _watch_folder(out)
     assert folder is None or not folder.exists(), folder
+
+
+def test_a_fleet_through_two_routers_heals_their_cut_link_and_reports_what_idle_costs(
+    tmp_path: Path,
+) -> None:
+    """Six peers as zenoh clients of two routers whose link is silently cut for 8 s from before
+    the teacher is up: nothing crosses it, every item reaches every peer after the heal, and
+    the run reports each role's CPU time a second and memory over the 4 s after convergence,
+    read from /proc (check.idle_cost)."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--topology",
+         "router", "--routers", "2", "--partition", "8s", "--teacher", "serve", "--bound",
+         "60", "--settle", "4",
+         "--no-live", "--out", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        output, _ = proc.communicate(timeout=150)
+    finally:
+        _, left, ours = sweep(proc, out / "events.jsonl")
+    assert not left and not ours, (left, ours)
+    assert proc.returncode == 0, output
+    summary = json.loads((out / "summary.json").read_text())
+    verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
+    assert verdicts["fault: partition-silent"] == "pass", summary["verdicts"]
+    assert verdicts["convergence"] == "pass", summary["verdicts"]
+    idle = summary["idle"]
+    assert set(idle["cpu_ms_per_s"]) == {"learner", "router", "teacher"}, idle
+    assert idle["window_s"] >= 3.0, idle
+    for role, rss in idle["rss_mb"].items():
+        assert 5 < rss["median"] <= rss["worst"] < 2_000, (role, idle)  # a Python process
+        assert 0 <= idle["cpu_ms_per_s"][role]["median"] <= 1_000, (role, idle)
+    assert "idle after convergence" in output and "router " in output, output

@@ -155,3 +155,55 @@ def _met(lines: list[str]) -> str:
     """The "met" cell of geometric-40's row in the scenario table."""
     row = next(line for line in lines if line.startswith("| geometric-40 | 10 | geometric |"))
     return row.strip("|").split("|")[5].strip()
+
+
+def test_router_100_spreads_100_clients_over_5_routers_with_a_target() -> None:
+    from ktbt_proto.tools.fleet.plan import make_plan
+    from ktbt_proto.tools.fleet.study import LIMITS, SCENARIOS
+
+    params = {name: p for name, p, _ in SCENARIOS}["router-100"]
+    plan = make_plan(FleetConfig(name="router-100", seed=7, teacher="serve", **params), 1)
+    assert len(plan.peers) == 100 and len(plan.routers) == 5
+    served = [sum(1 for link in plan.links if link.listener == r.name and link.dialer[0] != "r")
+              for r in plan.routers]  # fmt: skip
+    assert served == [20] * 5
+    assert LIMITS["router-100"] == 3.0 and LIMITS["router-100-partition-30s"] == 2.0
+    cut = {name: p for name, p, _ in SCENARIOS}["router-100-partition-30s"]
+    parted = make_plan(FleetConfig(name="cut", seed=7, teacher="serve", **cut), 1)
+    assert [(li.dialer, li.listener) for li in parted.crossing()] == [("r3", "r2")]
+    assert params["settle"] >= 5.0  # long enough for the idle table
+
+
+def test_the_idle_table_has_a_row_a_role_and_the_target_on_the_learners() -> None:
+    def idle(learner_cpu: float, window: float = 10.0) -> dict[str, Any]:
+        return {
+            "window_s": window,
+            "cpu_ms_per_s": {"learner": {"median": learner_cpu, "worst": 9.0},
+                             "router": {"median": 2.0, "worst": 2.5}},
+            "rss_mb": {"learner": {"median": 48.0, "worst": 52.4},
+                       "router": {"median": 53.0, "worst": 53.2}},
+        }  # fmt: skip
+
+    lines = table([_summary("router-100", convergence_s=1.0, idle=idle(2.5))])
+    assert "| router-100 | learner | 2.5 / 9.0 | 48 / 52 | yes | 10.0 | 1.5 |" in lines
+    assert "| router-100 | router | 2.0 / 2.5 | 53 / 53 | - | 10.0 | 1.5 |" in lines
+    missed = table([_summary("router-100", convergence_s=1.0, idle=idle(3.5))])
+    assert "| router-100 | learner | 3.5 / 9.0 | 48 / 52 | no | 10.0 | 1.5 |" in missed
+    short = table([_summary("size-5", convergence_s=1.0, idle=idle(1.0, window=1.0))])
+    assert not any(line.startswith("| size-5 | learner |") for line in short)
+
+
+@pytest.mark.network
+def test_one_idle_peer_alone_is_measured_and_set_against_its_target() -> None:
+    from ktbt_proto.tools.fleet.study import idle_alone
+
+    alone = idle_alone(seconds=2.0, settle=0.5)
+    assert set(alone) == {"peer", "router"}, alone
+    for cost in alone.values():
+        assert cost["cpu_ms_per_s"] >= 0 and 5 < cost["rss_mb"] < 2_000, alone
+    summary = _summary("size-5", convergence_s=0.1, idle_alone={**alone, "load_before": 2.0})
+    line = next(line for line in table([summary]) if line.startswith("One idle peer alone"))
+    assert f"{alone['peer']['rss_mb']:.1f} MB RSS" in line and "load average 2.0" in line
+    cheap = {"peer": {"cpu_ms_per_s": 2.0, "rss_mb": 40.0}, "load_before": 1.0}
+    line = next(ln for ln in table([{**summary, "idle_alone": cheap}]) if "idle peer alone" in ln)
+    assert "against a target of 3 ms and 50 MB: met" in line

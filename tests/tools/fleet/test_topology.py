@@ -145,3 +145,16 @@ def test_hops_count_peers_and_a_router_is_no_hop() -> None:
     assert distances(line) == {"t3": 0, "p2": 1, "p1": 2, "p0": 3}
     two = make_plan(FleetConfig(peers=5, teachers=2, topology="line"), 1).to_json()
     assert distances(two) == {"t3": 0, "t4": 0, "p2": 1, "p1": 2, "p0": 3}
+
+
+def test_a_partition_through_routers_cuts_the_chain_between_router_groups() -> None:
+    plan = make_plan(FleetConfig(peers=100, topology="router", routers=5, partition=30), 1)
+    assert [(li.dialer, li.listener) for li in plan.crossing()] == [("r3", "r2")]
+    own = {li.dialer: li.listener for li in plan.links if li.dialer[0] != "r"}
+    assert all(plan.half[peer] == plan.half[router] for peer, router in own.items())
+    assert plan.half["t99"] == 0 == plan.half["r4"]  # the teacher's group, r3 and r4
+    assert sum(plan.half[p.name] == 0 for p in plan.peers) == 40
+    two = make_plan(FleetConfig(peers=6, topology="router", routers=2, partition=8), 1)
+    assert [(li.dialer, li.listener) for li in two.crossing()] == [("r1", "r0")]
+    with pytest.raises(PlanError, match="--routers 2 or more"):
+        FleetConfig(peers=10, topology="router", routers=1, partition=8)

@@ -73,7 +73,7 @@ LIMITS = {
 }  # fmt: skip
 IDLE_CPU_MS, IDLE_RSS_MB = 3.0, 50.0
 """The target of one idle peer (nothing left to learn): at most 3 ms of CPU a second and 50 MB
-resident (issue 35)."""
+resident."""
 HOP_LIMITS = {"geometric-40": 0.1}
 """Seconds a hop on the longest shortest path from the teacher (``per_hop_s``), the target of
 the scenarios whose shape is the point."""
@@ -191,7 +191,7 @@ def idle_alone(seconds: float = 10.0, settle: float = 5.0) -> dict[str, dict[str
     run --demo`` with nothing to learn (no sequence to meet, no neighbour) and a ``ktbt peer
     router`` with no client, side by side on loopback, each measured over ``seconds`` once
     ``settle`` seconds after it is up: CPU time (ms a second) and resident memory (MB), from
-    /proc (runner.usage). The target of one idle peer (issue 35): 3 ms a second, 50 MB."""
+    /proc (runner.usage). The target of one idle peer: 3 ms a second, 50 MB."""
     import socket
     import subprocess
     import sys

@@ -1,7 +1,7 @@
 """`ktbt monitor` with a fleet of 100 peers, in a real headless Chromium at 1280x800 and
 1920x1080: the document never scrolls sideways (the matrix scrolls in its own box), every peer is
 listed with what it learned, and the spreading chart has its axis titles and a legend outside
-its plot (spec section 10; issue 35 item 6).
+its plot (spec section 10).
 
 The 100 peers are real zenoh publishers, not `ktbt peer` processes (a hundred of those cost
 about 5 GB here): four sessions, as four groups of a fleet would be, each holding 25 peers' own

@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -22,23 +23,30 @@ from tests.zenoh_helpers import ROOT, wait_until
 pytestmark = [pytest.mark.slow, pytest.mark.network]  # make test-fast skips it
 
 
-def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: Path) -> None:
-    out = tmp_path / "run"
+def run_fleet(out: Path, *args: str, timeout: float = 150) -> tuple[int, str, dict[str, Any]]:
+    """``ktbt fleet run ARGS --no-live --out OUT`` to its end, with no peer and no namespace
+    of its own left behind; its exit status, its output and its summary."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--partition", "8s",
-         "--churn", "0.2", "--loss", "0.1", "--seed", "3", "--bound", "30", "--teacher", "serve",
-         "--no-live", "--out", str(out)],
+        [sys.executable, "-m", "ktbt_proto", "fleet", "run", *args, "--no-live", "--out", str(out)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
-        output, _ = proc.communicate(timeout=90)
+        output, _ = proc.communicate(timeout=timeout)
     finally:
         _, left, ours = sweep(proc, out / "events.jsonl")
     assert not left, f"the run left peers running: {left}"
     assert not ours, f"the run left its namespace: {ours}"
-    summary = json.loads((out / "summary.json").read_text())
+    return proc.returncode, output, json.loads((out / "summary.json").read_text())
+
+
+def test_a_small_fleet_converges_through_a_partition_a_kill_and_loss(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    code, output, summary = run_fleet(
+        out, "--peers", "6", "--partition", "8s", "--churn", "0.2", "--loss", "0.1", "--seed",
+        "3", "--bound", "30", "--teacher", "serve", timeout=90,
+    )  # fmt: skip
     verdicts = {v["name"]: v for v in summary["verdicts"]}
-    assert proc.returncode == 0, output
+    assert code == 0, output
     assert summary["passed"], output
     assert verdicts["fault: partition-silent"]["status"] == "pass"
     assert verdicts["fault: churn"]["status"] == "pass"
@@ -59,19 +67,11 @@ def test_a_fleet_shaped_as_an_edge_list_is_measured_hop_by_hop(tmp_path: Path) -
     item reaches peer 0 along the line, five hops, and the report says so item by item."""
     edges, out = tmp_path / "line.txt", tmp_path / "run"
     edges.write_text("# a line\n0 1\n1 2\n2 3\n3 4\n4 5\n")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--topology",
-         "edges", "--edges", str(edges), "--teacher", "serve", "--bound", "60", "--settle",
-         "0.5", "--no-live", "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    code, output, summary = run_fleet(
+        out, "--peers", "6", "--topology", "edges", "--edges", str(edges), "--teacher", "serve",
+        "--bound", "60", "--settle", "0.5",
     )  # fmt: skip
-    try:
-        output, _ = proc.communicate(timeout=150)
-    finally:
-        _, left, ours = sweep(proc, out / "events.jsonl")
-    assert not left and not ours, (left, ours)
-    assert proc.returncode == 0, output
-    summary = json.loads((out / "summary.json").read_text())
+    assert code == 0, output
     assert summary["passed"] and summary["eccentricity"] == 5, output
     assert len(summary["hops"]) == 4  # the four colour skills
     line = {f"p{k}": f"p{k + 1}" for k in range(4)} | {"p4": "t5"}
@@ -157,20 +157,11 @@ def test_a_fleet_through_two_routers_heals_their_cut_link_and_reports_what_idle_
     the run reports each role's CPU time a second and memory over the 4 s after convergence,
     read from /proc (check.idle_cost)."""
     out = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--topology",
-         "router", "--routers", "2", "--partition", "8s", "--teacher", "serve", "--bound",
-         "60", "--settle", "4",
-         "--no-live", "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    code, output, summary = run_fleet(
+        out, "--peers", "6", "--topology", "router", "--routers", "2", "--partition", "8s",
+        "--teacher", "serve", "--bound", "60", "--settle", "4",
     )  # fmt: skip
-    try:
-        output, _ = proc.communicate(timeout=150)
-    finally:
-        _, left, ours = sweep(proc, out / "events.jsonl")
-    assert not left and not ours, (left, ours)
-    assert proc.returncode == 0, output
-    summary = json.loads((out / "summary.json").read_text())
+    assert code == 0, output
     verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
     assert verdicts["fault: partition-silent"] == "pass", summary["verdicts"]
     assert verdicts["convergence"] == "pass", summary["verdicts"]

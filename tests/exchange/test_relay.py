@@ -127,6 +127,19 @@ def test_an_item_crosses_a_line_of_members_hop_by_hop_without_a_timed_ask(quiet:
         assert all(t.refused == 0 for t in transports) and all(m.refused == 0 for m in robots)
 
 
+def reach(network: ZenohTransport, queries: list[str]) -> None:
+    """Until the liar's queryable is reached from the learner's session (it records a probe's
+    key), then the probe forgotten: the learner's first query must reach the liar, whose raw
+    session has no liveliness token to be seen appearing by."""
+
+    def reached() -> bool:
+        network.session.get("ktbt/v1/knowledge/probe", timeout=0.5)
+        return wait_until(lambda: "ktbt/v1/knowledge/probe" in queries, 0.5)
+
+    assert wait_until(reached, 60)
+    queries.clear()
+
+
 @contextmanager
 def liar(port: int, connect: int) -> Iterator[tuple[Any, list[str]]]:
     """A raw zenoh session beside a learner: it announces what it likes, in any name, and its
@@ -159,6 +172,7 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         session, queries = stack.enter_context(liar(ph, pl))
         lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
         stack.callback(lies.undeclare)
+        reach(network, queries)
         t0 = time.monotonic()
         # Its first step asks (a broadcast, which the liar gets) and starts hearing.
         while not (queries and lies.matching_status.matching):
@@ -239,6 +253,7 @@ def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> 
         session, queries = stack.enter_context(liar(ph, pl))
         lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
         stack.callback(lies.undeclare)
+        reach(network, queries)
         t0 = time.monotonic()
         while not (queries and lies.matching_status.matching):
             assert time.monotonic() < t0 + 60  # discovery, however loaded the machine

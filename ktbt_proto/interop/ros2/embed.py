@@ -296,11 +296,19 @@ class Embedded:
 
     def _run(self) -> None:
         """One run of the agent's timer: a step of the fleet member (section 4.5) on the
-        user's tick count, then what changed is shown."""
+        user's tick count, then what changed is shown. Nothing once the node's context is shut
+        down (a signal, ``rclpy.shutdown``): the executor may still run a timer that was due,
+        and its entities can no longer be read."""
+        if not self.node.context.ok():
+            return
         self.agent.now = self.tree.count
         with speaking(self.logger):  # the library's records of this robot: its node's
-            self.member.step(self.transport.clock())
-            self._show()
+            try:
+                self.member.step(self.transport.clock())
+                self._show()
+            except Exception:
+                if self.node.context.ok():
+                    raise  # shut down while stepping: nothing to report
 
     def _show(self) -> None:
         self.shown.show(self._control.tree)

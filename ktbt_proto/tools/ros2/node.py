@@ -436,14 +436,19 @@ class KtbtNode(LifecycleNode):
     # -- running --------------------------------------------------------------------------------
 
     def _tick(self) -> None:
-        """One step of the fleet member (section 4.5), then what changed is shown."""
+        """One step of the fleet member (section 4.5), then what changed is shown; nothing once
+        the context is shut down (a timer that was due may still run)."""
         member, transport = self.member, self.transport
-        if member is None or transport is None:
+        if member is None or transport is None or not self.context.ok():
             return
         member.agent.now += 1
         with speaking(self.logger):  # the library's records of this robot: its node's
-            member.step(transport.clock())  # the node's clock: sim time under use_sim_time
-            self._show()
+            try:
+                member.step(transport.clock())  # the node's clock: sim time under use_sim_time
+                self._show()
+            except Exception:
+                if self.context.ok():
+                    raise  # shut down while stepping: nothing to report
 
     def _show(self, periodic: bool = False) -> None:
         """Publish the tree snapshot and the catalog when they changed (the snapshot on the

@@ -95,7 +95,7 @@ LOOK_FOR = 1.0
 """Seconds :meth:`Ros2Transport.appeared` looks in the graph for a newcomer after a new match
 (the graph and the match are both DDS discovery, not always seen at the same instant)."""
 
-SETTLE = 1.0
+SETTLE = 2.0
 """Seconds the ROS graph must stay unchanged, once it shows another node, before a robot
 starting takes its name as free (:meth:`Ros2Transport.claim`): discovery is under way when a
 node starts."""

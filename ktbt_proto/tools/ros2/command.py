@@ -220,6 +220,70 @@ def _call(client_node: Any, srv_type: Any, service: str, request: Any, timeout: 
         client_node.destroy_client(client)
 
 
+REACHES = {
+    "configure": "inactive",
+    "activate": "active",
+    "deactivate": "inactive",
+    "cleanup": "unconfigured",
+    "shutdown": "finalized",
+}
+"""The primary state each transition ends in (lifecycle_msgs' state machine)."""
+
+SLICE = 0.5
+"""Seconds a lifecycle command waits for a reply before it reads the node's state."""
+
+
+def _state(client_node: Any, getter: Any, timeout: float) -> str | None:
+    """The node's state label through ``getter`` (a GetState client), or None when its
+    service has left the graph (the node is gone) or did not answer within ``timeout``."""
+    import rclpy
+    from lifecycle_msgs.srv import GetState
+
+    if not getter.service_is_ready():
+        return None
+    future = getter.call_async(GetState.Request())
+    rclpy.spin_until_future_complete(client_node, future, timeout_sec=timeout)
+    result = future.result()
+    return None if result is None else str(result.current_state.label)
+
+
+def _transition(client_node: Any, node: str, transition: str, timeout: float) -> bool:
+    """Whether ``node`` took ``transition`` (its reply's success), within ``timeout``.
+
+    A reply can be lost: a server may send it before its reply writer has matched this
+    new client, and a node that shuts down ends before its reply is delivered. So while
+    the reply is late the command reads the node's state (a second service, matched by
+    then): the transition's end state, reached from another state, counts as done, and
+    after ``shutdown`` so does the node leaving the graph."""
+    import rclpy
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    changer = client_node.create_client(ChangeState, f"{node}/change_state")
+    getter = client_node.create_client(GetState, f"{node}/get_state")
+    try:
+        for client, name in ((changer, "change_state"), (getter, "get_state")):
+            if not client.wait_for_service(timeout_sec=timeout):
+                raise _NoAnswer(f"no service {node}/{name} found within {timeout:g} s")
+        before = _state(client_node, getter, timeout)
+        request = ChangeState.Request()
+        request.transition.label = transition
+        future = changer.call_async(request)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            rclpy.spin_until_future_complete(client_node, future, timeout_sec=SLICE)
+            if future.done() and future.result() is not None:
+                return bool(future.result().success)
+            now = _state(client_node, getter, SLICE)
+            if now == REACHES[transition] != before:
+                return True
+            if now is None and transition == "shutdown" and not getter.service_is_ready():
+                return True
+        raise _NoAnswer(f"{node}/change_state did not answer within {timeout:g} s")
+    finally:
+        client_node.destroy_client(changer)
+        client_node.destroy_client(getter)
+
+
 @ros2.command("lifecycle", epilog=example("ktbt ros2 lifecycle /robot1/ktbt activate"))
 def lifecycle_command(
     node: Annotated[str, typer.Argument(help="The node's full name: /robot1/ktbt.")],
@@ -236,22 +300,18 @@ def lifecycle_command(
         raise typer.Exit(2)
     node = _full(node)
     with _client_node() as client_node:
-        from lifecycle_msgs.srv import ChangeState, GetState
+        from lifecycle_msgs.srv import GetState
 
-        srv_type: Any = GetState if transition == "get" else ChangeState
-        request = srv_type.Request()
-        if transition != "get":
-            request.transition.label = transition
-        service = f"{node}/{'get_state' if transition == 'get' else 'change_state'}"
         try:
-            done = _call(client_node, srv_type, service, request, timeout)
+            if transition == "get":
+                got = _call(client_node, GetState, f"{node}/get_state", GetState.Request(), timeout)
+                typer.echo(got.current_state.label)
+                return
+            took = _transition(client_node, node, transition, timeout)
         except _NoAnswer as exc:
             _say(f"error: {exc}")
             raise typer.Exit(1) from None
-    if transition == "get":
-        typer.echo(done.current_state.label)
-        return
-    if not done.success:
+    if not took:
         _say(f"error: {node} refused {transition} (see its log)")
         raise typer.Exit(1)
     typer.echo(f"{node}: {transition} done")

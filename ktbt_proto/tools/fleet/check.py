@@ -142,6 +142,7 @@ def check(events: list[dict[str, Any]]) -> list[Verdict]:
         _rounds(h),
         _bounded(h),
         *_monitor(h),
+        *_groups(h),
     ]
 
 
@@ -683,6 +684,46 @@ def _monitor(h: History) -> list[Verdict]:
     detail = (
         f"{len(h.peers)} peers present and what each knows, {seen['waited']:g} s after the "
         f"settle; {seen['events']} events, dropped {seen['drops'] or 'none'}"
+    )
+    return [Verdict(name, "pass", detail)]
+
+
+def _groups(h: History) -> list[Verdict]:
+    """Through routers: every router group lived in a network namespace of its own, apart from
+    the others and from the runner's (each member's namespace, read from ``/proc`` when it came
+    up, is its group's), and every link between groups carried bytes through its proxy, the
+    only path between them. Skipped, with why, where namespaces could not be made; no verdict
+    for a fleet without routers (or a record from before groups had namespaces)."""
+    seen = h.one("groups")
+    group: dict[str, int] = h.plan.get("group") or {}
+    if seen is None or not group:
+        return []
+    name = "router groups in namespaces of their own"
+    if "skipped" in seen:
+        return [Verdict(name, "skipped", str(seen["skipped"]))]
+    inode = {int(g): space.get("inode") for g, space in seen["namespaces"].items()}
+    wrong = []
+    if None in inode.values() or len(set(inode.values()) | {seen.get("runner")}) != len(inode) + 1:
+        wrong.append(f"the groups' namespaces are not apart: {inode}, runner {seen.get('runner')}")
+    members: Counter[int] = Counter()
+    for e in h.of("up"):
+        g = group.get(e["peer"])
+        if g is None:
+            continue
+        if e.get("netns") != inode.get(g):
+            wrong.append(f"{e['peer']} life {e['life']} was not in group {g}'s namespace")
+        else:
+            members[g] += 1
+    between = [li for li in h.plan["links"] if group[li["dialer"]] != group[li["listener"]]]
+    counted = (h.one("counters") or {}).get("links", {})
+    carried = {li["index"]: counted.get(str(li["index"]), {}).get("bytes", 0) for li in between}
+    wrong += [f"the link between groups {i} carried nothing" for i, b in carried.items() if not b]
+    if wrong:
+        return [Verdict(name, "fail", "; ".join(wrong)[:500])]
+    shown = ", ".join(f"{members[g]}" for g in sorted(inode))
+    detail = (
+        f"{len(inode)} groups, each in a namespace of its own (processes up there: {shown});"
+        f" {len(between)} links between them carried {sum(carried.values())} bytes"
     )
     return [Verdict(name, "pass", detail)]
 

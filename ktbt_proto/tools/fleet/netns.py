@@ -3,19 +3,28 @@ so its rules touch nothing else on the machine) and packet loss in it with nftab
 (``numgen random mod 100 < P drop``, counted). Loss applies between the proxies and the peers
 they connect to (both ends in 127.1.0.0/16), in both directions of every link.
 
+A fleet through routers has one namespace more for each router group (its router and the
+router's clients), each an isolated loopback of its own: the groups are joined only by the
+proxies of the routers' links, each a listening socket in the dialer's namespace and an
+onward one in the listener's (:func:`socket_in`), so the fault layer is the only path between
+groups and a cut between them is a real one.
+
 Where the machine does not allow it (not root, no ``ip``, no ``nft``) :func:`unavailable` says
 why, and the run reports loss as skipped."""
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 
 TABLE = "ktbt_fleet"
+CLONE_NEWNET = 0x40000000
 
 
 def _run(*args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
@@ -62,9 +71,11 @@ def add_loss(name: str, fraction: float) -> None:
         raise OSError(f"nft in {name}: {done.stderr.strip()}")
 
 
-def dropped() -> int | None:
-    """Packets the loss rule of the namespace this process runs in dropped (None: no rule)."""
-    done = _run("nft", "-j", "list", "table", "inet", TABLE)
+def dropped(name: str | None = None) -> int | None:
+    """Packets the loss rule of namespace ``name`` (None: the one this process runs in)
+    dropped (None: no rule)."""
+    inside = ("ip", "netns", "exec", name) if name else ()
+    done = _run(*inside, "nft", "-j", "list", "table", "inet", TABLE)
     if done.returncode != 0:
         return None
     total = 0
@@ -73,6 +84,52 @@ def dropped() -> int | None:
             if "counter" in expr:
                 total += int(expr["counter"]["packets"])
     return total
+
+
+def identity(path: str) -> int | None:
+    """The inode that names a network namespace, from a namespace's file (``/run/netns/NAME``
+    or ``/proc/PID/ns/net``): two processes share a namespace when theirs are equal, as
+    ``ip netns identify`` compares them. None if there is no such file."""
+    try:
+        return os.stat(path).st_ino
+    except OSError:
+        return None
+
+
+def of_process(pid: int) -> int | None:
+    return identity(f"/proc/{pid}/ns/net")
+
+
+def of_name(name: str) -> int | None:
+    return identity(f"/run/netns/{name}")
+
+
+def _setns(fd: int) -> None:
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.setns(fd, CLONE_NEWNET) != 0:
+        errno = ctypes.get_errno()
+        raise OSError(errno, f"setns: {os.strerror(errno)}")
+
+
+def socket_in(name: str | None) -> socket.socket:
+    """A TCP socket of namespace ``name`` (None: this thread's own). A socket belongs to the
+    namespace it was made in, whatever thread uses it later: this thread enters ``name`` for
+    the one call and comes back, so a proxy has its two ends in two namespaces."""
+    if name is None:
+        return socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    here = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+    try:
+        there = os.open(f"/run/netns/{name}", os.O_RDONLY)
+        try:
+            _setns(there)
+            try:
+                return socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            finally:
+                _setns(here)
+        finally:
+            os.close(there)
+    finally:
+        os.close(here)
 
 
 def pids(name: str) -> list[int]:

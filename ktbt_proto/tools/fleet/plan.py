@@ -213,6 +213,10 @@ class Plan:
     """The learners killed in each churn round."""
     positions: dict[str, list[float]] = field(default_factory=dict)
     """Where each peer is in ``--topology geometric`` (x, y in the unit square)."""
+    group: dict[str, int] = field(default_factory=dict)
+    """With ``--topology router``: each router's group (its index) and each peer's (its
+    router's); the runner puts every group in a network namespace of its own where the machine
+    allows, joined to the others only through the proxies of the routers' links."""
 
     @property
     def peers(self) -> list[Host]:
@@ -244,6 +248,7 @@ class Plan:
             "half": self.half,
             "victims": self.victims,
             "positions": self.positions,
+            "group": self.group,
         }
 
 
@@ -399,7 +404,7 @@ def router_halves(plan: Plan) -> dict[str, int]:
     the first teacher's router. Every router and peer is named, so that the crossing links
     are exactly the routers' link across the cut."""
     routers, peers = plan.routers, plan.peers
-    own = {p.name: routers[i % len(routers)].index for i, p in enumerate(peers)}
+    own = {p.name: plan.group[p.name] for p in peers}
     cut = (len(routers) + 1) // 2  # routers below it on one side
     teacher = next(p for p in peers if p.role == "teacher")
     near = own[teacher.name] < cut
@@ -437,6 +442,8 @@ def make_plan(config: FleetConfig, port: int) -> Plan:
             link(routers[r], routers[r - 1])
         for i, p in enumerate(peers):
             link(p, routers[i % len(routers)])
+            plan.group[p.name] = i % len(routers)
+        plan.group.update({r.name: r.index for r in routers})
     else:
         for newer, older in peer_pairs(config):  # the newer (higher) peer dials
             link(peers[newer], peers[older])

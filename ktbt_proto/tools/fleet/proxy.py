@@ -6,6 +6,10 @@ read, so the kernel buffers fill; new connections are accepted and never connect
 and closed when their dialer gives up; an end of stream is held too; at the heal the held bytes
 flow on) or ``cut`` (a hard cut: every connection reset, new ones reset
 at once, until the heal). Every link counts what it did, so a fault that did not happen shows.
+
+A proxy may join two network namespaces (a fleet through routers, a namespace a router group):
+it listens in its dialer's and connects on in its listener's (netns.socket_in), and is then the
+only path between them.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
+from ktbt_proto.tools.fleet import netns
 from ktbt_proto.tools.fleet.plan import Link
 
 State = Literal["open", "held", "cut"]
@@ -58,6 +63,10 @@ class LinkProxy:
     dialled_held: Callable[[Link], None] | None = None
     """Told each time a connection of this link is accepted while it is held: its dialer gave
     the silent link up (its lease) and dialled again."""
+    listen_in: str | None = None
+    """The network namespace the proxy listens in (its dialer's; None: the runner's)."""
+    connect_in: str | None = None
+    """The network namespace it connects on in (its listener's; None: the runner's)."""
 
     def __post_init__(self) -> None:
         self._open = asyncio.Event()
@@ -66,9 +75,16 @@ class LinkProxy:
         self._conns: set[tuple[asyncio.StreamWriter, asyncio.StreamWriter | None]] = set()
 
     async def start(self) -> None:
-        self._server = await asyncio.start_server(
-            self._accept, self.link.proxy, self.port, reuse_address=True
-        )
+        sock = netns.socket_in(self.listen_in)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((self.link.proxy, self.port))
+            sock.listen(100)
+            sock.setblocking(False)
+        except OSError:
+            sock.close()
+            raise
+        self._server = await asyncio.start_server(self._accept, sock=sock)
 
     def hold(self) -> None:
         self.state = "held"
@@ -124,11 +140,8 @@ class LinkProxy:
                     return
             if pair not in self._conns:  # cut meanwhile
                 return
-            host, port = self.link.target, self.port
             try:
-                up_reader, up_writer = await asyncio.wait_for(
-                    asyncio.open_connection(host, port, local_addr=(self.link.bind, 0)), 5
-                )
+                up_reader, up_writer = await asyncio.wait_for(self._connect(), 5)
             except (OSError, TimeoutError):
                 writer.close()
                 return
@@ -157,6 +170,18 @@ class LinkProxy:
             for w in pair:
                 if w is not None:
                     w.close()
+
+    async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        """On to the listener, from the dialer's address, in the listener's namespace."""
+        sock = netns.socket_in(self.connect_in)
+        try:
+            sock.setblocking(False)
+            sock.bind((self.link.bind, 0))
+            await asyncio.get_running_loop().sock_connect(sock, (self.link.target, self.port))
+        except BaseException:
+            sock.close()
+            raise
+        return await asyncio.open_connection(sock=sock)
 
     async def _wait_open(self, reader: asyncio.StreamReader) -> bytes | None:
         """Wait for the heal on a connection accepted while held, watching for its end: what
@@ -279,11 +304,16 @@ class FaultLayer:
         delay: float = 0.0,
         linked: Callable[[Link], None] | None = None,
         dialled_held: Callable[[Link], None] | None = None,
+        spaces: dict[str, str] | None = None,
     ) -> None:
-        self.proxies = {
-            link.index: LinkProxy(link, port, delay, linked=linked, dialled_held=dialled_held)
-            for link in links
-        }
+        """``spaces``: the network namespace of each fleet member not in the runner's own."""
+        near = spaces or {}
+        self.proxies = {}
+        for link in links:
+            self.proxies[link.index] = LinkProxy(
+                link, port, delay, linked=linked, dialled_held=dialled_held,
+                listen_in=near.get(link.dialer), connect_in=near.get(link.listener),
+            )  # fmt: skip
 
     async def start(self) -> None:
         for proxy in self.proxies.values():

@@ -9,7 +9,11 @@ and every save file at the end. Peers are observed only through what they write.
 
 With packet loss (or whenever the machine allows), the run happens inside a network namespace
 of its own: the runner starts itself again inside it (``ip netns exec``), and the outer process
-deletes the namespace, rules and all, whatever happens (Ctrl-C too).
+deletes the namespace, rules and all, whatever happens (Ctrl-C too). A fleet through routers
+then has a namespace more for each router group (its router and the router's clients, started
+there with ``ip netns exec``), joined to the others only by the proxies of the routers' links
+(netns.socket_in); where namespaces cannot be made, the groups share the machine's loopback,
+apart only by their addresses, and the record says why (check: the groups' namespaces).
 """
 
 from __future__ import annotations
@@ -155,18 +159,31 @@ class FleetRun:
     """Runs one scenario (inside whatever network namespace the caller chose)."""
 
     def __init__(
-        self, config: FleetConfig, out: Path, say: Say, live: bool, loss_note: str | None
+        self,
+        config: FleetConfig,
+        out: Path,
+        say: Say,
+        live: bool,
+        loss_note: str | None,
+        groups: tuple[str, ...] = (),
+        apart_note: str | None = None,
     ) -> None:
         self.config, self.out, self.say, self.live = config, out, say, live
         self.loss_note = loss_note
         """None when the loss rule is in place; otherwise why loss is skipped."""
+        self.groups, self.apart_note = groups, apart_note
+        """The network namespace of each router group (by the group's index), or none and why
+        (``apart_note``)."""
         self.t0 = time.time()
         self.items = authored_items(config.knowledge or EXAMPLE_KNOWLEDGE)
         self.plan: Plan = make_plan(config, _port())
         self.members = {n.name: PeerProcess(n, out / "peers") for n in self.plan.nodes}
+        self.spaces = {name: groups[g] for name, g in self.plan.group.items()} if groups else {}
+        """Each fleet member's network namespace, if not the runner's."""
         self.layer = FaultLayer(
-            self.plan.links, self.plan.port, config.delay, self._linked, self._dialled_held
-        )
+            self.plan.links, self.plan.port, config.delay, self._linked, self._dialled_held,
+            spaces=self.spaces,
+        )  # fmt: skip
         self.record = Record(out / "events.jsonl", self.t0)
         self.pause = stream(config.seed, "churn-pauses")
         self.teacher_program = "run" if config.teacher == "run" else "serve"
@@ -240,9 +257,13 @@ class FleetRun:
         else:
             known = set()
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        command = self._command(member, ready)
+        space = self.spaces.get(member.node.name)
+        if space is not None:  # ip execs the command: the pid is the peer's
+            command = ["ip", "netns", "exec", space, *command]
         with open(out, "wb") as sink:
             proc = subprocess.Popen(
-                self._command(member, ready), stdout=sink, stderr=subprocess.STDOUT, env=env,
+                command, stdout=sink, stderr=subprocess.STDOUT, env=env,
                 stdin=subprocess.DEVNULL, start_new_session=True,
             )  # fmt: skip
         member.lives.append(Life(number, proc, out, self.record.now(), known, ready))
@@ -305,6 +326,7 @@ class FleetRun:
             self.record.emit(
                 "up", t=life.up, peer=member.node.name, life=life.number,
                 knows=knows if isinstance(knows, int) else None,
+                netns=netns.of_process(life.proc.pid),
             )  # fmt: skip
         if member.node.role == "router" or not member.log.exists():
             return
@@ -375,6 +397,21 @@ class FleetRun:
             self.record.emit(
                 "sample", peer="runner", life=1, rss_kb=used[0], fds=used[1], cpu_ms=used[2]
             )
+
+    def record_groups(self) -> None:
+        """Which network namespace each router group has (the inode that names it, against
+        which every member's own is held when it is up), and the runner's; or why the groups
+        share one."""
+        if not self.groups:
+            note = self.apart_note or "the run has no network namespace"
+            self.record.emit("groups", skipped=note)
+            self.say(f"{self.config.name}: router groups share one loopback: {note}")
+            return
+        spaces = {
+            str(g): {"name": name, "inode": netns.of_name(name)}
+            for g, name in enumerate(self.groups)
+        }
+        self.record.emit("groups", namespaces=spaces, runner=netns.of_process(os.getpid()))
 
     async def observe(self, stop: asyncio.Event) -> None:
         live = None
@@ -601,7 +638,8 @@ class FleetRun:
             if cfg.delay:
                 self.fault("delay", "end", evidence=self._link_counters(list(self.layer.proxies)))
             if cfg.loss and self.loss_note is None:
-                self.fault("loss", "end", evidence={"dropped": netns.dropped() or 0})
+                dropped = sum(netns.dropped(n) or 0 for n in (None, *self.groups))
+                self.fault("loss", "end", evidence={"dropped": dropped})
         finally:
             stop.set()
             try:
@@ -621,6 +659,8 @@ class FleetRun:
             "run", config=cfg.to_json(), plan=self.plan.to_json(), items=self.items, t0=self.t0,
             teacher_program=self.teacher_program, netns=os.environ.get("KTBT_FLEET_NETNS"),
         )  # fmt: skip
+        if self.plan.group:
+            self.record_groups()
         if cfg.loss:
             if self.loss_note is None:
                 self.fault("loss", "start", fraction=cfg.loss)
@@ -717,12 +757,20 @@ def _probe(teacher: str, endpoint: str, sequence: str, rounds: int = 20) -> dict
     return {"rounds": len(times), "median_s": times[len(times) // 2], "min_s": times[0]}
 
 
-def run_inside(config: FleetConfig, out: Path, say: Say, live: bool, loss_note: str | None) -> Any:
+def run_inside(
+    config: FleetConfig,
+    out: Path,
+    say: Say,
+    live: bool,
+    loss_note: str | None,
+    groups: tuple[str, ...] = (),
+    apart_note: str | None = None,
+) -> Any:
     """One scenario here; SIGINT and SIGTERM stop its schedule, and everything it started is
     still stopped and recorded."""
 
     async def main() -> dict[str, Any]:
-        fleet = FleetRun(config, out, say, live, loss_note)
+        fleet = FleetRun(config, out, say, live, loss_note, groups, apart_note)
         task = asyncio.current_task()
         if task is None:  # asyncio.run always runs main() as a task
             raise RuntimeError("run_inside's main() is not running as a task")
@@ -747,7 +795,9 @@ def run(
     config: FleetConfig, out: Path, say: Say, live: bool = False, monitor: str | None = None
 ) -> dict[str, Any]:
     """Run one scenario and check it; inside a namespace of its own where the machine allows
-    (needed for loss), else on the machine's loopback with loss skipped. With ``monitor``
+    (needed for loss; through routers, a namespace more for each router group), else on the
+    machine's loopback with loss skipped and the router groups apart only by their
+    addresses. With ``monitor``
     (HOST:PORT), ``ktbt monitor`` watches the fleet from this machine's loopback for the
     whole run. Returns the summary (also written to ``summary.json``)."""
     from ktbt_proto.tools.fleet.check import check_record
@@ -771,7 +821,7 @@ def run(
                 result = _in_namespace(config, out, live)
             else:
                 note = why if config.loss else None
-                result = run_inside(config, out, say, live, note)
+                result = run_inside(config, out, say, live, note, apart_note=why)
     finally:
         signal.signal(signal.SIGTERM, previous)
     summary = check_record(out)
@@ -783,16 +833,22 @@ def run(
 
 def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
     name = f"ktbt-fleet-{os.getpid()}-{random.randrange(1 << 20):x}"
-    netns.create(name)
+    groups = [f"{name}-g{g}" for g in range(config.router_count)]
+    made: list[str] = []
     proc: subprocess.Popen[bytes] | None = None
     try:
+        for space in [name, *groups]:
+            netns.create(space)
+            made.append(space)
         note = None
         if config.loss:
             try:
-                netns.add_loss(name, config.loss)
+                for space in made:
+                    netns.add_loss(space, config.loss)
             except OSError as exc:
                 note = str(exc)
-        write_atomic(out / "config.json", json.dumps({"config": config.to_json(), "loss": note}))
+        spec = {"config": config.to_json(), "loss": note, "groups": groups}
+        write_atomic(out / "config.json", json.dumps(spec))
         proc = subprocess.Popen(
             ["ip", "netns", "exec", name, sys.executable, "-m", "ktbt_proto.tools.fleet.runner",
              str(out), "--live" if live else "--quiet"],
@@ -820,7 +876,8 @@ def _in_namespace(config: FleetConfig, out: Path, live: bool) -> dict[str, Any]:
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
-        netns.delete(name)
+        for space in reversed(made):
+            netns.delete(space)
 
 
 def _interrupt(*_: object) -> None:
@@ -838,7 +895,7 @@ def main() -> None:
         if not live:
             print(text, flush=True)
 
-    result = run_inside(config, out, say, live, spec["loss"])
+    result = run_inside(config, out, say, live, spec["loss"], tuple(spec.get("groups", ())))
     write_atomic(out / "result.json", json.dumps(result, default=str))
 
 

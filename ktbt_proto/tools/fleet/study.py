@@ -55,7 +55,8 @@ partition and the healthy 20 at the other leases measured (what the lease buys a
 random (seed 7) in a square of side 1 and linked within a radio range of 0.2, a graph whose
 longest shortest path from the teacher is several hops (knowledge measured per hop,
 check.hops). ``router-100`` is a fleet of 100 peers as zenoh clients spread over 5 routers
-(20 each, the routers linked in a chain, every link through the fault layer), kept 10 s
+(20 each, the routers linked in a chain, every link through the fault layer, each router
+group in a network namespace of its own where the machine allows), kept 10 s
 after convergence to measure what each process costs with nothing left to learn
 (check.idle_cost); ``router-100-partition-30s`` the same fleet with the link between the
 router groups r0-r2 and r3-r4 silently cut for 30 s from before the teacher is up

@@ -3,10 +3,11 @@ loopback (docs/howto/fleet.md).
 
 The monitor reaches every fleet member (every router, when peers are clients) over a unix
 socket in a folder of the run's own: a network namespace does not separate sockets bound to a
-path, so the monitor runs outside the namespace the peers share, and its links are outside the
-fault layer (watching changes no link). It serves its page on the address asked for and, for
-the runner inside the namespace, on ``http.sock`` in the same folder; :func:`view` reads what
-the page shows from there, and the checker holds it against the peers' own logs.
+path, so the monitor runs outside the namespaces the peers live in (the run's, or one a router
+group), and its links are outside the fault layer (watching changes no link). It serves its
+page on the address asked for and, for the runner inside the namespace, on ``http.sock`` in
+the same folder; :func:`view` reads what the page shows from there, and the checker holds it
+against the peers' own logs.
 """
 
 from __future__ import annotations

@@ -512,3 +512,55 @@ def test_idle_cost_is_empty_without_convergence_or_cpu_samples() -> None:
     before_cpu = [{k: v for k, v in e.items() if k != "cpu_ms"}
                   for e in _sampled({"p0": (0.0, 10.0)})]  # fmt: skip
     assert idle_cost(History(before_cpu)) == {}
+
+
+GROUPS = "router groups in namespaces of their own"
+
+
+def grouped(
+    inside: dict[str, int] | None = None, carried: int = 900, inodes: tuple[int, int] = (11, 22)
+) -> list[dict[str, Any]]:
+    """Two router groups (r0 with p0 and t2, r1 with p1), each in its namespace (inodes 11 and
+    22, the runner's 5), every member up in its own, the routers' link carrying ``carried``
+    bytes; ``inside`` overrides where members were."""
+    events = base(topology="router", routers=2)
+    group = events[0]["plan"]["group"]
+    assert group == {"p0": 0, "p1": 1, "t2": 0, "r0": 0, "r1": 1}
+    where = {peer: inodes[g] for peer, g in group.items()} | (inside or {})
+    for e in events:
+        if e["kind"] == "up":
+            e["netns"] = where[e["peer"]]
+    events[1:1] = [
+        {"t": 0.0, "kind": "groups", "runner": 5,
+         "namespaces": {"0": {"name": "ns-g0", "inode": inodes[0]},
+                        "1": {"name": "ns-g1", "inode": inodes[1]}}},
+        *({"t": 0.5, "kind": "up", "peer": r, "life": 1, "knows": None, "netns": where[r]}
+          for r in ("r0", "r1")),
+    ]  # fmt: skip
+    between = [li["index"] for li in events[0]["plan"]["links"] if li["dialer"] == "r1"]
+    counted = {str(i): {"bytes": carried} for i in between}
+    events.insert(-1, {"t": 3.5, "kind": "counters", "links": counted, "bad_lines": 0})
+    return events
+
+
+def test_router_groups_each_in_its_namespace_joined_by_a_link_that_carried_bytes_pass() -> None:
+    assert verdicts(grouped())[GROUPS] == "pass"
+    assert GROUPS not in verdicts(base())  # no routers, no verdict
+    skipped = grouped()
+    skipped[1] = {"t": 0.0, "kind": "groups", "skipped": "network namespaces need root"}
+    assert verdicts(skipped)[GROUPS] == "skipped"
+
+
+@pytest.mark.parametrize(
+    "events",
+    [
+        grouped(inside={"p1": 11}),  # p1 was up in the other group's namespace
+        grouped(inside={"r0": 5}),  # r0 was up in the runner's
+        grouped(carried=0),  # the link between the groups carried nothing
+        grouped(inodes=(11, 11)),  # the two groups were one namespace
+    ],
+)
+def test_a_member_outside_its_groups_namespace_or_an_idle_link_between_groups_fails(
+    events: list[dict[str, Any]],
+) -> None:
+    assert GROUPS in failed(events)

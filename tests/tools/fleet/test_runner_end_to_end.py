@@ -21,6 +21,9 @@ from tests.fleet_helpers import MONITOR_PID, sweep
 from tests.zenoh_helpers import ROOT, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.network]  # make test-fast skips it
+GROUPS = "router groups in namespaces of their own"
+APART = os.geteuid() == 0 and shutil.which("ip") is not None
+"""Whether router groups get namespaces of their own here (netns.unavailable)."""
 
 
 def run_fleet(out: Path, *args: str, timeout: float = 150) -> tuple[int, str, dict[str, Any]]:
@@ -165,6 +168,12 @@ def test_a_fleet_through_two_routers_heals_their_cut_link_and_reports_what_idle_
     verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
     assert verdicts["fault: partition-silent"] == "pass", summary["verdicts"]
     assert verdicts["convergence"] == "pass", summary["verdicts"]
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    plan = next(e for e in events if e["kind"] == "run")["plan"]
+    between = [li["index"] for li in plan["links"] if li["dialer"] == "r1"]
+    cut = next(e for e in events if e["kind"] == "fault" and e["phase"] == "start")
+    assert cut["links"] == between  # the partition is the link between the two groups
+    _groups_apart(verdicts[GROUPS])
     idle = summary["idle"]
     assert set(idle["cpu_ms_per_s"]) == {"learner", "router", "teacher"}, idle
     assert idle["window_s"] >= 3.0, idle
@@ -172,3 +181,70 @@ def test_a_fleet_through_two_routers_heals_their_cut_link_and_reports_what_idle_
         assert 5 < rss["median"] <= rss["worst"] < 2_000, (role, idle)  # a Python process
         assert 0 <= idle["cpu_ms_per_s"][role]["median"] <= 1_000, (role, idle)
     assert "idle after convergence" in output and "router " in output, output
+
+
+def _groups_apart(status: str) -> None:
+    """Router groups were each in a namespace of their own where the machine allows it; else
+    the verdict says why, as skipped (never passed)."""
+    assert status == ("pass" if APART else "skipped"), status
+
+
+def test_a_fleet_through_two_routers_has_a_namespace_a_group_and_is_watched(
+    tmp_path: Path,
+) -> None:
+    """Six peers as clients of two routers, each router and its clients in a network namespace
+    of their own, seen from outside while they run (``ip netns pids``: each group's processes
+    are in its namespace, no other); the fleet converges over the routers' link, the only path
+    between the groups, and the monitor, outside the namespaces, shows every peer and serves
+    its page on this machine's loopback."""
+    import urllib.request
+
+    out, printed = tmp_path / "run", tmp_path / "printed.txt"
+    with open(printed, "w") as sink:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ktbt_proto", "fleet", "run", "--peers", "6", "--topology",
+             "router", "--routers", "2", "--teacher", "serve", "--settle", "4", "--bound", "60",
+             "--monitor", "127.0.0.1:0", "--no-live", "--out", str(out)],
+            cwd=ROOT, stdout=sink, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+    record = out / "events.jsonl"
+    inside: dict[str, set[int]] = {}
+    page = 0
+    try:
+        assert wait_until(
+            lambda: record.exists() and '"all-up"' in record.read_text(), seconds=90
+        ), printed.read_text()
+        events = [json.loads(line) for line in record.read_text().splitlines()]
+        if APART:
+            groups = next(e for e in events if e["kind"] == "groups")["namespaces"]
+            for space in groups.values():
+                listed = subprocess.run(
+                    ["ip", "netns", "pids", space["name"]], capture_output=True, text=True
+                ).stdout
+                inside[space["name"]] = {int(p) for p in listed.split()}
+        url = re.search(r"watch it at (http://\S+/)", printed.read_text())
+        assert url is not None, printed.read_text()
+        with urllib.request.urlopen(url.group(1), timeout=10) as response:
+            page = response.status
+        proc.wait(timeout=90)
+    finally:
+        _, left, ours = sweep(proc, record, printed.read_text())
+    assert not left and not ours, (left, ours)
+    output = printed.read_text()
+    assert proc.returncode == 0, output
+    assert page == 200
+    summary = json.loads((out / "summary.json").read_text())
+    verdicts = {v["name"]: v for v in summary["verdicts"]}
+    assert verdicts["convergence"]["status"] == "pass", output
+    assert verdicts["the monitor shows what the peers know"]["status"] == "pass", output
+    _groups_apart(verdicts[GROUPS]["status"])
+    if not APART:
+        pytest.skip(verdicts[GROUPS]["detail"])
+    events = [json.loads(line) for line in record.read_text().splitlines()]
+    group = next(e for e in events if e["kind"] == "run")["plan"]["group"]
+    names = next(e for e in events if e["kind"] == "groups")["namespaces"]
+    launched = {e["peer"]: e["pid"] for e in events if e["kind"] == "launch"}
+    for g, space in names.items():
+        members = {launched[peer] for peer, its in group.items() if str(its) == g}
+        assert inside[space["name"]] == members, (g, inside, launched)
+    assert "links between them carried" in verdicts[GROUPS]["detail"]

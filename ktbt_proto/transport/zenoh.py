@@ -48,7 +48,7 @@ import os
 import re
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -346,6 +346,9 @@ class ZenohTransport:
         self._publisher: Any = None
         self._sink: EventPublisher | None = None
         self._asking = 0
+        self._gets: Counter[tuple[str, str]] = Counter()
+        """The gets not ended yet, by query id and the peer sent to ("": all): an answer to
+        one may still come (:meth:`awaiting`)."""
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
         self._heard: dict[str, tuple[str, ...]] = {}
@@ -550,10 +553,12 @@ class ZenohTransport:
         for its sequence; answers go to the inbox."""
         if self.closed:
             return
+        sent = (message.id, to or "")
         with self._lock:
             full = self._asking >= self.max_asking
             if not full:
                 self._asking += 1
+                self._gets[sent] += 1
         if not full:
             self._inbox.asked(message.id)
         if full:
@@ -576,6 +581,9 @@ class ZenohTransport:
         def on_end() -> None:
             with self._lock:
                 self._asking -= 1
+                self._gets[sent] -= 1
+                if not self._gets[sent]:
+                    del self._gets[sent]
             ended.set()
 
         try:
@@ -592,6 +600,14 @@ class ZenohTransport:
             log.debug("%s: query failed", self.name, exc_info=True)
             if not ended.is_set():
                 on_end()
+
+    def awaiting(self, id: str, to: str = "") -> bool:
+        """Whether the get of query ``id`` sent to peer ``to`` ("": to all) has not ended, so an
+        answer to it may still come (section 4.5). A peer finishes a query once it has answered
+        what it knows (section 3), and a get ends when every peer it reached has finished it or
+        its timeout passed: after that no answer to it is on its way."""
+        with self._lock:
+            return self._gets[(id, to)] > 0
 
     def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
         """The answer a reply carries, or None: refused and counted, a peer's error, or the

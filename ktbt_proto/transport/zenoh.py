@@ -421,9 +421,27 @@ class ZenohTransport:
             self.catalog = lambda: catalog(agent.knowledge, security.identity)()
         if self.lookup is None and self.answer_at_once:
             self.lookup = live_answers(lambda: agent.knowledge, security.identity)
+            self._answer_held(self.lookup)
         if self.tree is None:
             # The tree as of the last merge: a Tree is never changed in place, only replaced.
             self.tree = lambda: format_tree(agent.control.tree, "compact")
+
+    def _answer_held(self, lookup: Lookup) -> None:
+        """Answer, from what the agent that just attached knows, the queries that arrived
+        before it did (its liveliness is up once the session is open, and a peer that sees it
+        appear asks at once, section 4.5), as every later one is answered: a newcomer's first
+        askers are not left to their next timed ask."""
+        with self._lock:
+            held, self._pending = self._pending, {}
+        for query, _, _ in held.values():
+            try:
+                message = decode(query.payload.to_bytes(), self.max_bytes)
+                if isinstance(message, Query):
+                    self._answer_at_once(query, message, lookup)
+            except Exception as exc:  # never a traceback out of attach (section 2.1)
+                self._refuse(f"a query held until the agent attached: {internal_error(exc)}")
+            finally:
+                query.drop()
 
     # -- the Transport interface ----------------------------------------------------------------
 

@@ -20,7 +20,8 @@ from __future__ import annotations
 import logging
 import os
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -141,6 +142,10 @@ class AgentCore:
         """The last tick at which something was learned (the idle rule's clock)."""
         self._closed: dict[str, None] = {}
         """The ids of this agent's latest closed queries (insertion-ordered, bounded)."""
+        self._saves_held = 0
+        """How many :meth:`saving_once` blocks are open: a save inside one waits for its end."""
+        self._unsaved = False
+        """Whether a save waits for the end of the outermost :meth:`saving_once` block."""
         if isinstance(control, ControlTree):
             raise TypeError(
                 f"Agent takes its control tree as stringBT or as a backend's factory such as "
@@ -187,20 +192,21 @@ class AgentCore:
         """Drain the transport once: the network's errors are counted apart, each query and
         answer handed to the driver. Returns how many answers were accepted."""
         accepted = 0
-        for message in self.transport.receive():
-            if isinstance(message, NetworkError):
-                self._network_error(message)
-            elif isinstance(message, Query):
-                self.metrics.queries_received += 1
-                self._record(
-                    Event.QUERY_RECEIVED,
-                    sender=message.sender,
-                    id=message.id,
-                    sequence=message.sequence,
-                )
-                self._query(message)
-            elif isinstance(message, Response):
-                accepted += self._response(message)
+        with self.saving_once():  # the answers read together: one save (section 5)
+            for message in self.transport.receive():
+                if isinstance(message, NetworkError):
+                    self._network_error(message)
+                elif isinstance(message, Query):
+                    self.metrics.queries_received += 1
+                    self._record(
+                        Event.QUERY_RECEIVED,
+                        sender=message.sender,
+                        id=message.id,
+                        sequence=message.sequence,
+                    )
+                    self._query(message)
+                elif isinstance(message, Response):
+                    accepted += self._response(message)
         return accepted
 
     def _query(self, query: Query) -> None:
@@ -453,10 +459,29 @@ class AgentCore:
 
     # -- persistence (spec/protocol.md section 5) ---------------------------------------------
 
+    @contextmanager
+    def saving_once(self) -> Iterator[None]:
+        """Hold the saves of what is learned or forgotten inside the block, and save once at
+        its end if anything changed (section 5): the answers one read of the transport merges
+        are one write, and a fleet member announces what it merged before that write, so a
+        neighbour asks while it is made (section 4.5). Blocks nest; the outermost saves."""
+        self._saves_held += 1
+        try:
+            yield
+        finally:
+            self._saves_held -= 1
+            if not self._saves_held and self._unsaved:
+                self._save()
+
     def _save(self) -> None:
-        """Save what was learned; a robot that cannot keeps it in memory and goes on."""
+        """Save what was learned; a robot that cannot keeps it in memory and goes on. Inside
+        :meth:`saving_once`, at the end of the block."""
         if self.knowledge_path is None:
             return
+        if self._saves_held:
+            self._unsaved = True
+            return
+        self._unsaved = False
         try:
             KnowledgeBase(k for k in self.knowledge if k.source is not None).save(
                 self.knowledge_path

@@ -23,7 +23,7 @@ import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from ktbt_proto.errors import StringBTError
 from ktbt_proto.exchange.application import ApplicationTimedAgent
@@ -48,6 +48,7 @@ __all__ = [
     "Learner",
     "ListedSequences",
     "Relay",
+    "Replies",
 ]
 
 log = logging.getLogger("ktbt.member")
@@ -69,7 +70,9 @@ RELAY_GRACE = 1.0
 """Seconds after a member sent its open query to another peer (or to all) during which an
 announcer is not asked yet (section 4.5): that peer's answer may be on its way, as when a
 teacher that joined a fleet answers its learners one after the other and the first to learn
-announce. The announcement waits, and is taken once no answer can be on its way."""
+announce. The announcement waits, and is taken once no answer can be on its way: the second
+is over, or (a network that tells, :class:`Replies`) every peer the query reached has finished
+with it, as one that knew nothing has at once."""
 
 RELAY_AT_ONCE = 8
 """Announcers asked at once in one step at most (section 4.5); those beyond wait for the
@@ -111,6 +114,17 @@ class Relay(Protocol):
     def news(self, now: float) -> list[tuple[str, tuple[str, ...]]]:
         """The announcements heard since the last call (``now``: the host's clock, as
         :meth:`Catalogs.changed`'s): (announcer, sequences), oldest first."""
+        ...
+
+
+@runtime_checkable
+class Replies(Protocol):
+    """A network that tells whether an answer to a query it sent may still come (zenoh: the
+    get has not ended, :meth:`ZenohTransport.awaiting`), so that an announcement waits for such
+    an answer only while one can come (:data:`RELAY_GRACE`, section 4.5)."""
+
+    def awaiting(self, id: str, to: str) -> bool:
+        """Whether an answer to query ``id`` sent to peer ``to`` ("": to all) may still come."""
         ...
 
 
@@ -205,10 +219,17 @@ class Learner:
 
     def awaited(self, now: float, announcer: str) -> bool:
         """Whether an answer to the open query may be on its way from a peer other than
-        ``announcer`` (sent it, or broadcast, within :data:`RELAY_GRACE`)."""
-        if self.robot.open_query is None:
+        ``announcer``: sent it, or broadcast, within :data:`RELAY_GRACE`, and, on a network
+        that tells (:class:`Replies`), not finished with by every peer it reached."""
+        query = self.robot.open_query
+        if query is None:
             return False
-        return any(p != announcer and now - t < RELAY_GRACE for p, t in self.sent.items())
+        network = self.robot.transport
+        told = network.awaiting if isinstance(network, Replies) else None
+        return any(
+            p != announcer and now - t < RELAY_GRACE and (told is None or told(query.id, p))
+            for p, t in self.sent.items()
+        )
 
     def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
         query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
@@ -351,14 +372,15 @@ class FleetMember:
             self.learner.opened = now
             self._held.clear()  # held from a time that is now to come
         self._last = now
-        agent.receive()
-        learned = [k for k in agent.metrics.learned if k not in self._reported]
+        with agent.saving_once():  # announced before it is saved: one write less a hop
+            agent.receive()
+            learned = [k for k in agent.metrics.learned if k not in self._reported]
+            if learned and self.relay is not None:
+                self.relay.learned(learned)
         for key in learned:
             tick, source = agent.metrics.learned[key]
             self.say(f"{agent.name}: learned {show_key(key)} from {source} at tick {tick}")
             self._reported.add(key)
-        if learned and self.relay is not None:
-            self.relay.learned(learned)
         if self.export is not None:
             self.export.sync(agent.knowledge)
         appeared = self.network.appeared()

@@ -48,7 +48,7 @@ import os
 import re
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -346,6 +346,9 @@ class ZenohTransport:
         self._publisher: Any = None
         self._sink: EventPublisher | None = None
         self._asking = 0
+        self._gets: Counter[tuple[str, str]] = Counter()
+        """The gets not ended yet, by query id and the peer sent to ("": all): an answer to
+        one may still come (:meth:`awaiting`)."""
         self._lock = threading.Lock()
         self._appeared: deque[str] = deque()
         self._heard: dict[str, tuple[str, ...]] = {}
@@ -418,9 +421,27 @@ class ZenohTransport:
             self.catalog = lambda: catalog(agent.knowledge, security.identity)()
         if self.lookup is None and self.answer_at_once:
             self.lookup = live_answers(lambda: agent.knowledge, security.identity)
+            self._answer_held(self.lookup)
         if self.tree is None:
             # The tree as of the last merge: a Tree is never changed in place, only replaced.
             self.tree = lambda: format_tree(agent.control.tree, "compact")
+
+    def _answer_held(self, lookup: Lookup) -> None:
+        """Answer, from what the agent that just attached knows, the queries that arrived
+        before it did (its liveliness is up once the session is open, and a peer that sees it
+        appear asks at once, section 4.5), as every later one is answered: a newcomer's first
+        askers are not left to their next timed ask."""
+        with self._lock:
+            held, self._pending = self._pending, {}
+        for query, _, _ in held.values():
+            try:
+                message = decode(query.payload.to_bytes(), self.max_bytes)
+                if isinstance(message, Query):
+                    self._answer_at_once(query, message, lookup)
+            except Exception as exc:  # never a traceback out of attach (section 2.1)
+                self._refuse(f"a query held until the agent attached: {internal_error(exc)}")
+            finally:
+                query.drop()
 
     # -- the Transport interface ----------------------------------------------------------------
 
@@ -550,10 +571,12 @@ class ZenohTransport:
         for its sequence; answers go to the inbox."""
         if self.closed:
             return
+        sent = (message.id, to or "")
         with self._lock:
             full = self._asking >= self.max_asking
             if not full:
                 self._asking += 1
+                self._gets[sent] += 1
         if not full:
             self._inbox.asked(message.id)
         if full:
@@ -576,6 +599,9 @@ class ZenohTransport:
         def on_end() -> None:
             with self._lock:
                 self._asking -= 1
+                self._gets[sent] -= 1
+                if not self._gets[sent]:
+                    del self._gets[sent]
             ended.set()
 
         try:
@@ -592,6 +618,14 @@ class ZenohTransport:
             log.debug("%s: query failed", self.name, exc_info=True)
             if not ended.is_set():
                 on_end()
+
+    def awaiting(self, id: str, to: str = "") -> bool:
+        """Whether the get of query ``id`` sent to peer ``to`` ("": to all) has not ended, so an
+        answer to it may still come (section 4.5). A peer finishes a query once it has answered
+        what it knows (section 3), and a get ends when every peer it reached has finished it or
+        its timeout passed: after that no answer to it is on its way."""
+        with self._lock:
+            return self._gets[(id, to)] > 0
 
     def _reply(self, reply: Any, asked: Message, heard: set[str]) -> Response | None:
         """The answer a reply carries, or None: refused and counted, a peer's error, or the

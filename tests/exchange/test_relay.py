@@ -56,8 +56,9 @@ def member(
     name: str, conf: ZenohSettings, knowledge: KnowledgeBase | None = None, wait: float = 0.5
 ) -> Iterator[tuple[FleetMember, ZenohTransport]]:
     """The demo robot as a fleet member on zenoh that relays (``ktbt peer run``'s wiring):
-    told the four colours, or, with ``knowledge``, a teacher told nothing."""
-    with ZenohTransport(name, conf, query_timeout=2.0) as transport:
+    told the four colours, or, with ``knowledge``, a teacher told nothing. Its gets last the
+    query's wait (2 s at least), as ``ktbt peer run``'s do."""
+    with ZenohTransport(name, conf, query_timeout=max(wait, 2.0)) as transport:
         robot = ApplicationTimedAgent(
             name, with_knowledge(DEMO_CONTROL, knowledge), demo_registry(), transport
         )
@@ -127,6 +128,62 @@ def test_an_item_crosses_a_line_of_members_hop_by_hop_without_a_timed_ask(quiet:
         assert all(t.refused == 0 for t in transports) and all(m.refused == 0 for m in robots)
 
 
+class Announcing:
+    """A member's relay on its real transport that notes, at each announcement, the writes of
+    its save file made so far (the keys each held)."""
+
+    def __init__(self, transport: ZenohTransport, writes: list[list[str]]) -> None:
+        self.transport, self.writes = transport, writes
+        self.announced: list[tuple[list[str], int]] = []
+
+    def learned(self, keys: list[str]) -> None:
+        self.announced.append((list(keys), len(self.writes)))
+        self.transport.learned(keys)
+
+    def news(self, now: float) -> list[tuple[str, tuple[str, ...]]]:
+        return self.transport.news(now)
+
+
+def test_a_member_announces_what_it_merged_before_saving_it_in_one_write(
+    quiet: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The answers one step reads are merged, announced, and only then saved, in one write
+    (sections 4.5 and 5): a neighbour asks while the file is written, not after one write an
+    item."""
+    writes: list[list[str]] = []
+    save = KnowledgeBase.save
+
+    def counted(base: KnowledgeBase, path: str | Path) -> None:
+        writes.append(sorted(item.key for item in base))
+        save(base, path)
+
+    monkeypatch.setattr(KnowledgeBase, "save", counted)
+    saved = tmp_path / "r1.json"
+    pt, pl = free_port(), free_port()
+    with ExitStack() as stack:
+        teacher, _ = stack.enter_context(member("t", line_settings(quiet, pt), COLOURS))
+        transport = stack.enter_context(
+            ZenohTransport("r1", line_settings(quiet, pl, pt), query_timeout=2.0)
+        )
+        robot = ApplicationTimedAgent(
+            "r1", with_knowledge(DEMO_CONTROL, None), demo_registry(), transport,
+            knowledge_path=saved,
+        )  # fmt: skip
+        relay = Announcing(transport, writes)
+        learner = FleetMember(
+            robot, transport, None, KEYS, wait=2.0, cooldown=COOLDOWN, say=lambda _: None,
+            relay=relay,
+        )  # fmt: skip
+        steps_until([teacher, learner], lambda: learner.done)
+    assert sorted(k for keys, _ in relay.announced for k in keys) == sorted(KEYS)
+    assert len(writes) == len(relay.announced)  # one write a step that learned
+    for n, (keys, before) in enumerate(relay.announced):
+        assert before == n  # the step's own write came after its announcement
+        assert set(keys) <= set(writes[n]) and not set(keys) & set(writes[n - 1] if n else [])
+    assert sorted(json.loads(saved.read_text())["knowledge"][i]["sequence"]
+                  for i in range(len(KEYS))) == sorted(KEYS)  # fmt: skip
+
+
 def reach(network: ZenohTransport, queries: list[str]) -> None:
     """Until the liar's queryable is reached from the learner's session (it records a probe's
     key), then the probe forgotten: the learner's first query must reach the liar, whose raw
@@ -141,21 +198,28 @@ def reach(network: ZenohTransport, queries: list[str]) -> None:
 
 
 @contextmanager
-def liar(port: int, connect: int) -> Iterator[tuple[Any, list[str]]]:
+def liar(port: int, connect: int, hold: bool = False) -> Iterator[tuple[Any, list[str]]]:
     """A raw zenoh session beside a learner: it announces what it likes, in any name, and its
     queryable on ``ktbt/v1/knowledge/*`` keeps the key of every query it gets (it never
-    answers)."""
+    answers). It finishes each query at once (the asker's get ends: no answer can come), or,
+    with ``hold``, only when it closes (an answer may be on its way until then)."""
     session: Any = open_session(ZenohSettings(listen=[endpoint(port)], connect=[endpoint(connect)]))
     queries: list[str] = []
+    held: list[Any] = []
 
     def on_query(query: Any) -> None:
         queries.append(str(query.key_expr))
-        query.drop()
+        if hold:
+            held.append(query)
+        else:
+            query.drop()
 
     entities = [session.declare_queryable("ktbt/v1/knowledge/*", on_query)]
     try:
         yield session, queries
     finally:
+        for query in held:
+            query.drop()
         for entity in entities:
             entity.undeclare()
         session.close()
@@ -169,12 +233,12 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         learner, network = stack.enter_context(
             member("learner", line_settings(quiet, pl), wait=30.0)
         )
-        session, queries = stack.enter_context(liar(ph, pl))
+        session, queries = stack.enter_context(liar(ph, pl, hold=True))
         lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
         stack.callback(lies.undeclare)
         reach(network, queries)
         t0 = time.monotonic()
-        # Its first step asks (a broadcast, which the liar gets) and starts hearing.
+        # Its first step asks (a broadcast, which the liar gets and holds) and starts hearing.
         while not (queries and lies.matching_status.matching):
             assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t0)
@@ -193,8 +257,9 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         assert "an announcement from liar: internal error reading a message: InjectedFault" in (
             caplog.text
         )
-        # A lie (it announces what it does not know), a hundred times. Just after its broadcast
-        # an answer may be on its way: the announcement waits; then the liar is asked, once.
+        # A lie (it announces what it does not know), a hundred times. Just after its broadcast,
+        # which the liar holds, an answer may be on its way: the announcement waits; then the
+        # liar is asked, once.
         for _ in range(100):
             lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements >= 1)
@@ -239,6 +304,33 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         assert learner.todo == KEYS  # nothing learned from a lie, nothing broken
         assert learner.agent.metrics.queries_sent == sent  # the open query, sent on
         assert learner.refused == 0
+
+
+def test_an_announcement_waits_for_no_answer_that_cannot_come(quiet: Path) -> None:
+    """Once every peer its broadcast reached has finished with it (the get ended), no answer
+    is on its way: an announcement heard within the grace is taken at once (section 4.5), as
+    when a learner's timed ask, answered by none, came just before its neighbour learned."""
+    pl, ph = free_port(), free_port()
+    with ExitStack() as stack:
+        learner, network = stack.enter_context(
+            member("learner", line_settings(quiet, pl), wait=30.0)
+        )
+        session, queries = stack.enter_context(liar(ph, pl))
+        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
+        stack.callback(lies.undeclare)
+        reach(network, queries)
+        t0 = time.monotonic()
+        while not (queries and lies.matching_status.matching):
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
+            step(learner, now=t0)
+        query = learner.agent.open_query
+        assert query is not None and learner.learner.sent == {"": t0}
+        assert wait_until(lambda: not network.awaiting(query.id))  # the liar finished it
+        lies.put(encode_learned([GREEN]))
+        assert wait_until(lambda: network.announcements >= 1)
+        step(learner, now=t0)  # within the grace of the broadcast
+        assert wait_until(lambda: queries[1:] == ["ktbt/v1/knowledge/liar"])
+        assert learner.agent.open_query is query  # the open query, sent on to the announcer
 
 
 def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> None:

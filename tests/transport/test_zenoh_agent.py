@@ -13,7 +13,8 @@ import pytest
 
 import ktbt_proto as kp
 from ktbt_proto.exchange.agent import Agent, Timing
-from ktbt_proto.exchange.messages import decode
+from ktbt_proto.exchange.messages import Query, Response, decode
+from ktbt_proto.items import sequence_key
 from ktbt_proto.tools.vocabulary import write_vocabulary
 from ktbt_proto.transport.zenoh import ZenohTransport
 from tests.door_robot import (
@@ -31,6 +32,7 @@ CONTROL = "<sl><k>(new)<e><e>"
 """The door robot's control tree: nothing but a placeholder for what it learns."""
 SHOWN = 'DoorClosed, HandleSeen(side="left")'
 """How ``ktbt peer list`` shows the door skill's sequence."""
+SEQUENCE_KEY = sequence_key(SEQUENCE)
 
 
 def vocabulary_registry(folder: Path) -> kp.Registry:
@@ -112,6 +114,35 @@ def test_a_transport_without_answer_at_once_leaves_queries_to_the_teach_tree() -
 
         assert wait_until(learned, 20), robot.metrics.refusals
         assert (tt.answered, teacher.metrics.responses_sent) == (0, 1)
+
+
+def test_a_query_that_came_before_the_agent_attached_is_answered_when_it_does() -> None:
+    """A peer's liveliness is up once its session is open, and whoever sees it appear asks at
+    once (spec section 4.5): a query that arrives before the agent is built on the transport
+    is answered from what the agent knows as soon as it attaches, not left to the asker's next
+    timed ask."""
+    pt, pa = free_port(), free_port()
+    with (
+        ZenohTransport("teacher", settings(pt)) as tt,
+        ZenohTransport("asker", settings(pa, pt), query_timeout=30.0) as ta,
+    ):
+        see(ta, "teacher")
+        query = Query(id=Query.new_id(), sender="asker", sequence=SEQUENCE_KEY)
+        ta.broadcast(query)
+
+        def read(transport: ZenohTransport, into: list[object]) -> bool:
+            into.extend(transport.receive())
+            return bool(into)
+
+        held: list[object] = []
+        assert wait_until(lambda: read(tt, held))  # it came, and waits
+        Agent("teacher", f"<sl><k>(new){MEMORY}<e><e>", door_registry(), tt)
+        answers: list[object] = []
+        assert wait_until(lambda: read(ta, answers))
+        assert [(a.sender, a.id, a.sequence) for a in answers if isinstance(a, Response)] == [
+            ("teacher", query.id, SEQUENCE_KEY)
+        ]
+        assert (tt.answered, tt.refused) == (1, 0)
 
 
 def test_what_a_transport_was_given_is_kept_when_an_agent_attaches() -> None:

@@ -311,3 +311,5 @@ def test_a_fleet_of_100_peer_processes_shows_whole_and_readable(tmp_path: Path) 
     assert verdicts["the monitor shows what the peers know"] == "pass", summary["verdicts"]
     assert proc.returncode == 0, printed.read_text()[-3000:]
     assert not _up(url)  # the monitor ended with the run
+    watched = (out / "monitor.out").read_text()  # the page was open when it ended
+    assert "Traceback" not in watched and "ERROR" not in watched, watched[-3000:]

@@ -292,6 +292,10 @@ def test_a_fleet_of_100_peer_processes_shows_whole_and_readable(tmp_path: Path) 
                 f"{t} {i}" for t in teachers for i in items
             }
             spread_to_all(driver, items, len(peers), 30)
+            # Honest peers, each event heard once: nothing dropped here (through several routers
+            # the monitor heard each event about 4 times, dropped as replayed).
+            dropped = "return document.getElementById('stat-dropped').textContent"
+            assert js(dropped) == "0", js("return document.getElementById('dropped').textContent")
 
             clicked = next(p for p in peers if roles[p] == "learner")
             js(f"document.querySelector('#matrix tbody tr[data-peer={clicked}] th').click();")

@@ -104,10 +104,13 @@ interop: $(VENV)/.installed-dev
 	KTBT_INTEROP=1 $(BIN)/python -m pytest tests/interop/test_btcpp_engine.py tests/interop/test_btcpp_learner.py \
 		tests/interop/test_btcpp_nav2.py
 
-# The fleet study (not part of `make test`): real peer processes under loss, delay, a partition
-# and churn; every run checked; the table and the figure land in docs/results/ (fleet.md,
-# fleet.png). About 9 minutes on 2 cores; packet loss needs root and nftables.
+# The heavy runs (not part of `make test`): the tests marked soak (KTBT_SOAK=1), such as the
+# monitor in Chromium over a fleet of 100 peer processes; then the fleet study: real peer
+# processes under loss, delay, a partition and churn; every run checked; the table and the
+# figure land in docs/results/ (fleet.md, fleet.png). About 9 minutes on 2 cores for the
+# study; packet loss needs root and nftables.
 soak: $(VENV)/.installed-dev
+	KTBT_SOAK=1 nice $(BIN)/python -m pytest -m soak
 	nice $(BIN)/ktbt fleet study --out results/fleet --docs docs/results
 
 clean:

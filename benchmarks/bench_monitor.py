@@ -17,10 +17,6 @@ share of the rate (queries, answers, merges and forgets of 20 items, refusals); 
   callback), so the ratio is what the monitor and the page add to the network's own delay;
 * the time between two updates the page applies, and the time a frame takes to draw;
 * the monitor's resident memory every second, and the page's JavaScript heap.
-
-``--screenshot PATH`` instead starts a fleet of 20 real ``ktbt peer`` processes (4 teachers,
-one of which serves a skill the learners refuse, and 16 learners that teach each other), lets
-knowledge spread, and saves the page as a PNG (``docs/monitor.png``).
 """
 
 from __future__ import annotations
@@ -312,76 +308,6 @@ def report(r: dict[str, Any]) -> str:
     return "\n".join(rows)
 
 
-# -- the screenshot ------------------------------------------------------------------------------
-
-ONE = (
-    "<k>(prior)\n<sq><c>(TargetSeen, colour={c})<a>(PickTreasure)"
-    "<a>(AssignCollectionPoint, colour={c})<e>\n<e>\n"
-)
-BAD = "<k>(new)\n<sq><c>(TargetSeen, colour=4)<a>(AssignCollectionPoint, colour=7)<e>\n<e>\n"
-
-
-def screenshot(path: Path, peers: int = 20) -> None:
-    import tempfile
-
-    from tests.browser import chromium
-
-    fleet, http = _port(), _port()
-    work = Path(tempfile.mkdtemp(prefix="ktbt-shot-"))
-    knowledge = ROOT / "examples" / "knowledge" / "colours.sbt"
-    (work / "bad.sbt").write_text(BAD)
-    for c in (1, 2):
-        (work / f"c{c}.sbt").write_text(ONE.format(c=c))
-    ktbt = ["-m", "ktbt_proto"]
-    endpoint = f"tcp/127.0.0.1:{fleet}"
-    with ExitStack() as stack:
-        stack.enter_context(
-            _process(*ktbt, "peer", "router", "--listen", endpoint, ready="router listening")
-        )
-        serve = [
-            ("red-teacher", work / "c1.sbt"),
-            ("green-teacher", work / "c2.sbt"),
-            ("teacher", knowledge),
-            ("rogue", work / "bad.sbt"),
-        ]
-        for name, file in serve:
-            stack.enter_context(
-                _process(*ktbt, "peer", "serve", "--id", name, "--knowledge", str(file),
-                         "--connect", endpoint, "--publish-events", ready="serving")
-            )  # fmt: skip
-        stack.enter_context(
-            _process(*ktbt, "monitor", "--connect", endpoint, "--http", f"127.0.0.1:{http}",
-                     ready="localhost only")
-        )  # fmt: skip
-        url = f"http://127.0.0.1:{http}/"
-        _wait_http(url)
-        driver = stack.enter_context(chromium(1500, 1100))
-        driver.get(url)
-        robots = []
-        for i in range(peers - len(serve)):
-            colours = ["TargetSeen(colour=1)", "TargetSeen(colour=2)"]
-            if i % 3 == 0:
-                colours += ["TargetSeen(colour=3)"]
-            if i % 4 == 1:
-                colours += ["TargetSeen(colour=4)"]
-            args = [a for c in colours for a in ("--sequence", c)]
-            name = f"robot{i:02d}"
-            run = [*ktbt, "peer", "run", "--id", name, "--connect", endpoint, "--duration", "120"]
-            robots.append(stack.enter_context(_process(*run, "--publish-events", *args)))
-            time.sleep(0.7)
-        time.sleep(12)
-        robots[3].send_signal(signal.SIGKILL)  # one robot lost: marked gone
-        time.sleep(4)
-        driver.execute_script(
-            "const th = document.querySelector('#matrix tbody tr:nth-child(6) th');"
-            "if (th) th.click();"
-        )
-        time.sleep(1)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        driver.save_screenshot(str(path))
-    print(f"wrote {path}")
-
-
 def publish_cost(rounds: int) -> dict[str, Any]:
     """``bench_transfer``'s path (ask, check, merge, tick) between a teacher and a learner that
     publish no events (the anchor), publish them unsigned, and publish them signed (every
@@ -445,7 +371,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--generate", type=int, metavar="PORT", help=argparse.SUPPRESS)
-    parser.add_argument("--screenshot", type=Path, metavar="PNG")
     parser.add_argument("--signed", action="store_true", help="The peers sign their events.")
     parser.add_argument(
         "--publish-cost", type=int, metavar="ROUNDS", help="Time transfers with and without events."
@@ -458,9 +383,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         RESULTS_DIR.mkdir(exist_ok=True)
         (RESULTS_DIR / "monitor_publish_cost.json").write_text(json.dumps(cost, indent=2) + "\n")
         print(json.dumps(cost, indent=2))
-        return 0
-    if args.screenshot:
-        screenshot(args.screenshot)
         return 0
     result = bench(args.peers, args.rate, args.seconds, args.signed)
     RESULTS_DIR.mkdir(exist_ok=True)

@@ -1,5 +1,7 @@
 """Test tiers (CONTRIBUTING.md): ``network`` marks a test that starts processes or opens zenoh
 sessions, ``slow`` one that takes more than about 5 s; ``make test-fast`` runs the others.
+``soak`` marks a heavy run (a fleet of 100 peer processes), skipped unless ``KTBT_SOAK=1``:
+``make soak`` runs those, ``make test`` does not.
 
 Most tests carry their marks where they are written. The simulator's tests are marked from the
 table below instead, until their module says it itself; ``tests/suites/test_tiers.py`` checks that
@@ -8,6 +10,7 @@ every name in it is still a test of that module.
 
 from __future__ import annotations
 
+import os
 import platform
 import sys
 
@@ -55,10 +58,13 @@ SIMULATOR_TIERS: dict[str, dict[str, tuple[str, ...]]] = {
 
 @pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects by mark
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    soak = os.environ.get("KTBT_SOAK") == "1"
     for item in items:
         function = getattr(item, "originalname", item.name)
         for name in SIMULATOR_TIERS.get(item.path.name, {}).get(function, ()):
             item.add_marker(name)
+        if not soak and item.get_closest_marker("soak") is not None:
+            item.add_marker(pytest.mark.skip(reason="a heavy run: make soak (KTBT_SOAK=1)"))
 
 
 @pytest.fixture(scope="session")

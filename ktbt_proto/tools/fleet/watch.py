@@ -1,7 +1,7 @@
 """``ktbt fleet run --monitor``: ``ktbt monitor`` watching a fleet run from this machine's
 loopback (docs/howto/fleet.md).
 
-The monitor reaches every fleet member (every router, when peers are clients) over a unix
+The monitor reaches every fleet member (one router, when peers are clients) over a unix
 socket in a folder of the run's own: a network namespace does not separate sockets bound to a
 path, so the monitor runs outside the namespaces the peers live in (the run's, or one a router
 group), and its links are outside the fault layer (watching changes no link). It serves its
@@ -112,6 +112,11 @@ def watching(
         listening = [
             n.name for n in plan.nodes if n.role == "router" or config.topology != "router"
         ]
+        if config.topology == "router":  # one: a zenoh peer linked to several routers is a
+            # path between them outside the fault layer, and they route through it (100 peers
+            # under 5 routers: each event reached the monitor about 4 times, 197 messages per
+            # learned item instead of 14, convergence in 107 s instead of 2 s)
+            listening = listening[:1]
         zenoh_conf = Path(folder) / "monitor.json5"  # no gossip, as the fleet's members
         zenoh_conf.write_text(json.dumps({"scouting": {"gossip": {"enabled": False}}}))
         args = [sys.executable, "-m", "ktbt_proto", "monitor", "--http", http_address,

@@ -83,13 +83,16 @@ def create_app(
     fleet: FleetState,
     hosts: list[str] | None = None,
     tree: Callable[[str], str | None] | None = None,
+    stopping: Callable[[], bool] = lambda: False,
 ) -> Starlette:
     """The app over ``fleet``. ``hosts``: the Host headers accepted (the loopback names when
     bound to loopback, so another site's page cannot reach it by DNS rebinding); ``None``:
     any. ``tree``: a peer's control tree as text (``Listener.tree``), served on
     ``/api/tree/<peer>`` and fetched in a worker thread, never blocking the event loop. The
     fleet is read in worker threads too: its lock is taken by zenoh's callbacks, and a page
-    must never freeze the others while one holds it."""
+    must never freeze the others while one holds it. ``stopping``: true once the server is
+    stopping; an open page's stream then ends within a batch, so the stop neither waits for
+    the page nor cancels its stream (uvicorn logs that as an error with a traceback)."""
 
     async def peer_tree(request: Request) -> Response:
         name = request.path_params["peer"]
@@ -108,7 +111,7 @@ def create_app(
         async def batches() -> AsyncIterator[str]:
             version: int | None = None
             yield "retry: 1000\n\n"
-            while True:
+            while not stopping():
                 body: dict[str, object]
                 if version is not None:
                     reached, changes = await asyncio.to_thread(fleet.changes_since, version)

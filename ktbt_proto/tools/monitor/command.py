@@ -161,8 +161,10 @@ def monitor_command(
 
     loopback = _is_loopback(host)
     shown = f"[{host}]" if family == socket.AF_INET6 else host
-    app = create_app(fleet, allowed_hosts(host, allow_host or []), tree)
-    # An open page's stream never ends by itself: at a stop, give connections a second.
+    # An open page's stream ends once the server is stopping; give connections a second.
+    app = create_app(
+        fleet, allowed_hosts(host, allow_host or []), tree, stopping=lambda: server.should_exit
+    )
     server = uvicorn.Server(
         uvicorn.Config(app, log_level="warning", lifespan="off", timeout_graceful_shutdown=1)
     )

@@ -213,6 +213,7 @@ class FleetState:
                 if item not in peer.knows and self._item(item, sequence, peer, learns=True):
                     self._know(peer, item, {"how": "known", "t": None, "at": now})
                     self._change({"k": "know", "peer": peer.name, "item": item, "how": "known"})
+                    self._spread(item, _iso(now))  # a knower more, whose merge went unheard
             if not whole:
                 return
             for item in [i for i, k in peer.knows.items() if i not in listed]:

@@ -7,7 +7,8 @@ ShownTopics here with real processes on loopback and unix sockets only: the moni
 where to watch, shows a real ``ktbt peer serve`` that listens on its member's socket (present,
 and what it knows), and is stopped with its folder removed; a monitor that ends during the run
 is reported, one that cannot start (its address taken) is a ``MonitorFailed`` with its words,
-and a monitor dies with a runner killed by SIGKILL. ``view`` is None where no monitor answers.
+a monitor dies with a runner killed by SIGKILL, and through routers it links to one.
+``view`` is None where no monitor answers.
 """
 
 from __future__ import annotations
@@ -136,6 +137,19 @@ def test_the_monitor_shows_a_member_on_its_socket_and_is_stopped_with_its_folder
     assert proc.returncode is not None  # stopped by its pid when the run ended
     assert watch.ended == []
     assert not Path(folder).exists()
+
+
+def test_through_routers_the_monitor_links_to_the_first_router_only(tmp_path: Path) -> None:
+    """Linked to several routers, the monitor (a zenoh peer) is a path between them outside the
+    fault layer, which they route through: each event reached it about 4 times with 5 routers,
+    and the fleet slowed 50-fold (tests/tools/monitor/test_browser_100.py, make soak)."""
+    config = FleetConfig(peers=6, topology="router", routers=3, name="routed")
+    with watching(config, "127.0.0.1:0", tmp_path, lambda line: None) as watch:
+        folder = watch.config.watch
+        printed = (tmp_path / "monitor.out").read_text()
+    linked = re.search(r"listening to the fleet at (\S+);", printed)
+    assert linked is not None, printed
+    assert linked.group(1) == endpoint(folder, "r0")
 
 
 def test_a_monitor_that_ends_during_the_run_is_reported(tmp_path: Path) -> None:

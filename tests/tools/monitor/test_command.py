@@ -2,7 +2,7 @@
 as ``ktbt fleet run --monitor``. A socket another monitor serves on is refused and left alone;
 one a dead monitor left is replaced; a file that is not a socket is never removed; the socket
 is its owner's only, passes the Host check (no browser reaches it), goes when the monitor
-stops, and a page left open does not hold the stop."""
+stops, and a page left open does not hold the stop (its stream ends, no traceback)."""
 
 from __future__ import annotations
 
@@ -82,6 +82,9 @@ def test_the_state_over_the_socket_and_a_second_monitor_refused(tmp_path: Path) 
         end(first)
         took = time.monotonic() - began
         stream.close()
+        assert first.stdout is not None
+        printed = first.stdout.read()
+    assert "Traceback" not in printed and "ERROR" not in printed, printed
     assert first.returncode == 0, first.returncode
     assert took < 10, f"an open stream held the stop for {took:.1f} s"
     assert not uds.exists()

@@ -97,6 +97,23 @@ def test_a_merge_is_a_transfer_a_matrix_cell_and_a_point_of_the_timeline() -> No
     assert changes[-1]["k"] == "peer"  # the peer's counters, once per batch
 
 
+def test_a_peer_known_by_its_catalog_is_a_point_of_the_timeline() -> None:
+    """The spreading chart counts every peer that knows the item, as the matrix does, also
+    one whose merge event never came (dropped, lost, or sent before the monitor heard of the
+    item): 5 of 100 such peers kept a line at 95 under a matrix full of them."""
+    fleet = FleetState()
+    fleet.catalog("t", [GREEN])
+    fleet.catalog("r1", [GREEN])
+    _, state = fleet.snapshot()
+    assert [p["count"] for p in state["timeline"]] == [1, 2]
+    fleet.event(
+        sign(ev("r2", 0, "merged", item=sequence_digest(GREEN), sequence=GREEN, teacher="t"))
+    )
+    fleet.catalog("r2", [GREEN])  # heard by its merge already: no second point
+    _, state = fleet.snapshot()
+    assert [p["count"] for p in state["timeline"]] == [1, 2, 3]
+
+
 def test_gaps_in_a_peers_numbering_and_unanswered_queries_are_counted(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -36,6 +36,7 @@
     errors: 0,
     timelineItems: () => [...model.timeline.keys()], // bounded by the items kept
     itemCount: () => model.items.size,
+    spreading: { top: 0, reach: {} }, // what the chart last drew: its y axis's top, each line's last count
   };
   window.ktbtMonitor = probe;
 
@@ -404,6 +405,7 @@
       }
     const legend = [];
     const total = Math.max(1, model.peers.size);
+    const reach = {};
     const left = 34;
     const top = 8;
     const w = cssW - left - 10;
@@ -451,6 +453,7 @@
         ctx.lineTo(left + w, y);
         ctx.stroke();
         ctx.restore();
+        reach[item] = line.length ? line[line.length - 1][1] : 0;
         const li = el("li");
         li.setAttribute("data-item", item);
         li.appendChild(swatch(i, n));
@@ -460,6 +463,7 @@
       }
     }
     document.getElementById("timeline-legend").replaceChildren(...legend);
+    probe.spreading = { top: total, reach: reach };
   }
   window.addEventListener("resize", () => {
     dirty.timeline = true;

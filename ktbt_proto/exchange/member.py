@@ -199,7 +199,8 @@ class Learner:
     appear together, and one answer an item is enough. The others wait their turn, the newest
     first (those that appeared together in an order drawn at random), until it knows what it
     lacks or broadcasts; only a peer that just appeared stretches the query's wait, so a queue
-    of them does not keep it open. After a query nobody answered, it holds back ``cooldown``
+    of them does not keep it open, and a peer that waited its turn holds back no announcer
+    (:meth:`awaited`). After a query nobody answered, it holds back ``cooldown``
     seconds and then the ``backoff``'s hold; after one answered (in part), it asks at once for
     what is left. The announcers of what it lacks (``relayed``, section 4.5) are asked each
     alone, as newcomers are, except that they stretch an open query's wait once at most, so
@@ -216,6 +217,10 @@ class Learner:
     """Where the open query went and when: a peer's name, or "" for a broadcast."""
     waiting: list[str] = field(default_factory=list)
     """Peers that appeared and were not asked yet, the next to ask last."""
+    tried: dict[str, float] = field(default_factory=dict)
+    """Peers that waited their turn, sent the open query, and when: they take a newcomer's
+    place, but an announcer is not held back for them (:meth:`awaited`), since nothing says
+    they know anything."""
     _rng: random.Random = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -243,7 +248,8 @@ class Learner:
         self.waiting = [*(p for p in self.waiting if p not in just), *fresh][-NEWCOMERS_KEPT:]
         busy = 0
         if self.robot.unanswered:
-            busy = sum(1 for p, t in self.sent.items() if p and now - t < RELAY_GRACE)
+            asked = [*self.sent.items(), *self.tried.items()]
+            busy = sum(1 for p, t in asked if p and now - t < RELAY_GRACE)
         room = max(0, NEWCOMERS_AT_ONCE - busy)
         pool = self.waiting
         if self.robot.open_query is None:
@@ -255,6 +261,7 @@ class Learner:
     def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
         query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
         self.sent = {peer: now for peer in to} if to else {"": now}
+        self.tried = {}
         if not to:
             self.waiting.clear()  # the broadcast reached them
         self.opened = now
@@ -286,7 +293,10 @@ class Learner:
         asking = robot.open_query is not None or bool(missing)
         chosen = self.newcomers(now, appeared) if asking else []
         if chosen and robot.open_query is not None:  # newcomers hear the open query at once
-            self._announce(now, chosen)
+            self._announce(now, [p for p in chosen if p in appeared])
+            for peer in [p for p in chosen if p not in appeared]:  # waited their turn
+                robot.announce(peer)
+                self.tried[peer] = now
             if any(p in appeared for p in chosen):  # a queue of them does not keep it open
                 self.opened = now
         elif chosen:  # each alone: the others were asked already

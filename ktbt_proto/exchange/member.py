@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
@@ -37,8 +38,9 @@ from ktbt_proto.tree import SequenceNode
 from ktbt_proto.validate import find_problems
 
 __all__ = [
-    "ASK_ALONE",
     "CATALOG_PERIOD",
+    "NEWCOMERS_AT_ONCE",
+    "NEWCOMERS_KEPT",
     "RELAY_AT_ONCE",
     "RELAY_GRACE",
     "RELAY_HOLD",
@@ -53,9 +55,15 @@ __all__ = [
 
 log = logging.getLogger("ktbt.member")
 
-ASK_ALONE = 1
-"""Peers that appear together asked each alone at most (section 4.5); more are asked in one
-broadcast: one message, where they would take one each."""
+NEWCOMERS_AT_ONCE = 1
+"""Peers that appeared a member sends its query at once, at most, counting those it sent it
+within :data:`RELAY_GRACE` whose answer may still be on its way (section 4.5): when a partition
+heals, tens of peers appear in the same half second, each knowing all it lacks, and asking each
+would bring as many answers to every item. The others wait their turn (:data:`NEWCOMERS_KEPT`
+of them), or its next broadcast, which reaches them all."""
+
+NEWCOMERS_KEPT = 256
+"""Peers that appeared kept waiting their turn to be asked, at most (the newest kept)."""
 
 CATALOG_PERIOD = 2.0
 """Seconds between two readings of the fleet's catalogs by a learner told no sequences
@@ -198,14 +206,19 @@ class Learner:
     every sequence it lacks in one query (section 1) as soon as it lacks one; a peer that
     appears (its liveliness, section 3) is sent the open query at once, and the query stays
     open a whole ``wait`` from then; a query closes when every sequence it names is answered,
-    or when its wait is over. With no query open, the peers that appear are asked at once: one
-    newcomer alone (those present before were asked already; a broadcast would wake every one
-    of them, all at the moment a teacher joins a large fleet), several that appeared together
-    in one broadcast (one message). After a query nobody answered, it holds back ``cooldown``
+    or when its wait is over. With no query open, the peers that appear are asked at once, each
+    alone (those present before were asked already). Of the peers that appear, it asks
+    :data:`NEWCOMERS_AT_ONCE` at a time, counting those asked within :data:`RELAY_GRACE` whose
+    answer may be on its way: when a partition heals, tens of peers that know all it lacks
+    appear together, and one answer an item is enough. The others wait their turn, the newest
+    first (those that appeared together in an order drawn at random), until it knows what it
+    lacks or broadcasts; only a peer that just appeared stretches the query's wait, so a queue
+    of them does not keep it open, and a peer that waited its turn holds back no announcer
+    (:meth:`awaited`). After a query nobody answered, it holds back ``cooldown``
     seconds and then the ``backoff``'s hold; after one answered (in part), it asks at once for
-    what is left. The announcers of what it lacks (``relayed``, section 4.5) are asked as
-    newcomers are, except that they stretch an open query's wait once at most, so that no
-    stream of announcements keeps a query open for ever."""
+    what is left. The announcers of what it lacks (``relayed``, section 4.5) are asked each
+    alone, as newcomers are, except that they stretch an open query's wait once at most, so
+    that no stream of announcements keeps a query open for ever."""
 
     robot: ApplicationTimedAgent
     backoff: Backoff
@@ -216,6 +229,18 @@ class Learner:
     """The id of the last query an announcer was asked in (its wait stretched once)."""
     sent: dict[str, float] = field(default_factory=dict)
     """Where the open query went and when: a peer's name, or "" for a broadcast."""
+    waiting: list[str] = field(default_factory=list)
+    """Peers that appeared and were not asked yet, the next to ask last."""
+    tried: dict[str, float] = field(default_factory=dict)
+    """Peers that waited their turn, sent the open query, and when: they take a newcomer's
+    place, but an announcer is not held back for them (:meth:`awaited`), since nothing says
+    they know anything."""
+    _rng: random.Random = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # Seeded with the member's name: a fleet spreads its asks over the peers that appeared
+        # together, and a run with the same names draws the same.
+        self._rng = random.Random(f"ktbt-newcomers:{self.robot.name}")
 
     def awaited(self, now: float, announcer: str) -> bool:
         """Whether an answer to the open query may be on its way from a peer other than
@@ -231,9 +256,35 @@ class Learner:
             for p, t in self.sent.items()
         )
 
+    def newcomers(self, now: float, appeared: list[str]) -> list[str]:
+        """The peers that appeared to send the query to now (section 4.5): as many as
+        :data:`NEWCOMERS_AT_ONCE` leaves room for beside the peers sent the open query, still
+        unanswered, within :data:`RELAY_GRACE` (a broadcast reached none of the newcomers),
+        taken from those waiting, the newest first; those that appeared together are put in
+        an order drawn at random. With no query open, only a peer that just appeared is asked
+        (a new query); the others wait for the open query, or for the broadcast."""
+        fresh = list(dict.fromkeys(appeared))
+        self._rng.shuffle(fresh)
+        just = set(fresh)
+        self.waiting = [*(p for p in self.waiting if p not in just), *fresh][-NEWCOMERS_KEPT:]
+        busy = 0
+        if self.robot.unanswered:
+            asked = [*self.sent.items(), *self.tried.items()]
+            busy = sum(1 for p, t in asked if p and now - t < RELAY_GRACE)
+        room = max(0, NEWCOMERS_AT_ONCE - busy)
+        pool = self.waiting
+        if self.robot.open_query is None:
+            pool = [p for p in self.waiting if p in just]
+        chosen = pool[len(pool) - room :] if room else []
+        self.waiting = [p for p in self.waiting if p not in chosen]
+        return chosen
+
     def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
         query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
         self.sent = {peer: now for peer in to} if to else {"": now}
+        self.tried = {}
+        if not to:
+            self.waiting.clear()  # the broadcast reached them
         self.opened = now
         return query
 
@@ -258,22 +309,32 @@ class Learner:
                 self.backoff.reset(now)
             else:
                 self.backoff.lost(now + self.cooldown)
-        if appeared and robot.open_query is not None:  # newcomers hear the open query at once
-            self._announce(now, appeared)
-            self.opened = now
-        elif appeared and missing:  # the newcomer alone: the others were asked already
-            self._ask(now, missing, appeared if len(appeared) <= ASK_ALONE else [])
+        if robot.open_query is None and not missing:
+            self.waiting.clear()  # nothing to ask them
+        asking = robot.open_query is not None or bool(missing)
+        chosen = self.newcomers(now, appeared) if asking else []
+        if chosen and robot.open_query is not None:  # newcomers hear the open query at once
+            self._announce(now, [p for p in chosen if p in appeared])
+            for peer in [p for p in chosen if p not in appeared]:  # waited their turn
+                robot.announce(peer)
+                self.tried[peer] = now
+            if any(p in appeared for p in chosen):  # a queue of them does not keep it open
+                self.opened = now
+        elif chosen:  # each alone: the others were asked already
+            self._ask(now, missing, chosen)
             self.backoff.reset(now)
-        if relayed and missing:  # announcers of what it lacks (section 4.5)
+        relayed = [p for p in relayed if p not in chosen]
+        if relayed and missing:  # announcers of what it lacks (section 4.5), each alone
             query = robot.open_query
             if query is None:
-                query = self._ask(now, missing, list(relayed) if len(relayed) <= ASK_ALONE else [])
+                query = self._ask(now, missing, relayed)
                 self.backoff.reset(now)
             else:
                 self._announce(now, relayed)
                 if self.stretched != query.id:
                     self.opened = now
             self.stretched = query.id
+            self.waiting = [p for p in self.waiting if p not in relayed]
         if missing and robot.open_query is None and self.backoff.ready(now):
             self._ask(now, missing)
 
@@ -395,8 +456,7 @@ class FleetMember:
                 told.setdefault(peer, []).extend({"sequence": s} for s in sequences)
             self.todo += self.listed.read(told)
         self.todo = [key for key in self.todo if key not in agent.knowledge]
-        relayed = [p for p in self._worth_asking(now, heard) if p not in appeared]
-        self.learner.step(now, self.todo, appeared, relayed)
+        self.learner.step(now, self.todo, appeared, self._worth_asking(now, heard))
         if self.ticks_control:
             agent.control.tick()
         agent.tend_memory()

@@ -47,6 +47,9 @@ class Event(StrEnum):
     """The peer's session is open (section 3): the first mark of a transfer's timeline."""
     PEER_SEEN = "peer-seen"
     """Another peer's liveliness appeared (``sender``: its name; section 3)."""
+    ANNOUNCED = "announced"
+    """An announcement of what the peer just learned, put once for all its neighbours
+    (``sequence``, ``more``; sections 3 and 4.5)."""
 
 
 MAX_LINE = 1_000_000

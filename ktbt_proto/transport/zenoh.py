@@ -723,14 +723,19 @@ class ZenohTransport:
         """Announce on ``ktbt/v1/learned/<name>`` the sequences this peer just learned (a fleet
         member after a merge, section 4.5): one put, heard by its neighbours only (peers do
         not forward between peers), 64 sequences to an announcement. The publisher is declared
-        at the first announcement, so a peer that never learns costs nothing."""
+        at the first announcement, so a peer that never learns costs nothing. Each put is an
+        ``announced`` event of its log (section 8)."""
         if self.closed or not keys:
             return
         if self._announcer is None:
             self._announcer = self._session.declare_publisher(f"{PREFIX}/learned/{self.name}")
         for first in range(0, len(keys), 1 + MAX_MORE):
-            self._announcer.put(encode_learned(keys[first : first + 1 + MAX_MORE]))
+            told = keys[first : first + 1 + MAX_MORE]
+            self._announcer.put(encode_learned(told))
             self.announced += 1
+            if self.log is not None:  # a message like a query (the fleet study counts it)
+                more = {"more": told[1:]} if len(told) > 1 else {}
+                self.log.record(Event.ANNOUNCED, peer=self.name, sequence=told[0], **more)
 
     def news(self, now: float = 0.0) -> list[tuple[str, tuple[str, ...]]]:
         """The announcements heard since the last call (section 4.5): (announcer, sequences),

@@ -165,10 +165,10 @@ def test_a_learner_started_before_any_teacher_learns_when_one_appears(tmp_path: 
 
 def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
     """A newcomer is asked at once, alone: the peers present before were asked already, and a
-    broadcast would wake them all again (spec/protocol.md section 4.5). Several newcomers at
-    once are asked in one broadcast."""
+    broadcast would wake them all again (spec/protocol.md section 4.5). Of several newcomers at
+    once, NEWCOMERS_AT_ONCE are asked, each alone: no broadcast reaches a peer not drawn."""
     from ktbt_proto.exchange.application import ApplicationTimedAgent
-    from ktbt_proto.exchange.member import ASK_ALONE, Learner
+    from ktbt_proto.exchange.member import NEWCOMERS_AT_ONCE, RELAY_GRACE, Learner
     from ktbt_proto.transport import MemoryNetwork
     from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
 
@@ -187,11 +187,27 @@ def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
     robot.receive()
     learner.step(0.2, [], [])
     assert robot.knows(SEQUENCE) and robot.open_query is None
-    crowd = [f"n{i}" for i in range(ASK_ALONE + 1)]
+    crowd = [f"n{i}" for i in range(NEWCOMERS_AT_ONCE + 3)]
+    agents = {n: ApplicationTimedAgent(n, CONTROL, registry(), net.join(n)) for n in crowd}
     robot2 = ApplicationTimedAgent("m", CONTROL, registry(), net.join("m"))
-    Learner(robot2, Backoff(seed="m"), wait=2.0, cooldown=0.5).step(0.0, missing, crowd)
-    other.receive()
-    assert other.heard("m") is not None  # broadcast: heard by a peer not named
+    second = Learner(robot2, Backoff(seed="m"), wait=2.0, cooldown=0.5)
+    second.backoff.lost(0.0)
+    second.step(0.1, missing, crowd)
+    for agent in [other, *agents.values()]:
+        agent.receive()
+    asked = [n for n, agent in agents.items() if agent.heard("m") is not None]
+    assert len(asked) == NEWCOMERS_AT_ONCE and other.heard("m") is None  # no broadcast
+    # More newcomers while that answer may be on its way: none asked yet; once no answer can be
+    # on its way (RELAY_GRACE), the newest waiting is sent the open query, the others wait on.
+    late = ApplicationTimedAgent("n-late", CONTROL, registry(), net.join("n-late"))
+    second.step(0.2, missing, ["n-late"])
+    late.receive()
+    assert late.heard("m") is None
+    second.step(0.1 + RELAY_GRACE, missing, [])
+    for agent in [late, *agents.values()]:
+        agent.receive()
+    assert late.heard("m") is not None
+    assert sum(agent.heard("m") is not None for agent in agents.values()) == NEWCOMERS_AT_ONCE
 
 
 def test_backoff_doubles_to_its_bound_and_resets() -> None:

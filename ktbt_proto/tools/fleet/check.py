@@ -813,10 +813,16 @@ def idle_cost(h: History) -> dict[str, Any]:
     }
 
 
+MESSAGES = (Event.QUERY_SENT, Event.ANSWER_SENT, Event.ANNOUNCED)
+"""What a run's messages are (``messages_per_item``): every query sent (to all, or to one peer),
+every answer sent and every announcement of what a peer learned (one put, however many
+neighbours hear it; spec/protocol.md section 4.5)."""
+
+
 def metrics(h: History) -> dict[str, Any]:
     """The numbers of a run: convergence after the reference, messages per learned item..."""
     done, ref = convergence_time(h), reference_time(h)
-    counted = [e for e in h.events if e["kind"] in (Event.QUERY_SENT, Event.ANSWER_SENT)]
+    counted = [e for e in h.events if e["kind"] in MESSAGES]
     messages = len([e for e in counted if e.get("to") != "fleet-probe"])
     merged = len(h.of(Event.MERGED))
     up = h.one("all-up")

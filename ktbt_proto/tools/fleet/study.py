@@ -345,7 +345,10 @@ def table(summaries: list[dict[str, Any]]) -> list[str]:
         "measured in the same run; the linked floor, one through a proxied link (its delay and",
         "loss included) to the learner behind it, an agent that answers from its tick loop",
         "(none in router-20 and router-100, whose links end at routers). Every run must converge",
-        "within 60 s (the bound) to pass. The newer peer of every pair dials the older (both",
+        "within 60 s (the bound) to pass. Messages per item count every query sent (to all or",
+        "to one peer), every answer sent and every announcement of what a peer learned (one",
+        "put, however many neighbours hear it), over the items merged. The newer peer of every",
+        "pair dials the older (both",
         "ends dial in size-40-both). geometric-40 is shaped like a real fleet: 40 robots",
         "placed at random (seed 7) in a square of side 1, linked when within 0.2 of each other",
         "(a radio range). Each scenario ran once, on a 2-core machine shared",
@@ -524,9 +527,10 @@ def _messages_table(summaries: list[dict[str, Any]]) -> list[str]:
     ]
     return [
         "",
-        "Messages per learned item (queries sent, to all or to one peer, and answers sent, over"
-        " items merged), against the previous study of the same scenario (one query a"
-        " sequence, asked again on a timer):",
+        "Messages per learned item (queries sent, to all or to one peer, answers sent and"
+        " announcements of what was learned, over items merged), against the previous study"
+        " of the same scenario (one query a sequence, asked again on a timer; announcements"
+        " were not counted before):",
         "",
         "| scenario | messages per item | before |",
         "| --- | --- | --- |",

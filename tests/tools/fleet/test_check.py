@@ -314,6 +314,24 @@ def test_refusals_of_what_fleet_peers_sent_are_counted_as_honest_answers_refused
     assert found["late_answers_refused"] == 2
 
 
+def test_messages_count_queries_answers_and_announcements_not_the_floor_probe() -> None:
+    """Messages per item (spec/protocol.md section 4.5): every query and answer sent and every
+    announcement of what a peer learned (one put, however many hear it); not the answers
+    given to the floor's probe."""
+    events = base()
+    assert metrics(History(events))["messages"] == 4  # the four queries
+    for peer, seq in (("p0", "A"), ("p1", "A")):
+        events.insert(-1, {"t": 2.0, "kind": "answer-sent", "peer": "t2", "life": 1,
+                           "to": peer, "id": seq})  # fmt: skip
+        events.insert(-1, {"t": 2.1, "kind": "announced", "peer": peer, "life": 1,
+                           "sequence": seq, "more": ["B"]})  # fmt: skip
+    events.insert(-1, {"t": 2.2, "kind": "answer-sent", "peer": "t2", "life": 1,
+                       "to": "fleet-probe", "id": "x"})  # fmt: skip
+    found = metrics(History(events))
+    assert found["messages"] == 8
+    assert found["messages_per_item"] == pytest.approx(8 / 4)
+
+
 def test_a_kill_with_nothing_saved_proves_nothing_and_is_skipped() -> None:
     events = churned()
     next(e for e in events if e["kind"] == "kill")["saved"] = {}

@@ -12,6 +12,7 @@ import shutil
 import signal
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -248,3 +249,30 @@ def test_a_fleet_through_two_routers_has_a_namespace_a_group_and_is_watched(
         members = {launched[peer] for peer, its in group.items() if str(its) == g}
         assert inside[space["name"]] == members, (g, inside, launched)
     assert "links between them carried" in verdicts[GROUPS]["detail"]
+
+
+def test_after_a_heal_a_learner_is_answered_by_one_peer_not_by_every_peer_that_knows(
+    tmp_path: Path,
+) -> None:
+    """Fourteen peers as zenoh clients of two routers whose link is silently cut for 8 s from
+    before the teacher is up. At the heal every learner of the cut-off half sees the other
+    half's peers appear together, each of them knowing all it lacks: it sends its query to one
+    of them at a time (``NEWCOMERS_AT_ONCE``), not to each, so the answers sent after the heal
+    are about one an item learned, where asking each newcomer would bring one from every peer
+    that knows (spec/protocol.md section 4.5)."""
+    out = tmp_path / "run"
+    code, output, summary = run_fleet(
+        out, "--peers", "14", "--topology", "router", "--routers", "2", "--partition", "8s",
+        "--teacher", "serve", "--bound", "60", "--settle", "2",
+    )  # fmt: skip
+    assert code == 0, output
+    verdicts = {v["name"]: v["status"] for v in summary["verdicts"]}
+    assert verdicts["fault: partition-silent"] == "pass", summary["verdicts"]
+    assert verdicts["convergence"] == "pass", summary["verdicts"]
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    heal = next(e["t"] for e in events if e["kind"] == "fault" and e["phase"] == "end")
+    after = Counter(e["kind"] for e in events if e["t"] >= heal)
+    assert after["merged"] >= 4, after  # the cut-off half learned after the heal
+    assert after["answer-sent"] <= 2 * after["merged"], after
+    assert after["announced"] >= 1, after  # what they learned was announced, and counted
+    assert summary["messages"] >= after["answer-sent"] + after["announced"]

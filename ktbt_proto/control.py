@@ -54,7 +54,9 @@ class ControlTree(Protocol):
         when: Iterable[Condition | str] | None = None,
     ) -> bool:
         """Merge ``Sequence(when, subtree)`` into placeholder ``slot`` at the next tick
-        boundary; True if the tree changed, False if it already held exactly this item."""
+        boundary; True if the tree changed, False if it already held exactly this item. An
+        item that does not fit ``registry`` raises a ``StringBTError``: an agent leaves that
+        check to the merge (``spec/protocol.md`` section 2, rule 5)."""
         ...
 
     def forget(self, slot: str = "new", when: Iterable[Condition | str] = ()) -> bool:

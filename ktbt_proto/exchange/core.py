@@ -421,7 +421,11 @@ class AgentCore:
             check_provenance(response, wanted, self.security.policy, self.security.trust)
             if wanted in self.knowledge:  # known already (perhaps innate): nothing to do
                 return True
-            conds, subtree = read_item(response, RECEIVE_LIMITS, self.registry)
+            # The merge checks the item against the vocabulary (the control tree's contract),
+            # so it is checked here only when a learned item would be evicted to make room
+            # for it: a bad item never takes a good one's place.
+            full = self.memory.capacity is not None and self._held() >= self.memory.capacity
+            conds, subtree = read_item(response, RECEIVE_LIMITS, self.registry if full else None)
             if not self._make_room():
                 raise Refused(f"from {response.sender}: memory full ({self.memory.capacity} items)")
             changed = self.control.merge(subtree, self.slot, when=conds)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from ktbt_proto.errors import StringBTError
@@ -59,8 +60,10 @@ class Knowledge:
     signature: str | None = None
     received_at: str | None = None
 
-    @property
+    @cached_property
     def key(self) -> str:
+        """The item's sequence key (``spec/protocol.md`` section 1), formatted once: a learner
+        looks its items up, records and counts them by it."""
         return sequence_key(self.conditions)
 
     def item(self) -> SequenceNode:

@@ -5,7 +5,7 @@ overheard or buffered), a knowledge server before it serves what it overheard, `
 before it prints. :func:`check_provenance` is the cheap part (the answer is to the sequence
 asked, its signatures satisfy the trust policy); :func:`read_item` parses the sequence and the
 subtree within the receive limits and validates them against the receiver's registry, when it
-has one. Each raises
+has one (an agent's merge checks the item against its vocabulary itself). Each raises
 :class:`Refused` with the reason a receiver counts and logs.
 """
 
@@ -52,7 +52,10 @@ def read_item(
     response: Response, limits: Limits = RECEIVE_LIMITS, registry: Registry | None = None
 ) -> tuple[tuple[Condition, ...], Node]:
     """Rules 4 and 5: the conditions and the subtree, parsed within ``limits`` (numbers
-    included) and validated against ``registry`` (names, arguments, types and ranges)."""
+    included) and validated against ``registry`` (names, arguments, types and ranges). Without
+    a registry, rule 5 is left to the merge, which checks the whole item against the control
+    tree's own (an agent's :meth:`~ktbt_proto.exchange.core.AgentCore.accept`): an item is
+    checked against the vocabulary once."""
     try:
         fault("item", response.subtree)
         conds = parse_sequence(response.sequence, limits)

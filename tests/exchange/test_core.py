@@ -21,7 +21,7 @@ from typing import Any
 import ktbt_proto as kp
 from ktbt_proto.exchange.application import ApplicationTimedAgent
 from ktbt_proto.exchange.memory_policy import MemoryPolicy, WhenFull
-from ktbt_proto.exchange.messages import Response
+from ktbt_proto.exchange.messages import Query, Response
 from ktbt_proto.exchange.security import Security
 from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.transferlog import TransferLog
@@ -220,6 +220,42 @@ def test_eviction_never_takes_innate_knowledge_so_a_memory_full_of_it_refuses() 
     assert robot.metrics.refusals[-1][1] == "from t: memory full (1 items)"
     assert robot.knows(SEQUENCE) and not robot.knows([BLUE])
     assert robot.metrics.forgotten == 0
+
+
+def test_a_full_memory_evicts_nothing_for_an_answer_outside_the_vocabulary() -> None:
+    """Rule 5 (the vocabulary) is checked before room is made: an answer the robot refuses
+    never costs it what it learned, though its merge is where the vocabulary is checked
+    otherwise."""
+    net = MemoryNetwork()
+    policy = MemoryPolicy(capacity=1, count_innate=False, when_full=WhenFull.EVICT)
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), net.join("l"), memory=policy)
+    teacher = ApplicationTimedAgent("t", knower(2), registry(), net.join("t"))
+    learner.ask(SEQUENCE)
+    assert teach(learner, teacher) == 1
+    asked = Query(id="q", sender="l", sequence=BLUE)
+    bad = Response(id="q", sender="t", sequence=BLUE, subtree="<a>(Teleport)")
+    assert not learner.accept(bad, asked)
+    assert learner.metrics.refusals[-1][1] == "from t: SBT306 unknown action 'Teleport'"
+    assert learner.knows(SEQUENCE) and learner.metrics.forgotten == 0
+
+
+def test_an_answer_is_checked_against_the_vocabulary_once(monkeypatch: Any) -> None:
+    """``read_item`` leaves the vocabulary to the merge, which checks the whole item (its
+    conditions too): each leaf's arguments are checked against the registry once."""
+    checked: list[str] = []
+    real = kp.Registry.arguments_problem
+
+    def spy(self: kp.Registry, kind: Any, name: str, args: Any) -> str | None:
+        checked.append(name)
+        return real(self, kind, name, args)
+
+    monkeypatch.setattr(kp.Registry, "arguments_problem", spy)
+    learner = ApplicationTimedAgent("l", CONTROL, registry(), MemoryNetwork().join("l"))
+    checked.clear()  # the control tree's own leaves, checked when it was built
+    answer = Response(id="q", sender="t", sequence=BLUE, subtree="<a>(Pick,colour=3)")
+    assert learner.accept(answer, Query(id="q", sender="l", sequence=BLUE))
+    assert sorted(checked) == ["Pick", "TargetSeen"]
+    assert learner.knows([BLUE])
 
 
 def test_forget_learned_keeps_innate_knowledge_and_a_forgotten_item_can_be_learned_again() -> None:

@@ -62,6 +62,12 @@ class Behaviour:
     doc: str = field(default="", compare=False)
     types: Mapping[str, Any] = field(default_factory=dict, compare=False)
     """Parameter name -> its annotation, for the parameters that have one."""
+    pure: bool = False
+    """It reads and writes nothing but the blackboard and its arguments, keeps no state and
+    acts on nothing outside (a flag, a declared behaviour, a stand-in registered ``pure=True``):
+    ticked again on the same blackboard, it does the same. A tree of such leaves and no timers
+    that ticks without changing its blackboard or its status may be ticked less often until
+    something arrives (``ktbt peer run``'s rest rate, spec/protocol.md section 4.5)."""
     reserved: frozenset[str] = frozenset()
     """Names no argument may take: the blackboard parameter's, which a behaviour taking
     ``**kw`` would otherwise be given twice (``holds(bb, **kw)`` called with ``bb=1``)."""
@@ -185,34 +191,53 @@ class Registry:
 
     # -- registering -----------------------------------------------------------------------
 
-    def condition(self, name: str | None = None) -> Callable[[F], F]:
-        """Decorator: register a predicate under ``name`` (default: the function's name)."""
+    def condition(self, name: str | None = None, *, pure: bool = False) -> Callable[[F], F]:
+        """Decorator: register a predicate under ``name`` (default: the function's name);
+        ``pure``: it reads nothing but the blackboard and its arguments (:attr:`Behaviour.pure`)."""
 
         def register(fn: F) -> F:
-            self.add_condition(name or fn.__name__, fn)
+            self.add_condition(name or fn.__name__, fn, pure=pure)
             return fn
 
         return register
 
     def action(
-        self, name: str | None = None, *, halt: Callable[..., None] | None = None
+        self,
+        name: str | None = None,
+        *,
+        halt: Callable[..., None] | None = None,
+        pure: bool = False,
     ) -> Callable[[F], F]:
-        """Decorator: register an action function or class under ``name``."""
+        """Decorator: register an action function or class under ``name``; ``pure``: it
+        reads and writes nothing but the blackboard, acts on nothing outside and keeps no state
+        (:attr:`Behaviour.pure`)."""
 
         def register(target: F) -> F:
-            self.add_action(name or target.__name__, target, halt=halt)
+            self.add_action(name or target.__name__, target, halt=halt, pure=pure)
             return target
 
         return register
 
-    def add_condition(self, name: str, fn: Callable[..., Any]) -> None:
+    def add_condition(self, name: str, fn: Callable[..., Any], *, pure: bool = False) -> None:
         (params, required, var_kw), types, reserved = _behaviour(fn, False)
         self._conditions[name] = Behaviour(
-            fn, params, required, var_kw, doc=fn.__doc__ or "", types=types, reserved=reserved
+            fn,
+            params,
+            required,
+            var_kw,
+            doc=fn.__doc__ or "",
+            types=types,
+            reserved=reserved,
+            pure=pure,
         )
 
     def add_action(
-        self, name: str, target: Any, *, halt: Callable[..., None] | None = None
+        self,
+        name: str,
+        target: Any,
+        *,
+        halt: Callable[..., None] | None = None,
+        pure: bool = False,
     ) -> None:
         is_class = isinstance(target, type)
         if is_class and not callable(getattr(target, "tick", None)):
@@ -230,12 +255,15 @@ class Registry:
             doc=target.__doc__ or "",
             types=types,
             reserved=reserved,
+            pure=pure and not is_class,
         )
 
     def flags(self, *names: str) -> None:
         """Register conditions that read blackboard flags of the same name (missing = false)."""
         for name in names:
-            self._conditions[name] = Behaviour(None, frozenset(), frozenset(), False, flag=name)
+            self._conditions[name] = Behaviour(
+                None, frozenset(), frozenset(), False, flag=name, pure=True
+            )
 
     def declare(
         self,
@@ -261,7 +289,9 @@ class Registry:
         )
         if required is not None:
             needed = frozenset(required) & names
-        entry = Behaviour(None, names, needed, var_kw or more_arguments, doc=doc, types=types)
+        entry = Behaviour(
+            None, names, needed, var_kw or more_arguments, doc=doc, types=types, pure=True
+        )
         (self._conditions if kind == "condition" else self._actions)[name] = entry
 
     def declare_from(
@@ -297,6 +327,11 @@ class Registry:
 
     def has_action(self, name: str) -> bool:
         return name in self._actions
+
+    def pure(self, kind: Kind, name: str) -> bool:
+        """Whether the ``kind`` named ``name`` is known here and pure (:attr:`Behaviour.pure`)."""
+        entry = (self._conditions if kind == "condition" else self._actions).get(name)
+        return entry is not None and entry.pure
 
     def behaviours(self, kind: Kind) -> Mapping[str, Behaviour]:
         """The registered conditions or actions by name, read-only: what a vocabulary file is

@@ -34,6 +34,7 @@ from ktbt_proto.exchange.messages import MAX_MORE, Query
 from ktbt_proto.exchange.refusals import Throttle, fault, internal_error
 from ktbt_proto.items import parse_sequence, sequence_key, show_key
 from ktbt_proto.registry import Registry
+from ktbt_proto.status import Status
 from ktbt_proto.tree import SequenceNode
 from ktbt_proto.validate import find_problems
 
@@ -374,6 +375,9 @@ class FleetMember:
     """The sequence keys still to learn."""
     listed: ListedSequences | None = field(init=False)
     learner: Learner = field(init=False)
+    status: Status | None = field(init=False, default=None)
+    """What the control tree's last tick returned (None before the first, or when its host
+    ticks it)."""
 
     def __post_init__(self) -> None:
         name = self.agent.name
@@ -401,6 +405,13 @@ class FleetMember:
     def done(self) -> bool:
         """Nothing left to learn, and (told no sequences) something was listed and learned."""
         return not self.todo and (self.listed is None or bool(self.listed.found))
+
+    @property
+    def settled(self) -> bool:
+        """Nothing to learn and nothing under way: no query open, no announcement waiting
+        (section 4.5). A settled member's step only reads what arrived, so its host may step it
+        less often until something does (``ktbt peer run``'s rest rate)."""
+        return not self.todo and self.agent.open_query is None and not self._waiting
 
     @property
     def refused(self) -> int:
@@ -458,7 +469,7 @@ class FleetMember:
         self.todo = [key for key in self.todo if key not in agent.knowledge]
         self.learner.step(now, self.todo, appeared, self._worth_asking(now, heard))
         if self.ticks_control:
-            agent.control.tick()
+            self.status = agent.control.tick()
         agent.tend_memory()
         return learned
 

@@ -23,12 +23,16 @@ import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-
-from nacl.exceptions import CryptoError
-from nacl.signing import SigningKey, VerifyKey
+from typing import TYPE_CHECKING
 
 from ktbt_proto.exchange.messages import Response
 from ktbt_proto.files import TooLarge, read_bounded
+
+if TYPE_CHECKING:
+    from nacl.signing import SigningKey
+
+# PyNaCl (libsodium, about 2 MB resident) is imported where a key signs or verifies, so that a
+# peer that never meets a signature never loads it.
 
 ITEM_DOMAIN = b"ktbt/v1/item\x00"
 """Prefix of the bytes an author signs, so no other signed text can be mistaken for an item."""
@@ -113,6 +117,9 @@ def small_order(raw: bytes) -> bool:
 def verify(key: str, signature: str, data: bytes) -> bool:
     """Whether ``signature`` (base64url) is ``key``'s (base64url) Ed25519 signature of data.
     A key of small order verifies nothing."""
+    from nacl.exceptions import CryptoError
+    from nacl.signing import VerifyKey
+
     try:
         raw = unb64(key)
         if len(raw) != 32 or small_order(raw):
@@ -142,6 +149,8 @@ class Identity:
 
     @classmethod
     def generate(cls) -> Identity:
+        from nacl.signing import SigningKey
+
         return cls(SigningKey.generate())
 
     @classmethod
@@ -149,6 +158,8 @@ class Identity:
         """The key pair of a 32-byte seed (RFC 8032's private key), as the vectors give them."""
         if len(seed) != 32:
             raise ValueError(f"an Ed25519 seed is 32 bytes, not {len(seed)}")
+        from nacl.signing import SigningKey
+
         return cls(SigningKey(seed))
 
     def sign(self, data: bytes) -> str:

@@ -47,31 +47,32 @@ DEMO_CONTROL = """<sl>
 
 
 def demo_registry() -> Registry:
-    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions."""
+    """The search-and-rescue vocabulary of the example knowledge, with stand-in actions: each
+    reads and writes only the blackboard (``pure``), so an idle demo robot may rest."""
     reg = Registry()
     reg.flags("Carrying")
 
-    @reg.condition("TargetSeen")
+    @reg.condition("TargetSeen", pure=True)
     def target_seen(bb: Blackboard, colour: Colour) -> bool:
         return bool(bb.get("target") == colour)
 
-    @reg.action("PickTreasure")
+    @reg.action("PickTreasure", pure=True)
     def pick(bb: Blackboard) -> Status:
         bb["Carrying"] = True
         return SUCCESS
 
-    @reg.action("AssignCollectionPoint")
+    @reg.action("AssignCollectionPoint", pure=True)
     def assign(bb: Blackboard, colour: Colour) -> Status:
         bb["zone"] = colour
         return SUCCESS
 
-    @reg.action("DeliverToZone")
+    @reg.action("DeliverToZone", pure=True)
     def deliver(bb: Blackboard) -> Status:
         bb["Carrying"] = False
         bb["delivered"] = bb.get("delivered", 0) + 1
         return SUCCESS
 
-    @reg.action("RandomWalk")
+    @reg.action("RandomWalk", pure=True)
     def walk(bb: Blackboard) -> Status:
         return RUNNING
 

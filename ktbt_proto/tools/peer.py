@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ktbt_proto.exchange.answers import answers, catalog
 from ktbt_proto.exchange.application import ApplicationTimedAgent
@@ -32,9 +32,9 @@ from ktbt_proto.exchange.signing import Identity
 from ktbt_proto.exchange.trust import refusal
 from ktbt_proto.files import write_atomic
 from ktbt_proto.formatter import format_tree
-from ktbt_proto.interop.sidecar import LearnedExport
 from ktbt_proto.items import sequence_key, show_key, show_sequence
 from ktbt_proto.registry import Registry
+from ktbt_proto.status import Status
 from ktbt_proto.transport.zenoh import (
     ZenohCatalogs,
     ZenohSettings,
@@ -44,7 +44,10 @@ from ktbt_proto.transport.zenoh import (
     peers,
     stable_zid,
 )
-from ktbt_proto.tree import Condition
+from ktbt_proto.tree import Action, Condition, RunTimer, Tree, Wait, WaitTimer, walk
+
+if TYPE_CHECKING:
+    from ktbt_proto.interop.sidecar import LearnedExport
 
 Say = Callable[[str], None]
 
@@ -85,13 +88,99 @@ class PeerSettings:
         )
 
 
+REST_RATE = 2.0
+"""Steps a second of a ``ktbt peer run`` robot at rest (:class:`Rest`). At rest nothing it does
+depends on the rate (its tree's ticks repeat the last, and its member only reads what arrived
+and its catalogs every ``CATALOG_PERIOD``): what an idle peer costs is its wakes, about 0.2 ms
+of CPU each on a busy machine. Anything that arrives, or a signal, wakes it at once."""
+
+STEADY_STEPS = 10
+"""Steps at the full rate in which nothing changed before a robot rests, and after each time
+something arrived (:class:`Rest`)."""
+
+
+def quiet(tree: Tree, registry: Registry) -> bool:
+    """Whether ``tree`` ticked again on the same blackboard does the same: every leaf pure
+    (:attr:`~ktbt_proto.registry.Behaviour.pure`), no timer (``<w>``, ``<wt>``, TT1, TT2
+    count ticks or seconds)."""
+    for node, _ in walk(tree.root):
+        if isinstance(node, Wait | WaitTimer | RunTimer):
+            return False
+        if isinstance(node, Condition) and not registry.pure("condition", node.name):
+            return False
+        if isinstance(node, Action) and not registry.pure("action", node.name):
+            return False
+    return True
+
+
+_IMMUTABLE = frozenset((bool, int, float, str, bytes, type(None), Status))
+"""The blackboard values :class:`Rest` compares (a tuple may hold a list: not among them)."""
+
+
+class Rest:
+    """When a ``ktbt peer run`` robot may step at :data:`REST_RATE` rather than its tick rate
+    (spec/protocol.md section 4.5): its member is settled (nothing to learn, no query open, no
+    announcement waiting), nothing was learned, no memory policy counts its ticks, its tree is
+    :func:`quiet`, and its last :data:`STEADY_STEPS` steps left the tree's status and the
+    blackboard as they were (a blackboard of plain values: numbers, strings, flags). Such a
+    tree's next ticks would do exactly what the last did, and the member's step only reads what
+    arrived: stepping it less often changes nothing the robot does, and what arrives
+    (:attr:`ZenohTransport.stirred`) brings it back to its full rate at once
+    (:meth:`stirred`)."""
+
+    def __init__(self, robot: ApplicationTimedAgent, fleet: FleetMember) -> None:
+        self.robot, self.fleet = robot, fleet
+        self.steady = 0
+        self._tree: Tree | None = None
+        self._quiet = False
+        self._seen: tuple[Status | None, dict[str, Any]] | None = None
+
+    def stirred(self) -> None:
+        """Something arrived: full rate for :data:`STEADY_STEPS` steps at least."""
+        self.steady = 0
+
+    def after(self, learned: list[str]) -> bool:
+        """Whether the robot may rest after the step that learned ``learned``."""
+        robot, fleet = self.robot, self.fleet
+        tree = robot.control.tree
+        if tree is not self._tree:  # merged or forgotten: the tree's leaves are others
+            self._tree, self._quiet = tree, quiet(tree, robot.registry)
+        memory = robot.memory
+        board = robot.blackboard
+        seen = (fleet.status, dict(board))
+        # Only values that cannot change in place are compared: a list a leaf appends to is
+        # the same object in the copy, so a blackboard holding one is never taken as steady.
+        same = seen == self._seen and all(type(v) in _IMMUTABLE for v in board.values())
+        if (
+            learned
+            or not self._quiet
+            or not fleet.settled
+            or memory.forget_after is not None
+            or memory.expire_after is not None
+            or not same
+        ):
+            self.steady = 0
+        else:
+            self.steady += 1
+        self._seen = seen
+        return self.steady >= STEADY_STEPS
+
+
 @contextmanager
-def until_signalled() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly."""
+def until_signalled(also: Sequence[threading.Event] = ()) -> Iterator[threading.Event]:
+    """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly; the
+    events in ``also`` (as it holds them when the signal comes) are set too, so that a loop
+    waiting on one of them ends at once."""
     stop = threading.Event()
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def stopped(*_: object) -> None:
+        stop.set()
+        for event in also:
+            event.set()
+
     for sig in previous:
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, stopped)
     try:
         yield stop
     finally:
@@ -252,6 +341,7 @@ def run_agent(
     knowledge_path: str | None = None,
     exit_when_done: bool = False,
     export_learned: str | LearnedExport | None = None,
+    rest_rate: float = REST_RATE,
 ) -> int:
     """A fleet member that learns and teaches, running ``control`` with ``registry`` and
     learning into the placeholder ``slot``: it starts with ``knowledge`` (if any) and what
@@ -265,15 +355,19 @@ def run_agent(
     transfer log, there) and the summary counts all of them, transport ones too; the
     network's own errors are counted apart. ``export_learned``: a folder (or an export made
     already) to mirror learned items into as BT.CPP documents (spec/stringbt.md section
-    12.1); the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md)."""
+    12.1); the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md). At rest
+    (:class:`Rest`: nothing to learn or under way, a tree whose ticks change nothing) it steps
+    at ``rest_rate`` instead of ``tick_rate``, and at once again when anything arrives."""
     security = member.security
     name = member.name
     wait, cooldown = wait_ticks / tick_rate, cooldown_ticks / tick_rate
+    woken: list[threading.Event] = []
     with (
-        until_signalled() as stop,
+        until_signalled(woken) as stop,
         ExitStack() as stack,
         member.transport(query_timeout=wait, identity=security.identity) as transport,
     ):
+        woken.append(transport.stirred)  # a signal ends a rest at once
         robot = ApplicationTimedAgent(
             name,
             with_knowledge(control, knowledge, slot),
@@ -293,9 +387,11 @@ def run_agent(
 
             stack.enter_context(Groot2Publisher(robot, member.groot, stop=stop))
             say(f"{name}: Groot2 on port {member.groot} (btview snapshot -p {member.groot})")
-        export = (
-            LearnedExport(export_learned) if isinstance(export_learned, str) else export_learned
-        )
+        export = export_learned
+        if isinstance(export, str):
+            from ktbt_proto.interop.sidecar import LearnedExport
+
+            export = LearnedExport(export)
         for _, reason in robot.metrics.refusals:  # a damaged --save file, say
             say(f"{name}: refused: {reason}")
         wait_for_peers(transport, 3.0)
@@ -316,13 +412,19 @@ def run_agent(
         else:
             say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
         announce_ready(member.ready, name, len(robot.knowledge))
-        period = 1.0 / tick_rate
+        period, resting = 1.0 / tick_rate, 1.0 / min(rest_rate, tick_rate)
+        rest, stirred = Rest(robot, fleet), transport.stirred
         while not stop.is_set() and time.monotonic() < deadline:
             robot.now += 1
-            fleet.step(time.monotonic())
+            stirred.clear()
+            learned = fleet.step(time.monotonic())
             if exit_when_done and fleet.done:
                 break
-            stop.wait(period)
+            if resting > period and rest.after(learned):
+                if stirred.wait(resting):
+                    rest.stirred()
+            else:
+                stop.wait(period)
         m = robot.metrics
         say(
             f"{name}: queries sent {m.queries_sent}, answers {m.responses_received}, "

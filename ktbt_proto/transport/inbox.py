@@ -37,13 +37,21 @@ class Inbox:
     """The messages for the agent (``limit``), the answers overheard from others
     (``overheard_limit``, section 4.3) and the ids of this robot's own latest queries (an
     overheard copy of an answer to one of them is left to the answer itself). Thread-safe: the
-    network's callbacks put, the agent's tick drains."""
+    network's callbacks put, the agent's tick drains; ``arrived`` is called after each put
+    (a host resting until something arrives wakes)."""
 
     ASKED = 256
     """This robot's own query ids remembered."""
 
-    def __init__(self, refuse: Refuse, limit: int = 1024, overheard_limit: int = 64) -> None:
+    def __init__(
+        self,
+        refuse: Refuse,
+        limit: int = 1024,
+        overheard_limit: int = 64,
+        arrived: Callable[[], object] = lambda: None,
+    ) -> None:
         self.refuse, self.limit, self.overheard_limit = refuse, limit, overheard_limit
+        self.arrived = arrived
         self._lock = threading.Lock()
         self._messages: deque[Received] = deque()
         self._overheard: deque[Response] = deque()
@@ -61,6 +69,7 @@ class Inbox:
             full = len(self._messages) >= self.limit
             if not full:
                 self._messages.append(message)
+        self.arrived()
         if full:
             self.refuse(
                 f"inbox full ({self.limit} messages): a {message.type} is dropped", **fields
@@ -82,6 +91,7 @@ class Inbox:
             full = len(self._overheard) >= self.overheard_limit
             if not full:
                 self._overheard.append(answer)
+        self.arrived()
         if full:
             self.refuse(
                 f"{self.overheard_limit} overheard answers waiting: one from {answer.sender} "

@@ -339,7 +339,10 @@ class ZenohTransport:
 
     def __post_init__(self) -> None:
         self._warn = Throttle(log.warning)
-        self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit)
+        self.stirred = threading.Event()
+        """Set when something arrives for the agent (a message in the inbox, a peer appeared,
+        an announcement): a host stepping at its rest rate wakes at once (section 4.5)."""
+        self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit, self.stirred.set)
         self._given = AnswersGiven(self.name, self.answer_window, self.max_pending, log.warning)
         self._templates: dict[tuple[str, SignedItem], tuple[bytes, bytes]] = {}
         self._knowledge_key = f"{PREFIX}/knowledge/{self.name}"
@@ -706,6 +709,7 @@ class ZenohTransport:
                 self.joined += 1
                 if len(self._appeared) < self.max_pending:
                     self._appeared.append(name)
+            self.stirred.set()
             if self.log is not None:
                 self.log.record(Event.PEER_SEEN, peer=self.name, sender=name)
 
@@ -777,6 +781,7 @@ class ZenohTransport:
                 merged = dict.fromkeys((*(known or ()), *sequences))
                 self._heard[name] = tuple(merged)[-(1 + MAX_MORE) :]
                 self.announcements += 1
+        self.stirred.set()
         if full:
             self._refuse(f"an announcement from {name}: {self.max_pending} announcers waiting")
 

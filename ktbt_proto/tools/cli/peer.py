@@ -283,12 +283,12 @@ def _export_or_exit(folder: Path | None, given: list[str]) -> LearnedExport | No
     """The export --export-learned asks for, with the tree IDs --tree-id gives (ID=CONDITIONS,
     spec/stringbt.md section 12.2): a folder it cannot write into, an ID it cannot use or that
     another file of the folder holds, is one line naming the option and exit 2."""
-    from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
-
     if folder is None:
         if given:
             raise refuse("--tree-id: names the tree of an exported file; give --export-learned")
         return None
+    from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
+
     try:
         ids = tree_ids(given, lambda conditions: sequence_or_exit("--tree-id", conditions))
     except ValueError as exc:

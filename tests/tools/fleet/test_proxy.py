@@ -11,6 +11,7 @@ from collections.abc import Awaitable, Callable
 
 import pytest
 
+from ktbt_proto.tools.fleet import netns
 from ktbt_proto.tools.fleet.plan import Link
 from ktbt_proto.tools.fleet.proxy import LinkProxy
 
@@ -142,3 +143,34 @@ def test_a_cut_resets_and_refuses_until_the_heal() -> None:
         writer.close()
 
     _with_proxy(0.0, body)
+
+
+def test_both_ends_of_a_proxied_connection_send_small_writes_at_once() -> None:
+    """A proxy's sockets (netns.socket_in: listening, accepted, dialled on) are ones asyncio
+    turns Nagle off on, as on its own: with Nagle on, each small write of a link waited for the
+    far end's delayed ACK, some 40 ms a query round trip."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        listening = netns.socket_in(None)
+        listening.bind(("127.1.0.1", 0))
+        listening.listen()
+        listening.setblocking(False)
+        accepted: list[asyncio.StreamWriter] = []
+        server = await asyncio.start_server(lambda _r, w: accepted.append(w), sock=listening)
+        dialled = netns.socket_in(None)
+        dialled.setblocking(False)
+        await loop.sock_connect(dialled, listening.getsockname())
+        _, writer = await asyncio.open_connection(sock=dialled)
+        try:
+            await _until(lambda: bool(accepted))
+            for end in (writer, accepted[0]):
+                sock = end.get_extra_info("socket")
+                assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY), end
+        finally:
+            for end in (writer, *accepted):
+                end.close()
+            server.close()
+            await server.wait_closed()
+
+    asyncio.run(main())

@@ -3,9 +3,12 @@
 Run with ``python -m benchmarks.bench_transfer`` (or ``python -m benchmarks`` for every module).
 Prints Markdown tables and writes the numbers to ``benchmarks/results/transfer.json``.
 
-Four zenoh sessions in this process, on loopback with explicit ``tcp/127.0.0.1:<free port>``
-endpoints and multicast scouting off, in two separate pairs (a listener and a peer connecting
-to it):
+Two layouts, each with four zenoh sessions on loopback with explicit
+``tcp/127.0.0.1:<free port>`` endpoints and multicast scouting off, in two separate pairs (a
+listener and a peer connecting to it). The headline is the way robots run it: both teachers
+(ours and raw) in a child process of its own (this module run with ``--teacher-child``), both
+learners in this process. Beside it, all four sessions in this process, where the teachers'
+callbacks and the learners share one interpreter lock. Each layout times the same rounds:
 
 * raw (the anchor): ``session.get(selector, payload=...)`` answered by a queryable whose callback
   replies with a fixed payload; the time covers the get and reading every reply's bytes. Its
@@ -22,14 +25,15 @@ to it):
   into a fresh, already running ``LiveTree(DEMO_CONTROL, demo_registry())`` built outside the
   timed region, and asks about the next colour (1 to 4 in turn).
 
-The two contenders alternate round by round (the first one alternating too), after the peers see
-each other and a warm-up; the cyclic collector is off while timing and runs every 100 rounds,
-outside the timed region. Where the difference from the anchor goes is measured two ways: in
-place, in the same rounds (the teacher's query callback, the learner's handling of the reply and
-the raw queryable's callback, each timed where it runs, :class:`TimedTransport`; the rest is
-zenoh's), and alone, each part of ours' Python-side work without zenoh. The run also counts the
-visits the asker's own queryable had (none: its gets go to remote queryables only), and notes
-the load average before and after, since the machine may be shared.
+In each layout the two contenders alternate round by round (the first one alternating too),
+after the peers see each other and a warm-up; the cyclic collector is off while timing and runs
+every 100 rounds, outside the timed region (in the teacher's own process it stays on, as in a
+robot). Where the difference from the anchor goes is measured two ways: in place, in the same
+rounds (the teacher's query callback, its Python before the reply call, the learner's handling
+of the reply and the raw queryable's callback, each timed where it runs, :class:`TimedTransport`;
+the rest is zenoh's), and alone, each part of ours' Python-side work without zenoh. The run
+also counts the visits the asker's own queryable had (none: its gets go to remote queryables
+only), and notes the load average before and after, since the machine may be shared.
 """
 
 from __future__ import annotations
@@ -37,8 +41,12 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib.metadata
+import json
 import os
+import select
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
@@ -195,16 +203,17 @@ class _Ending:
     return instead would count the wait for the interpreter lock that the learner, in the same
     process, holds meanwhile."""
 
-    __slots__ = ("ended", "query")
+    __slots__ = ("ended", "query", "replying")
 
     def __init__(self, query: zenoh.Query) -> None:
-        self.query, self.ended = query, 0
+        self.query, self.ended, self.replying = query, 0, 0
 
     @property
     def payload(self) -> Any:
         return self.query.payload
 
     def reply(self, *args: Any, **kwargs: Any) -> None:
+        self.replying = self.replying or time.perf_counter_ns()
         self.query.reply(*args, **kwargs)
 
     def reply_err(self, *args: Any, **kwargs: Any) -> None:
@@ -223,6 +232,7 @@ class TimedTransport(ZenohTransport):
 
     def __post_init__(self) -> None:
         self.query_ns: list[int] = []
+        self.before_reply_ns: list[int] = []
         self.reply_ns: list[int] = []
         super().__post_init__()
 
@@ -231,6 +241,8 @@ class TimedTransport(ZenohTransport):
         timed = _Ending(query)
         super()._on_query(timed)
         self.query_ns.append((timed.ended or time.perf_counter_ns()) - start)
+        if timed.replying:  # its Python before the reply call; the rest is zenoh's reply
+            self.before_reply_ns.append(timed.replying - start)
 
     def _reply(self, reply: Any, asked: Any, heard: set[str]) -> Response | None:
         start = time.perf_counter_ns()
@@ -338,6 +350,7 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
         inside: list[list[int]] = [[] for _ in INSIDE]
         raw_zenoh: list[int] = []
         raw_callbacks: list[int] = []
+        before_reply: list[int] = []
         with gc_paused():
             for r in range(warmup + rounds):
                 if r and r % 100 == 0:
@@ -345,7 +358,12 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
                 fresh = fresh_learner(control, registry, COLOURS[r % len(COLOURS)])
                 timed = phases if r >= warmup else [[] for _ in PHASES]
                 for contender in ("raw", "ours") if r % 2 else ("ours", "raw"):
-                    for spent in (teacher.query_ns, learner.reply_ns, raw_callback):
+                    for spent in (
+                        teacher.query_ns,
+                        teacher.before_reply_ns,
+                        learner.reply_ns,
+                        raw_callback,
+                    ):
                         spent.clear()
                     if contender == "raw":
                         elapsed, ok = raw()
@@ -364,6 +382,7 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
                         raw_zenoh.append(elapsed - sum(raw_callback))
                     else:
                         ours_ns.append(elapsed)
+                        before_reply.append(sum(teacher.before_reply_ns))
                         callback, reply = sum(teacher.query_ns), sum(learner.reply_ns)
                         for samples, ns in zip(
                             inside, (callback, reply, timed[0][-1] - callback - reply), strict=True
@@ -379,6 +398,149 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
         "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
         "ours_ask_inside": {name: _us(s) for name, s in zip(INSIDE, inside, strict=True)},
         "raw_inside": {"callback": _us(raw_callbacks), "zenoh_rest": _us(raw_zenoh)},
+        "teacher_before_reply": _us(before_reply),
+        "asker_own_queryable_visits": len(learner.query_ns),
+    }
+    result["ratio"] = {
+        q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
+    }
+    return result
+
+
+# -- two processes: the teacher in a child of its own, as two robots run it -----------------------
+
+TEACHER_FLAG = "--teacher-child"
+"""Runs this module as the child: ``--teacher-child OURS_PORT RAW_PORT RAW_REPLY_HEX``."""
+
+
+def serve_teacher(ours_port: int, raw_port: int, reply: bytes) -> int:
+    """The child: a teacher ``ZenohTransport`` serving the colour knowledge as ``ktbt peer
+    serve`` does, and a bare zenoh queryable replying ``reply``, each listening on its port.
+    Prints ``ready``; on ``timed`` (warm-up over) forgets the callbacks' times; on ``done`` or
+    the end of its input, prints them as JSON and closes its sessions. The cyclic collector
+    stays on, as in a robot."""
+    kb = load_knowledge(KNOWLEDGE_PATH)
+    lookup = serve_lookup(kb)
+    raw_callback: list[int] = []
+    with ExitStack() as stack:
+        teacher = stack.enter_context(
+            TimedTransport(TEACHER, settings(ours_port), lookup=lookup, catalog=kb.keys)
+        )
+        server = stack.enter_context(open_session(settings(raw_port)))
+        stack.enter_context(server.declare_queryable(RAW_KEY, raw_server(reply, raw_callback)))
+        print("ready", flush=True)
+        for line in sys.stdin:
+            if line.strip() == "timed":
+                for spent in (teacher.query_ns, teacher.before_reply_ns, raw_callback):
+                    spent.clear()
+            elif line.strip() == "done":
+                break
+        times = {
+            "teacher_callback": teacher.query_ns,
+            "teacher_before_reply": teacher.before_reply_ns,
+            "raw_callback": raw_callback,
+        }
+        print(json.dumps({k: _us(v) if v else None for k, v in times.items()}), flush=True)
+    return 0
+
+
+def _line(child: subprocess.Popen[str], what: str) -> str:
+    """The child's next line, within ``CONNECT_TIMEOUT``."""
+    assert child.stdout is not None
+    ready, _, _ = select.select([child.stdout], [], [], CONNECT_TIMEOUT)
+    line = child.stdout.readline() if ready else ""
+    if not line:
+        if ready:  # its output ended: it has ended, or is ending
+            code = child.wait(CONNECT_TIMEOUT)
+            raise RuntimeError(f"the teacher's process ended (status {code}) before its {what}")
+        raise TimeoutError(f"the teacher's process: no {what} within {CONNECT_TIMEOUT:.0f} s")
+    return line
+
+
+def _tell(child: subprocess.Popen[str], word: str) -> None:
+    assert child.stdin is not None
+    child.stdin.write(word + "\n")
+    child.stdin.flush()
+
+
+def run_two_processes(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
+    """Ours and raw with the teacher (both kinds) in a child process and the learner (both
+    kinds) here, over loopback: the way two robots run a transfer. The child is always ended
+    by its pid and every session closed."""
+    kb = load_knowledge(KNOWLEDGE_PATH)
+    query, response = wire_messages(serve_lookup(kb))
+    query_bytes, response_bytes = encode(query), encode(response)
+    control = kp.parse(DEMO_CONTROL)
+    registry = demo_registry()
+    pt, pl, ps, pc = (free_port() for _ in range(4))
+    child = subprocess.Popen(
+        [sys.executable, "-m", "benchmarks.bench_transfer", TEACHER_FLAG, str(pt), str(ps),
+         response_bytes.hex()],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )  # fmt: skip
+    try:
+        if _line(child, "ready line").strip() != "ready":
+            raise AssertionError("the teacher's process did not say it was ready")
+        with ExitStack() as stack:
+            learner = stack.enter_context(TimedTransport(LEARNER, settings(pl, pt)))
+            client = stack.enter_context(open_session(settings(pc, ps)))
+            raw = raw_round_trip(client, query_bytes, response_bytes)
+            connect_s = {
+                "ours": _wait(
+                    lambda: TEACHER in peers(learner, 0.3), "the learner sees no teacher"
+                ),
+                "raw": _wait(lambda: raw()[1], "the raw queryable does not answer"),
+            }
+            raw_ns: list[int] = []
+            ours_ns: list[int] = []
+            replies: list[int] = []
+            phases: list[list[int]] = [[] for _ in PHASES]
+            with gc_paused():
+                for r in range(warmup + rounds):
+                    if r == warmup:
+                        _tell(child, "timed")
+                    if r and r % 100 == 0:
+                        gc.collect()
+                    fresh = fresh_learner(control, registry, COLOURS[r % len(COLOURS)])
+                    timed = phases if r >= warmup else [[] for _ in PHASES]
+                    for contender in ("raw", "ours") if r % 2 else ("ours", "raw"):
+                        learner.reply_ns.clear()
+                        if contender == "raw":
+                            elapsed, ok = raw()
+                        else:
+                            elapsed, ok = transfer(learner, fresh, timed)
+                        if not ok:
+                            raise AssertionError(f"{contender}: round {r} did not complete")
+                        if r < warmup:
+                            continue
+                        if contender == "raw":
+                            raw_ns.append(elapsed)
+                        else:
+                            ours_ns.append(elapsed)
+                            replies.append(sum(learner.reply_ns))
+        _tell(child, "done")
+        in_child = json.loads(_line(child, "callback times"))
+        child.wait(CONNECT_TIMEOUT)
+    finally:
+        if child.poll() is None:
+            os.kill(child.pid, 9)
+            child.wait()
+        for stream in (child.stdin, child.stdout):
+            if stream is not None:
+                stream.close()
+    result: dict[str, Any] = {
+        "rounds": rounds,
+        "warmup_rounds": warmup,
+        "connect_s": {k: round(v, 2) for k, v in connect_s.items()},
+        "payload_bytes": {"query": len(query_bytes), "response": len(response_bytes)},
+        "raw": _us(raw_ns),
+        "ours": _us(ours_ns),
+        "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
+        "learner_reply": _us(replies),
+        "teacher_callback": in_child["teacher_callback"],
+        "teacher_before_reply": in_child["teacher_before_reply"],
+        "raw_callback": in_child["raw_callback"],
         "asker_own_queryable_visits": len(learner.query_ns),
     }
     result["ratio"] = {
@@ -471,12 +633,14 @@ def run(rounds: int = ROUNDS, component_rounds: int = COMPONENT_ROUNDS) -> dict[
         "zenoh": importlib.metadata.version("eclipse-zenoh"),
         "pydantic": importlib.metadata.version("pydantic"),
         "load_average": [round(x, 2) for x in os.getloadavg()],
+        "two_processes": run_two_processes(rounds),
         "transfer": run_round_trips(rounds),
         "components": run_components(component_rounds),
     }
     result["targets"] = {
         "ours_over_raw_median_max": TARGET_RATIO,
-        "met": result["transfer"]["ratio"]["median"] <= TARGET_RATIO,
+        "met": result["two_processes"]["ratio"]["median"] <= TARGET_RATIO,
+        "met_in_one_process": result["transfer"]["ratio"]["median"] <= TARGET_RATIO,
     }
     result["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     result["seconds"] = round(time.perf_counter() - started, 1)
@@ -494,7 +658,47 @@ def report(result: Mapping[str, Any]) -> str:
     def us(d: Mapping[str, float]) -> list[str]:
         return [f"{d['median']:,.1f}", f"{d['p90']:,.1f}", f"{d['p99']:,.1f}"]
 
+    two = result["two_processes"]
+    tratio = two["ratio"]
+
+    def opt(d: Mapping[str, float] | None) -> list[str]:
+        return us(d) if d else ["", "", ""]
+
+    two_table = markdown_table(
+        ["loopback, teacher and learner in two processes (the way robots run it)",
+         "median µs", "p90 µs", "p99 µs", "vs raw (median)"],
+        [
+            [f"raw zenoh: get -> queryable -> reply ({q_bytes} B / {r_bytes} B)",
+             *us(two["raw"]), "1.00x"],
+            ["  raw queryable's callback (in the teacher's process)", *opt(two["raw_callback"]),
+             ""],
+            ["ours: Query -> `ask` -> Response -> parse -> `merge` + tick", *us(two["ours"]),
+             f"{tratio['median']:.2f}x"],
+            ["  of which build + `ask` (encode, get, decode)", *us(two["ours_phases"]["ask"]),
+             ""],
+            ["    teacher's query callback until it ends the query (in its process)",
+             *opt(two["teacher_callback"]), ""],
+            ["      of which its Python before the reply call: `decode` query, lookup, bytes",
+             *opt(two["teacher_before_reply"]), ""],
+            ["    learner's reply handling: `decode` response, the reply's checks",
+             *us(two["learner_reply"]), ""],
+            ["  of which `check_provenance` + `read_item` (parse, limits)",
+             *us(two["ours_phases"]["check_parse"]), ""],
+            ["  of which `live.merge(subtree, 'new', when=...)` + `live.tick()`",
+             *us(two["ours_phases"]["merge_tick"]), ""],
+        ],
+    )  # fmt: skip
     met = result["targets"]["met"]
+    after2 = (
+        two["ours_phases"]["check_parse"]["median"] + two["ours_phases"]["merge_tick"]["median"]
+    )
+    two_target = (
+        f"Target: ours' median ≤ {TARGET_RATIO:g}x raw's, two processes: "
+        f"{tratio['median']:.2f}x ({'met' if met else 'missed'}); p99 {tratio['p99']:.2f}x. "
+        f"The learner's checks, merge and first tick alone, on top of the raw round trip: "
+        f"{(two['raw']['median'] + after2) / two['raw']['median']:.2f}x. "
+        f"In one process (below): {ratio['median']:.2f}x."
+    )
     main_table = markdown_table(
         ["loopback, one process", "median µs", "p90 µs", "p99 µs", "vs raw (median)"],
         [
@@ -521,9 +725,10 @@ def report(result: Mapping[str, Any]) -> str:
             ],
         ],
     )
+    one_met = result["targets"]["met_in_one_process"]
     target = (
-        f"Target: ours' median ≤ {TARGET_RATIO:g}x raw's: {ratio['median']:.2f}x "
-        f"({'met' if met else 'missed'}); p99 {ratio['p99']:.2f}x."
+        f"One process: ours' median {ratio['median']:.2f}x raw's "
+        f"({'met' if one_met else 'missed'}); p99 {ratio['p99']:.2f}x."
     )
     inside, raw_inside = t["ours_ask_inside"], t["raw_inside"]
     inside_table = markdown_table(
@@ -536,6 +741,7 @@ def report(result: Mapping[str, Any]) -> str:
                 "the answer's bytes, reply",
                 *us(inside["teacher_callback"]),
             ],
+            ["    of which its Python before the reply call", *us(t["teacher_before_reply"])],
             ["  learner's reply handling: `decode` response, the reply's checks",
              *us(inside["learner_reply"])],
             ["  the rest: `Query(...)`, `encode`, zenoh", *us(inside["zenoh_rest"])],
@@ -598,8 +804,10 @@ def report(result: Mapping[str, Any]) -> str:
     )
     note = (
         f"{result['python']}, eclipse-zenoh {result['zenoh']}, pydantic {result['pydantic']}. "
-        f"{t['rounds']} interleaved rounds after {t['warmup_rounds']} warm-up rounds, tcp on "
-        "127.0.0.1 with explicit endpoints and multicast scouting off, gc off while timing; "
+        f"{t['rounds']} interleaved rounds after {t['warmup_rounds']} warm-up rounds in each "
+        "layout, tcp on "
+        "127.0.0.1 with explicit endpoints and multicast scouting off, gc off while timing (in "
+        "the teacher's own process it stays on); "
         "every transfer of ours merged new knowledge into a fresh running tree. "
         f"Whole run: {result['seconds']:.0f} s; load average (1 min) "
         f"{result['load_average'][0]:.2f} before, {result['load_average_after'][0]:.2f} after."
@@ -607,6 +815,8 @@ def report(result: Mapping[str, Any]) -> str:
     return "\n\n".join(
         [
             "## Knowledge transfer over zenoh",
+            two_table,
+            two_target,
             main_table,
             target,
             inside_table,
@@ -625,6 +835,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--component-rounds", type=int, default=COMPONENT_ROUNDS, help="breakdown rounds"
     )
     parser.add_argument("--no-json", action="store_true", help="do not write results/transfer.json")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == [TEACHER_FLAG]:
+        ours_port, raw_port, reply = argv[1:4]
+        return serve_teacher(int(ours_port), int(raw_port), bytes.fromhex(reply))
     args = parser.parse_args(argv)
     result = run(args.rounds, args.component_rounds)
     print(report(result))

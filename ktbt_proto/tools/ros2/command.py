@@ -253,8 +253,9 @@ def _transition(client_node: Any, node: str, transition: str, timeout: float) ->
     A reply can be lost: a server may send it before its reply writer has matched this
     new client, and a node that shuts down ends before its reply is delivered. So while
     the reply is late the command reads the node's state (a second service, matched by
-    then): the transition's end state, reached from another state, counts as done, and
-    after ``shutdown`` so does the node leaving the graph."""
+    then): the transition's end state, reached from the state read before the request,
+    counts as done (a node already there, or whose state was not read, must answer), and
+    after ``shutdown`` so does the node leaving the graph (spec/protocol.md section 11)."""
     import rclpy
     from lifecycle_msgs.srv import ChangeState, GetState
 
@@ -274,7 +275,7 @@ def _transition(client_node: Any, node: str, transition: str, timeout: float) ->
             if future.done() and future.result() is not None:
                 return bool(future.result().success)
             now = _state(client_node, getter, SLICE)
-            if now == REACHES[transition] != before:
+            if before is not None and now == REACHES[transition] != before:
                 return True
             if now is None and transition == "shutdown" and not getter.service_is_ready():
                 return True

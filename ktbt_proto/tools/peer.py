@@ -416,13 +416,14 @@ def run_agent(
         rest, stirred = Rest(robot, fleet), transport.stirred
         while not stop.is_set() and time.monotonic() < deadline:
             robot.now += 1
-            stirred.clear()
+            if stirred.is_set():  # arrived since the last step, at rest or not
+                rest.stirred()
+                stirred.clear()
             learned = fleet.step(time.monotonic())
             if exit_when_done and fleet.done:
                 break
             if resting > period and rest.after(learned):
-                if stirred.wait(resting):
-                    rest.stirred()
+                stirred.wait(max(0.0, min(resting, deadline - time.monotonic())))
             else:
                 stop.wait(period)
         m = robot.metrics

@@ -120,8 +120,7 @@ def test_a_resting_learner_asks_at_once_when_a_teacher_appears() -> None:
         robot = ApplicationTimedAgent("learner", DEMO_CONTROL, demo_registry(), transport)
         member = FleetMember(robot, transport, None, [], 2.0, 0.5, lambda _: None)
         rest = Rest(robot, member)
-        while not _step(robot, member, rest):
-            pass
+        assert any(_step(robot, member, rest) for _ in range(STEADY_STEPS + 5)), "never at rest"
         member.meet([GREEN])
         teacher_net = stack.enter_context(
             ZenohTransport("teacher", settings(pt, pl), query_timeout=2.0)

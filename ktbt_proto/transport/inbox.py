@@ -75,6 +75,17 @@ class Inbox:
                 f"inbox full ({self.limit} messages): a {message.type} is dropped", **fields
             )
 
+    def withdraw(self, queries: set[tuple[str, str]]) -> None:
+        """Take out the queries named (sender, id) that wait: answered meanwhile by the
+        network's callback, they are not the agent's to answer again (section 4.5)."""
+        with self._lock:
+            kept = [
+                m
+                for m in self._messages
+                if not (isinstance(m, Query) and (m.sender, m.id) in queries)
+            ]
+            self._messages = deque(kept)
+
     def overhear(
         self, answer: Response, screen: Callable[[Response], str | None] | None, **fields: Any
     ) -> None:

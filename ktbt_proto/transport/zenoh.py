@@ -436,6 +436,7 @@ class ZenohTransport:
         askers are not left to their next timed ask."""
         with self._lock:
             held, self._pending = self._pending, {}
+        self._inbox.withdraw(set(held))  # answered here: the agent must not answer them again
         for query, _, _ in held.values():
             try:
                 message = decode(query.payload.to_bytes(), self.max_bytes)

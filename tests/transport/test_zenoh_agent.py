@@ -120,29 +120,33 @@ def test_a_query_that_came_before_the_agent_attached_is_answered_when_it_does() 
     """A peer's liveliness is up once its session is open, and whoever sees it appear asks at
     once (spec section 4.5): a query that arrives before the agent is built on the transport
     is answered from what the agent knows as soon as it attaches, not left to the asker's next
-    timed ask."""
+    timed ask. Answered there, it is taken out of the agent's inbox: its tick does not
+    answer it a second time."""
     pt, pa = free_port(), free_port()
     with (
         ZenohTransport("teacher", settings(pt)) as tt,
         ZenohTransport("asker", settings(pa, pt), query_timeout=30.0) as ta,
     ):
+        seen: set[str] = set()
+        assert wait_until(lambda: seen.update(tt.appeared()) or "asker" in seen)
         see(ta, "teacher")
+        tt.stirred.clear()
         query = Query(id=Query.new_id(), sender="asker", sequence=SEQUENCE_KEY)
         ta.broadcast(query)
-
-        def read(transport: ZenohTransport, into: list[object]) -> bool:
-            into.extend(transport.receive())
-            return bool(into)
-
-        held: list[object] = []
-        assert wait_until(lambda: read(tt, held))  # it came, and waits
-        Agent("teacher", f"<sl><k>(new){MEMORY}<e><e>", door_registry(), tt)
+        assert tt.stirred.wait(15)  # it came, and waits in the inbox
+        teacher = Agent("teacher", f"<sl><k>(new){MEMORY}<e><e>", door_registry(), tt)
         answers: list[object] = []
-        assert wait_until(lambda: read(ta, answers))
+
+        def read() -> bool:
+            answers.extend(ta.receive())
+            return bool(answers)
+
+        assert wait_until(read)
+        teacher.tick()  # the agent reads its inbox
         assert [(a.sender, a.id, a.sequence) for a in answers if isinstance(a, Response)] == [
             ("teacher", query.id, SEQUENCE_KEY)
         ]
-        assert (tt.answered, tt.refused) == (1, 0)
+        assert (tt.answered, tt.refused, teacher.metrics.responses_sent) == (1, 0, 0)
 
 
 def test_what_a_transport_was_given_is_kept_when_an_agent_attaches() -> None:

@@ -242,6 +242,8 @@ class Registry:
         is_class = isinstance(target, type)
         if is_class and not callable(getattr(target, "tick", None)):
             raise TypeError(f"action class {target.__name__} needs a tick() method")
+        if is_class and pure:  # an instance keeps state between ticks: never pure
+            raise TypeError(f"action class {target.__name__} cannot be pure (it keeps state)")
         (params, required, var_kw), types, reserved = _behaviour(target, is_class)
         trusted = _returns_status(target.tick if is_class else target)
         self._actions[name] = Behaviour(
@@ -255,7 +257,7 @@ class Registry:
             doc=target.__doc__ or "",
             types=types,
             reserved=reserved,
-            pure=pure and not is_class,
+            pure=pure,
         )
 
     def flags(self, *names: str) -> None:

@@ -55,7 +55,9 @@ def test_a_tree_is_quiet_when_every_leaf_is_pure_and_no_timer_counts() -> None:
             self.n += 1
             return RUNNING
 
-    declared.add_action("Counter", Stateful, pure=True)  # keeps state: never pure
+    with pytest.raises(TypeError, match="cannot be pure"):  # keeps state: never pure
+        declared.add_action("Counter", Stateful, pure=True)
+    declared.add_action("Counter", Stateful)
     assert not declared.pure("action", "Counter")
 
 

@@ -102,7 +102,7 @@ something arrived (:class:`Rest`)."""
 def quiet(tree: Tree, registry: Registry) -> bool:
     """Whether ``tree`` ticked again on the same blackboard does the same: every leaf pure
     (:attr:`~ktbt_proto.registry.Behaviour.pure`), no timer (``<w>``, ``<wt>``, TT1, TT2
-    count ticks or seconds)."""
+    count ticks or seconds): one of the conditions of a rest (spec/protocol.md section 4.5)."""
     for node, _ in walk(tree.root):
         if isinstance(node, Wait | WaitTimer | RunTimer):
             return False

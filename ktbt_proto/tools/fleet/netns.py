@@ -97,10 +97,12 @@ def identity(path: str) -> int | None:
 
 
 def of_process(pid: int) -> int | None:
+    """The namespace process ``pid`` runs in (:func:`identity`)."""
     return identity(f"/proc/{pid}/ns/net")
 
 
 def of_name(name: str) -> int | None:
+    """The namespace ``ip netns`` calls ``name`` (:func:`identity`)."""
     return identity(f"/run/netns/{name}")
 
 

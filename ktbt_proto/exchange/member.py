@@ -247,24 +247,20 @@ class Learner:
         """Whether an answer to the open query may be on its way from a peer other than
         ``announcer``: sent it, or broadcast, within :data:`RELAY_GRACE`, and, on a network
         that tells (:class:`Replies`), not finished with by every peer it reached."""
-        return any(p != announcer and self._may_answer(now, p, t) for p, t in self.sent.items())
-
-    def _may_answer(self, now: float, peer: str, sent_at: float) -> bool:
-        """Whether an answer to the open query may still come from ``peer`` ("": a broadcast),
-        sent it at ``sent_at``: within :data:`RELAY_GRACE` and, on a network that tells
-        (:class:`Replies`), before its get ended (section 4.5). The one rule for holding back
-        announcers (:meth:`awaited`) and newcomers (:meth:`newcomers`) alike."""
         query = self.robot.open_query
-        if query is None or now - sent_at >= RELAY_GRACE:
+        if query is None:
             return False
         network = self.robot.transport
-        return not isinstance(network, Replies) or network.awaiting(query.id, peer)
+        told = network.awaiting if isinstance(network, Replies) else None
+        return any(
+            p != announcer and now - t < RELAY_GRACE and (told is None or told(query.id, p))
+            for p, t in self.sent.items()
+        )
 
     def newcomers(self, now: float, appeared: list[str]) -> list[str]:
         """The peers that appeared to send the query to now (section 4.5): as many as
-        :data:`NEWCOMERS_AT_ONCE` leaves room for beside the peers sent the open query from
-        which an answer may still come (:meth:`_may_answer`; a broadcast reached none of the
-        newcomers),
+        :data:`NEWCOMERS_AT_ONCE` leaves room for beside the peers sent the open query, still
+        unanswered, within :data:`RELAY_GRACE` (a broadcast reached none of the newcomers),
         taken from those waiting, the newest first; those that appeared together are put in
         an order drawn at random. With no query open, only a peer that just appeared is asked
         (a new query); the others wait for the open query, or for the broadcast."""
@@ -275,7 +271,7 @@ class Learner:
         busy = 0
         if self.robot.unanswered:
             asked = [*self.sent.items(), *self.tried.items()]
-            busy = sum(1 for p, t in asked if p and self._may_answer(now, p, t))
+            busy = sum(1 for p, t in asked if p and now - t < RELAY_GRACE)
         room = max(0, NEWCOMERS_AT_ONCE - busy)
         pool = self.waiting
         if self.robot.open_query is None:

@@ -283,39 +283,3 @@ def test_a_member_with_knowledge_answers_every_asker_at_once_as_a_server_does() 
 
 
 SEQ = "<c>(TargetSeen,colour=2)"
-
-
-@pytest.mark.network
-def test_a_newcomer_whose_get_ended_holds_back_no_other_newcomer() -> None:
-    """Two peers appear together and the learner sends its query to one (NEWCOMERS_AT_ONCE),
-    which knows nothing; once that peer's get has ended no answer can come from it, so the
-    next step sends the open query to the other, the teacher, well within RELAY_GRACE
-    (spec/protocol.md section 4.5), and the learner learns."""
-    from ktbt_proto.exchange.application import ApplicationTimedAgent
-    from ktbt_proto.exchange.member import RELAY_GRACE, Learner
-    from ktbt_proto.transport.zenoh import ZenohTransport
-    from tests.exchange.test_agent import CONTROL, KNOWER, SEQUENCE, registry
-    from tests.zenoh_helpers import settings, wait_until
-
-    pl, pa, pb = free_port(), free_port(), free_port()
-    missing = [sequence_key(SEQUENCE)]
-    with (
-        ZenohTransport("l", settings(pl), query_timeout=2.0) as lt,
-        ZenohTransport("a", settings(pa, pl), query_timeout=2.0) as at,
-        ZenohTransport("b", settings(pb, pl), query_timeout=2.0) as bt,
-    ):
-        robot = ApplicationTimedAgent("l", CONTROL, registry(), lt)
-        ApplicationTimedAgent("a", KNOWER, registry(), at)
-        ApplicationTimedAgent("b", CONTROL, registry(), bt)
-        seen: set[str] = set()
-        assert wait_until(lambda: seen.update(lt.appeared()) or {"a", "b"} <= seen)
-        learner = Learner(robot, Backoff(seed="l"), wait=2.0, cooldown=0.5)
-        learner.backoff.lost(0.0)  # an unanswered query before: no broadcast now
-        learner.step(0.1, missing, ["a", "b"])
-        assert [p for p in learner.sent if p] == ["b"] and learner.waiting == ["a"]
-        query = robot.open_query
-        assert query is not None
-        assert wait_until(lambda: not lt.awaiting(query.id, "b"))  # b finished: it knows nothing
-        learner.step(0.2, missing, [])
-        assert 0.2 < 0.1 + RELAY_GRACE and "a" in learner.tried  # asked at once, not after 1 s
-        assert wait_until(lambda: robot.receive() >= 0 and robot.knows(SEQUENCE))

@@ -128,7 +128,12 @@ def test_a_query_that_came_before_the_agent_attached_is_answered_when_it_does() 
         ZenohTransport("asker", settings(pa, pt), query_timeout=30.0) as ta,
     ):
         seen: set[str] = set()
-        assert wait_until(lambda: seen.update(tt.appeared()) or "asker" in seen)
+
+        def asker_seen() -> bool:
+            seen.update(tt.appeared())
+            return "asker" in seen
+
+        assert wait_until(asker_seen)
         see(ta, "teacher")
         tt.stirred.clear()
         query = Query(id=Query.new_id(), sender="asker", sequence=SEQUENCE_KEY)

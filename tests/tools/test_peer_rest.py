@@ -22,7 +22,7 @@ from ktbt_proto.syntax import parse
 from ktbt_proto.tools.demo import DEMO_CONTROL, demo_registry
 from ktbt_proto.tools.peer import STEADY_STEPS, Rest, quiet
 from ktbt_proto.transport.zenoh import ZenohTransport
-from tests.zenoh_helpers import free_port, settings
+from tests.zenoh_helpers import free_port, settings, wait_until
 
 GREEN = sequence_key(["TargetSeen(colour=2)"])
 BLUE = sequence_key(["TargetSeen(colour=3)"])
@@ -106,10 +106,7 @@ def test_a_peer_that_appears_wakes_a_resting_robot() -> None:
         transport.stirred.clear()
         with ZenohTransport("newcomer", settings(pb, pa), query_timeout=2.0):
             assert transport.stirred.wait(15), "no wake when a peer appeared"
-            deadline = time.monotonic() + 15
-            while "newcomer" not in transport.appeared():
-                assert time.monotonic() < deadline
-                time.sleep(0.01)
+            assert wait_until(lambda: "newcomer" in transport.appeared())
 
 
 @pytest.mark.network
@@ -130,11 +127,12 @@ def test_a_resting_learner_asks_at_once_when_a_teacher_appears() -> None:
         ApplicationTimedAgent(
             "teacher", with_knowledge(DEMO_CONTROL, COLOURS), demo_registry(), teacher_net
         )
-        deadline = time.monotonic() + 20
-        while not robot.knows([GREEN]):
-            assert time.monotonic() < deadline, f"todo {member.todo}"
+
+        def learned() -> bool:  # each poll one step, as a host's tick
             assert not _step(robot, member, rest)  # learning: full rate throughout
-            time.sleep(0.01)
+            return robot.knows([GREEN])
+
+        assert wait_until(learned, seconds=20), f"todo {member.todo}"
         robot.blackboard["target"] = 2
         robot.control.tick()
         assert robot.blackboard.get("Carrying") is True  # the learned item ran: it picked

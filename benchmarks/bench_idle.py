@@ -9,7 +9,9 @@ multicast scouting off (the fleet study's ``router-100`` shape):
 - ours: ``ktbt peer run --demo`` started knowing ``colours.sbt`` and told to meet
   ``TargetSeen(colour=2)``, which it knows: nothing to learn, as a learner once its fleet
   converged (``check.idle_cost``); and the same told nothing (it reads the fleet's catalogs
-  every 2 s, spec/protocol.md section 4.5);
+  every 2 s, spec/protocol.md section 4.5); and one waiting for a teacher that is not there
+  (told to meet ``Carrying``, which nobody knows: it asks, waits, holds back and asks again,
+  as a fleet's learners before their teacher is up);
 - the anchor (the floor): a bare Python process holding one zenoh session opened with the
   very configuration ours opens (the JSON of ``ZenohSettings.zenoh_config``, the same
   ``ZENOH_RUNTIME``), importing nothing but ``zenoh``.
@@ -69,7 +71,9 @@ def measure(seconds: float, settle: float, rounds: int) -> dict[str, Any]:
     env = {**os.environ, "ZENOH_RUNTIME": f"(rx: (worker_threads: {RX_WORKERS}))"}
     procs: dict[str, subprocess.Popen[bytes]] = {}
     with tempfile.TemporaryDirectory(prefix="ktbt-bench-idle-") as folder:
-        ready = {name: Path(folder) / f"{name}.ready" for name in ("router", "ours", "listed")}
+        ready = {
+            name: Path(folder) / f"{name}.ready" for name in ("router", "ours", "listed", "waiting")
+        }
         ready["bare"] = Path(folder) / "bare.ready"
         config = Path(folder) / "bare.json5"
         settings = ZenohSettings(connect=[router], mode="client", multicast_scouting=False)
@@ -80,6 +84,8 @@ def measure(seconds: float, settle: float, rounds: int) -> dict[str, Any]:
                      "--sequence", "TargetSeen(colour=2)", *client, "--duration", duration],
             "listed": [*peer, "run", "--demo", "--id", "listing", *client,
                        "--duration", duration],
+            "waiting": [*peer, "run", "--demo", "--id", "waiting", "--sequence", "Carrying",
+                        *client, "--duration", duration],
             "bare": [sys.executable, "-c", _BARE, str(config), str(ready["bare"])],
         }  # fmt: skip
         try:
@@ -94,7 +100,7 @@ def measure(seconds: float, settle: float, rounds: int) -> dict[str, Any]:
             for name, proc in procs.items():
                 _wait(ready[name], proc)
             time.sleep(settle)  # after start-up: imports, the first catalogs, zenoh's links
-            contenders = ("ours", "listed", "bare")
+            contenders = ("ours", "listed", "waiting", "bare")
             windows: dict[str, list[tuple[float, float, float]]] = {n: [] for n in contenders}
             load = [os.getloadavg()[0]]
             for _ in range(rounds):
@@ -151,6 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, what in (
         ("ours", "`peer run`, nothing to learn"),
         ("listed", "`peer run`, told nothing (catalogs every 2 s)"),
+        ("waiting", "`peer run`, waiting for a teacher"),
         ("bare", "bare zenoh session (anchor)"),
     ):
         r = result[name]

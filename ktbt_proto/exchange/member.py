@@ -280,6 +280,22 @@ class Learner:
         self.waiting = [p for p in self.waiting if p not in chosen]
         return chosen
 
+    def due(self, now: float, missing: Sequence[str]) -> float:
+        """When its next step may ask or close a query though nothing arrived (section 4.5,
+        the host's clock): the open query's wait ends (at once when it is all answered), a
+        peer that waited its turn finds room (an ask's :data:`RELAY_GRACE` is over), or, with
+        no query open and something ``missing``, the backoff lets it ask. ``math.inf``: never,
+        until something arrives."""
+        if self.robot.open_query is None:
+            return self.backoff.until if missing else math.inf
+        if not self.robot.unanswered:
+            return now
+        due = self.opened + self.wait
+        if self.waiting:
+            asked = (*self.sent.items(), *self.tried.items())
+            due = min([due, *(t + RELAY_GRACE for p, t in asked if p and t + RELAY_GRACE > now)])
+        return due
+
     def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
         query = self.robot.ask(missing[0], *missing[1 : 1 + MAX_MORE], to=to)
         self.sent = {peer: now for peer in to} if to else {"": now}
@@ -412,6 +428,19 @@ class FleetMember:
         (section 4.5). A settled member's step only reads what arrived, so its host may step it
         less often until something does (``ktbt peer run``'s rest rate)."""
         return not self.todo and self.agent.open_query is None and not self._waiting
+
+    def due(self, now: float) -> float:
+        """When its next step may act though nothing arrived (section 4.5, the host's clock):
+        the learner's next timed ask or close (:meth:`Learner.due`), or an announcement kept
+        while an answer may be on its way is taken (:data:`RELAY_GRACE` over); ``math.inf``
+        when settled. Anything that arrives may bring it sooner: a host that sleeps until then
+        wakes for what arrives (``ktbt peer run``'s rest). The catalogs' period is not in it: a
+        host sleeps a bounded time (``REST_RATE``)."""
+        due = self.learner.due(now, self.todo)
+        if self._waiting:
+            sent = self.learner.sent.values()
+            due = min([due, *(t + RELAY_GRACE for t in sent if t + RELAY_GRACE > now)])
+        return due
 
     @property
     def refused(self) -> int:

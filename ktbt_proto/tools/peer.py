@@ -89,10 +89,11 @@ class PeerSettings:
 
 
 REST_RATE = 2.0
-"""Steps a second of a ``ktbt peer run`` robot at rest (:class:`Rest`). At rest nothing it does
-depends on the rate (its tree's ticks repeat the last, and its member only reads what arrived
-and its catalogs every ``CATALOG_PERIOD``): what an idle peer costs is its wakes, about 0.2 ms
-of CPU each on a busy machine. Anything that arrives, or a signal, wakes it at once."""
+"""Steps a second, at least, of a ``ktbt peer run`` robot at rest (:class:`Rest`). At rest
+nothing it does depends on the rate (its tree's ticks repeat the last, and its member acts only
+on what arrived or when its next timed act is due): what a resting peer costs is its wakes,
+about 0.2 ms of CPU each on a busy machine. Anything that arrives, or a signal, wakes it at
+once."""
 
 STEADY_STEPS = 10
 """Steps at the full rate in which nothing changed before a robot rests, and after each time
@@ -118,18 +119,22 @@ _IMMUTABLE = frozenset((bool, int, float, str, bytes, type(None), Status))
 
 
 class Rest:
-    """When a ``ktbt peer run`` robot may step at :data:`REST_RATE` rather than its tick rate
-    (spec/protocol.md section 4.5): its member is settled (nothing to learn, no query open, no
-    announcement waiting), nothing was learned, no memory policy counts its ticks, its tree is
-    :func:`quiet`, and its last :data:`STEADY_STEPS` steps left the tree's status and the
-    blackboard as they were (a blackboard of plain values: numbers, strings, flags). Such a
-    tree's next ticks would do exactly what the last did, and the member's step only reads what
-    arrived: stepping it less often changes nothing the robot does, and what arrives
-    (:attr:`ZenohTransport.stirred`) brings it back to its full rate at once
-    (:meth:`stirred`)."""
+    """How long a ``ktbt peer run`` robot may wait before its next step (spec/protocol.md
+    section 4.5): its ``period`` while its tree may change; at rest, until its member's next
+    timed act is due (:meth:`FleetMember.due`: a query's wait over, the backoff's next ask), at
+    most ``resting`` seconds. It is at rest when nothing was learned, no memory policy counts
+    its ticks, its tree is :func:`quiet`, and its last :data:`STEADY_STEPS` steps left the
+    tree's status and the blackboard as they were (a blackboard of plain values: numbers,
+    strings, flags). Such a tree's next ticks would do exactly what the last did, and the
+    member's step acts only on what arrived and on its timed acts: stepping it less often
+    changes nothing the robot does, and what arrives (:attr:`ZenohTransport.stirred`) brings
+    it back to its full rate at once (:meth:`stirred`)."""
 
-    def __init__(self, robot: ApplicationTimedAgent, fleet: FleetMember) -> None:
+    def __init__(
+        self, robot: ApplicationTimedAgent, fleet: FleetMember, period: float, resting: float
+    ) -> None:
         self.robot, self.fleet = robot, fleet
+        self.period, self.resting = period, max(period, resting)
         self.steady = 0
         self._tree: Tree | None = None
         self._quiet = False
@@ -139,8 +144,9 @@ class Rest:
         """Something arrived: full rate for :data:`STEADY_STEPS` steps at least."""
         self.steady = 0
 
-    def after(self, learned: list[str]) -> bool:
-        """Whether the robot may rest after the step that learned ``learned``."""
+    def after(self, learned: list[str], now: float) -> float:
+        """Seconds to wait before the next step, after the step at ``now`` (the host's
+        monotonic clock) that learned ``learned``: :attr:`period` unless at rest."""
         robot, fleet = self.robot, self.fleet
         tree = robot.control.tree
         if tree is not self._tree:  # merged or forgotten: the tree's leaves are others
@@ -154,7 +160,6 @@ class Rest:
         if (
             learned
             or not self._quiet
-            or not fleet.settled
             or memory.forget_after is not None
             or memory.expire_after is not None
             or not same
@@ -163,7 +168,9 @@ class Rest:
         else:
             self.steady += 1
         self._seen = seen
-        return self.steady >= STEADY_STEPS
+        if self.steady < STEADY_STEPS:
+            return self.period
+        return max(0.0, min(self.resting, fleet.due(now) - now))
 
 
 @contextmanager
@@ -356,8 +363,9 @@ def run_agent(
     network's own errors are counted apart. ``export_learned``: a folder (or an export made
     already) to mirror learned items into as BT.CPP documents (spec/stringbt.md section
     12.1); the member's ``groot``: serve the control tree to Groot2 (spec/groot2.md). At rest
-    (:class:`Rest`: nothing to learn or under way, a tree whose ticks change nothing) it steps
-    at ``rest_rate`` instead of ``tick_rate``, and at once again when anything arrives."""
+    (:class:`Rest`: a tree whose ticks change nothing) it sleeps until its member's next timed
+    act, ``1 / rest_rate`` seconds at most, instead of stepping at ``tick_rate``, and steps at
+    once when anything arrives."""
     security = member.security
     name = member.name
     wait, cooldown = wait_ticks / tick_rate, cooldown_ticks / tick_rate
@@ -412,18 +420,19 @@ def run_agent(
         else:
             say(f"{name}: knows {len(robot.knowledge)}, will meet what its peers list")
         announce_ready(member.ready, name, len(robot.knowledge))
-        period, resting = 1.0 / tick_rate, 1.0 / min(rest_rate, tick_rate)
-        rest, stirred = Rest(robot, fleet), transport.stirred
-        while not stop.is_set() and time.monotonic() < deadline:
+        period = 1.0 / tick_rate
+        rest, stirred = Rest(robot, fleet, period, 1.0 / rest_rate), transport.stirred
+        while not stop.is_set() and (now := time.monotonic()) < deadline:
             robot.now += 1
             if stirred.is_set():  # arrived since the last step, at rest or not
                 rest.stirred()
                 stirred.clear()
-            learned = fleet.step(time.monotonic())
+            learned = fleet.step(now)
             if exit_when_done and fleet.done:
                 break
-            if resting > period and rest.after(learned):
-                stirred.wait(max(0.0, min(resting, deadline - time.monotonic())))
+            wait = rest.after(learned, now)
+            if wait > period:  # at rest: until its next timed act, or anything arrives
+                stirred.wait(min(wait, deadline - time.monotonic()))
             else:
                 stop.wait(period)
         m = robot.metrics

@@ -341,7 +341,7 @@ class ZenohTransport:
         self._warn = Throttle(log.warning)
         self.stirred = threading.Event()
         """Set when something arrives for the agent (a message in the inbox, a peer appeared,
-        an announcement): a host stepping at its rest rate wakes at once (section 4.5)."""
+        an announcement) or a query's get ends: a host at rest wakes at once (section 4.5)."""
         self._inbox = Inbox(self._refuse, self.inbox_limit, self.overheard_limit, self.stirred.set)
         self._given = AnswersGiven(self.name, self.answer_window, self.max_pending, log.warning)
         self._templates: dict[tuple[str, SignedItem], tuple[bytes, bytes]] = {}
@@ -607,6 +607,7 @@ class ZenohTransport:
                 if not self._gets[sent]:
                     del self._gets[sent]
             ended.set()
+            self.stirred.set()  # an announcement waiting for its answers may be taken now
 
         try:
             self._session.get(

@@ -267,6 +267,7 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
             step(learner, now=t0)
         assert len(queries) == 1
         t1 = t0 + RELAY_GRACE
+        assert learner.due(t0) == t1  # when a host at rest steps it again for the announcement
         while len(queries) < 2:
             assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
             step(learner, now=t1)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from contextlib import ExitStack
+from dataclasses import replace
 
 import pytest
 
@@ -61,9 +62,14 @@ def test_a_tree_is_quiet_when_every_leaf_is_pure_and_no_timer_counts() -> None:
     assert not declared.pure("action", "Counter")
 
 
+PERIOD, RESTING = 0.01, 0.5
+
+
 def _step(robot: ApplicationTimedAgent, member: FleetMember, rest: Rest) -> bool:
+    """One step as ``ktbt peer run`` takes it; whether it may then wait longer than a period."""
     robot.now += 1
-    return rest.after(member.step(time.monotonic()))
+    now = time.monotonic()
+    return rest.after(member.step(now), now) > PERIOD
 
 
 @pytest.mark.network
@@ -75,7 +81,7 @@ def test_a_settled_robot_rests_once_steady_and_anything_keeps_it_at_full_rate() 
             "rester", with_knowledge(DEMO_CONTROL, COLOURS), demo_registry(), transport
         )
         member = FleetMember(robot, transport, None, [GREEN], 2.0, 0.5, lambda _: None)
-        rest = Rest(robot, member)
+        rest = Rest(robot, member, PERIOD, RESTING)
         rested = [_step(robot, member, rest) for _ in range(STEADY_STEPS + 1)]
         assert member.settled and rested[-1] and not any(rested[: STEADY_STEPS - 1])
 
@@ -94,8 +100,39 @@ def test_a_settled_robot_rests_once_steady_and_anything_keeps_it_at_full_rate() 
         rest.stirred()  # something arrived: full rate again at once
         assert not _step(robot, member, rest)
 
-        member.meet(["TargetSeen(colour=9)"])  # something to learn: never at rest
-        assert not any(_step(robot, member, rest) for _ in range(STEADY_STEPS + 2))
+        robot.memory = replace(robot.memory, expire_after=10_000)  # counts ticks: no rest
+        assert not any(_step(robot, member, rest) for _ in range(3 * STEADY_STEPS))
+
+
+@pytest.mark.network
+def test_a_learner_waiting_for_a_teacher_rests_until_its_next_timed_ask() -> None:
+    """Something to learn and nobody to teach it: its tree is steady, so it waits until its
+    member's next timed act (the open query's wait over, then the backoff's next ask), not a
+    tick period, and no longer than its rest."""
+    with ZenohTransport("waiter", settings(free_port()), query_timeout=2.0) as transport:
+        robot = ApplicationTimedAgent("waiter", DEMO_CONTROL, demo_registry(), transport)
+        member = FleetMember(robot, transport, None, [GREEN], 2.0, 0.5, lambda _: None)
+        rest = Rest(robot, member, PERIOD, 60.0)
+        waits = []
+        for _ in range(STEADY_STEPS + 1):
+            robot.now += 1
+            now = time.monotonic()
+            waits.append(rest.after(member.step(now), now))
+        query = robot.open_query
+        assert query is not None and waits[0] == PERIOD  # it asked at once, at full rate
+        opened = member.learner.opened
+        assert member.due(now) == opened + 2.0  # the query's wait
+        assert waits[-1] == pytest.approx(opened + 2.0 - now)
+
+        later = opened + 2.0  # its wait is over: closed, unanswered; the backoff holds it back
+        wait = rest.after(member.step(later), later)
+        until = member.learner.backoff.until
+        assert robot.open_query is None and until >= later + 0.5 + 0.25
+        assert member.due(later) == until and wait == pytest.approx(until - later)
+        wait = rest.after(member.step(until), until)  # it asks again when the hold is over
+        assert robot.open_query is not None and robot.open_query.id != query.id
+        assert wait == pytest.approx(2.0)
+        assert Rest(robot, member, PERIOD, RESTING).after([], until) == PERIOD  # not steady yet
 
 
 @pytest.mark.network
@@ -111,14 +148,15 @@ def test_a_peer_that_appears_wakes_a_resting_robot() -> None:
 
 @pytest.mark.network
 def test_a_resting_learner_asks_at_once_when_a_teacher_appears() -> None:
-    """A learner told a sequence it lacks is never at rest; one that knows it rests, and when
-    it is told another and a teacher appears, it learns it: its tree runs what it learned."""
+    """A learner that knows what it meets rests; told another, and a teacher appears, it is
+    woken (the host steps it at full rate again) and learns it: its tree runs what it
+    learned."""
     pl, pt = free_port(), free_port()
     with ExitStack() as stack:
         transport = stack.enter_context(ZenohTransport("learner", settings(pl), query_timeout=2.0))
         robot = ApplicationTimedAgent("learner", DEMO_CONTROL, demo_registry(), transport)
         member = FleetMember(robot, transport, None, [], 2.0, 0.5, lambda _: None)
-        rest = Rest(robot, member)
+        rest = Rest(robot, member, PERIOD, RESTING)
         assert any(_step(robot, member, rest) for _ in range(STEADY_STEPS + 5)), "never at rest"
         member.meet([GREEN])
         teacher_net = stack.enter_context(
@@ -128,11 +166,19 @@ def test_a_resting_learner_asks_at_once_when_a_teacher_appears() -> None:
             "teacher", with_knowledge(DEMO_CONTROL, COLOURS), demo_registry(), teacher_net
         )
 
+        woken = []
+
         def learned() -> bool:  # each poll one step, as a host's tick
-            assert not _step(robot, member, rest)  # learning: full rate throughout
+            if transport.stirred.is_set():  # as `ktbt peer run` does at each step
+                rest.stirred()
+                transport.stirred.clear()
+                woken.append(_step(robot, member, rest))
+            else:
+                _step(robot, member, rest)
             return robot.knows([GREEN])
 
         assert wait_until(learned, seconds=20), f"todo {member.todo}"
+        assert woken and not any(woken)  # each step after an arrival at full rate
         robot.blackboard["target"] = 2
         robot.control.tick()
         assert robot.blackboard.get("Carrying") is True  # the learned item ran: it picked

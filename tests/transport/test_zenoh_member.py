@@ -203,6 +203,7 @@ def test_with_no_query_open_a_peer_that_appears_is_asked_alone() -> None:
     second.step(0.2, missing, ["n-late"])
     late.receive()
     assert late.heard("m") is None
+    assert second.due(0.2, missing) == 0.1 + RELAY_GRACE  # a host at rest wakes then for it
     second.step(0.1 + RELAY_GRACE, missing, [])
     for agent in [late, *agents.values()]:
         agent.receive()

@@ -54,7 +54,7 @@ from rclpy.event_handler import (
     QoSRequestedIncompatibleQoSInfo,
     SubscriptionEventCallbacks,
 )
-from rclpy.node import Node
+from rclpy.node import Node, NodeNameNonExistentError
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -538,11 +538,10 @@ class Ros2Transport:
             if others and "_NODE_NAME_UNKNOWN_" not in others[0]:
                 break
             now = time.monotonic()
-            nodes = frozenset(
-                f"{ns.rstrip('/')}/{n}" for n, ns in self.node.get_node_names_and_namespaces()
-            )
+            named = self.node.get_node_names_and_namespaces()
+            nodes = frozenset(f"{ns.rstrip('/')}/{n}" for n, ns in named)
             seen = (nodes, frozenset(t for t, _ in self.node.get_topic_names_and_types()))
-            if seen != graph:
+            if seen != graph or not self._endpoints_known(named, me):
                 graph, settled = seen, now
             elif (nodes - {me} and now - settled >= SETTLE) or now - began >= SETTLE_MOST:
                 break
@@ -553,6 +552,21 @@ class Ros2Transport:
                 f"{what} {self.name!r} is taken: {others[0]} announces it "
                 f"(this node: {self.node.get_fully_qualified_name()})"
             )
+
+    def _endpoints_known(self, named: list[tuple[str, str]], me: str) -> bool:
+        """Whether every other node of the graph has shown a publisher (every rclpy node has
+        ``/rosout`` or ``/parameter_events``): a node is named before its endpoints are
+        discovered (two steps of DDS discovery), and a namesake's announcement is one of
+        them, so a graph with a node still unresolved has not settled (section 11)."""
+        for name, namespace in named:
+            if f"{namespace.rstrip('/')}/{name}" == me:
+                continue
+            try:
+                if not self.node.get_publisher_names_and_types_by_node(name, namespace):
+                    return False
+            except NodeNameNonExistentError:  # gone since it was named: no namesake
+                continue
+        return True
 
     def first_named(self) -> bool:
         """Whether this robot's name comes first among the names its fleet announces: the one

@@ -293,7 +293,7 @@ class Learner:
         due = self.opened + self.wait
         if self.waiting:
             asked = (*self.sent.items(), *self.tried.items())
-            due = min([due, *(t + RELAY_GRACE for p, t in asked if p and t + RELAY_GRACE > now)])
+            due = min([due, *(t + RELAY_GRACE for p, t in asked if p and now - t < RELAY_GRACE)])
         return due
 
     def _ask(self, now: float, missing: list[str], to: Sequence[str] = ()) -> Query:
@@ -435,11 +435,13 @@ class FleetMember:
         while an answer may be on its way is taken (:data:`RELAY_GRACE` over); ``math.inf``
         when settled. Anything that arrives may bring it sooner: a host that sleeps until then
         wakes for what arrives (``ktbt peer run``'s rest). The catalogs' period is not in it: a
-        host sleeps a bounded time (``REST_RATE``)."""
+        host sleeps a bounded time (``REST_RATE``), so a reading may come that much late."""
         due = self.learner.due(now, self.todo)
         if self._waiting:
+            if self.agent.open_query is None:  # closed since: nothing to wait for
+                return now
             sent = self.learner.sent.values()
-            due = min([due, *(t + RELAY_GRACE for t in sent if t + RELAY_GRACE > now)])
+            due = min([due, *(t + RELAY_GRACE for t in sent if now - t < RELAY_GRACE)])
         return due
 
     @property

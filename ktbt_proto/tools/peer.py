@@ -430,9 +430,9 @@ def run_agent(
             learned = fleet.step(now)
             if exit_when_done and fleet.done:
                 break
-            wait = rest.after(learned, now)
-            if wait > period:  # at rest: until its next timed act, or anything arrives
-                stirred.wait(min(wait, deadline - time.monotonic()))
+            sleep = rest.after(learned, time.monotonic())  # the step took time too
+            if sleep > period:  # at rest: until its next timed act, or anything arrives
+                stirred.wait(min(sleep, deadline - time.monotonic()))
             else:
                 stop.wait(period)
         m = robot.metrics

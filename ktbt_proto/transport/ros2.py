@@ -54,7 +54,7 @@ from rclpy.event_handler import (
     QoSRequestedIncompatibleQoSInfo,
     SubscriptionEventCallbacks,
 )
-from rclpy.node import Node, NodeNameNonExistentError
+from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -554,17 +554,22 @@ class Ros2Transport:
             )
 
     def _endpoints_known(self, named: list[tuple[str, str]], me: str) -> bool:
-        """Whether every other node of the graph has shown a publisher (every rclpy node has
-        ``/rosout`` or ``/parameter_events``): a node is named before its endpoints are
-        discovered (two steps of DDS discovery), and a namesake's announcement is one of
-        them, so a graph with a node still unresolved has not settled (section 11)."""
+        """Whether every other node of the graph has shown an endpoint (every rclpy node
+        publishes ``/parameter_events``): a node is named before its endpoints are discovered
+        (two steps of DDS discovery), and a namesake's announcement is one of them, so a graph
+        with a node still unresolved has not settled (section 11). A node with no endpoint at
+        all keeps it unsettled until :data:`SETTLE_MOST`."""
+        graph = self.node
         for name, namespace in named:
             if f"{namespace.rstrip('/')}/{name}" == me:
                 continue
             try:
-                if not self.node.get_publisher_names_and_types_by_node(name, namespace):
+                if not (
+                    graph.get_publisher_names_and_types_by_node(name, namespace)
+                    or graph.get_subscriber_names_and_types_by_node(name, namespace)
+                ):
                     return False
-            except NodeNameNonExistentError:  # gone since it was named: no namesake
+            except RuntimeError:  # gone since it was named, or a name rcl cannot look up
                 continue
         return True
 

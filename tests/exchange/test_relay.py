@@ -334,6 +334,33 @@ def test_an_announcement_waits_for_no_answer_that_cannot_come(quiet: Path) -> No
         assert learner.agent.open_query is query  # the open query, sent on to the announcer
 
 
+def test_an_announcement_kept_while_the_query_closed_is_due_at_once(quiet: Path) -> None:
+    """An announcement kept waiting for an answer that may come (section 4.5) is taken at the
+    next step once the query has closed: the member says it is due at once, so a host at rest
+    does not sleep past it until the backoff's next ask."""
+    pl, ph = free_port(), free_port()
+    with ExitStack() as stack:
+        learner, network = stack.enter_context(member("learner", line_settings(quiet, pl)))
+        network.query_timeout = 120.0  # the liar holds the broadcast's get open throughout
+        session, queries = stack.enter_context(liar(ph, pl, hold=True))
+        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
+        stack.callback(lies.undeclare)
+        reach(network, queries)
+        t0 = time.monotonic()
+        while not (queries and lies.matching_status.matching):
+            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
+            step(learner, now=t0)
+        lies.put(encode_learned([GREEN]))
+        assert wait_until(lambda: network.announcements >= 1)
+        step(learner, now=t0 + 0.4)  # kept: the broadcast's answer may be on its way
+        assert learner.due(t0 + 0.4) == t0 + 0.5  # the query's wait
+        step(learner, now=t0 + 0.5)  # kept again, then the query's wait is over: closed
+        assert learner.agent.open_query is None and len(queries) == 1
+        assert learner.due(t0 + 0.5) == t0 + 0.5  # not the backoff's next ask
+        step(learner, now=t0 + 0.5)
+        assert wait_until(lambda: queries[1:] == ["ktbt/v1/knowledge/liar"])
+
+
 def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> None:
     """A liar announcing what the learner lacks every hold cannot keep the learner's query
     open for ever (which would put off its timed ask): the first announcer asked stretches the

@@ -463,12 +463,15 @@ class FleetMember:
         """Meet exactly these sequence keys from now on; the catalogs are no longer read."""
         self.todo, self.listed = list(keys), None
 
-    def step(self, now: float) -> list[str]:
+    def step(self, now: float, *, tick: bool = True) -> list[str]:
         """Section 4.5's loop, once; ``now`` in seconds of the host's clock (monotonic for
         ``ktbt peer run``, the node's for a ROS robot: sim time under ``use_sim_time``), the
         same at every step: every wait, cool-down, backoff and catalog period is on it. A
         clock that goes back (a simulation reset) ends the hold: it may ask at once, and an
-        open query stays open a whole wait from then. Returns the keys learned in this step."""
+        open query stays open a whole wait from then. ``tick`` False: a step between two ticks
+        (a host that steps when an answer arrives or it is told what to meet, section 11),
+        which neither ticks the control tree nor tends memory, both counted in ticks. Returns
+        the keys learned in this step."""
         agent = self.agent
         if now < self._last:
             self.learner.backoff.reset(now)
@@ -481,8 +484,8 @@ class FleetMember:
             if learned and self.relay is not None:
                 self.relay.learned(learned)
         for key in learned:
-            tick, source = agent.metrics.learned[key]
-            self.say(f"{agent.name}: learned {show_key(key)} from {source} at tick {tick}")
+            at, source = agent.metrics.learned[key]
+            self.say(f"{agent.name}: learned {show_key(key)} from {source} at tick {at}")
             self._reported.add(key)
         if self.export is not None:
             self.export.sync(agent.knowledge)
@@ -499,9 +502,10 @@ class FleetMember:
             self.todo += self.listed.read(told)
         self.todo = [key for key in self.todo if key not in agent.knowledge]
         self.learner.step(now, self.todo, appeared, self._worth_asking(now, heard))
-        if self.ticks_control:
-            self.status = agent.control.tick()
-        agent.tend_memory()
+        if tick:
+            if self.ticks_control:
+                self.status = agent.control.tick()
+            agent.tend_memory()
         return learned
 
     def _worth_asking(self, now: float, heard: list[tuple[str, tuple[str, ...]]]) -> list[str]:

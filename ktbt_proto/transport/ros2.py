@@ -315,8 +315,12 @@ class Ros2Transport:
         answer_at_once: bool = True,
         relay: Callable[[str, Response], None] | None = None,
         clock: Clock | None = None,
+        arrived: Callable[[], object] | None = None,
     ) -> None:
         self.node, self.name = node, name
+        self.arrived = arrived
+        """Called (in the network's callback) when an answer to one of this robot's queries
+        is delivered to the agent: a host that steps its member at once then (section 11)."""
         self.clock = clock or node_clock(node)
         """The host's seconds (:func:`node_clock`): every period and timeout here is on it."""
         self.topics = topics or Topics()
@@ -743,6 +747,8 @@ class Ros2Transport:
                 self._refuse(f"another answer from {answer.sender} to the same query")
                 return
         self._inbox.deliver(answer)
+        if opened is not None and self.arrived is not None:
+            self.arrived()
 
     @guarded("an error reply")
     def _on_error(self, data: bytes) -> None:

@@ -10,7 +10,9 @@ behaviour's ``setup``). What ``attach`` adds to the node:
   subscription's callback (section 4.5);
 - one timer, on the node's executor, that asks for what the robot is missing (the sequences
   given, else what the fleet's catalogs list that its vocabulary can execute) with section
-  4.5's backoff, and checks and merges the answers (section 2);
+  4.5's backoff, and checks and merges the answers (section 2); and a second, armed only when
+  an answer arrives or it is told what to meet, that does the same at once
+  (:class:`~ktbt_proto.interop.ros2.stepping.Stepping`);
 - what it shows (:class:`~ktbt_proto.interop.ros2.showing.ShownTopics`) under ``~/ktbt``:
   ``events``, ``tree`` and ``catalog``, so the user's own topics keep their names.
 
@@ -56,6 +58,7 @@ from ktbt_proto.interop.pytrees import Behaviours
 from ktbt_proto.interop.pytrees_control import PyTreesControl, known_behaviours, py_trees_control
 from ktbt_proto.interop.ros2.logs import hear, speaking, unhear
 from ktbt_proto.interop.ros2.showing import FleetCatalogs, Services, ShownTopics
+from ktbt_proto.interop.ros2.stepping import Stepping
 from ktbt_proto.items import read_sequence, sequence_key, show_key
 from ktbt_proto.registry import Registry
 from ktbt_proto.transport.ros2 import Ros2Transport, Topics, open_to_strangers, robot_name
@@ -162,17 +165,20 @@ class Embedded:
         self.node, self.tree, self.name = node, tree, name
         self.logger = node.get_logger()
         hear(self, self.logger)  # the library's records of this robot through its node's logger
+        self.closed = True  # until attached: no step before then
+        self._stepping = Stepping(node, self._step)
         try:
             with speaking(self.logger):
                 self._build(registry, factory, knowledge, todo, topics, security, overhear, wait)
         except BaseException:
+            self._stepping.close()
             unhear(self)
             raise
         self.closed = False
         warning = open_to_strangers(node, name, security.policy)
         if warning is not None:
             self.logger.warning(warning)
-        self._timer = node.create_timer(period, self._run)
+        self._timer = node.create_timer(period, self._stepping.tick)
         self.shown.show(self._control.tree)
         self.logger.info(
             f"{name}: KT-BT attached, knows {len(self.agent.knowledge)}, learns into "
@@ -204,6 +210,7 @@ class Embedded:
             identity=security.identity,
             log=log,
             overhear=overhear != "off",
+            arrived=self._stepping.soon,  # an answer is merged at once, not at the next run
         )
         try:
             self.transport.claim("name")  # a name the fleet already has: one line, refused
@@ -293,18 +300,20 @@ class Embedded:
         """Meet these sequences too (checked as :func:`attach` checks its ``sequences``)."""
         vocabulary = self.agent.registry
         self.member.meet([_meetable(s, vocabulary) for s in sequences])
+        self._stepping.soon()  # asked at once
 
-    def _run(self) -> None:
-        """One run of the agent's timer: a step of the fleet member (section 4.5) on the
-        user's tick count, then what changed is shown. Nothing once the node's context is shut
-        down (a signal, ``rclpy.shutdown``): the executor may still run a timer that was due,
-        and its entities can no longer be read."""
-        if not self.node.context.ok():
+    def _step(self, tick: bool) -> None:
+        """One run of the agent's timer (``tick``), or a step between two (an answer arrived,
+        or it was told what to meet): a step of the fleet member (section 4.5) on the user's
+        tick count, then what changed is shown. Nothing once closed, or once the node's context
+        is shut down (a signal, ``rclpy.shutdown``): the executor may still run a timer that was
+        due, and its entities can no longer be read."""
+        if self.closed or not self.node.context.ok():
             return
         self.agent.now = self.tree.count
         with speaking(self.logger):  # the library's records of this robot: its node's
             try:
-                self.member.step(self.transport.clock())
+                self.member.step(self.transport.clock(), tick=tick)
                 self._show()
             except Exception:
                 if self.node.context.ok():
@@ -326,6 +335,7 @@ class Embedded:
         self.closed = True
         unhear(self)
         self.node.destroy_timer(self._timer)
+        self._stepping.close()
         self._offered.close()
         if self._catalogs is not None:
             self._catalogs.close()

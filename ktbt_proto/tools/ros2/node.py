@@ -51,6 +51,7 @@ from ktbt_proto.interop.ros2.showing import (
     events_qos,
     latched,
 )
+from ktbt_proto.interop.ros2.stepping import Stepping
 from ktbt_proto.interop.sidecar import LearnedExport, tree_ids
 from ktbt_proto.items import read_sequence, sequence_key
 from ktbt_proto.tools.robot import build_robot
@@ -177,6 +178,7 @@ class KtbtNode(LifecycleNode):
         self._snapshot_timer: Any = None
         self._shown: ShownTopics | None = None
         self._catalogs: FleetCatalogs | None = None
+        self._stepping: Stepping | None = None
 
     # -- parameters -----------------------------------------------------------------------------
 
@@ -198,8 +200,10 @@ class KtbtNode(LifecycleNode):
         period (timers made anew)."""
         for param in params:
             if param.name == "sequences" and self.member is not None:
-                # told what to meet: the catalogs are no longer read
+                # told what to meet: the catalogs are no longer read; it asks at once
                 self.member.tell(sequence_key(read_sequence(s)) for s in param.value)
+                if self._stepping is not None:
+                    self._stepping.soon()
         if self._timer is not None and any(
             p.name in ("tick_rate", "snapshot_period") for p in params
         ):
@@ -273,6 +277,7 @@ class KtbtNode(LifecycleNode):
             str(self._param("answers_topic")),
             str(self._param("errors_topic")),
         )
+        self._stepping = Stepping(self, self._step)
         self.transport = Ros2Transport(
             self,
             name,
@@ -282,6 +287,7 @@ class KtbtNode(LifecycleNode):
             log=self.log,
             overhear=overhear != "off",
             active=False,
+            arrived=self._stepping.soon,  # an answer is merged at once, not at the next tick
         )
         self.transport.claim("agent_name")  # a name the fleet already has: one line, refused
         save = str(self._param("save"))
@@ -416,6 +422,8 @@ class KtbtNode(LifecycleNode):
             )
         if self.transport is not None:
             self.transport.close()
+        if self._stepping is not None:
+            self._stepping.close()
         if self._shown is not None:
             self._shown.close()
         if self._catalogs is not None:
@@ -425,7 +433,7 @@ class KtbtNode(LifecycleNode):
         if self.log is not None:
             self.log.close()
         self.agent, self.transport, self.log, self.member = None, None, None, None
-        self._shown = self._catalogs = self._offered = None
+        self._shown = self._catalogs = self._offered = self._stepping = None
 
     def destroy_node(self) -> None:
         with speaking(self.logger):
@@ -436,15 +444,25 @@ class KtbtNode(LifecycleNode):
     # -- running --------------------------------------------------------------------------------
 
     def _tick(self) -> None:
-        """One step of the fleet member (section 4.5), then what changed is shown; nothing once
-        the context is shut down (a timer that was due may still run)."""
+        if self._stepping is not None:
+            self._stepping.tick()
+
+    def _step(self, tick: bool) -> None:
+        """One step of the fleet member (section 4.5), then what changed is shown: at a tick,
+        or between two (``tick`` False, :class:`Stepping`: an answer arrived, or it was told its
+        sequences) while active; nothing once the context is shut down (a timer that was due
+        may still run)."""
         member, transport = self.member, self.transport
         if member is None or transport is None or not self.context.ok():
             return
-        member.agent.now += 1
+        if not tick and not transport.active:
+            return
+        if tick:
+            member.agent.now += 1
         with speaking(self.logger):  # the library's records of this robot: its node's
             try:
-                member.step(transport.clock())  # the node's clock: sim time under use_sim_time
+                # the node's clock: sim time under use_sim_time
+                member.step(transport.clock(), tick=tick)
                 self._show()
             except Exception:
                 if self.context.ok():

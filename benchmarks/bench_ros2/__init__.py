@@ -477,8 +477,8 @@ def _installed(dist: str) -> bool:
 LABEL = {"events": "events executor", "single": "`SingleThreadedExecutor`"}
 OURS_PHASES = (
     ("tell", "`set_parameters(sequences=...)`: the node told what it needs"),
-    ("tick_wait_ask", "waiting for the node's next tick (100 Hz)"),
-    ("step_to_ask", "the tick's step up to the query (receive, peers, learner)"),
+    ("wait_ask", "waiting for the node's step (one between ticks, at once)"),
+    ("step_to_ask", "the step up to the query (receive, peers, learner)"),
     ("serialize", "the `Query` serialised (CDR)"),
     ("bookkeeping", "the open query's bookkeeping"),
     ("publish", "`publish` (rclpy, Fast DDS)"),
@@ -492,8 +492,8 @@ OURS_PHASES = (
     ("own_query_read_back", "  meanwhile: the learner reading its own query back"),
     ("answer_decode", "answer read (CDR, section 1 checks)"),
     ("answer_check", "answer's bookkeeping (open query, trust screen, inbox)"),
-    ("tick_wait_merge", "waiting for the node's next tick (100 Hz)"),
-    ("step_to_accept", "the tick's step up to the answer's checks"),
+    ("wait_merge", "waiting for the node's step (one between ticks, at once)"),
+    ("step_to_accept", "the step up to the answer's checks"),
     ("provenance", "provenance / trust check"),
     ("parse_validate", "the item read: parse + validate against the vocabulary"),
     ("merge", "`merge` into the running tree"),
@@ -501,9 +501,11 @@ OURS_PHASES = (
     ("accept_records", "  of which two events recorded (`TransferLog.record`)"),
     ("accept_publishes", "    of which published on `~/events` (rclpy `publish`)"),
     ("accept_kb_add", "  of which the item added to the knowledge base"),
-    ("step_to_tick", "the step's rest before the control tree's tick"),
-    ("step_say", "  of which the `learned ...` INFO line (rclpy logger, /rosout)"),
-    ("step_appeared", "  of which the peers read from the ROS graph"),
+    ("merge_step_rest", "the rest of the step that merged (0 when a tick's)"),
+    ("step_say", "  the `learned ...` INFO line (rclpy logger, /rosout)"),
+    ("step_appeared", "  the peers read from the ROS graph"),
+    ("tick_wait_run", "waiting for the node's next tick (100 Hz), which runs the item"),
+    ("step_to_tick", "that tick's step before the control tree's tick"),
     ("control_tick", "the first tick with the item"),
 )
 

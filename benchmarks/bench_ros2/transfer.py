@@ -249,6 +249,7 @@ def learner_ours(kind: str) -> int:
 
     for owner, attr, name in (
         (KtbtNode, "_tick", "node_tick"),
+        (KtbtNode, "_step", "node_step"),
         (transport.Ros2Transport, "broadcast", "broadcast"),
         (transport, "serialized", "serialize"),
         (transport.Ros2Transport, "_on_query", "on_query"),
@@ -358,7 +359,7 @@ def learner_attach(kind: str) -> int:
     from ..bench_transfer import COLOURS, sequence_of
 
     for owner, attr, name in (
-        (Embedded, "_run", "agent_run"),
+        (Embedded, "_step", "agent_step"),
         (transport.Ros2Transport, "broadcast", "broadcast"),
         (transport.Ros2Transport, "_on_answer", "on_answer"),
     ):
@@ -425,21 +426,22 @@ def learner_attach(kind: str) -> int:
 
 
 def attach_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str, int]:
-    """One round of the attached robot cut into consecutive phases (ns)."""
+    """One round of the attached robot cut into consecutive phases (ns): its agent's steps are
+    its timer's runs and those between them (told to meet, an answer arrived)."""
     broadcast = next(m for m in marks if m[0] == "broadcast" and m[1] >= told)
-    ask_run = next(m for m in marks if m[0] == "agent_run" and m[1] <= broadcast[1] <= m[2])
+    ask_step = next(m for m in marks if m[0] == "agent_step" and m[1] <= broadcast[1] <= m[2])
     answer = next(m for m in marks if m[0] == "on_answer" and m[1] >= broadcast[2])
-    take_run = next(m for m in marks if m[0] == "agent_run" and m[1] >= answer[2])
+    take_step = next(m for m in marks if m[0] == "agent_step" and m[1] >= answer[2])
     user = next(m for m in marks if m[0] == "user_tick" and m[2] == end)
     return {
         "tell": told - start,
-        "timer_wait_ask": ask_run[1] - told,
-        "run_to_ask": broadcast[2] - ask_run[1],
+        "wait_ask": ask_step[1] - told,
+        "step_to_ask": broadcast[2] - ask_step[1],
         "network": answer[1] - broadcast[2],
         "answer_read": answer[2] - answer[1],
-        "timer_wait_take": take_run[1] - answer[2],
-        "take_run": take_run[2] - take_run[1],
-        "tick_wait": user[1] - take_run[2],
+        "wait_take": take_step[1] - answer[2],
+        "take_step": take_step[2] - take_step[1],
+        "tick_wait": user[1] - take_step[2],
         "user_tick": user[2] - user[1],
     }
 
@@ -454,16 +456,19 @@ def _within(marks: list[Mark], name: str, start: int, end: int) -> list[Mark]:
 
 def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str, int]:
     """One round of ours cut into consecutive phases (ns), from the wrappers' marks; they add
-    up to the round's time. ``teacher`` is filled in by the parent (from the teacher's marks)
-    and taken out of ``network``."""
+    up to the round's time. A step is a tick's or one between ticks (told its sequences, an
+    answer arrived); the item may be merged in the tick's step that runs it, or in a step
+    before. ``teacher`` is filled in by the parent (from the teacher's marks) and taken out of
+    ``network``."""
     broadcast = next(m for m in marks if m[0] == "broadcast" and m[1] >= told)
-    ask_tick = next(m for m in marks if m[0] == "node_tick" and m[1] <= broadcast[1] <= m[2])
+    ask_step = next(m for m in marks if m[0] == "node_step" and m[1] <= broadcast[1] <= m[2])
     serialize = _within(marks, "serialize", broadcast[1], broadcast[2])
     answer = next(m for m in marks if m[0] == "on_answer" and m[1] >= broadcast[2])
     read = _within(marks, "read", answer[1], answer[2])
     control_tick = next(m for m in marks if m[0] == "control_tick" and m[2] == end)
-    merge_tick = next(m for m in marks if m[0] == "node_tick" and m[1] <= control_tick[1] <= m[2])
-    accept = _within(marks, "accept", merge_tick[1], control_tick[1])[0]
+    accept = next(m for m in marks if m[0] == "accept" and m[1] >= answer[2])
+    merge_step = next(m for m in marks if m[0] == "node_step" and m[1] <= accept[1] <= m[2])
+    tick_step = next(m for m in marks if m[0] == "node_step" and m[1] <= control_tick[1] <= m[2])
     provenance = _within(marks, "provenance", accept[1], accept[2])
     item = _within(marks, "read_item", accept[1], accept[2])
     merge = _within(marks, "merge", accept[1], accept[2])
@@ -475,22 +480,27 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
         return sum(m[2] - m[1] for m in _within(marks, name, start, end))
 
     checks = [sum(m[2] - m[1] for m in part) for part in (provenance, item, merge)]
+    if tick_step == merge_step:  # merged in the tick's step that runs it
+        rest, waited, to_tick = 0, 0, control_tick[1] - accept[2]
+    else:
+        rest = merge_step[2] - accept[2]
+        waited, to_tick = tick_step[1] - merge_step[2], control_tick[1] - tick_step[1]
     return {
         "at_published": broadcast[2],
         "at_answer": answer[1],
         "tell": told - start,
-        "tick_wait_ask": ask_tick[1] - told,
-        "step_to_ask": broadcast[1] - ask_tick[1],
+        "wait_ask": ask_step[1] - told,
+        "step_to_ask": broadcast[1] - ask_step[1],
         "serialize": ser,
         "publish": sum(m[2] - m[1] for m in sent),
         "bookkeeping": broadcast[2] - broadcast[1] - ser - sum(m[2] - m[1] for m in sent),
         "network": answer[1] - broadcast[2],
         "own_query_read_back": sum(m[2] - m[1] for m in own),
-        "ask_tick_after_publish": ask_tick[2] - broadcast[2],
+        "ask_step_after_publish": ask_step[2] - broadcast[2],
         "answer_decode": sum(m[2] - m[1] for m in read),
         "answer_check": answer[2] - answer[1] - sum(m[2] - m[1] for m in read),
-        "tick_wait_merge": merge_tick[1] - answer[2],
-        "step_to_accept": accept[1] - merge_tick[1],
+        "wait_merge": merge_step[1] - answer[2],
+        "step_to_accept": accept[1] - merge_step[1],
         "provenance": checks[0],
         "parse_validate": checks[1],
         "merge": checks[2],
@@ -498,9 +508,11 @@ def ours_phases(marks: list[Mark], start: int, told: int, end: int) -> dict[str,
         "accept_records": spent("record", accept[1], accept[2]),
         "accept_publishes": spent("publish", accept[1], accept[2]),
         "accept_kb_add": spent("kb_add", accept[1], accept[2]),
+        "merge_step_rest": rest,
         "step_say": spent("say", accept[2], control_tick[1]),
         "step_appeared": spent("appeared", accept[2], control_tick[1]),
-        "step_to_tick": control_tick[1] - accept[2],
+        "tick_wait_run": waited,
+        "step_to_tick": to_tick,
         "control_tick": control_tick[2] - control_tick[1],
     }
 

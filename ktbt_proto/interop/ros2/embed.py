@@ -310,6 +310,8 @@ class Embedded:
         due, and its entities can no longer be read."""
         if self.closed or not self.node.context.ok():
             return
+        if not tick and self.transport.clock() <= 0:
+            return  # a simulation's clock not started: its timer does not run either
         self.agent.now = self.tree.count
         with speaking(self.logger):  # the library's records of this robot: its node's
             try:

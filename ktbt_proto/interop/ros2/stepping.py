@@ -33,28 +33,37 @@ class Stepping:
     def __init__(self, node: Node, step: Callable[[bool], None]) -> None:
         self.node, self._step = node, step
         self._between = 0
-        # Steady time: a host under use_sim_time still steps at once, whatever its clock does.
+        self.closed = False
+        # Steady time: armed, it fires at once whatever the host's clock (the host's step
+        # does nothing while a simulation's clock has not started).
         self._wake = node.create_timer(
-            0.0, self._woken, clock=Clock(clock_type=ClockType.STEADY_TIME)
+            0.0, self._woken, clock=Clock(clock_type=ClockType.STEADY_TIME), autostart=False
         )
-        self._wake.cancel()
 
     def tick(self) -> None:
         """A tick of the host's timer: one step that ticks (section 4.5)."""
         self._between = 0
         self._step(True)
 
+    def again(self) -> None:
+        """Steps between ticks may be taken again (a node that was inactive, activated)."""
+        self._between = 0
+
     def soon(self) -> None:
-        """Step once more before the next tick, unless enough steps were taken since the last."""
-        if self._between >= STEPS_BETWEEN_TICKS:
+        """Step once more before the next tick, unless enough steps were taken since the last
+        (or it was closed)."""
+        if self.closed or self._between >= STEPS_BETWEEN_TICKS:
             return  # the next tick takes what arrived
         self._between += 1
         self._wake.reset()
 
     def _woken(self) -> None:
         self._wake.cancel()
-        self._step(False)
+        if not self.closed:
+            self._step(False)
 
     def close(self) -> None:
         """Take its timer off the node."""
-        self.node.destroy_timer(self._wake)
+        if not self.closed:
+            self.closed = True
+            self.node.destroy_timer(self._wake)

@@ -343,6 +343,8 @@ class KtbtNode(LifecycleNode):
             if warning is not None:
                 self.logger.warning(warning)
         self._start_timers(float(self._param("tick_rate")), float(self._param("snapshot_period")))
+        if self._stepping is not None:  # what was asked for while inactive stepped nothing
+            self._stepping.again()
         self._show(periodic=True)  # a snapshot on every activation, changed or not
         self.logger.info(f"{self.transport.name}: active")
         return TransitionCallbackReturn.SUCCESS
@@ -444,18 +446,19 @@ class KtbtNode(LifecycleNode):
     # -- running --------------------------------------------------------------------------------
 
     def _tick(self) -> None:
+        """A tick of the node's timer: a step of the fleet member (:meth:`_step`)."""
         if self._stepping is not None:
             self._stepping.tick()
 
     def _step(self, tick: bool) -> None:
         """One step of the fleet member (section 4.5), then what changed is shown: at a tick,
         or between two (``tick`` False, :class:`Stepping`: an answer arrived, or it was told its
-        sequences) while active; nothing once the context is shut down (a timer that was due
-        may still run)."""
+        sequences) while active and its clock runs (a simulation's clock started); nothing
+        once the context is shut down (a timer that was due may still run)."""
         member, transport = self.member, self.transport
         if member is None or transport is None or not self.context.ok():
             return
-        if not tick and not transport.active:
+        if not tick and (not transport.active or transport.clock() <= 0):
             return
         if tick:
             member.agent.now += 1

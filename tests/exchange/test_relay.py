@@ -225,6 +225,28 @@ def liar(port: int, connect: int, hold: bool = False) -> Iterator[tuple[Any, lis
         session.close()
 
 
+def asked_by(
+    stack: ExitStack,
+    learner: FleetMember,
+    network: ZenohTransport,
+    ports: tuple[int, int],
+    hold: bool = False,
+) -> tuple[Any, list[str], Any, float]:
+    """A liar on the first of ``ports`` dialling the learner's, reached; then the learner's
+    first step asks (a broadcast, which the liar gets, and with ``hold`` holds) and starts
+    hearing announcements: the liar's session, the queries it got, its announcement publisher
+    and the member's clock then."""
+    session, queries = stack.enter_context(liar(*ports, hold=hold))
+    lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
+    stack.callback(lies.undeclare)
+    reach(network, queries)
+    t0 = time.monotonic()
+    while not (queries and lies.matching_status.matching):
+        assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
+        step(learner, now=t0)
+    return session, queries, lies, t0
+
+
 def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
     quiet: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -233,15 +255,8 @@ def test_a_hostile_announcer_is_refused_or_costs_one_bounded_ask(
         learner, network = stack.enter_context(
             member("learner", line_settings(quiet, pl), wait=30.0)
         )
-        session, queries = stack.enter_context(liar(ph, pl, hold=True))
-        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
-        stack.callback(lies.undeclare)
-        reach(network, queries)
-        t0 = time.monotonic()
         # Its first step asks (a broadcast, which the liar gets and holds) and starts hearing.
-        while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
-            step(learner, now=t0)
+        session, queries, lies, t0 = asked_by(stack, learner, network, (ph, pl), hold=True)
         # Bad bytes, the wrong shape, a name no peer has, too large: each a counted refusal.
         bad = [b"\xff", b"[]", b'{"v": 1}', b'["<c>(A)", "<c>(A)"]', b"[" + b" " * 70_000 + b"]"]
         for payload in bad:
@@ -316,14 +331,7 @@ def test_an_announcement_waits_for_no_answer_that_cannot_come(quiet: Path) -> No
         learner, network = stack.enter_context(
             member("learner", line_settings(quiet, pl), wait=30.0)
         )
-        session, queries = stack.enter_context(liar(ph, pl))
-        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
-        stack.callback(lies.undeclare)
-        reach(network, queries)
-        t0 = time.monotonic()
-        while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
-            step(learner, now=t0)
+        _, queries, lies, t0 = asked_by(stack, learner, network, (ph, pl))
         query = learner.agent.open_query
         assert query is not None and learner.learner.sent == {"": t0}
         assert wait_until(lambda: not network.awaiting(query.id))  # the liar finished it
@@ -342,14 +350,7 @@ def test_an_announcement_kept_while_the_query_closed_is_due_at_once(quiet: Path)
     with ExitStack() as stack:
         learner, network = stack.enter_context(member("learner", line_settings(quiet, pl)))
         network.query_timeout = 120.0  # the liar holds the broadcast's get open throughout
-        session, queries = stack.enter_context(liar(ph, pl, hold=True))
-        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
-        stack.callback(lies.undeclare)
-        reach(network, queries)
-        t0 = time.monotonic()
-        while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
-            step(learner, now=t0)
+        _, queries, lies, t0 = asked_by(stack, learner, network, (ph, pl), hold=True)
         lies.put(encode_learned([GREEN]))
         assert wait_until(lambda: network.announcements >= 1)
         step(learner, now=t0 + 0.4)  # kept: the broadcast's answer may be on its way
@@ -370,14 +371,7 @@ def test_announcements_stretch_an_open_querys_wait_once_at_most(quiet: Path) -> 
         learner, network = stack.enter_context(
             member("learner", line_settings(quiet, pl), wait=3.0)
         )
-        session, queries = stack.enter_context(liar(ph, pl))
-        lies: Any = session.declare_publisher("ktbt/v1/learned/liar", congestion_control=BLOCK)
-        stack.callback(lies.undeclare)
-        reach(network, queries)
-        t0 = time.monotonic()
-        while not (queries and lies.matching_status.matching):
-            assert time.monotonic() < t0 + 60  # discovery, however loaded the machine
-            step(learner, now=t0)
+        _, queries, lies, t0 = asked_by(stack, learner, network, (ph, pl))
         query = learner.agent.open_query
         assert query is not None
         for when, asked in ((t0 + 1.5, 2), (t0 + 3.6, 3)):  # each past the last one's hold

@@ -20,27 +20,27 @@ from tests.interop.ros2.rosns import RosNamespace
 
 pytestmark = [pytest.mark.network, pytest.mark.slow, pytest.mark.timeout(300)]
 
-SCRIPT = """
+PRELUDE = """
 import json, sys, time
-import rclpy
+import py_trees, rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.parameter import Parameter
+from ktbt_proto.exchange.member import FleetMember
+from ktbt_proto.interop.ros2.embed import attach
 from ktbt_proto.items import sequence_key
+from ktbt_proto.tools.demo import demo_registry
 from ktbt_proto.tools.ros2.node import KtbtNode
 
 kind, colours = sys.argv[1], sys.argv[2]
+green = sequence_key(["TargetSeen(colour=2)"])
 rclpy.init()
+executor = EventsExecutor() if kind == "events" else SingleThreadedExecutor()
 teacher = KtbtNode(namespace="/teacher", parameter_overrides=[
     Parameter("knowledge", value=colours), Parameter("sequences", value=["TargetSeen(colour=1)"])])
-learner = KtbtNode(namespace="/learner", parameter_overrides=[
-    Parameter("tick_rate", value=0.001), Parameter("sequences", value=["TargetSeen(colour=1)"])])
-for node in (teacher, learner):
-    node.trigger_configure()
-    node.trigger_activate()
-executor = EventsExecutor() if kind == "events" else SingleThreadedExecutor()
+teacher.trigger_configure()
+teacher.trigger_activate()
 executor.add_node(teacher)
-executor.add_node(learner)
 
 def spin_until(done, seconds=120):
     deadline = time.monotonic() + seconds
@@ -49,10 +49,22 @@ def spin_until(done, seconds=120):
             raise SystemExit("timed out")
         executor.spin_once(timeout_sec=0.05)
 
-# Each hears the other's queries and answers (DDS matched both ways), before it is told.
-spin_until(lambda: learner.transport._queries.get_subscription_count() >= 2
-           and teacher.transport._answers.get_subscription_count() >= 2)
-green = sequence_key(["TargetSeen(colour=2)"])
+def matched(transport):
+    # until each hears the other's queries and answers (DDS matched both ways)
+    spin_until(lambda: transport._queries.get_subscription_count() >= 2
+               and teacher.transport._answers.get_subscription_count() >= 2)
+"""
+"""The teacher (a lifecycle node knowing the colours) and the helpers both scripts use."""
+
+SCRIPT = (
+    PRELUDE
+    + """
+learner = KtbtNode(namespace="/learner", parameter_overrides=[
+    Parameter("tick_rate", value=0.001), Parameter("sequences", value=["TargetSeen(colour=1)"])])
+learner.trigger_configure()
+learner.trigger_activate()
+executor.add_node(learner)
+matched(learner.transport)  # before it is told
 learner.set_parameters([Parameter("sequences", value=["TargetSeen(colour=2)"])])
 spin_until(lambda: learner.agent.knows([green]))
 learned_at = learner.agent.now
@@ -67,20 +79,11 @@ for node in (teacher, learner):
     node.destroy_node()
 rclpy.shutdown()
 """
+)
 
-
-EMBEDDED = """
-import json, sys, time
-import py_trees, rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.experimental.events_executor import EventsExecutor
-from rclpy.parameter import Parameter
-from ktbt_proto.exchange.member import FleetMember
-from ktbt_proto.interop.ros2.embed import attach
-from ktbt_proto.items import sequence_key
-from ktbt_proto.tools.demo import demo_registry
-from ktbt_proto.tools.ros2.node import KtbtNode
-
+EMBEDDED = (
+    PRELUDE
+    + """
 runs = []
 step = FleetMember.step
 def counted(self, now, tick=True):  # the embedded robot's steps at a run of its timer
@@ -89,31 +92,13 @@ def counted(self, now, tick=True):  # the embedded robot's steps at a run of its
     return step(self, now, tick=tick)
 FleetMember.step = counted
 
-kind, colours = sys.argv[1], sys.argv[2]
-rclpy.init()
-teacher = KtbtNode(namespace="/teacher", parameter_overrides=[
-    Parameter("knowledge", value=colours), Parameter("sequences", value=["TargetSeen(colour=1)"])])
-teacher.trigger_configure()
-teacher.trigger_activate()
 user = rclpy.create_node("bt", namespace="/robot1")
 root = py_trees.composites.Selector("Root", memory=False, children=[
     py_trees.composites.Selector("k:new", memory=False), py_trees.behaviours.Running("Wander")])
 tree = py_trees.trees.BehaviourTree(root)
 robot = attach(user, tree, demo_registry(), sequences=[], period=60.0)
-executor = EventsExecutor() if kind == "events" else SingleThreadedExecutor()
-executor.add_node(teacher)
 executor.add_node(user)
-
-def spin_until(done, seconds=120):
-    deadline = time.monotonic() + seconds
-    while not done():
-        if time.monotonic() > deadline:
-            raise SystemExit("timed out")
-        executor.spin_once(timeout_sec=0.05)
-
-spin_until(lambda: robot.transport._queries.get_subscription_count() >= 2
-           and teacher.transport._answers.get_subscription_count() >= 2)
-green = sequence_key(["TargetSeen(colour=2)"])
+matched(robot.transport)  # before it is told
 robot.meet("TargetSeen(colour=2)")
 spin_until(lambda: robot.knows([green]))
 timer_runs = len(runs)
@@ -129,6 +114,7 @@ teacher.destroy_node()
 user.destroy_node()
 rclpy.shutdown()
 """
+)
 
 
 def run_script(ns: RosNamespace, tmp: Path, text: str, name: str, kind: str) -> dict[str, Any]:

@@ -229,28 +229,33 @@ class Embedded:
             self.agent.slot = slot
             if knowledge is not None:
                 self._start_with(knowledge, slot)
+            agent = self.agent
+            self.shown = ShownTopics(node, name, catalog(agent.knowledge, security.identity),
+                                     log, security.identity, PREFIX)  # fmt: skip
+            # Read for what to meet when told none; heard always, each republished catalog as
+            # its robot's announcement of what it learned (section 11).
+            self._catalogs = FleetCatalogs(
+                node, self.shown.catalog_topic, fleet=self.transport.peers
+            )
+            self.member = FleetMember(
+                agent,
+                self.transport,
+                self._catalogs,
+                todo,
+                wait=wait,
+                cooldown=0.0,
+                say=self.logger.info,
+                ticks_control=False,  # the user ticks the tree
+                relay=self._catalogs,
+            )
+            self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
         except BaseException:
+            for made in ("_catalogs", "shown"):
+                if getattr(self, made, None) is not None:
+                    getattr(self, made).close()
             self.transport.close()
             self._unhook()
             raise
-        agent = self.agent
-        self.shown = ShownTopics(node, name, catalog(agent.knowledge, security.identity), log,
-                           security.identity, PREFIX)  # fmt: skip
-        # Read for what to meet when told none; heard always, each republished catalog as its
-        # robot's announcement of what it learned (section 11).
-        self._catalogs = FleetCatalogs(node, self.shown.catalog_topic, fleet=self.transport.peers)
-        self.member = FleetMember(
-            agent,
-            self.transport,
-            self._catalogs,
-            todo,
-            wait=wait,
-            cooldown=0.0,
-            say=self.logger.info,
-            ticks_control=False,  # the user ticks the tree
-            relay=self._catalogs,
-        )
-        self._offered = Services(node, self.member, self.shown, self._show, PREFIX)
 
     def _start_with(self, knowledge: KnowledgeBase, slot: str) -> None:
         """The items it starts knowing, in the placeholders they name (else ``prior``, else its

@@ -105,10 +105,16 @@ def catalog(
     knowledge: KnowledgeBase, identity: Identity | None = None
 ) -> Callable[[], list[str | dict[str, Any]]]:
     """What the catalog queryable answers: each sequence with its provenance (a peer with a key
-    pair is the author of the items it holds unsigned: it signs them when it answers)."""
+    pair is the author of the items it holds unsigned: it signs them when it answers). The
+    same list while the knowledge is unchanged (:attr:`KnowledgeBase.version`), since a ROS
+    robot compares its catalog with the one it showed at every tick: read it, never change
+    it."""
     own = identity.public if identity is not None else None
+    built: list[tuple[int, list[str | dict[str, Any]]]] = []
 
     def entries() -> list[str | dict[str, Any]]:
+        if built and built[0][0] == knowledge.version:
+            return built[0][1]
         out: list[str | dict[str, Any]] = []
         for item in knowledge:
             entry = {
@@ -118,6 +124,7 @@ def catalog(
                 "received_at": item.received_at,
             }
             out.append({k: v for k, v in entry.items() if v is not None})
+        built[:] = [(knowledge.version, out)]
         return out
 
     return entries

@@ -75,6 +75,10 @@ class KnowledgeBase:
 
     def __init__(self, items: Iterable[Knowledge] = ()) -> None:
         self._items: dict[str, Knowledge] = {}
+        self.version = 0
+        """Counts the changes (an item added or removed): what is built from the items (a
+        catalog, :func:`~ktbt_proto.exchange.answers.catalog`) is built again only when it
+        moved."""
         for item in items:
             self.add(item)
 
@@ -96,6 +100,7 @@ class KnowledgeBase:
         if key in self._items:
             return False
         self._items[key] = item
+        self.version += 1
         return True
 
     def lookup(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
@@ -103,7 +108,10 @@ class KnowledgeBase:
 
     def remove(self, sequence: str | Iterable[Condition]) -> Knowledge | None:
         """Forget the item answering ``sequence``; the item, or None if it was not known."""
-        return self._items.pop(sequence_key(sequence), None)
+        item = self._items.pop(sequence_key(sequence), None)
+        if item is not None:
+            self.version += 1
+        return item
 
     def __contains__(self, key: object) -> bool:
         return key in self._items

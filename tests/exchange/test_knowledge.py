@@ -100,6 +100,26 @@ def test_the_first_answer_is_kept_and_a_removed_item_can_be_added_again() -> Non
     assert compact(kb)[DOOR] == "<a>(Kick)"
 
 
+def test_a_catalog_is_built_again_only_when_an_item_comes_or_goes() -> None:
+    """A robot compares its catalog with the one it showed at every tick (section 11): the
+    same list while nothing changed, a new one once an item is added or removed, but not
+    when an add keeps the first answer."""
+    from ktbt_proto.exchange.answers import catalog
+
+    kb = KnowledgeBase([item(DOOR, "<a>(Push)", source="t1")])
+    entries = catalog(kb)
+    first = entries()
+    assert entries() is first and first == [{"sequence": DOOR, "teacher": "t1"}]
+    assert kb.add(item(DOOR, "<a>(Kick)", source="x")) is False
+    assert entries() is first
+    kb.add(item(GREEN, "<a>(Pick,colour=2)", source="t2"))
+    second = entries()
+    assert second is not first and [e["sequence"] for e in second] == [DOOR, GREEN]  # type: ignore[index]
+    kb.remove(DOOR)
+    assert entries() == [{"sequence": GREEN, "teacher": "t2"}]
+    assert kb.remove(DOOR) is None and entries() == [{"sequence": GREEN, "teacher": "t2"}]
+
+
 def test_the_items_as_a_tree_one_placeholder_per_segment() -> None:
     kb = KnowledgeBase.from_tree(parse(TREE))
     kb.add(item("<c>(Low)", "<a>(Dock)", "prior"))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import threading
 import time
@@ -177,22 +178,46 @@ class Rest:
 def until_signalled(also: Sequence[threading.Event] = ()) -> Iterator[threading.Event]:
     """An event set by SIGINT or SIGTERM, so a long-running command can close cleanly; the
     events in ``also`` (as it holds them when the signal comes) are set too, so that a loop
-    waiting on one of them ends at once."""
+    waiting on one of them ends at once.
+
+    The events are set by a thread of its own, woken through the signal module's wakeup file
+    descriptor, never by the Python signal handler: a handler runs in the main thread between
+    any two of its bytecodes, so one that sets an event could wait for that event's lock while
+    the main thread it interrupted holds it (inside ``Event.wait``), and the process would
+    never end (a second SIGTERM while the first was being handled did so)."""
     stop = threading.Event()
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    wanted = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.getsignal(s) for s in wanted}
+    read, write = os.pipe()
+    os.set_blocking(write, False)
 
-    def stopped(*_: object) -> None:
-        stop.set()
-        for event in also:
-            event.set()
+    def watch() -> None:
+        while data := os.read(read, 64):  # the signals' numbers; b"": the context ended
+            if any(n in wanted for n in data):
+                stop.set()
+                for event in also:
+                    event.set()
 
-    for sig in previous:
-        signal.signal(sig, stopped)
+    watcher = threading.Thread(target=watch, name="ktbt-signals", daemon=True)
+    watcher.start()
+    before = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+    for sig in wanted:
+        signal.signal(sig, _noted)
     try:
         yield stop
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        signal.set_wakeup_fd(before)
+        os.close(write)
+        watcher.join()
+        os.close(read)
+
+
+def _noted(signum: int, frame: object) -> None:
+    """A signal's Python handler while :func:`until_signalled` holds: nothing (its watcher
+    acts on the signal); installed so that the signal neither ends nor interrupts the
+    process."""
 
 
 def announce_ready(path: Path | None, peer: str, knows: int | None) -> None:

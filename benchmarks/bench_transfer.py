@@ -389,22 +389,36 @@ def run_round_trips(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
                         ):
                             samples.append(ns)
     result: dict[str, Any] = {
-        "rounds": rounds,
-        "warmup_rounds": warmup,
-        "connect_s": {k: round(v, 2) for k, v in connect_s.items()},
-        "payload_bytes": {"query": len(query_bytes), "response": len(response_bytes)},
-        "raw": _us(raw_ns),
-        "ours": _us(ours_ns),
+        **_measured(rounds, warmup, connect_s, (query_bytes, response_bytes), raw_ns, ours_ns),
         "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
         "ours_ask_inside": {name: _us(s) for name, s in zip(INSIDE, inside, strict=True)},
         "raw_inside": {"callback": _us(raw_callbacks), "zenoh_rest": _us(raw_zenoh)},
         "teacher_before_reply": _us(before_reply),
         "asker_own_queryable_visits": len(learner.query_ns),
     }
-    result["ratio"] = {
-        q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
-    }
     return result
+
+
+def _measured(
+    rounds: int,
+    warmup: int,
+    connect_s: dict[str, float],
+    payloads: tuple[bytes, bytes],
+    raw_ns: list[int],
+    ours_ns: list[int],
+) -> dict[str, Any]:
+    """What every layout's result starts with: its rounds, connection times, payload sizes,
+    both contenders' figures and ours over raw."""
+    raw, ours = _us(raw_ns), _us(ours_ns)
+    return {
+        "rounds": rounds,
+        "warmup_rounds": warmup,
+        "connect_s": {k: round(v, 2) for k, v in connect_s.items()},
+        "payload_bytes": {"query": len(payloads[0]), "response": len(payloads[1])},
+        "raw": raw,
+        "ours": ours,
+        "ratio": {q: round(ours[q] / raw[q], 2) for q in ("median", "p90", "p99")},
+    }
 
 
 # -- two processes: the teacher in a child of its own, as two robots run it -----------------------
@@ -530,21 +544,13 @@ def run_two_processes(rounds: int, warmup: int = WARMUP) -> dict[str, Any]:
             if stream is not None:
                 stream.close()
     result: dict[str, Any] = {
-        "rounds": rounds,
-        "warmup_rounds": warmup,
-        "connect_s": {k: round(v, 2) for k, v in connect_s.items()},
-        "payload_bytes": {"query": len(query_bytes), "response": len(response_bytes)},
-        "raw": _us(raw_ns),
-        "ours": _us(ours_ns),
+        **_measured(rounds, warmup, connect_s, (query_bytes, response_bytes), raw_ns, ours_ns),
         "ours_phases": {name: _us(s) for name, s in zip(PHASES, phases, strict=True)},
         "learner_reply": _us(replies),
         "teacher_callback": in_child["teacher_callback"],
         "teacher_before_reply": in_child["teacher_before_reply"],
         "raw_callback": in_child["raw_callback"],
         "asker_own_queryable_visits": len(learner.query_ns),
-    }
-    result["ratio"] = {
-        q: round(result["ours"][q] / result["raw"][q], 2) for q in ("median", "p90", "p99")
     }
     return result
 

@@ -422,20 +422,14 @@ class FleetMember:
         """Nothing left to learn, and (told no sequences) something was listed and learned."""
         return not self.todo and (self.listed is None or bool(self.listed.found))
 
-    @property
-    def settled(self) -> bool:
-        """Nothing to learn and nothing under way: no query open, no announcement waiting
-        (section 4.5). A settled member's step only reads what arrived, so its host may step it
-        less often until something does (``ktbt peer run``'s rest rate)."""
-        return not self.todo and self.agent.open_query is None and not self._waiting
-
     def due(self, now: float) -> float:
         """When its next step may act though nothing arrived (section 4.5, the host's clock):
         the learner's next timed ask or close (:meth:`Learner.due`), or an announcement kept
         while an answer may be on its way is taken (:data:`RELAY_GRACE` over); ``math.inf``
-        when settled. Anything that arrives may bring it sooner: a host that sleeps until then
-        wakes for what arrives (``ktbt peer run``'s rest). The catalogs' period is not in it: a
-        host sleeps a bounded time (``REST_RATE``), so a reading may come that much late."""
+        when settled (nothing to learn, no query open, no announcement waiting). Anything that
+        arrives may bring it sooner: a host that sleeps until then wakes for what arrives
+        (``ktbt peer run``'s rest). The catalogs' period is not in it: a host sleeps a bounded
+        time (``REST_RATE``), so a reading may come that much late."""
         due = self.learner.due(now, self.todo)
         if self._waiting:
             if self.agent.open_query is None:  # closed since: nothing to wait for

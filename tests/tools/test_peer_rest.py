@@ -6,6 +6,7 @@ rate."""
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import ExitStack
 from dataclasses import replace
@@ -83,7 +84,8 @@ def test_a_settled_robot_rests_once_steady_and_anything_keeps_it_at_full_rate() 
         member = FleetMember(robot, transport, None, [GREEN], 2.0, 0.5, lambda _: None)
         rest = Rest(robot, member, PERIOD, RESTING)
         rested = [_step(robot, member, rest) for _ in range(STEADY_STEPS + 1)]
-        assert member.settled and rested[-1] and not any(rested[: STEADY_STEPS - 1])
+        assert member.due(time.monotonic()) == math.inf  # settled: no timed act
+        assert rested[-1] and not any(rested[: STEADY_STEPS - 1])
 
         robot.blackboard["target"] = 2  # it picks and delivers, again and again: never at rest
         assert not any(_step(robot, member, rest) for _ in range(3 * STEADY_STEPS))
